@@ -1,0 +1,456 @@
+//! NIfTI-1 and NIfTI-2 (`.nii`, `.nii.gz`) reading and writing.
+//!
+//! Why not the `nifti` crate: version 0.18 reads NIfTI-1 only (it rejects `sizeof_hdr = 540`), and its
+//! writer needs ndarray. Both header versions differ only in field widths and offsets, so one decoder
+//! serves both here. The affine follows the standard's precedence: sform (code > 0), else qform
+//! (code > 0), else the "method 1" diagonal of pixdim.
+
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+
+use glam::{DMat3, DMat4, DQuat, DVec3, DVec4};
+
+use crate::error::{Error, Result};
+use crate::volume::{Scalar, Volume};
+
+/// Which header fields produced `world_from_voxel`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AffineSource {
+    Sform,
+    Qform,
+    Pixdim,
+}
+
+/// The header fields a user or a writer needs; the rest of the header is not kept.
+#[derive(Clone, Debug)]
+pub struct NiftiHeader {
+    /// 1 or 2.
+    pub version: u8,
+    pub big_endian: bool,
+    pub datatype: i16,
+    pub shape: Vec<usize>,
+    pub pixdim: [f64; 8],
+    pub scl_slope: f64,
+    pub scl_inter: f64,
+    pub qform_code: i32,
+    pub sform_code: i32,
+    pub affine_source: AffineSource,
+    pub world_from_voxel: DMat4,
+    pub xyzt_units: i32,
+    pub descrip: String,
+    pub vox_offset: u64,
+}
+
+/// Datatype codes of the NIfTI standard that can be decoded to a real scalar.
+fn datatype_size(code: i16) -> Option<usize> {
+    Some(match code {
+        2 | 256 => 1,       // uint8, int8
+        4 | 512 => 2,       // int16, uint16
+        8 | 768 | 16 => 4,  // int32, uint32, float32
+        64 | 1024 | 1280 => 8, // float64, int64, uint64
+        _ => return None,
+    })
+}
+
+/// Human-readable datatype name, for `fascicle info` and error messages.
+pub fn datatype_name(code: i16) -> &'static str {
+    match code {
+        2 => "uint8",
+        4 => "int16",
+        8 => "int32",
+        16 => "float32",
+        32 => "complex64",
+        64 => "float64",
+        128 => "rgb24",
+        256 => "int8",
+        512 => "uint16",
+        768 => "uint32",
+        1024 => "int64",
+        1280 => "uint64",
+        1536 => "float128",
+        1792 => "complex128",
+        2048 => "complex256",
+        2304 => "rgba32",
+        _ => "unknown",
+    }
+}
+
+/// Reads a whole file, gunzipping it when it starts with the gzip magic (whatever its name says).
+pub(crate) fn read_maybe_gz(path: &Path) -> Result<Vec<u8>> {
+    let raw = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    if raw.len() >= 2 && raw[0] == 0x1f && raw[1] == 0x8b {
+        let mut out = Vec::with_capacity(raw.len() * 4);
+        flate2::read::MultiGzDecoder::new(&raw[..])
+            .read_to_end(&mut out)
+            .map_err(|e| Error::format(path, format!("corrupt gzip stream: {e}")))?;
+        Ok(out)
+    } else {
+        Ok(raw)
+    }
+}
+
+/// Little helper reading fixed-offset fields of either endianness.
+struct Fields<'a> {
+    b: &'a [u8],
+    be: bool,
+}
+impl Fields<'_> {
+    fn arr<const N: usize>(&self, o: usize) -> [u8; N] {
+        let mut a = [0u8; N];
+        a.copy_from_slice(&self.b[o..o + N]);
+        if self.be {
+            a.reverse();
+        }
+        a
+    }
+    fn i16(&self, o: usize) -> i16 {
+        i16::from_le_bytes(self.arr(o))
+    }
+    fn i32(&self, o: usize) -> i32 {
+        i32::from_le_bytes(self.arr(o))
+    }
+    fn i64(&self, o: usize) -> i64 {
+        i64::from_le_bytes(self.arr(o))
+    }
+    fn f32(&self, o: usize) -> f64 {
+        f32::from_le_bytes(self.arr(o)) as f64
+    }
+    fn f64(&self, o: usize) -> f64 {
+        f64::from_le_bytes(self.arr(o))
+    }
+    fn text(&self, o: usize, n: usize) -> String {
+        let s = &self.b[o..o + n];
+        let end = s.iter().position(|&c| c == 0).unwrap_or(n);
+        String::from_utf8_lossy(&s[..end]).trim().to_string()
+    }
+}
+
+/// Parses a NIfTI-1 or NIfTI-2 header from the start of `bytes`.
+pub fn parse_header(bytes: &[u8], path: &Path) -> Result<NiftiHeader> {
+    if bytes.len() < 4 {
+        return Err(Error::format(path, "file too short for a NIfTI header"));
+    }
+    let le = i32::from_le_bytes(bytes[0..4].try_into().unwrap_or_default());
+    let be = i32::from_be_bytes(bytes[0..4].try_into().unwrap_or_default());
+    let (version, big_endian, hdr_len) = match (le, be) {
+        (348, _) => (1u8, false, 348usize),
+        (_, 348) => (1, true, 348),
+        (540, _) => (2, false, 540),
+        (_, 540) => (2, true, 540),
+        _ => {
+            return Err(Error::format(path, format!("not a NIfTI file: sizeof_hdr is {le}, expected 348 or 540")));
+        }
+    };
+    if bytes.len() < hdr_len {
+        return Err(Error::format(
+            path,
+            format!("truncated NIfTI-{version} header: {} of {hdr_len} bytes", bytes.len()),
+        ));
+    }
+    let f = Fields { b: bytes, be: big_endian };
+    let mut dim = [0i64; 8];
+    let mut pixdim = [0f64; 8];
+    let (datatype, vox_offset, scl_slope, scl_inter, qform_code, sform_code, quat, qoff, srow, xyzt, descrip);
+    if version == 1 {
+        let magic = &bytes[344..348];
+        if magic != b"n+1\0" && magic != b"ni1\0" {
+            return Err(Error::format(path, "NIfTI-1 magic is neither 'n+1' nor 'ni1' (Analyze files are not read)"));
+        }
+        if magic == b"ni1\0" {
+            return Err(Error::format(path, "two-file NIfTI (.hdr/.img, magic 'ni1') is not supported; convert to .nii"));
+        }
+        for (i, d) in dim.iter_mut().enumerate() {
+            *d = f.i16(40 + 2 * i) as i64;
+        }
+        for (i, p) in pixdim.iter_mut().enumerate() {
+            *p = f.f32(76 + 4 * i);
+        }
+        datatype = f.i16(70);
+        let off = f.f32(108);
+        vox_offset = if off.is_finite() && off >= 0.0 { off as u64 } else { u64::MAX };
+        scl_slope = f.f32(112);
+        scl_inter = f.f32(116);
+        xyzt = bytes[123] as i32;
+        descrip = f.text(148, 80);
+        qform_code = f.i16(252) as i32;
+        sform_code = f.i16(254) as i32;
+        quat = [f.f32(256), f.f32(260), f.f32(264)];
+        qoff = [f.f32(268), f.f32(272), f.f32(276)];
+        srow = [0, 1, 2].map(|r| [0, 1, 2, 3].map(|c| f.f32(280 + 16 * r + 4 * c)));
+    } else {
+        if &bytes[4..8] != b"n+2\0" {
+            return Err(Error::format(path, "NIfTI-2 magic is not 'n+2'"));
+        }
+        datatype = f.i16(12);
+        for (i, d) in dim.iter_mut().enumerate() {
+            *d = f.i64(16 + 8 * i);
+        }
+        for (i, p) in pixdim.iter_mut().enumerate() {
+            *p = f.f64(104 + 8 * i);
+        }
+        let off = f.i64(168);
+        vox_offset = if off >= 0 { off as u64 } else { u64::MAX };
+        scl_slope = f.f64(176);
+        scl_inter = f.f64(184);
+        descrip = f.text(240, 80);
+        qform_code = f.i32(344);
+        sform_code = f.i32(348);
+        quat = [f.f64(352), f.f64(360), f.f64(368)];
+        qoff = [f.f64(376), f.f64(384), f.f64(392)];
+        srow = [0, 1, 2].map(|r| [0, 1, 2, 3].map(|c| f.f64(400 + 32 * r + 8 * c)));
+        xyzt = f.i32(500);
+    }
+    let ndim = dim[0];
+    if !(1..=7).contains(&ndim) {
+        return Err(Error::format(path, format!("dim[0] = {ndim}: a NIfTI image has 1 to 7 dimensions")));
+    }
+    let mut shape = Vec::with_capacity(ndim as usize);
+    for (i, &d) in dim.iter().enumerate().skip(1).take(ndim as usize) {
+        if d < 1 {
+            return Err(Error::format(path, format!("dim[{i}] = {d}: every dimension must be at least 1")));
+        }
+        shape.push(d as usize);
+    }
+    if datatype_size(datatype).is_none() {
+        return Err(Error::format(
+            path,
+            format!("datatype {datatype} ({}) cannot be read as a real scalar", datatype_name(datatype)),
+        ));
+    }
+    if vox_offset == u64::MAX || vox_offset < hdr_len as u64 {
+        return Err(Error::format(path, format!("vox_offset must be at least {hdr_len}")));
+    }
+    let (world_from_voxel, affine_source) = if sform_code > 0 {
+        let m = srow;
+        let a = DMat4::from_cols(
+            DVec4::new(m[0][0], m[1][0], m[2][0], 0.0),
+            DVec4::new(m[0][1], m[1][1], m[2][1], 0.0),
+            DVec4::new(m[0][2], m[1][2], m[2][2], 0.0),
+            DVec4::new(m[0][3], m[1][3], m[2][3], 1.0),
+        );
+        (a, AffineSource::Sform)
+    } else if qform_code > 0 {
+        (qform_affine(quat, qoff, &pixdim), AffineSource::Qform)
+    } else {
+        let z = |v: f64| if v > 0.0 && v.is_finite() { v } else { 1.0 };
+        (DMat4::from_diagonal(DVec4::new(z(pixdim[1]), z(pixdim[2]), z(pixdim[3]), 1.0)), AffineSource::Pixdim)
+    };
+    if !world_from_voxel.is_finite() || world_from_voxel.determinant() == 0.0 {
+        return Err(Error::format(path, format!("the {affine_source:?} affine is singular or not finite")));
+    }
+    Ok(NiftiHeader {
+        version,
+        big_endian,
+        datatype,
+        shape,
+        pixdim,
+        scl_slope,
+        scl_inter,
+        qform_code,
+        sform_code,
+        affine_source,
+        world_from_voxel,
+        xyzt_units: xyzt,
+        descrip,
+        vox_offset,
+    })
+}
+
+/// The qform affine of the NIfTI standard (method 2): rotation from the quaternion (b, c, d), voxel sizes
+/// from pixdim, and qfac = pixdim[0] flipping the third axis when negative.
+fn qform_affine(q: [f64; 3], offset: [f64; 3], pixdim: &[f64; 8]) -> DMat4 {
+    let [b, c, d] = q;
+    let a2 = 1.0 - (b * b + c * c + d * d);
+    let (a, b, c, d) = if a2 < 1e-7 {
+        // The standard: a = 0 and (b, c, d) renormalised (a 180 degree rotation).
+        let n = (b * b + c * c + d * d).sqrt().max(f64::MIN_POSITIVE);
+        (0.0, b / n, c / n, d / n)
+    } else {
+        (a2.sqrt(), b, c, d)
+    };
+    let r = DMat3::from_quat(DQuat::from_xyzw(b, c, d, a));
+    let qfac = if pixdim[0] < 0.0 { -1.0 } else { 1.0 };
+    let s = DVec3::new(pixdim[1].abs(), pixdim[2].abs(), qfac * pixdim[3].abs());
+    let m = r * DMat3::from_diagonal(s);
+    DMat4::from_cols(
+        m.x_axis.extend(0.0),
+        m.y_axis.extend(0.0),
+        m.z_axis.extend(0.0),
+        DVec4::new(offset[0], offset[1], offset[2], 1.0),
+    )
+}
+
+/// Reads only the header of a NIfTI file.
+pub fn read_header(path: impl AsRef<Path>) -> Result<NiftiHeader> {
+    let path = path.as_ref();
+    let bytes = read_maybe_gz(path)?;
+    parse_header(&bytes, path)
+}
+
+/// Reads a NIfTI-1/2 file into a volume of `T`, decoding any real datatype and applying scl_slope/inter.
+pub fn read<T: Scalar>(path: impl AsRef<Path>) -> Result<(Volume<T>, NiftiHeader)> {
+    let path = path.as_ref();
+    let bytes = read_maybe_gz(path)?;
+    let h = parse_header(&bytes, path)?;
+    let elem = datatype_size(h.datatype).unwrap_or(1);
+    let n: usize = h
+        .shape
+        .iter()
+        .try_fold(1usize, |acc, &d| acc.checked_mul(d))
+        .ok_or_else(|| Error::format(path, "image dimensions overflow"))?;
+    let need = n.checked_mul(elem).ok_or_else(|| Error::format(path, "image size overflows"))?;
+    let start = h.vox_offset as usize;
+    let available = bytes.len().saturating_sub(start);
+    if available < need {
+        return Err(Error::format(
+            path,
+            format!(
+                "truncated NIfTI: the header ({:?} {}) needs {need} bytes of voxel data after offset {start}, the file holds {available}",
+                h.shape,
+                datatype_name(h.datatype)
+            ),
+        ));
+    }
+    let raw = &bytes[start..start + need];
+    let (slope, inter) = if h.scl_slope != 0.0 && h.scl_slope.is_finite() {
+        (h.scl_slope, if h.scl_inter.is_finite() { h.scl_inter } else { 0.0 })
+    } else {
+        (1.0, 0.0)
+    };
+    let be = h.big_endian;
+    macro_rules! decode {
+        ($t:ty) => {{
+            const S: usize = std::mem::size_of::<$t>();
+            raw.chunks_exact(S)
+                .map(|c| {
+                    let mut a = [0u8; S];
+                    a.copy_from_slice(c);
+                    let v = if be { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) };
+                    T::from_f64(v as f64 * slope + inter)
+                })
+                .collect::<Vec<T>>()
+        }};
+    }
+    let data = match h.datatype {
+        2 => decode!(u8),
+        256 => decode!(i8),
+        4 => decode!(i16),
+        512 => decode!(u16),
+        8 => decode!(i32),
+        768 => decode!(u32),
+        16 => decode!(f32),
+        64 => decode!(f64),
+        1024 => decode!(i64),
+        1280 => decode!(u64),
+        other => return Err(Error::format(path, format!("unsupported datatype {other}"))),
+    };
+    Ok((Volume { shape: h.shape.clone(), data, world_from_voxel: h.world_from_voxel }, h))
+}
+
+/// On-disk element type for writing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WriteType {
+    U8,
+    F32,
+    F64,
+}
+
+/// Writes a volume as NIfTI-1 (gzipped when the name ends in `.gz`), with the affine as sform and qform
+/// (code 1, scanner anatomical). The qform carries the rotation part of the affine; where the affine has
+/// shear, the qform is the nearest rigid approximation and readers use the sform, as the standard says.
+pub fn write<T: Scalar>(path: impl AsRef<Path>, vol: &Volume<T>, ty: WriteType) -> Result<()> {
+    let path = path.as_ref();
+    if vol.shape.is_empty() || vol.shape.len() > 7 {
+        return Err(Error::Shape(format!("cannot write a {}-dimensional NIfTI image", vol.shape.len())));
+    }
+    if vol.shape.iter().any(|&d| d > i16::MAX as usize) {
+        return Err(Error::Shape(format!("dimensions {:?} exceed NIfTI-1's 32767 limit", vol.shape)));
+    }
+    if vol.shape.iter().product::<usize>() != vol.data.len() {
+        return Err(Error::Shape(format!("shape {:?} does not match {} values", vol.shape, vol.data.len())));
+    }
+    let mut h = vec![0u8; 352];
+    let put = |h: &mut Vec<u8>, o: usize, b: &[u8]| h[o..o + b.len()].copy_from_slice(b);
+    put(&mut h, 0, &348i32.to_le_bytes());
+    put(&mut h, 40, &(vol.shape.len() as i16).to_le_bytes());
+    for (i, &d) in vol.shape.iter().enumerate() {
+        put(&mut h, 42 + 2 * i, &(d as i16).to_le_bytes());
+    }
+    for i in vol.shape.len()..7 {
+        put(&mut h, 42 + 2 * i, &1i16.to_le_bytes());
+    }
+    let (code, bitpix): (i16, i16) = match ty {
+        WriteType::U8 => (2, 8),
+        WriteType::F32 => (16, 32),
+        WriteType::F64 => (64, 64),
+    };
+    put(&mut h, 70, &code.to_le_bytes());
+    put(&mut h, 72, &bitpix.to_le_bytes());
+    let a = vol.world_from_voxel;
+    let cols = [a.x_axis.truncate(), a.y_axis.truncate(), a.z_axis.truncate()];
+    let zooms = cols.map(|c| c.length());
+    // qform: rotation of the polar decomposition (columns normalised, made proper by qfac).
+    let mut r = DMat3::from_cols(cols[0] / zooms[0], cols[1] / zooms[1], cols[2] / zooms[2]);
+    let qfac = if r.determinant() < 0.0 {
+        r.z_axis = -r.z_axis;
+        -1.0f32
+    } else {
+        1.0
+    };
+    let q = DQuat::from_mat3(&orthonormalise(r));
+    let q = if q.w < 0.0 { -q } else { q };
+    put(&mut h, 76, &qfac.to_le_bytes());
+    for (i, z) in zooms.iter().enumerate() {
+        put(&mut h, 80 + 4 * i, &(*z as f32).to_le_bytes());
+    }
+    for i in 4..8 {
+        put(&mut h, 76 + 4 * i, &1f32.to_le_bytes());
+    }
+    put(&mut h, 108, &352f32.to_le_bytes());
+    put(&mut h, 112, &1f32.to_le_bytes());
+    h[123] = 2 | 8; // mm, seconds
+    put(&mut h, 148, b"fascicle");
+    put(&mut h, 252, &1i16.to_le_bytes());
+    put(&mut h, 254, &1i16.to_le_bytes());
+    for (i, v) in [q.x, q.y, q.z, a.w_axis.x, a.w_axis.y, a.w_axis.z].iter().enumerate() {
+        put(&mut h, 256 + 4 * i, &(*v as f32).to_le_bytes());
+    }
+    for r in 0..3 {
+        for c in 0..4 {
+            put(&mut h, 280 + 16 * r + 4 * c, &(a.col(c)[r] as f32).to_le_bytes());
+        }
+    }
+    put(&mut h, 344, b"n+1\0");
+    let mut out = h;
+    out.reserve(vol.data.len() * 8);
+    for v in &vol.data {
+        let x = v.to_f64();
+        match ty {
+            WriteType::U8 => out.push(x.round().clamp(0.0, 255.0) as u8),
+            WriteType::F32 => out.extend_from_slice(&(x as f32).to_le_bytes()),
+            WriteType::F64 => out.extend_from_slice(&x.to_le_bytes()),
+        }
+    }
+    let gz = path.extension().is_some_and(|e| e == "gz");
+    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let mut w = std::io::BufWriter::new(file);
+    let res = if gz {
+        let mut enc = flate2::write::GzEncoder::new(w, flate2::Compression::fast());
+        enc.write_all(&out).and_then(|_| enc.finish().map(|_| ()))
+    } else {
+        w.write_all(&out).and_then(|_| w.flush())
+    };
+    res.map_err(|e| Error::io(PathBuf::from(path), e))
+}
+
+/// Nearest rotation to `m` by a few Newton iterations of the polar decomposition.
+fn orthonormalise(mut m: DMat3) -> DMat3 {
+    for _ in 0..20 {
+        let inv_t = m.inverse().transpose();
+        if !inv_t.is_finite() {
+            break;
+        }
+        m = (m + inv_t) * 0.5;
+    }
+    m
+}

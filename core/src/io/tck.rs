@@ -1,0 +1,155 @@
+//! MRtrix `.tck` reading and writing.
+//!
+//! A text header (`mrtrix tracks`, then `key: value` lines, then `END`) names the data offset
+//! (`file: . OFFSET`) and type (`datatype: Float32LE|Float32BE|Float64LE|Float64BE`). The data are point
+//! triples in scanner RAS+ mm; a NaN triple ends a streamline, an Inf triple ends the file. A key repeated
+//! over several lines (multi-line fields) keeps all its values, joined by newlines.
+
+use std::path::Path;
+
+use glam::Vec3;
+
+use super::tractogram::Tractogram;
+use crate::error::{Error, Result};
+
+/// Header key-value pairs in file order (repeated keys merged).
+pub type TckHeader = Vec<(String, String)>;
+
+/// Reads a `.tck` file.
+pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TckHeader)> {
+    let path = path.as_ref();
+    let b = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    const MAGIC: &[u8] = b"mrtrix tracks";
+    if !b.starts_with(MAGIC) || !matches!(b.get(MAGIC.len()), Some(b'\n') | Some(b'\r')) {
+        return Err(Error::format(path, "not an MRtrix tracks file: the first line is not 'mrtrix tracks'"));
+    }
+    let mut header: TckHeader = Vec::new();
+    let mut pos = MAGIC.len() + 1;
+    let mut ended = false;
+    while pos < b.len() {
+        let eol = b[pos..].iter().position(|&c| c == b'\n').map(|i| pos + i);
+        let Some(eol) = eol else { break };
+        let line = String::from_utf8_lossy(&b[pos..eol]).trim().to_string();
+        pos = eol + 1;
+        if line == "END" {
+            ended = true;
+            break;
+        }
+        if line.is_empty() {
+            continue;
+        }
+        let Some((k, v)) = line.split_once(':') else {
+            return Err(Error::format(path, format!("header line '{line}' is not 'key: value'")));
+        };
+        let (k, v) = (k.trim().to_string(), v.trim().to_string());
+        match header.iter_mut().find(|(hk, _)| *hk == k) {
+            Some((_, hv)) => {
+                hv.push('\n');
+                hv.push_str(&v);
+            }
+            None => header.push((k, v)),
+        }
+    }
+    if !ended {
+        return Err(Error::format(path, "the header has no END line"));
+    }
+    let get = |k: &str| header.iter().find(|(hk, _)| hk == k).map(|(_, v)| v.as_str());
+    let file = get("file").ok_or_else(|| Error::format(path, "the header has no 'file' entry"))?;
+    let offset: usize = match file.split_whitespace().collect::<Vec<_>>().as_slice() {
+        [".", off] => off.parse().map_err(|_| Error::format(path, format!("bad data offset in 'file: {file}'")))?,
+        _ => return Err(Error::format(path, format!("'file: {file}': only data in the same file ('.') is supported"))),
+    };
+    let dtype = get("datatype").ok_or_else(|| Error::format(path, "the header has no 'datatype' entry"))?;
+    let (size, be) = match dtype {
+        "Float32LE" => (4, false),
+        "Float32BE" => (4, true),
+        "Float64LE" => (8, false),
+        "Float64BE" => (8, true),
+        other => return Err(Error::format(path, format!("datatype '{other}' is not one of Float32/64 LE/BE"))),
+    };
+    if offset < pos || offset > b.len() {
+        return Err(Error::format(path, format!("data offset {offset} lies outside the data (header ends at {pos}, file is {} bytes)", b.len())));
+    }
+    let read = |o: usize| -> f64 {
+        if size == 4 {
+            let a: [u8; 4] = b[o..o + 4].try_into().unwrap_or_default();
+            (if be { f32::from_be_bytes(a) } else { f32::from_le_bytes(a) }) as f64
+        } else {
+            let a: [u8; 8] = b[o..o + 8].try_into().unwrap_or_default();
+            if be { f64::from_be_bytes(a) } else { f64::from_le_bytes(a) }
+        }
+    };
+    let mut t = Tractogram::new();
+    let mut o = offset;
+    let mut cur = t.points.len();
+    while o + 3 * size <= b.len() {
+        let p = [read(o), read(o + size), read(o + 2 * size)];
+        o += 3 * size;
+        if p.iter().any(|v| v.is_infinite()) {
+            break;
+        }
+        if p.iter().any(|v| v.is_nan()) {
+            if t.points.len() > cur {
+                t.offsets.push(t.points.len());
+            }
+            cur = t.points.len();
+            continue;
+        }
+        t.points.push(Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32));
+    }
+    if t.points.len() > cur {
+        // A last streamline without its NaN terminator (file cut short): keep what is there.
+        t.offsets.push(t.points.len());
+    }
+    if let Some(c) = get("count").and_then(|c| c.trim().parse::<usize>().ok())
+        && c != t.n_streamlines()
+    {
+        return Err(Error::format(
+            path,
+            format!("header count is {c} but the data hold {} streamlines", t.n_streamlines()),
+        ));
+    }
+    Ok((t, header))
+}
+
+/// Writes a `.tck` file (Float32LE) with the given extra header entries.
+pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)]) -> Result<()> {
+    let path = path.as_ref();
+    let mut head = String::from("mrtrix tracks\n");
+    for (k, v) in extra {
+        if ["file", "datatype", "count", "total_count"].contains(&k.as_str()) {
+            continue;
+        }
+        for line in v.lines() {
+            head.push_str(&format!("{k}: {line}\n"));
+        }
+    }
+    head.push_str("datatype: Float32LE\n");
+    head.push_str(&format!("count: {:010}\n", t.n_streamlines()));
+    // The offset line contains its own length: iterate to a fixed point.
+    let mut offset = head.len() + 20;
+    loop {
+        let total = head.len() + format!("file: . {offset}\n").len() + 4;
+        if total <= offset {
+            break;
+        }
+        offset = total;
+    }
+    let mut out = head.into_bytes();
+    out.extend_from_slice(format!("file: . {offset}\nEND\n").as_bytes());
+    out.resize(offset, 0);
+    for s in t.iter() {
+        for p in s {
+            for c in p.to_array() {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        for _ in 0..3 {
+            out.extend_from_slice(&f32::NAN.to_le_bytes());
+        }
+    }
+    for _ in 0..3 {
+        out.extend_from_slice(&f32::INFINITY.to_le_bytes());
+    }
+    std::fs::write(path, out).map_err(|e| Error::io(path, e))
+}

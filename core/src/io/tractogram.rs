@@ -1,0 +1,120 @@
+//! In-memory tractogram: streamlines as one flat point array with CSR offsets, in RAS+ millimetres.
+
+use std::path::Path;
+
+use glam::{DMat3, DMat4, Vec3};
+
+use crate::error::{Error, Result};
+
+/// Streamlines in world space (RAS+ mm), with optional per-point scalars and per-streamline properties.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Tractogram {
+    /// All points of all streamlines, streamline after streamline.
+    pub points: Vec<Vec3>,
+    /// `offsets[i]..offsets[i + 1]` are the points of streamline i; `offsets.len() == n_streamlines + 1`.
+    pub offsets: Vec<usize>,
+    /// Per-point values, each `points.len()` long, with their names.
+    pub scalars: Vec<(String, Vec<f32>)>,
+    /// Per-streamline values, each `n_streamlines` long, with their names.
+    pub properties: Vec<(String, Vec<f32>)>,
+}
+
+impl Tractogram {
+    pub fn new() -> Self {
+        Self { offsets: vec![0], ..Default::default() }
+    }
+
+    pub fn n_streamlines(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    /// The points of streamline `i`.
+    pub fn streamline(&self, i: usize) -> &[Vec3] {
+        &self.points[self.offsets[i]..self.offsets[i + 1]]
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = &[Vec3]> + '_ {
+        (0..self.n_streamlines()).map(|i| self.streamline(i))
+    }
+
+    /// Appends a streamline (no scalars or properties: use only on tractograms without them).
+    pub fn push(&mut self, pts: &[Vec3]) {
+        if self.offsets.is_empty() {
+            self.offsets.push(0);
+        }
+        self.points.extend_from_slice(pts);
+        self.offsets.push(self.points.len());
+    }
+
+    /// Reads `.trk` or `.tck` by extension.
+    pub fn read(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        match extension(path).as_str() {
+            "trk" => Ok(super::trk::read(path)?.0),
+            "tck" => Ok(super::tck::read(path)?.0),
+            other => Err(Error::format(path, format!("unknown tractogram extension '{other}' (expected .trk or .tck)"))),
+        }
+    }
+}
+
+pub(crate) fn extension(path: &Path) -> String {
+    path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()
+}
+
+/// Orientation of each voxel axis of an affine: `(world axis, sign)` per column, as nibabel's
+/// `io_orientation`: the rotation of the polar decomposition, then for each voxel axis in turn the world
+/// axis it is closest to, among those not yet taken.
+pub fn io_orientation(affine: &DMat4) -> [(usize, f64); 3] {
+    let m = DMat3::from_mat4(*affine);
+    let mut r = polar_rotation(m);
+    let mut out = [(0usize, 1.0f64); 3];
+    for (in_ax, o) in out.iter_mut().enumerate() {
+        let col = r.col(in_ax);
+        let (mut best, mut best_abs) = (0usize, -1.0f64);
+        for w in 0..3 {
+            if col[w].abs() > best_abs {
+                best = w;
+                best_abs = col[w].abs();
+            }
+        }
+        *o = (best, if col[best] < 0.0 { -1.0 } else { 1.0 });
+        for c in 0..3 {
+            let mut cc = r.col(c);
+            cc[best] = 0.0;
+            *r.col_mut(c) = cc;
+        }
+    }
+    out
+}
+
+/// Axis codes ("RAS", "LPS", ...) of an affine.
+pub fn axcodes(affine: &DMat4) -> String {
+    io_orientation(affine)
+        .iter()
+        .map(|&(ax, s)| match (ax, s > 0.0) {
+            (0, true) => 'R',
+            (0, false) => 'L',
+            (1, true) => 'A',
+            (1, false) => 'P',
+            (2, true) => 'S',
+            _ => 'I',
+        })
+        .collect()
+}
+
+/// Nearest rotation (or reflection) to `m`: Newton iteration of the polar decomposition.
+pub(crate) fn polar_rotation(mut m: DMat3) -> DMat3 {
+    for _ in 0..30 {
+        let inv_t = m.inverse().transpose();
+        if !inv_t.is_finite() {
+            break;
+        }
+        let next = (m + inv_t) * 0.5;
+        let done = (next - m).abs_diff_eq(DMat3::ZERO, 1e-15);
+        m = next;
+        if done {
+            break;
+        }
+    }
+    m
+}

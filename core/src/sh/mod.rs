@@ -1,0 +1,32 @@
+//! Real, symmetric (even-order) spherical harmonics in the four conventions of DIPY and MRtrix, their
+//! analytic gradient, conversions between conventions, the Cauchy-Schwarz bound on |ψ|, spheres, and the
+//! CSA / Q-ball ODF fits.
+//!
+//! Coefficient order, every basis: even l = 0, 2, 4, ...; m = -l..l; index `j = l(l+1)/2 + m`.
+
+pub mod basis;
+pub mod fit;
+pub mod legendre;
+pub mod sphere;
+
+pub use basis::{ShBasis, bound_rmax, convert, eval, eval_with_gradient, sh_matrix};
+pub use fit::{OdfKind, OdfModel, fit_odf_volume};
+
+/// Number of coefficients of an even-order basis up to `l_max` (15 at 4, 45 at 8, 153 at 16).
+pub const fn n_coeffs(l_max: usize) -> usize {
+    (l_max + 1) * (l_max + 2) / 2
+}
+
+/// The even `l_max` whose basis has exactly `n` coefficients, if any.
+pub fn l_max_for(n: usize) -> Option<usize> {
+    (0..=64).step_by(2).find(|&l| n_coeffs(l) == n)
+}
+
+/// `(l, m)` of coefficient `j`.
+pub fn lm_of(j: usize) -> (usize, i64) {
+    let mut l = 0;
+    while n_coeffs(l) <= j {
+        l += 2;
+    }
+    (l, j as i64 - (l * (l + 1) / 2) as i64)
+}

@@ -1,0 +1,85 @@
+//! Dense image volumes in NIfTI storage order (x fastest), with the affine that places them in the world.
+
+use glam::{DMat4, DVec3};
+
+/// A scalar type a volume can hold after decoding: the on-disk type is converted (and scaled by
+/// `scl_slope`/`scl_inter`) into this one.
+pub trait Scalar: Copy + Send + Sync + Default + PartialOrd + std::fmt::Debug + 'static {
+    fn from_f64(v: f64) -> Self;
+    fn to_f64(self) -> f64;
+}
+impl Scalar for f32 {
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+}
+impl Scalar for f64 {
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    fn to_f64(self) -> f64 {
+        self
+    }
+}
+
+/// An N-dimensional volume (N = 1..7). `data[x + nx*(y + ny*(z + nz*t))]`; `world_from_voxel` maps voxel
+/// indices (integer = voxel centre) to RAS+ millimetres.
+#[derive(Clone, Debug)]
+pub struct Volume<T = f32> {
+    pub shape: Vec<usize>,
+    pub data: Vec<T>,
+    pub world_from_voxel: DMat4,
+}
+
+impl<T: Scalar> Volume<T> {
+    /// A volume of zeros. Fails if `shape` is empty or longer than 7.
+    pub fn zeros(shape: &[usize], world_from_voxel: DMat4) -> Self {
+        let n = shape.iter().product();
+        Self { shape: shape.to_vec(), data: vec![T::default(); n], world_from_voxel }
+    }
+
+    /// Number of spatial voxels (product of the first three dimensions, 1 where absent).
+    pub fn n_voxels(&self) -> usize {
+        self.dims3().iter().product()
+    }
+
+    /// The three spatial dimensions (1 where the volume has fewer).
+    pub fn dims3(&self) -> [usize; 3] {
+        [0, 1, 2].map(|i| self.shape.get(i).copied().unwrap_or(1))
+    }
+
+    /// Length of everything past the spatial dimensions (the "4th dimension" folded): 1 for a 3D volume.
+    pub fn n_channels(&self) -> usize {
+        self.shape.iter().skip(3).product()
+    }
+
+    /// Value at spatial voxel index `v` (flat) and channel `c`.
+    #[inline]
+    pub fn at(&self, v: usize, c: usize) -> T {
+        self.data[v + self.n_voxels() * c]
+    }
+
+    /// Voxel edge lengths in mm, from the columns of the affine.
+    pub fn voxel_size(&self) -> DVec3 {
+        let m = self.world_from_voxel;
+        DVec3::new(m.x_axis.truncate().length(), m.y_axis.truncate().length(), m.z_axis.truncate().length())
+    }
+
+    /// Converts the element type.
+    pub fn cast<U: Scalar>(&self) -> Volume<U> {
+        Volume {
+            shape: self.shape.clone(),
+            data: self.data.iter().map(|v| U::from_f64(v.to_f64())).collect(),
+            world_from_voxel: self.world_from_voxel,
+        }
+    }
+}
+
+/// Flat index of voxel (x, y, z) in a volume of spatial size `dims`.
+#[inline]
+pub fn flat_index(dims: [usize; 3], x: usize, y: usize, z: usize) -> usize {
+    x + dims[0] * (y + dims[1] * z)
+}
