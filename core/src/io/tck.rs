@@ -39,7 +39,15 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TckHeader)> {
             continue;
         }
         let Some((k, v)) = line.split_once(':') else {
-            return Err(Error::format(path, format!("header line '{line}' is not 'key: value'")));
+            // A line without a key continues the previous field (multi-line values, e.g. long commands).
+            match header.last_mut() {
+                Some((_, prev)) => {
+                    prev.push('\n');
+                    prev.push_str(&line);
+                    continue;
+                }
+                None => return Err(Error::format(path, format!("header line '{line}' is not 'key: value'"))),
+            }
         };
         let (k, v) = (k.trim().to_string(), v.trim().to_string());
         match header.iter_mut().find(|(hk, _)| *hk == k) {
@@ -101,14 +109,8 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TckHeader)> {
         // A last streamline without its NaN terminator (file cut short): keep what is there.
         t.offsets.push(t.points.len());
     }
-    if let Some(c) = get("count").and_then(|c| c.trim().parse::<usize>().ok())
-        && c != t.n_streamlines()
-    {
-        return Err(Error::format(
-            path,
-            format!("header count is {c} but the data hold {} streamlines", t.n_streamlines()),
-        ));
-    }
+    // `count` is advisory: MRtrix writes it when a run ends, and files from other tools (matlab_nan.tck
+    // says 615000 and holds 1) get it wrong. The data decide; `fascicle info` shows both.
     Ok((t, header))
 }
 

@@ -99,10 +99,34 @@ impl Rd<'_> {
     fn f32(&self, o: usize) -> f32 {
         f32::from_le_bytes(self.a(o))
     }
-    fn name(&self, o: usize) -> String {
-        let s = &self.b[o..o + 20];
-        let end = s.iter().position(|&c| c == 0).unwrap_or(20);
-        String::from_utf8_lossy(&s[..end]).into_owned()
+    /// Names of `n` values from the 10 name slots at `o`. A slot may read "name\0K" (nibabel's encoding
+    /// of a K-valued scalar such as RGB colours): it then names K consecutive values `name_0..name_K-1`.
+    fn names(&self, o: usize, n: usize) -> Vec<String> {
+        let mut out = Vec::with_capacity(n);
+        for slot in 0..10 {
+            if out.len() >= n {
+                break;
+            }
+            let s = &self.b[o + 20 * slot..o + 20 * slot + 20];
+            let end = s.iter().position(|&c| c == 0).unwrap_or(20);
+            let name = String::from_utf8_lossy(&s[..end]).into_owned();
+            let rest = s.get(end + 1..).unwrap_or(&[]);
+            let rend = rest.iter().position(|&c| c == 0).unwrap_or(rest.len());
+            let count = std::str::from_utf8(&rest[..rend]).ok().and_then(|t| t.parse::<usize>().ok()).unwrap_or(1);
+            if name.is_empty() {
+                break;
+            }
+            if count > 1 {
+                out.extend((0..count).map(|k| format!("{name}_{k}")));
+            } else {
+                out.push(name);
+            }
+        }
+        out.truncate(n);
+        while out.len() < n {
+            out.push(format!("value_{}", out.len()));
+        }
+        out
     }
 }
 
@@ -169,8 +193,8 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TrkHeader)> {
     let ns = n_scalars as usize;
     let np = n_props as usize;
     let mut t = Tractogram::new();
-    t.scalars = (0..ns).map(|i| (r.name(38 + 20 * i), Vec::new())).collect();
-    t.properties = (0..np).map(|i| (r.name(240 + 20 * i), Vec::new())).collect();
+    t.scalars = r.names(38, ns).into_iter().map(|n| (n, Vec::new())).collect();
+    t.properties = r.names(240, np).into_iter().map(|n| (n, Vec::new())).collect();
     let mut o = HDR;
     let limit = if header.n_count > 0 { header.n_count as usize } else { usize::MAX };
     while o < b.len() && t.n_streamlines() < limit {

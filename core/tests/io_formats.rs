@@ -1,0 +1,229 @@
+//! File formats against nibabel's reading of the same files, round trips, and malformed input.
+
+mod common;
+use common::{data, npy};
+
+use fascicle_core::Error;
+use fascicle_core::io::{GradientTable, Tractogram, nifti, tck, trk};
+use glam::{DMat4, DVec4};
+
+fn nib_points(stem: &str) -> (Vec<[f64; 3]>, Vec<usize>) {
+    let (_, p) = npy(&format!("reference/nibabel/{stem}_points.npy"));
+    let (_, l) = npy(&format!("reference/nibabel/{stem}_lengths.npy"));
+    (p.chunks(3).map(|c| [c[0], c[1], c[2]]).collect(), l.iter().map(|&v| v as usize).collect())
+}
+
+fn assert_matches_nibabel(t: &Tractogram, stem: &str) {
+    let (pts, lens) = nib_points(stem);
+    assert_eq!(t.n_streamlines(), lens.len(), "{stem}: streamline count");
+    for (i, &n) in lens.iter().enumerate() {
+        assert_eq!(t.streamline(i).len(), n, "{stem}: streamline {i} length");
+    }
+    let worst = t
+        .points
+        .iter()
+        .zip(&pts)
+        .map(|(a, b)| (0..3).map(|k| (a[k] as f64 - b[k]).abs()).fold(0.0, f64::max))
+        .fold(0.0, f64::max);
+    // Points are float32 on disk and in memory; nibabel's affine is float32 too: a few ulp of ~100 mm.
+    assert!(worst < 1e-4, "{stem}: max coordinate difference from nibabel {worst} mm");
+}
+
+#[test]
+fn tractograms_match_nibabel() {
+    for f in [
+        "standard.trk",
+        "standard.LPS.trk",
+        "standard.tck",
+        "complex.trk",
+        "complex_big_endian.trk",
+        "tracks300.trk",
+        "simple.tck",
+        "simple_big_endian.tck",
+        "matlab_nan.tck",
+        "multiline_header_field.tck",
+        "EuDX_small_25.trk",
+    ] {
+        let t = Tractogram::read(data(&format!("tracts/{f}"))).unwrap_or_else(|e| panic!("{f}: {e}"));
+        assert_matches_nibabel(&t, &f.replace('.', "_"));
+    }
+}
+
+#[test]
+fn ras_lps_and_tck_give_the_same_world_coordinates() {
+    let a = Tractogram::read(data("tracts/standard.trk")).unwrap();
+    let b = Tractogram::read(data("tracts/standard.LPS.trk")).unwrap();
+    let c = Tractogram::read(data("tracts/standard.tck")).unwrap();
+    assert_eq!(a.n_streamlines(), 120);
+    for (p, (q, r)) in a.points.iter().zip(b.points.iter().zip(&c.points)) {
+        assert!((*p - *q).abs().max_element() < 1e-5 && (*p - *r).abs().max_element() < 1e-5, "{p} {q} {r}");
+    }
+}
+
+#[test]
+fn trk_scalars_and_properties() {
+    let (t, h) = trk::read(data("tracts/complex.trk")).unwrap();
+    let (tb, hb) = trk::read(data("tracts/complex_big_endian.trk")).unwrap();
+    assert!(!h.big_endian && hb.big_endian);
+    assert_eq!(t, tb);
+    let names: Vec<&str> = t.scalars.iter().map(|s| s.0.as_str()).collect();
+    assert_eq!(names, ["colors_0", "colors_1", "colors_2", "fa"]);
+    let props: Vec<&str> = t.properties.iter().map(|s| s.0.as_str()).collect();
+    assert_eq!(props, ["mean_colors_0", "mean_colors_1", "mean_colors_2", "mean_curvature", "mean_torsion"]);
+    let (_, colors) = npy("reference/nibabel/complex_trk_colors.npy");
+    for (k, c) in colors.iter().enumerate() {
+        assert_eq!(t.scalars[k % 3].1[k / 3] as f64, *c);
+    }
+}
+
+#[test]
+fn trk_and_tck_round_trip() {
+    let dir = std::env::temp_dir().join(format!("fascicle-io-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (t, _) = trk::read(data("tracts/complex.trk")).unwrap();
+    // An oblique, LPS-like reference grid exercises the voxel-order and corner conventions on write.
+    let affine = DMat4::from_cols(
+        DVec4::new(-2.0, 0.1, 0.0, 0.0),
+        DVec4::new(0.0, -2.0, 0.2, 0.0),
+        DVec4::new(0.0, 0.0, 2.5, 0.0),
+        DVec4::new(90.0, 120.0, -60.0, 1.0),
+    );
+    trk::write(dir.join("a.trk"), &t, affine, [50, 60, 40]).unwrap();
+    let (back, h) = trk::read(dir.join("a.trk")).unwrap();
+    assert_eq!(h.voxel_order, "LPS");
+    assert_eq!(back.scalars, t.scalars);
+    assert_eq!(back.properties, t.properties);
+    for (a, b) in t.points.iter().zip(&back.points) {
+        assert!((*a - *b).abs().max_element() < 1e-4);
+    }
+    tck::write(dir.join("a.tck"), &t, &[("comment".into(), "line one\nline two".into())]).unwrap();
+    let (back, header) = tck::read(dir.join("a.tck")).unwrap();
+    assert_eq!(back.points, t.points);
+    assert_eq!(back.offsets, t.offsets);
+    assert!(header.iter().any(|(k, v)| k == "comment" && v == "line one\nline two"));
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn malformed_tractograms_give_clear_errors() {
+    // empty files with valid headers read as empty
+    assert_eq!(Tractogram::read(data("malformed/empty.trk")).unwrap().n_streamlines(), 0);
+    assert_eq!(Tractogram::read(data("malformed/empty.tck")).unwrap().n_streamlines(), 0);
+    for (f, needle) in [
+        ("malformed/no_header_end.tck", "END"),
+        ("malformed/no_header_end_eof.tck", "END"),
+        ("malformed/no_magic_number.tck", "mrtrix tracks"),
+    ] {
+        let e = Tractogram::read(data(f)).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains(f.rsplit('/').next().unwrap()), "{f}: {e}");
+    }
+    // truncation anywhere in a trk: an error naming the problem, never a panic
+    let bytes = std::fs::read(data("tracts/complex.trk")).unwrap();
+    let dir = std::env::temp_dir().join(format!("fascicle-trunc-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for cut in [0, 3, 500, 999, 1003, 1010, bytes.len() - 1] {
+        let p = dir.join("cut.trk");
+        std::fs::write(&p, &bytes[..cut]).unwrap();
+        let e = trk::read(&p).unwrap_err().to_string();
+        assert!(e.contains("truncated") || e.contains("promises"), "cut at {cut}: {e}");
+    }
+    let e = Tractogram::read(data("dwi/small_25.bval")).unwrap_err();
+    assert!(e.to_string().contains("extension"));
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn nifti_matches_nibabel_for_qform_big_endian_scaled() {
+    let (v, h) = nifti::read::<f64>(data("dwi/qform_be_scaled.nii")).unwrap();
+    assert!(h.big_endian);
+    assert_eq!(h.affine_source, nifti::AffineSource::Qform);
+    let (shape, d) = npy("dwi/qform_be_scaled_data.npy");
+    let (_, aff) = npy("dwi/qform_be_scaled_affine.npy");
+    assert_eq!(v.shape, shape);
+    for x in 0..shape[0] {
+        for y in 0..shape[1] {
+            for z in 0..shape[2] {
+                assert_eq!(v.data[x + shape[0] * (y + shape[1] * z)], d[(x * shape[1] + y) * shape[2] + z]);
+            }
+        }
+    }
+    for r in 0..4 {
+        for c in 0..4 {
+            assert!((v.world_from_voxel.col(c)[r] - aff[r * 4 + c]).abs() < 1e-6, "affine ({r},{c})");
+        }
+    }
+}
+
+#[test]
+fn nifti2_equals_nifti1_and_writes_round_trip() {
+    let (a, ha) = nifti::read::<f32>(data("dwi/small_25.nii.gz")).unwrap();
+    let (b, hb) = nifti::read::<f32>(data("dwi/small_25_nifti2.nii.gz")).unwrap();
+    assert_eq!((ha.version, hb.version), (1, 2));
+    assert_eq!(a.shape, b.shape);
+    assert_eq!(a.data, b.data);
+    assert!(a.world_from_voxel.abs_diff_eq(b.world_from_voxel, 1e-6));
+    // small_64D: oblique sform, PLS axes
+    let (c, hc) = nifti::read::<f32>(data("dwi/small_64D.nii")).unwrap();
+    assert_eq!(hc.affine_source, nifti::AffineSource::Sform);
+    assert_eq!(fascicle_core::io::tractogram::axcodes(&c.world_from_voxel), "PLS");
+    let dir = std::env::temp_dir().join(format!("fascicle-nii-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for name in ["c.nii", "c.nii.gz"] {
+        nifti::write(dir.join(name), &c, nifti::WriteType::F32).unwrap();
+        let (back, hb) = nifti::read::<f32>(dir.join(name)).unwrap();
+        assert_eq!(back.shape, c.shape);
+        assert_eq!(back.data, c.data);
+        assert!(back.world_from_voxel.abs_diff_eq(c.world_from_voxel, 1e-5));
+        // the qform written alongside describes the same grid (up to the sform's shear)
+        assert_eq!(hb.qform_code, 1);
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn malformed_nifti_and_gradients_give_clear_errors() {
+    let dir = std::env::temp_dir().join(format!("fascicle-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let good = std::fs::read(data("dwi/small_64D.nii")).unwrap();
+    for (cut, needle) in [(0, "too short"), (100, "truncated NIfTI-1 header"), (348, "truncated NIfTI"), (5000, "truncated NIfTI")] {
+        std::fs::write(dir.join("t.nii"), &good[..cut]).unwrap();
+        let e = nifti::read::<f32>(dir.join("t.nii")).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains("t.nii"), "cut {cut}: {e}");
+    }
+    let mut bad = good.clone();
+    bad[40..42].copy_from_slice(&9i16.to_le_bytes());
+    std::fs::write(dir.join("dim.nii"), &bad).unwrap();
+    assert!(nifti::read::<f32>(dir.join("dim.nii")).unwrap_err().to_string().contains("dim[0] = 9"));
+    let mut bad = good.clone();
+    bad[70..72].copy_from_slice(&32i16.to_le_bytes());
+    std::fs::write(dir.join("cplx.nii"), &bad).unwrap();
+    assert!(nifti::read::<f32>(dir.join("cplx.nii")).unwrap_err().to_string().contains("complex64"));
+    std::fs::write(dir.join("gz.nii.gz"), [0x1f, 0x8b, 8, 0, 1, 2, 3]).unwrap();
+    assert!(nifti::read::<f32>(dir.join("gz.nii.gz")).unwrap_err().to_string().contains("gzip"));
+    let e = nifti::read::<f32>(dir.join("missing.nii")).unwrap_err();
+    assert!(matches!(e, Error::Io { .. }) && e.to_string().contains("missing.nii"));
+    // gradients: count mismatch between bval and bvec, and against the image
+    let e = GradientTable::from_fsl(data("dwi/small_25.bval"), data("dwi/small_64D.bvec"), 50.0).unwrap_err().to_string();
+    assert!(e.contains("expected 3x26"), "{e}");
+    let g = GradientTable::from_fsl(data("dwi/small_64D.bval"), data("dwi/small_64D.bvec"), 50.0).unwrap();
+    assert!(g.check_volumes(26).unwrap_err().to_string().contains("65 entries but the image has 26"));
+    std::fs::write(dir.join("x.bval"), "0 1000 abc").unwrap();
+    assert!(GradientTable::from_fsl(dir.join("x.bval"), data("dwi/small_25.bvec"), 50.0).unwrap_err().to_string().contains("'abc'"));
+    // wrong dimensionality: a 3D image is not a DWI
+    let (v3, _) = nifti::read::<f32>(data("tracts/standard.nii.gz")).unwrap();
+    let e = fascicle_core::dti::fit_volume(&v3, &g, fascicle_core::dti::FitMethod::Wls, None).unwrap_err().to_string();
+    assert!(e.contains("must be 4D"), "{e}");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
+fn bvec_orientation_either_way() {
+    let dir = std::env::temp_dir().join(format!("fascicle-bvec-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let g = GradientTable::from_fsl(data("dwi/small_25.bval"), data("dwi/small_25.bvec"), 50.0).unwrap();
+    let rows: String = g.bvecs.iter().map(|v| format!("{} {} {}\n", v.x, v.y, v.z)).collect();
+    std::fs::write(dir.join("t.bvec"), rows).unwrap();
+    let t = GradientTable::from_fsl(data("dwi/small_25.bval"), dir.join("t.bvec"), 50.0).unwrap();
+    assert_eq!(t.bvecs, g.bvecs);
+    std::fs::remove_dir_all(dir).ok();
+}
