@@ -14,6 +14,9 @@ use crate::error::{Error, Result};
 use crate::io::GradientTable;
 use crate::volume::{Scalar, Volume};
 
+/// Voxels per parallel work item (and per progress report).
+pub const PROGRESS_BLOCK: usize = 256;
+
 /// A fitted tensor field: one entry per spatial voxel, in the DWI's voxel order and grid.
 #[derive(Clone, Debug)]
 pub struct TensorVolume {
@@ -67,6 +70,17 @@ pub fn fit_volume<T: Scalar>(
     method: FitMethod,
     mask: Option<&[bool]>,
 ) -> Result<TensorVolume> {
+    fit_volume_with_progress(dwi, gtab, method, mask, &|_| {})
+}
+
+/// [`fit_volume`], calling `progress(n)` from worker threads as each block of `n` voxels is done.
+pub fn fit_volume_with_progress<T: Scalar>(
+    dwi: &Volume<T>,
+    gtab: &GradientTable,
+    method: FitMethod,
+    mask: Option<&[bool]>,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<TensorVolume> {
     if dwi.shape.len() != 4 {
         return Err(Error::Shape(format!("a DWI must be 4D (X,Y,Z,N); this image is {:?}", dwi.shape)));
     }
@@ -80,16 +94,20 @@ pub fn fit_volume<T: Scalar>(
     let model = TensorModel::new(gtab, method)?;
     let nvol = model.n_volumes();
     let mut voxels = vec![None; nvox];
-    voxels.par_iter_mut().enumerate().with_min_len(64).for_each_init(
+    voxels.par_chunks_mut(PROGRESS_BLOCK).enumerate().for_each_init(
         || (vec![0.0f64; nvol], vec![0.0f64; nvol]),
-        |(sig, scratch), (v, out)| {
-            if mask.is_some_and(|m| !m[v]) {
-                return;
+        |(sig, scratch), (block, outs)| {
+            for (k, out) in outs.iter_mut().enumerate() {
+                let v = block * PROGRESS_BLOCK + k;
+                if mask.is_some_and(|m| !m[v]) {
+                    continue;
+                }
+                for (c, s) in sig.iter_mut().enumerate() {
+                    *s = dwi.data[v + nvox * c].to_f64();
+                }
+                *out = Some(model.fit_voxel(sig, scratch));
             }
-            for (c, s) in sig.iter_mut().enumerate() {
-                *s = dwi.data[v + nvox * c].to_f64();
-            }
-            *out = Some(model.fit_voxel(sig, scratch));
+            progress(outs.len());
         },
     );
     Ok(TensorVolume { dims: dwi.dims3(), world_from_voxel: dwi.world_from_voxel, voxels })

@@ -57,7 +57,8 @@ impl Tractogram {
     }
 }
 
-pub(crate) fn extension(path: &Path) -> String {
+/// Lower-case file extension (empty when there is none).
+pub fn extension(path: &Path) -> String {
     path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()
 }
 

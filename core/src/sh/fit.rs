@@ -143,6 +143,16 @@ impl OdfModel {
 /// Fits an ODF model to every voxel of a 4D DWI; returns an (X,Y,Z,n_coeffs) volume. Voxels outside the
 /// mask, and voxels whose signal is not finite, are zero.
 pub fn fit_odf_volume<T: Scalar>(dwi: &Volume<T>, model: &OdfModel, mask: Option<&[bool]>) -> Result<Volume<f32>> {
+    fit_odf_volume_with_progress(dwi, model, mask, &|_| {})
+}
+
+/// [`fit_odf_volume`], calling `progress(n)` as each block of `n` voxels is done.
+pub fn fit_odf_volume_with_progress<T: Scalar>(
+    dwi: &Volume<T>,
+    model: &OdfModel,
+    mask: Option<&[bool]>,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Volume<f32>> {
     if dwi.shape.len() != 4 {
         return Err(Error::Shape(format!("a DWI must be 4D (X,Y,Z,N); this image is {:?}", dwi.shape)));
     }
@@ -159,19 +169,24 @@ pub fn fit_odf_volume<T: Scalar>(dwi: &Volume<T>, model: &OdfModel, mask: Option
     let n = model.n_coeffs();
     let d = dwi.dims3();
     let mut per_voxel = vec![0f64; nvox * n];
-    per_voxel.par_chunks_mut(n).enumerate().with_min_len(64).for_each_init(
+    const BLOCK: usize = crate::dti::PROGRESS_BLOCK;
+    per_voxel.par_chunks_mut(n * BLOCK).enumerate().for_each_init(
         || (vec![0.0f64; nvol], vec![0.0f64; model.dwi.len()]),
-        |(sig, scratch), (v, out)| {
-            if mask.is_some_and(|m| !m[v]) {
-                return;
+        |(sig, scratch), (block, outs)| {
+            for (k, out) in outs.chunks_exact_mut(n).enumerate() {
+                let v = block * BLOCK + k;
+                if mask.is_some_and(|m| !m[v]) {
+                    continue;
+                }
+                for (c, s) in sig.iter_mut().enumerate() {
+                    *s = dwi.data[v + nvox * c].to_f64();
+                }
+                if sig.iter().any(|s| !s.is_finite()) {
+                    continue;
+                }
+                model.fit_voxel(sig, scratch, out);
             }
-            for (c, s) in sig.iter_mut().enumerate() {
-                *s = dwi.data[v + nvox * c].to_f64();
-            }
-            if sig.iter().any(|s| !s.is_finite()) {
-                return;
-            }
-            model.fit_voxel(sig, scratch, out);
+            progress(outs.len() / n);
         },
     );
     let mut vol = Volume::<f32>::zeros(&[d[0], d[1], d[2], n], dwi.world_from_voxel);

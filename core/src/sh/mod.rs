@@ -10,7 +10,7 @@ pub mod legendre;
 pub mod sphere;
 
 pub use basis::{ShBasis, bound_rmax, convert, eval, eval_with_gradient, sh_matrix};
-pub use fit::{OdfKind, OdfModel, fit_odf_volume};
+pub use fit::{OdfKind, OdfModel, fit_odf_volume, fit_odf_volume_with_progress};
 
 /// Number of coefficients of an even-order basis up to `l_max` (15 at 4, 45 at 8, 153 at 16).
 pub const fn n_coeffs(l_max: usize) -> usize {

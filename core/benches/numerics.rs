@@ -1,0 +1,100 @@
+//! Per-voxel cost of the core fits and SH evaluation (single thread), for the README table.
+//! `cargo bench -p fascicle-core --bench numerics`
+
+use std::hint::black_box;
+use std::path::PathBuf;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use fascicle_core::dti::{FitMethod, TensorModel, eigen};
+use fascicle_core::io::{GradientTable, nifti};
+use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis, sphere};
+
+fn data(rel: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../data").join(rel)
+}
+
+/// The brain-ish voxels of small_64D as signal vectors.
+fn signals() -> (GradientTable, Vec<Vec<f64>>) {
+    let (v, _) = nifti::read::<f32>(data("dwi/small_64D.nii")).expect("small_64D");
+    let g = GradientTable::from_fsl(data("dwi/small_64D.bval"), data("dwi/small_64D.bvec"), 50.0).expect("gtab");
+    let n = v.n_voxels();
+    let sigs = (0..n)
+        .map(|i| (0..v.shape[3]).map(|c| v.data[i + n * c] as f64).collect::<Vec<_>>())
+        .filter(|s| s[0] > 0.0)
+        .collect();
+    (g, sigs)
+}
+
+fn bench_dti(c: &mut Criterion) {
+    let (g, sigs) = signals();
+    for method in [FitMethod::Wls, FitMethod::Ols] {
+        let model = TensorModel::new(&g, method).expect("model");
+        let mut scratch = vec![0.0; g.len()];
+        let mut i = 0;
+        c.bench_function(&format!("dti {method:?} fit per voxel (65 volumes)"), |b| {
+            b.iter(|| {
+                i = (i + 1) % sigs.len();
+                black_box(model.fit_voxel(black_box(&sigs[i]), &mut scratch).ok())
+            })
+        });
+    }
+    let model = TensorModel::new(&g, FitMethod::Wls).expect("model");
+    let mut scratch = vec![0.0; g.len()];
+    let tensors: Vec<_> = sigs.iter().filter_map(|s| model.fit_voxel(s, &mut scratch).ok()).map(|f| f.lower_tri).collect();
+    let mut i = 0;
+    c.bench_function("eigh 3x3 (Jacobi)", |b| {
+        b.iter(|| {
+            i = (i + 1) % tensors.len();
+            black_box(eigen::eigh(black_box(&tensors[i])))
+        })
+    });
+}
+
+fn bench_sh(c: &mut Criterion) {
+    for (name, dirs) in [("362", sphere::symmetric362()), ("724", sphere::repulsion724())] {
+        for l_max in [4usize, 8] {
+            let n = sh::n_coeffs(l_max);
+            let b = sh::sh_matrix(ShBasis::default(), l_max, &dirs);
+            let coef: Vec<f64> = (0..n).map(|j| 1.0 / (1 + j) as f64).collect();
+            let mut out = vec![0.0; dirs.len()];
+            c.bench_function(&format!("ODF eval {n} coeffs on {name} dirs (precomputed B)"), |bch| {
+                bch.iter(|| {
+                    for (o, row) in out.iter_mut().zip(b.chunks_exact(n)) {
+                        *o = row.iter().zip(&coef).map(|(x, y)| x * y).sum();
+                    }
+                    black_box(&out);
+                })
+            });
+        }
+    }
+    let coef: Vec<f64> = (0..45).map(|j| 1.0 / (1 + j) as f64).collect();
+    let mut s = sh::basis::ShScratch::new(8);
+    let d = glam::DVec3::new(0.3, 0.4, 0.86).normalize();
+    c.bench_function("SH value+gradient, 45 coeffs, one direction", |b| {
+        b.iter(|| black_box(s.value_and_gradient(ShBasis::default(), &coef, black_box(d))))
+    });
+}
+
+fn bench_csa(c: &mut Criterion) {
+    let (g, sigs) = signals();
+    for l_max in [4usize, 8] {
+        let model = OdfModel::new(&g, OdfKind::Csa, l_max, 0.006, ShBasis::default()).expect("model");
+        let mut scratch = vec![0.0; g.dwi_indices().len()];
+        let mut out = vec![0.0; model.n_coeffs()];
+        let mut i = 0;
+        c.bench_function(&format!("CSA fit per voxel l{l_max}"), |b| {
+            b.iter(|| {
+                i = (i + 1) % sigs.len();
+                model.fit_voxel(black_box(&sigs[i]), &mut scratch, &mut out);
+                black_box(&out);
+            })
+        });
+    }
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(30).measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
+    targets = bench_dti, bench_sh, bench_csa
+}
+criterion_main!(benches);

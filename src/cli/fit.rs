@@ -1,0 +1,169 @@
+//! `fascicle fit dti|csa|qball`: reads a DWI and its gradient table, fits every voxel in parallel, writes
+//! NIfTI maps with the input's affine.
+
+use std::path::{Path, PathBuf};
+
+use clap::{Args, Subcommand};
+use fascicle_core::dti::{self, FitMethod, metrics};
+use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD, nifti};
+use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
+use fascicle_core::{Error, Volume};
+use indicatif::{ProgressBar, ProgressStyle};
+
+#[derive(Args, Debug)]
+pub struct DwiArgs {
+    /// 4D diffusion-weighted image (.nii/.nii.gz).
+    pub dwi: PathBuf,
+    #[arg(long)]
+    pub bval: PathBuf,
+    #[arg(long)]
+    pub bvec: PathBuf,
+    /// 3D mask: voxels > 0 are fitted.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// b-values at or below this are b0s.
+    #[arg(long, default_value_t = DEFAULT_B0_THRESHOLD)]
+    pub b0_threshold: f64,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum FitCommand {
+    /// Diffusion tensor: writes tensor, evals, evecs, fa, md, ad, rd, rgb, cl, cp, cs, mode into --out DIR.
+    Dti {
+        #[command(flatten)]
+        input: DwiArgs,
+        #[arg(long, default_value = "wls")]
+        method: FitMethod,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Constant-solid-angle ODF (Aganj 2010) SH coefficients, as DIPY's CsaOdfModel.
+    Csa(OdfArgs),
+    /// Q-ball ODF (Descoteaux 2007) SH coefficients, as DIPY's QballModel.
+    Qball(OdfArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct OdfArgs {
+    #[command(flatten)]
+    pub input: DwiArgs,
+    /// Maximum (even) SH order.
+    #[arg(long)]
+    pub lmax: usize,
+    #[arg(long, default_value = "descoteaux07")]
+    pub basis: String,
+    /// Legacy variant of the basis (DIPY's default is descoteaux07 legacy).
+    #[arg(long, default_value_t = false)]
+    pub legacy: bool,
+    /// Laplace-Beltrami regularisation.
+    #[arg(long, default_value_t = 0.006)]
+    pub smooth: f64,
+    /// Output coefficients, (X,Y,Z,n) .nii.gz.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+struct Loaded {
+    dwi: Volume<f32>,
+    gtab: GradientTable,
+    mask: Option<Vec<bool>>,
+}
+
+fn load(a: &DwiArgs) -> Result<Loaded, Error> {
+    let (dwi, _) = nifti::read::<f32>(&a.dwi)?;
+    if dwi.shape.len() != 4 {
+        return Err(Error::Shape(format!("{}: a DWI must be 4D, this image is {:?}", a.dwi.display(), dwi.shape)));
+    }
+    let gtab = GradientTable::from_fsl(&a.bval, &a.bvec, a.b0_threshold)?;
+    if gtab.len() != dwi.shape[3] {
+        return Err(Error::Shape(format!(
+            "{} has {} b-values but {} has {} volumes",
+            a.bval.display(),
+            gtab.len(),
+            a.dwi.display(),
+            dwi.shape[3]
+        )));
+    }
+    let mask = match &a.mask {
+        None => None,
+        Some(p) => {
+            let (m, _) = nifti::read::<f32>(p)?;
+            if m.dims3() != dwi.dims3() || m.n_channels() != 1 {
+                return Err(Error::Shape(format!(
+                    "mask {} is {:?}, the DWI's voxel grid is {:?}",
+                    p.display(),
+                    m.shape,
+                    dwi.dims3()
+                )));
+            }
+            Some(m.data.iter().map(|&v| v > 0.0).collect())
+        }
+    };
+    Ok(Loaded { dwi, gtab, mask })
+}
+
+fn progress_bar(n: usize, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(n as u64);
+    pb.set_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} voxels ({per_sec}, eta {eta})")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
+pub fn run(cmd: FitCommand) -> Result<(), Error> {
+    match cmd {
+        FitCommand::Dti { input, method, out } => fit_dti(&input, method, &out),
+        FitCommand::Csa(a) => fit_odf(&a, OdfKind::Csa),
+        FitCommand::Qball(a) => fit_odf(&a, OdfKind::Qball),
+    }
+}
+
+fn fit_dti(input: &DwiArgs, method: FitMethod, out: &Path) -> Result<(), Error> {
+    let l = load(input)?;
+    std::fs::create_dir_all(out).map_err(|e| Error::Io { path: out.to_path_buf(), source: e })?;
+    let pb = progress_bar(l.dwi.n_voxels(), "DTI");
+    let tv = dti::fit_volume_with_progress(&l.dwi, &l.gtab, method, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
+    pb.finish_and_clear();
+    let (nonfinite, singular) = tv.failures();
+    if nonfinite + singular > 0 {
+        eprintln!("warning: {nonfinite} voxels with NaN/Inf signal and {singular} singular fits were written as 0");
+    }
+    let write = |name: &str, v: Volume<f32>| nifti::write(out.join(name), &v, nifti::WriteType::F32);
+    write("tensor.nii.gz", tv.map_n(6, |t, o| o.copy_from_slice(&t.tensor())))?;
+    write("evals.nii.gz", tv.map_n(3, |t, o| o.copy_from_slice(&t.eigen.values)))?;
+    let mut evecs = tv.map_n(9, |t, o| {
+        for j in 0..3 {
+            for i in 0..3 {
+                o[i + 3 * j] = t.eigen.vectors[j][i];
+            }
+        }
+    });
+    evecs.shape = vec![tv.dims[0], tv.dims[1], tv.dims[2], 3, 3];
+    write("evecs.nii.gz", evecs)?;
+    write("fa.nii.gz", tv.map(|t| metrics::fa(&t.eigen.values)))?;
+    write("md.nii.gz", tv.map(|t| metrics::md(&t.eigen.values)))?;
+    write("ad.nii.gz", tv.map(|t| metrics::ad(&t.eigen.values)))?;
+    write("rd.nii.gz", tv.map(|t| metrics::rd(&t.eigen.values)))?;
+    write("mode.nii.gz", tv.map(|t| metrics::mode(&t.eigen.values)))?;
+    write("rgb.nii.gz", tv.map_n(3, |t, o| o.copy_from_slice(&metrics::color_fa(&t.eigen.values, t.eigen.vectors[0]))))?;
+    let westin = |k: usize| move |t: &dti::TensorFit| metrics::westin(&t.eigen.values, metrics::WestinDenominator::Trace)[k];
+    write("cl.nii.gz", tv.map(westin(0)))?;
+    write("cp.nii.gz", tv.map(westin(1)))?;
+    write("cs.nii.gz", tv.map(westin(2)))?;
+    eprintln!("wrote 13 maps to {}", out.display());
+    Ok(())
+}
+
+fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
+    let l = load(&a.input)?;
+    let basis = ShBasis::parse(&a.basis, a.legacy)?;
+    let model = OdfModel::new(&l.gtab, kind, a.lmax, a.smooth, basis)?;
+    let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" });
+    let coeffs = sh::fit_odf_volume_with_progress(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
+    pb.finish_and_clear();
+    nifti::write(&a.out, &coeffs, nifti::WriteType::F32)?;
+    eprintln!("wrote {} ({} coefficients, {})", a.out.display(), sh::n_coeffs(a.lmax), basis.name());
+    Ok(())
+}
