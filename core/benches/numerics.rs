@@ -40,7 +40,8 @@ fn bench_dti(c: &mut Criterion) {
     }
     let model = TensorModel::new(&g, FitMethod::Wls).expect("model");
     let mut scratch = vec![0.0; g.len()];
-    let tensors: Vec<_> = sigs.iter().filter_map(|s| model.fit_voxel(s, &mut scratch).ok()).map(|f| f.lower_tri).collect();
+    let tensors: Vec<_> =
+        sigs.iter().filter_map(|s| model.fit_voxel(s, &mut scratch).ok()).map(|f| f.lower_tri).collect();
     let mut i = 0;
     c.bench_function("eigh 3x3 (Jacobi)", |b| {
         b.iter(|| {

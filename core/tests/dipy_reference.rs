@@ -38,7 +38,8 @@ fn check_dti(set: &str, method: FitMethod) {
     let (_, rgb_ref) = npy(&format!("reference/dti/{set}_{tag}_rgb.npy"));
     let d = vol.dims3();
     assert_eq!(&shape[..3], &d[..]);
-    let (mut max_fa, mut max_md, mut max_ev_rel, mut max_angle, mut max_lt, mut max_w) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    let (mut max_fa, mut max_md, mut max_ev_rel, mut max_angle, mut max_lt, mut max_w) =
+        (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
     for z in 0..d[2] {
         for y in 0..d[1] {
             for x in 0..d[0] {
@@ -122,7 +123,8 @@ fn sh_basis_matrices_all_conventions() {
     let mut worst = 0f64;
     for sphere in ["symmetric362", "repulsion724"] {
         let (vshape, verts) = npy(&format!("reference/sh_basis/{sphere}_vertices.npy"));
-        let dirs: Vec<DVec3> = (0..vshape[0]).map(|i| DVec3::new(verts[3 * i], verts[3 * i + 1], verts[3 * i + 2])).collect();
+        let dirs: Vec<DVec3> =
+            (0..vshape[0]).map(|i| DVec3::new(verts[3 * i], verts[3 * i + 1], verts[3 * i + 2])).collect();
         for basis in ShBasis::ALL {
             let (name, leg) = match basis {
                 ShBasis::Descoteaux07 { legacy } => ("descoteaux07", legacy),
@@ -155,7 +157,8 @@ fn csa_against_dipy() {
             let n = sh::n_coeffs(l);
             let d = vol.dims3();
             let nvox = vol.n_voxels();
-            let (mut sig, mut scratch, mut out) = (vec![0.0; vol.shape[3]], vec![0.0; gtab.dwi_indices().len()], vec![0.0; n]);
+            let (mut sig, mut scratch, mut out) =
+                (vec![0.0; vol.shape[3]], vec![0.0; gtab.dwi_indices().len()], vec![0.0; n]);
             let mut worst = 0f64;
             let mut checked = 0;
             for z in 0..d[2] {

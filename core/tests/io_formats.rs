@@ -185,7 +185,9 @@ fn malformed_nifti_and_gradients_give_clear_errors() {
     let dir = std::env::temp_dir().join(format!("fascicle-bad-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let good = std::fs::read(data("dwi/small_64D.nii")).unwrap();
-    for (cut, needle) in [(0, "too short"), (100, "truncated NIfTI-1 header"), (348, "truncated NIfTI"), (5000, "truncated NIfTI")] {
+    for (cut, needle) in
+        [(0, "too short"), (100, "truncated NIfTI-1 header"), (348, "truncated NIfTI"), (5000, "truncated NIfTI")]
+    {
         std::fs::write(dir.join("t.nii"), &good[..cut]).unwrap();
         let e = nifti::read::<f32>(dir.join("t.nii")).unwrap_err().to_string();
         assert!(e.contains(needle) && e.contains("t.nii"), "cut {cut}: {e}");
@@ -203,12 +205,18 @@ fn malformed_nifti_and_gradients_give_clear_errors() {
     let e = nifti::read::<f32>(dir.join("missing.nii")).unwrap_err();
     assert!(matches!(e, Error::Io { .. }) && e.to_string().contains("missing.nii"));
     // gradients: count mismatch between bval and bvec, and against the image
-    let e = GradientTable::from_fsl(data("dwi/small_25.bval"), data("dwi/small_64D.bvec"), 50.0).unwrap_err().to_string();
+    let e =
+        GradientTable::from_fsl(data("dwi/small_25.bval"), data("dwi/small_64D.bvec"), 50.0).unwrap_err().to_string();
     assert!(e.contains("expected 3x26"), "{e}");
     let g = GradientTable::from_fsl(data("dwi/small_64D.bval"), data("dwi/small_64D.bvec"), 50.0).unwrap();
     assert!(g.check_volumes(26).unwrap_err().to_string().contains("65 entries but the image has 26"));
     std::fs::write(dir.join("x.bval"), "0 1000 abc").unwrap();
-    assert!(GradientTable::from_fsl(dir.join("x.bval"), data("dwi/small_25.bvec"), 50.0).unwrap_err().to_string().contains("'abc'"));
+    assert!(
+        GradientTable::from_fsl(dir.join("x.bval"), data("dwi/small_25.bvec"), 50.0)
+            .unwrap_err()
+            .to_string()
+            .contains("'abc'")
+    );
     // wrong dimensionality: a 3D image is not a DWI
     let (v3, _) = nifti::read::<f32>(data("tracts/standard.nii.gz")).unwrap();
     let e = fascicle_core::dti::fit_volume(&v3, &g, fascicle_core::dti::FitMethod::Wls, None).unwrap_err().to_string();

@@ -9,7 +9,11 @@ use glam::DVec3;
 fn sh_gram_is_identity_at_l16() {
     // Quadrature exact for degree 32 = products of two degree-16 harmonics.
     let (dirs, w) = sphere::quadrature(32);
-    for basis in [ShBasis::Descoteaux07 { legacy: true }, ShBasis::Tournier07 { legacy: false }, ShBasis::Descoteaux07 { legacy: false }] {
+    for basis in [
+        ShBasis::Descoteaux07 { legacy: true },
+        ShBasis::Tournier07 { legacy: false },
+        ShBasis::Descoteaux07 { legacy: false },
+    ] {
         let n = sh::n_coeffs(16);
         let b = sh::sh_matrix(basis, 16, &dirs);
         let mut worst = 0f64;
@@ -89,7 +93,9 @@ fn cauchy_schwarz_bound_holds_and_is_attained_for_a_delta() {
     let dirs = sphere::repulsion724();
     for basis in ShBasis::ALL {
         for seed in 0..20u64 {
-            let c: Vec<f64> = (0..sh::n_coeffs(8)).map(|j| (((j as u64 + 1) * (seed + 3) * 2654435761) % 1000) as f64 / 500.0 - 1.0).collect();
+            let c: Vec<f64> = (0..sh::n_coeffs(8))
+                .map(|j| (((j as u64 + 1) * (seed + 3) * 2654435761) % 1000) as f64 / 500.0 - 1.0)
+                .collect();
             let r = sh::bound_rmax(basis, &c);
             for d in &dirs {
                 assert!(sh::eval(basis, &c, *d).unwrap().abs() <= r * (1.0 + 1e-12));

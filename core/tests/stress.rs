@@ -7,7 +7,12 @@ use glam::{DMat3, DVec3};
 use rand::{Rng, SeedableRng};
 
 fn random_rotation(rng: &mut impl Rng) -> DMat3 {
-    let q = glam::DQuat::from_xyzw(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+    let q = glam::DQuat::from_xyzw(
+        rng.random_range(-1.0..1.0),
+        rng.random_range(-1.0..1.0),
+        rng.random_range(-1.0..1.0),
+        rng.random_range(-1.0..1.0),
+    );
     DMat3::from_quat(q.normalize())
 }
 
@@ -21,14 +26,14 @@ fn a_million_random_and_degenerate_tensors() {
         let scale = [1e-30, 1e-3, 1.0, 1e30][(i / 10 % 4) as usize];
         let r = random_rotation(&mut rng);
         let evals: [f64; 3] = match kind {
-            0 => [1.0, 1.0, 1.0],                                   // isotropic
-            1 => [1.0, 1.0, 0.3],                                   // oblate (two equal)
-            2 => [1.0, 0.3, 0.3],                                   // prolate (two equal)
-            3 => [1.0, 0.0, 0.0],                                   // rank 1
-            4 => [0.0, 0.0, 0.0],                                   // zero
-            5 => [1.0, -0.5, -2.0],                                 // negative
-            6 => [1.0, 1.0 + 1e-9, 1.0 - 1e-9],                     // near-equal
-            7 => [1.0, 1.0 - 1e-13, 0.2],                           // nearer-equal
+            0 => [1.0, 1.0, 1.0],               // isotropic
+            1 => [1.0, 1.0, 0.3],               // oblate (two equal)
+            2 => [1.0, 0.3, 0.3],               // prolate (two equal)
+            3 => [1.0, 0.0, 0.0],               // rank 1
+            4 => [0.0, 0.0, 0.0],               // zero
+            5 => [1.0, -0.5, -2.0],             // negative
+            6 => [1.0, 1.0 + 1e-9, 1.0 - 1e-9], // near-equal
+            7 => [1.0, 1.0 - 1e-13, 0.2],       // nearer-equal
             _ => [rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0)],
         };
         let e = eigen::Eigen { values: evals.map(|v| v * scale), vectors: [r.x_axis, r.y_axis, r.z_axis] };

@@ -147,8 +147,12 @@ fn fit_dti(input: &DwiArgs, method: FitMethod, out: &Path) -> Result<(), Error> 
     write("ad.nii.gz", tv.map(|t| metrics::ad(&t.eigen.values)))?;
     write("rd.nii.gz", tv.map(|t| metrics::rd(&t.eigen.values)))?;
     write("mode.nii.gz", tv.map(|t| metrics::mode(&t.eigen.values)))?;
-    write("rgb.nii.gz", tv.map_n(3, |t, o| o.copy_from_slice(&metrics::color_fa(&t.eigen.values, t.eigen.vectors[0]))))?;
-    let westin = |k: usize| move |t: &dti::TensorFit| metrics::westin(&t.eigen.values, metrics::WestinDenominator::Trace)[k];
+    write(
+        "rgb.nii.gz",
+        tv.map_n(3, |t, o| o.copy_from_slice(&metrics::color_fa(&t.eigen.values, t.eigen.vectors[0]))),
+    )?;
+    let westin =
+        |k: usize| move |t: &dti::TensorFit| metrics::westin(&t.eigen.values, metrics::WestinDenominator::Trace)[k];
     write("cl.nii.gz", tv.map(westin(0)))?;
     write("cp.nii.gz", tv.map(westin(1)))?;
     write("cs.nii.gz", tv.map(westin(2)))?;

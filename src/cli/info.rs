@@ -14,7 +14,13 @@ pub fn run(path: &Path) -> Result<(), Error> {
         println!("  shape       {:?}", h.shape);
         println!("  datatype    {} ({})", nifti::datatype_name(h.datatype), h.datatype);
         println!("  voxel size  {:.4} x {:.4} x {:.4} mm", h.pixdim[1], h.pixdim[2], h.pixdim[3]);
-        println!("  affine from {:?} (sform_code {}, qform_code {}), axes {}", h.affine_source, h.sform_code, h.qform_code, tractogram::axcodes(&a));
+        println!(
+            "  affine from {:?} (sform_code {}, qform_code {}), axes {}",
+            h.affine_source,
+            h.sform_code,
+            h.qform_code,
+            tractogram::axcodes(&a)
+        );
         for r in 0..4 {
             println!("    [{:>10.4} {:>10.4} {:>10.4} {:>10.4}]", a.x_axis[r], a.y_axis[r], a.z_axis[r], a.w_axis[r]);
         }
@@ -41,7 +47,9 @@ pub fn run(path: &Path) -> Result<(), Error> {
                 println!("  {k}: {}", v.replace('\n', "\n    "));
             }
         }
-        other => return Err(Error::Param(format!("{}: unknown file type '{other}' (NIfTI, .trk or .tck)", path.display()))),
+        other => {
+            return Err(Error::Param(format!("{}: unknown file type '{other}' (NIfTI, .trk or .tck)", path.display())));
+        }
     }
     Ok(())
 }
@@ -49,11 +57,13 @@ pub fn run(path: &Path) -> Result<(), Error> {
 fn print_tracts(t: &tractogram::Tractogram) {
     println!("  streamlines {}", t.n_streamlines());
     println!("  points      {}", t.points.len());
-    if let (Some(lo), Some(hi)) = (
-        t.points.iter().copied().reduce(|a, b| a.min(b)),
-        t.points.iter().copied().reduce(|a, b| a.max(b)),
-    ) {
-        println!("  bounds (RAS mm) [{:.2}, {:.2}, {:.2}] .. [{:.2}, {:.2}, {:.2}]", lo.x, lo.y, lo.z, hi.x, hi.y, hi.z);
+    if let (Some(lo), Some(hi)) =
+        (t.points.iter().copied().reduce(|a, b| a.min(b)), t.points.iter().copied().reduce(|a, b| a.max(b)))
+    {
+        println!(
+            "  bounds (RAS mm) [{:.2}, {:.2}, {:.2}] .. [{:.2}, {:.2}, {:.2}]",
+            lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
+        );
     }
     for (n, _) in &t.scalars {
         println!("  scalar      {n}");

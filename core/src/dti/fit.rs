@@ -216,9 +216,6 @@ impl TensorModel {
 
     /// The signal the model predicts for a tensor and S0: `S0 exp(-b gᵀ D g)` per volume.
     pub fn predict(&self, lower_tri: &LowerTri, s0: f64) -> Vec<f64> {
-        self.design
-            .iter()
-            .map(|r| s0 * (0..6).map(|c| r[c] * lower_tri[c]).sum::<f64>().exp())
-            .collect()
+        self.design.iter().map(|r| s0 * (0..6).map(|c| r[c] * lower_tri[c]).sum::<f64>().exp()).collect()
     }
 }

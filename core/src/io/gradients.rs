@@ -36,8 +36,10 @@ impl GradientTable {
         if let Some((i, b)) = bvals.iter().enumerate().find(|(_, b)| !b.is_finite() || **b < 0.0) {
             return Err(Error::Param(format!("b-value {i} is {b}: b-values must be finite and >= 0")));
         }
-        let bvecs: Vec<DVec3> =
-            bvecs.into_iter().map(|v| DVec3::from_array(v.to_array().map(|c| if c.is_nan() { 0.0 } else { c }))).collect();
+        let bvecs: Vec<DVec3> = bvecs
+            .into_iter()
+            .map(|v| DVec3::from_array(v.to_array().map(|c| if c.is_nan() { 0.0 } else { c })))
+            .collect();
         for (i, (b, g)) in bvals.iter().zip(&bvecs).enumerate() {
             if *b > b0_threshold && (g.length() - 1.0).abs() > BVEC_NORM_TOLERANCE {
                 return Err(Error::Param(format!(
@@ -75,7 +77,11 @@ impl GradientTable {
         } else {
             return Err(Error::format(
                 bvec,
-                format!("bvec is {}x{cols}, but {} has {n} b-values: expected 3x{n} or {n}x3", rows.len(), bval.display()),
+                format!(
+                    "bvec is {}x{cols}, but {} has {n} b-values: expected 3x{n} or {n}x3",
+                    rows.len(),
+                    bval.display()
+                ),
             ));
         };
         Self::new(bvals, bvecs, b0_threshold)
@@ -130,8 +136,7 @@ fn read_matrix(path: &Path) -> Result<Vec<Vec<f64>>> {
             .split(|c: char| c.is_whitespace() || c == ',')
             .filter(|t| !t.is_empty())
             .map(|t| {
-                t.parse::<f64>()
-                    .map_err(|_| Error::format(path, format!("line {}: '{t}' is not a number", ln + 1)))
+                t.parse::<f64>().map_err(|_| Error::format(path, format!("line {}: '{t}' is not a number", ln + 1)))
             })
             .collect::<Result<Vec<_>>>()?;
         rows.push(row);

@@ -44,9 +44,9 @@ pub struct NiftiHeader {
 /// Datatype codes of the NIfTI standard that can be decoded to a real scalar.
 fn datatype_size(code: i16) -> Option<usize> {
     Some(match code {
-        2 | 256 => 1,       // uint8, int8
-        4 | 512 => 2,       // int16, uint16
-        8 | 768 | 16 => 4,  // int32, uint32, float32
+        2 | 256 => 1,          // uint8, int8
+        4 | 512 => 2,          // int16, uint16
+        8 | 768 | 16 => 4,     // int32, uint32, float32
         64 | 1024 | 1280 => 8, // float64, int64, uint64
         _ => return None,
     })
@@ -157,7 +157,10 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> Result<NiftiHeader> {
             return Err(Error::format(path, "NIfTI-1 magic is neither 'n+1' nor 'ni1' (Analyze files are not read)"));
         }
         if magic == b"ni1\0" {
-            return Err(Error::format(path, "two-file NIfTI (.hdr/.img, magic 'ni1') is not supported; convert to .nii"));
+            return Err(Error::format(
+                path,
+                "two-file NIfTI (.hdr/.img, magic 'ni1') is not supported; convert to .nii",
+            ));
         }
         for (i, d) in dim.iter_mut().enumerate() {
             *d = f.i16(40 + 2 * i) as i64;

@@ -76,7 +76,10 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TckHeader)> {
         other => return Err(Error::format(path, format!("datatype '{other}' is not one of Float32/64 LE/BE"))),
     };
     if offset < pos || offset > b.len() {
-        return Err(Error::format(path, format!("data offset {offset} lies outside the data (header ends at {pos}, file is {} bytes)", b.len())));
+        return Err(Error::format(
+            path,
+            format!("data offset {offset} lies outside the data (header ends at {pos}, file is {} bytes)", b.len()),
+        ));
     }
     let read = |o: usize| -> f64 {
         if size == 4 {

@@ -52,7 +52,9 @@ impl Tractogram {
         match extension(path).as_str() {
             "trk" => Ok(super::trk::read(path)?.0),
             "tck" => Ok(super::tck::read(path)?.0),
-            other => Err(Error::format(path, format!("unknown tractogram extension '{other}' (expected .trk or .tck)"))),
+            other => {
+                Err(Error::format(path, format!("unknown tractogram extension '{other}' (expected .trk or .tck)")))
+            }
         }
     }
 }

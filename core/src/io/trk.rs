@@ -13,7 +13,7 @@ use std::path::Path;
 
 use glam::{DMat4, DVec3, DVec4};
 
-use super::tractogram::{Tractogram, io_orientation, axcodes};
+use super::tractogram::{Tractogram, axcodes, io_orientation};
 use crate::error::{Error, Result};
 
 const HDR: usize = 1000;
@@ -168,7 +168,9 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TrkHeader)> {
     if m[3][3] == 0.0 {
         vox_to_ras = DMat4::IDENTITY;
     }
-    if !vox_to_ras.is_finite() || DMat4::from_cols(vox_to_ras.x_axis, vox_to_ras.y_axis, vox_to_ras.z_axis, DVec4::W).determinant() == 0.0 {
+    if !vox_to_ras.is_finite()
+        || DMat4::from_cols(vox_to_ras.x_axis, vox_to_ras.y_axis, vox_to_ras.z_axis, DVec4::W).determinant() == 0.0
+    {
         return Err(Error::format(path, "vox_to_ras is singular or not finite"));
     }
     let order_raw = &b[948..952];
@@ -180,15 +182,8 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TrkHeader)> {
     if voxel_order.len() != 3 || !voxel_order.chars().all(|c| "RLAPSI".contains(c)) {
         return Err(Error::format(path, format!("voxel_order '{voxel_order}' is not three of R/L A/P S/I")));
     }
-    let header = TrkHeader {
-        version: r.i32(992),
-        big_endian,
-        dims,
-        voxel_size,
-        voxel_order,
-        vox_to_ras,
-        n_count: r.i32(988),
-    };
+    let header =
+        TrkHeader { version: r.i32(992), big_endian, dims, voxel_size, voxel_order, vox_to_ras, n_count: r.i32(988) };
     let to_ras = header.rasmm_from_voxmm();
     let ns = n_scalars as usize;
     let np = n_props as usize;
@@ -203,7 +198,10 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TrkHeader)> {
         }
         let n = r.i32(o);
         if n < 0 {
-            return Err(Error::format(path, format!("streamline {} has a negative point count {n}", t.n_streamlines())));
+            return Err(Error::format(
+                path,
+                format!("streamline {} has a negative point count {n}", t.n_streamlines()),
+            ));
         }
         let n = n as usize;
         o += 4;
@@ -302,4 +300,3 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, world_from_voxel: DMat4, di
     }
     std::fs::write(path, out).map_err(|e| Error::io(path, e))
 }
-

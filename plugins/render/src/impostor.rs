@@ -1,0 +1,71 @@
+//! A sphere drawn by ray casting on a bounding cube, writing true depth: the reference opaque ray-cast
+//! primitive, used by the framework's depth tests and as the template for glyph shaders.
+//!
+//! Why the prepass is off: with `DepthPrepass` on a camera, the default prepass shader would write the
+//! proxy cube's depth, hiding the glyph and everything behind the proxy. A glyph that must appear in the
+//! prepass (for volume ray marching that stops at opaque depth) supplies a prepass fragment shader that
+//! computes the same depth.
+
+use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
+use bevy::prelude::*;
+use bevy::render::render_resource::{AsBindGroup, ShaderType};
+use bevy::shader::ShaderRef;
+
+use crate::shaders;
+
+/// GPU parameters. Keep in sync with `ImpostorUniform` in `shaders/sphere_impostor.wgsl`.
+#[derive(Clone, Copy, Debug, ShaderType)]
+pub struct ImpostorUniform {
+    /// Centre (world, mm) and radius (mm).
+    pub center_radius: Vec4,
+    /// Linear RGB base colour and ambient fraction (0..1).
+    pub color_ambient: Vec4,
+}
+
+const _: () = assert!(std::mem::size_of::<ImpostorUniform>() == 32);
+
+#[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
+pub struct SphereImpostorMaterial {
+    #[uniform(0)]
+    pub params: ImpostorUniform,
+}
+
+impl SphereImpostorMaterial {
+    /// A sphere at `center` of `radius`, in linear `color`, with ambient fraction `ambient`.
+    pub fn new(center: Vec3, radius: f32, color: LinearRgba, ambient: f32) -> Self {
+        Self {
+            params: ImpostorUniform {
+                center_radius: center.extend(radius),
+                color_ambient: Vec4::new(color.red, color.green, color.blue, ambient),
+            },
+        }
+    }
+
+    /// The proxy mesh's transform: a unit cube scaled to the sphere's bounding box.
+    pub fn proxy_transform(&self) -> Transform {
+        let cr = self.params.center_radius;
+        Transform::from_translation(cr.truncate()).with_scale(Vec3::splat(2.0 * cr.w))
+    }
+}
+
+impl Material for SphereImpostorMaterial {
+    fn fragment_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::SPHERE_IMPOSTOR)
+    }
+    fn enable_prepass() -> bool {
+        false
+    }
+    fn enable_shadows() -> bool {
+        false
+    }
+    fn specialize(
+        _pipeline: &MaterialPipeline,
+        descriptor: &mut bevy::render::render_resource::RenderPipelineDescriptor,
+        _layout: &bevy::mesh::MeshVertexBufferLayoutRef,
+        _key: MaterialPipelineKey<Self>,
+    ) -> Result<(), bevy::render::render_resource::SpecializedMeshPipelineError> {
+        // The ray may enter the proxy from inside (camera within the bounding cube): draw back faces.
+        descriptor.primitive.cull_mode = None;
+        Ok(())
+    }
+}
