@@ -1,16 +1,20 @@
 //! `fascicle`: the viewer (default), headless renderer and command-line tools.
 
 use clap::Parser;
-
-mod cli;
+use fascicle::cli;
 
 fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
-    let result = match args.command {
-        Some(cli::Command::Fit { model }) => cli::fit::run(model),
-        Some(cli::Command::Info { file }) => cli::info::run(&file),
-        Some(cli::Command::Render { .. }) | Some(cli::Command::View { .. }) | None => {
-            eprintln!("viewer/render: not yet wired");
+    let result: Result<(), String> = match args.command {
+        Some(cli::Command::Fit { model }) => cli::fit::run(model).map_err(|e| e.to_string()),
+        Some(cli::Command::Info { file }) => cli::info::run(&file).map_err(|e| e.to_string()),
+        Some(cli::Command::Render { scene, out, size }) => fascicle::render::run(scene.as_deref(), &out, &size),
+        Some(cli::Command::View { files }) => {
+            fascicle::viewer::run(files);
+            Ok(())
+        }
+        None => {
+            fascicle::viewer::run(vec![]);
             Ok(())
         }
     };

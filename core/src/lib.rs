@@ -10,6 +10,7 @@ pub mod dti;
 pub mod error;
 pub mod io;
 pub mod linalg;
+pub mod phantom;
 pub mod sh;
 pub mod volume;
 

@@ -6,7 +6,7 @@
 pub fn cholesky_solve<const N: usize>(a: &[[f64; N]; N], b: &[f64; N]) -> Option<[f64; N]> {
     let mut l = [[0.0f64; N]; N];
     let scale = (0..N).map(|i| a[i][i].abs()).fold(0.0, f64::max);
-    if !(scale > 0.0) || !scale.is_finite() {
+    if scale.is_nan() || scale <= 0.0 || !scale.is_finite() {
         return None;
     }
     for i in 0..N {
@@ -16,7 +16,7 @@ pub fn cholesky_solve<const N: usize>(a: &[[f64; N]; N], b: &[f64; N]) -> Option
                 s -= l[i][k] * l[j][k];
             }
             if i == j {
-                if !(s > 1e-13 * scale) {
+                if s.is_nan() || s <= 1e-13 * scale {
                     return None;
                 }
                 l[i][i] = s.sqrt();

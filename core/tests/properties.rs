@@ -143,3 +143,30 @@ fn noiseless_tensor_signal_is_recovered_exactly() {
         assert!(fit.eigen.vectors[0].dot(rot.x_axis).abs() > 1.0 - 1e-12);
     }
 }
+
+#[test]
+fn phantom_fa_is_the_closed_form_in_fibres_and_zero_outside() {
+    let p = fascicle_core::phantom::ring_cross([48, 48, 24]);
+    let fa = p.fa();
+    // FA of (1.7, 0.3, 0.3): sqrt(1/2 (1.4² + 0 + 1.4²) / (1.7² + 0.3² + 0.3²))
+    let single = (0.5 * (2.0 * 1.4f64.powi(2)) / (1.7f64.powi(2) + 0.18)).sqrt();
+    let (mut n_single, mut n_bg, mut n_cross) = (0, 0, 0);
+    for (i, dirs) in p.fibres.iter().enumerate() {
+        let f = fa.data[i] as f64;
+        match dirs.len() {
+            0 => {
+                assert!(f.abs() < 1e-6);
+                n_bg += 1;
+            }
+            1 => {
+                assert!((f - single).abs() < 1e-6, "{f} vs {single}");
+                n_single += 1;
+            }
+            _ => {
+                assert!(f > 0.0 && f < single);
+                n_cross += 1;
+            }
+        }
+    }
+    assert!(n_single > 1000 && n_bg > 10000 && n_cross > 50, "{n_single} {n_bg} {n_cross}");
+}

@@ -27,9 +27,6 @@ pub enum Command {
         /// Image size, WxH.
         #[arg(long, default_value = "800x600")]
         size: String,
-        /// Also write the depth buffer: 16-bit PNG (.png) or float32 .npy (.npy).
-        #[arg(long)]
-        depth: Option<PathBuf>,
     },
     /// Fit a model to a DWI.
     Fit {

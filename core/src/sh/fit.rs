@@ -55,7 +55,7 @@ fn legendre_at_zero(l: usize) -> f64 {
 
 impl OdfModel {
     pub fn new(gtab: &GradientTable, kind: OdfKind, l_max: usize, smooth: f64, basis: ShBasis) -> Result<Self> {
-        if l_max % 2 != 0 || l_max == 0 {
+        if !l_max.is_multiple_of(2) || l_max == 0 {
             return Err(Error::Param(format!("l_max must be even and >= 2, got {l_max}")));
         }
         let (b0, dwi) = (gtab.b0_indices(), gtab.dwi_indices());

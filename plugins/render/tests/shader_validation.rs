@@ -76,12 +76,21 @@ fn every_shader_validates_with_imports_resolved() {
                 })
                 .is_err()
         });
-        assert!(pending.len() < before, "unresolvable imports in {:?}", pending.iter().map(|p| &p.0).collect::<Vec<_>>());
+        assert!(
+            pending.len() < before,
+            "unresolvable imports in {:?}",
+            pending.iter().map(|p| &p.0).collect::<Vec<_>>()
+        );
     }
     libs.sort();
     for (path, src) in &libs {
         let m = composer
-            .make_naga_module(NagaModuleDescriptor { source: src, file_path: path, shader_defs: defs.clone(), ..Default::default() })
+            .make_naga_module(NagaModuleDescriptor {
+                source: src,
+                file_path: path,
+                shader_defs: defs.clone(),
+                ..Default::default()
+            })
             .unwrap_or_else(|e| panic!("{path}: {}", e.emit_to_string(&composer)));
         validate(&m, path);
     }
@@ -89,13 +98,21 @@ fn every_shader_validates_with_imports_resolved() {
     assert!(!entries.is_empty() && !libs.is_empty());
     for (path, src) in entries {
         let m = composer
-            .make_naga_module(NagaModuleDescriptor { source: src, file_path: path, shader_defs: defs.clone(), ..Default::default() })
+            .make_naga_module(NagaModuleDescriptor {
+                source: src,
+                file_path: path,
+                shader_defs: defs.clone(),
+                ..Default::default()
+            })
             .unwrap_or_else(|e| panic!("{path}: {}", e.emit_to_string(&composer)));
         assert!(!m.entry_points.is_empty(), "{path}: no entry point");
         validate(&m, path);
     }
     // Every shader file is compiled into the render crate (so none is forgotten at run time).
     for (path, _) in &sources {
-        assert!(fascicle_render::shaders::SOURCES.iter().any(|(_, p, _)| p == path), "{path} is not in shaders::SOURCES");
+        assert!(
+            fascicle_render::shaders::SOURCES.iter().any(|(_, p, _)| p == path),
+            "{path} is not in shaders::SOURCES"
+        );
     }
 }

@@ -1,0 +1,245 @@
+//! Turns the active [`Scene`] into entities, for the viewer and the headless renderer alike.
+//!
+//! Work happens only when the scene changes: a change of visibility or opacity updates the existing
+//! entities and materials; a change of what the layers are (sources, slices) respawns them. A layer whose
+//! file fails to load becomes an error message in [`LayerErrors`]; the others still show.
+
+use bevy::asset::RenderAssetUsages;
+use bevy::image::ImageSampler;
+use bevy::mesh::{Indices, PrimitiveTopology};
+use bevy::prelude::*;
+use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
+use fascicle_core::Volume;
+use fascicle_core::io::{Tractogram, nifti};
+
+use crate::scene::{LayerKind, LayerSpec, Scene, SliceAxis, VolumeSource};
+
+/// The scene being shown.
+#[derive(Resource, Clone, Debug)]
+pub struct ActiveScene(pub Scene);
+
+/// Load errors of the current scene's layers, shown by the viewer and returned by the headless renderer.
+#[derive(Resource, Default, Debug)]
+pub struct LayerErrors(pub Vec<String>);
+
+/// Marks the entities of layer `0` (index into the scene's layers).
+#[derive(Component, Clone, Copy)]
+pub struct LayerEntity(pub usize);
+
+/// What was spawned, to tell parameter changes from structural ones.
+#[derive(Resource, Default)]
+struct Spawned(Vec<LayerKind>);
+
+pub struct ScenePlugin;
+
+impl Plugin for ScenePlugin {
+    fn build(&self, app: &mut App) {
+        app.init_resource::<LayerErrors>()
+            .init_resource::<Spawned>()
+            .add_systems(Update, sync_scene.run_if(resource_exists_and_changed::<ActiveScene>));
+    }
+}
+
+#[expect(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
+fn sync_scene(
+    mut commands: Commands,
+    scene: Res<ActiveScene>,
+    mut spawned: ResMut<Spawned>,
+    mut errors: ResMut<LayerErrors>,
+    existing: Query<(Entity, &LayerEntity, Option<&MeshMaterial3d<StandardMaterial>>)>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut images: ResMut<Assets<Image>>,
+    mut materials: ResMut<Assets<StandardMaterial>>,
+) {
+    let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
+    if kinds == spawned.0 {
+        for (e, le, mat) in &existing {
+            let Some(spec) = scene.0.layers.get(le.0) else { continue };
+            commands.entity(e).insert(if spec.visible { Visibility::Inherited } else { Visibility::Hidden });
+            if let Some(mut m) = mat.and_then(|m| materials.get_mut(&m.0)) {
+                set_opacity(&mut m, spec.opacity);
+            }
+        }
+        return;
+    }
+    for (e, _, _) in &existing {
+        commands.entity(e).despawn();
+    }
+    errors.0.clear();
+    for (i, spec) in scene.0.layers.iter().enumerate() {
+        let vis = if spec.visible { Visibility::Inherited } else { Visibility::Hidden };
+        match spawn_layer(spec, &mut meshes, &mut images, &mut materials) {
+            Ok(parts) => {
+                for (mesh, mat, tf) in parts {
+                    commands.spawn((Mesh3d(mesh), MeshMaterial3d(mat), tf, vis, LayerEntity(i)));
+                }
+            }
+            Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
+        }
+    }
+    spawned.0 = kinds;
+}
+
+fn set_opacity(m: &mut StandardMaterial, opacity: f32) {
+    let a = opacity.clamp(0.0, 1.0);
+    m.base_color.set_alpha(a);
+    m.alpha_mode = if a < 1.0 { AlphaMode::Blend } else { AlphaMode::Opaque };
+}
+
+type Part = (Handle<Mesh>, Handle<StandardMaterial>, Transform);
+
+fn unlit(opacity: f32) -> StandardMaterial {
+    let mut m = StandardMaterial { base_color: Color::WHITE, unlit: true, cull_mode: None, ..default() };
+    set_opacity(&mut m, opacity);
+    m
+}
+
+fn spawn_layer(
+    spec: &LayerSpec,
+    meshes: &mut Assets<Mesh>,
+    images: &mut Assets<Image>,
+    materials: &mut Assets<StandardMaterial>,
+) -> Result<Vec<Part>, String> {
+    match &spec.kind {
+        LayerKind::Axes { length_mm } => {
+            let (l, w) = (*length_mm, length_mm / 40.0);
+            let axes = [
+                (Vec3::new(l, w, w), Vec3::X, Color::linear_rgb(1.0, 0.1, 0.1)),
+                (Vec3::new(w, l, w), Vec3::Y, Color::linear_rgb(0.1, 1.0, 0.1)),
+                (Vec3::new(w, w, l), Vec3::Z, Color::linear_rgb(0.2, 0.3, 1.0)),
+            ];
+            Ok(axes
+                .into_iter()
+                .map(|(size, dir, color)| {
+                    let mut m = unlit(spec.opacity);
+                    m.base_color = color.with_alpha(spec.opacity);
+                    (meshes.add(Cuboid::from_size(size)), materials.add(m), Transform::from_translation(dir * l * 0.5))
+                })
+                .collect())
+        }
+        LayerKind::Slice { source, axis, index } => {
+            let (vol, channel, fixed_window) = match source {
+                VolumeSource::PhantomFa => (fascicle_core::phantom::ring_cross([48, 48, 24]).fa(), 0, Some((0.0, 1.0))),
+                VolumeSource::Nifti { path, volume } => {
+                    let (v, _) = nifti::read::<f32>(path).map_err(|e| e.to_string())?;
+                    if *volume >= v.n_channels() {
+                        return Err(format!("volume {volume} requested, the image has {}", v.n_channels()));
+                    }
+                    (v, *volume, None)
+                }
+            };
+            let (image, corners) = slice_image(&vol, channel, *axis, *index, fixed_window)?;
+            let mut m = unlit(spec.opacity);
+            m.base_color_texture = Some(images.add(image));
+            Ok(vec![(meshes.add(quad(corners)), materials.add(m), Transform::IDENTITY)])
+        }
+        LayerKind::Tractogram { path } => {
+            let t = Tractogram::read(path).map_err(|e| e.to_string())?;
+            if t.points.is_empty() {
+                return Err("the tractogram holds no points".into());
+            }
+            Ok(vec![(meshes.add(lines(&t)), materials.add(unlit(spec.opacity)), Transform::IDENTITY)])
+        }
+    }
+}
+
+/// A grey image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world
+/// positions of its four outer voxel corners, counter-clockwise from voxel (0, 0).
+pub fn slice_image(
+    vol: &Volume<f32>,
+    channel: usize,
+    axis: SliceAxis,
+    index: Option<usize>,
+    window: Option<(f32, f32)>,
+) -> Result<(Image, [Vec3; 4]), String> {
+    let d = vol.dims3();
+    let (ax, u, v) = match axis {
+        SliceAxis::X => (0, 1, 2),
+        SliceAxis::Y => (1, 0, 2),
+        SliceAxis::Z => (2, 0, 1),
+    };
+    let k = index.unwrap_or(d[ax] / 2);
+    if k >= d[ax] {
+        return Err(format!("slice {k} is outside the volume's {} slices along {axis:?}", d[ax]));
+    }
+    let nvox = vol.n_voxels();
+    let at = |i: usize, j: usize| {
+        let mut p = [0usize; 3];
+        p[ax] = k;
+        p[u] = i;
+        p[v] = j;
+        vol.data[p[0] + d[0] * (p[1] + d[1] * p[2]) + nvox * channel]
+    };
+    let (lo, hi) = window.unwrap_or_else(|| {
+        let mut vals: Vec<f32> =
+            vol.data[nvox * channel..nvox * (channel + 1)].iter().copied().filter(|x| x.is_finite()).collect();
+        vals.sort_by(f32::total_cmp);
+        let lo = vals.first().copied().unwrap_or(0.0);
+        let hi = vals.get((vals.len().saturating_sub(1)) * 995 / 1000).copied().unwrap_or(1.0);
+        (lo, if hi > lo { hi } else { lo + 1.0 })
+    });
+    let (w, h) = (d[u], d[v]);
+    let mut px = Vec::with_capacity(w * h * 4);
+    for j in 0..h {
+        for i in 0..w {
+            let x = at(i, j);
+            let g = if x.is_finite() { ((x - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
+            let b = (g * 255.0).round() as u8;
+            px.extend_from_slice(&[b, b, b, 255]);
+        }
+    }
+    let mut image = Image::new(
+        Extent3d { width: w as u32, height: h as u32, depth_or_array_layers: 1 },
+        TextureDimension::D2,
+        px,
+        TextureFormat::Rgba8Unorm,
+        RenderAssetUsages::RENDER_WORLD,
+    );
+    image.sampler = ImageSampler::nearest();
+    let corner = |a: f64, b: f64| {
+        let mut p = [0f64; 3];
+        p[ax] = k as f64;
+        p[u] = a;
+        p[v] = b;
+        vol.world_from_voxel.transform_point3(glam::DVec3::from_array(p)).as_vec3()
+    };
+    let (a1, b1) = (w as f64 - 0.5, h as f64 - 0.5);
+    Ok((image, [corner(-0.5, -0.5), corner(a1, -0.5), corner(a1, b1), corner(-0.5, b1)]))
+}
+
+fn quad(c: [Vec3; 4]) -> Mesh {
+    let n = (c[1] - c[0]).cross(c[3] - c[0]).normalize_or_zero();
+    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, c.to_vec())
+        .with_inserted_attribute(Mesh::ATTRIBUTE_NORMAL, vec![n; 4])
+        .with_inserted_attribute(Mesh::ATTRIBUTE_UV_0, vec![[0.0f32, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+        .with_inserted_indices(Indices::U32(vec![0, 1, 2, 0, 2, 3]))
+}
+
+/// Line segments of every streamline, coloured by |direction| (the usual RGB = LR, AP, SI encoding).
+fn lines(t: &Tractogram) -> Mesh {
+    let mut pos = Vec::with_capacity(t.points.len() * 2);
+    let mut col = Vec::with_capacity(t.points.len() * 2);
+    for s in t.iter() {
+        for w in s.windows(2) {
+            let d = (w[1] - w[0]).normalize_or_zero().abs();
+            let c = [d.x, d.y, d.z, 1.0];
+            pos.push(w[0]);
+            pos.push(w[1]);
+            col.push(c);
+            col.push(c);
+        }
+    }
+    Mesh::new(PrimitiveTopology::LineList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
+}
+
+/// Camera transform and projection for a scene's camera spec.
+pub fn camera_from_spec(spec: &crate::scene::CameraSpec) -> (Transform, Projection) {
+    let eye = Vec3::from_array(spec.eye);
+    let tf = Transform::from_translation(eye).looking_at(Vec3::from_array(spec.target), Vec3::from_array(spec.up));
+    let proj =
+        Projection::Perspective(PerspectiveProjection { fov: spec.fov_y_deg.to_radians(), near: 0.5, ..default() });
+    (tf, proj)
+}

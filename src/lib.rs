@@ -1,0 +1,8 @@
+//! The `fascicle` application: command line, interactive viewer and headless renderer, composed from the
+//! core crate and the render plugins.
+
+pub mod cli;
+pub mod layers;
+pub mod render;
+pub mod scene;
+pub mod viewer;

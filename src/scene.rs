@@ -1,0 +1,127 @@
+//! Scene files (RON): the layers to show, their parameters, and the camera. The viewer saves and loads
+//! them; `fascicle render scene.ron` renders one. The default scene is built in code from the phantom, so
+//! nothing needs files.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Scene {
+    pub layers: Vec<LayerSpec>,
+    #[serde(default)]
+    pub camera: CameraSpec,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LayerSpec {
+    pub name: String,
+    /// Defaults to true.
+    #[serde(default = "yes")]
+    pub visible: bool,
+    /// 0..1. Defaults to 1.
+    #[serde(default = "one")]
+    pub opacity: f32,
+    pub kind: LayerKind,
+}
+
+fn yes() -> bool {
+    true
+}
+fn one() -> f32 {
+    1.0
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum LayerKind {
+    /// One slice of a scalar volume, drawn in its place in world space.
+    Slice { source: VolumeSource, axis: SliceAxis, index: Option<usize> },
+    /// Streamlines as lines coloured by local direction.
+    Tractogram { path: PathBuf },
+    /// World axes from the origin: R red, A green, S blue.
+    Axes { length_mm: f32 },
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum VolumeSource {
+    /// FA of the built-in ring/cross phantom.
+    PhantomFa,
+    /// A NIfTI file; `volume` picks the 4th-dimension index.
+    Nifti { path: PathBuf, volume: usize },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SliceAxis {
+    X,
+    Y,
+    Z,
+}
+
+/// A perspective camera in world (RAS+ mm) coordinates.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraSpec {
+    pub eye: [f32; 3],
+    pub target: [f32; 3],
+    pub up: [f32; 3],
+    /// Vertical field of view in degrees. Defaults to 45.
+    pub fov_y_deg: f32,
+}
+
+impl Default for CameraSpec {
+    fn default() -> Self {
+        Self { eye: [-70.0, -120.0, 80.0], target: [0.0, 0.0, 0.0], up: [0.0, 0.0, 1.0], fov_y_deg: 45.0 }
+    }
+}
+
+impl Scene {
+    /// The phantom's FA in three orthogonal slices, with axes.
+    pub fn default_scene() -> Self {
+        let slice = |name: &str, axis| LayerSpec {
+            name: name.into(),
+            visible: true,
+            opacity: 1.0,
+            kind: LayerKind::Slice { source: VolumeSource::PhantomFa, axis, index: None },
+        };
+        Self {
+            layers: vec![
+                slice("FA axial", SliceAxis::Z),
+                slice("FA coronal", SliceAxis::Y),
+                LayerSpec {
+                    name: "Axes".into(),
+                    visible: true,
+                    opacity: 1.0,
+                    kind: LayerKind::Axes { length_mm: 30.0 },
+                },
+            ],
+            camera: CameraSpec::default(),
+        }
+    }
+
+    pub fn load(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        ron::from_str(&text).map_err(|e| format!("{}: not a scene file: {e}", path.display()))
+    }
+
+    pub fn save(&self, path: &Path) -> Result<(), String> {
+        let text = ron::ser::to_string_pretty(self, ron::ser::PrettyConfig::default()).map_err(|e| e.to_string())?;
+        std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    /// A layer for a data file by its extension (NIfTI slice or tractogram), named after the file.
+    pub fn layer_for_file(path: &Path) -> Result<LayerSpec, String> {
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let lower = name.to_ascii_lowercase();
+        let kind = if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
+            LayerKind::Slice {
+                source: VolumeSource::Nifti { path: path.to_path_buf(), volume: 0 },
+                axis: SliceAxis::Z,
+                index: None,
+            }
+        } else if lower.ends_with(".trk") || lower.ends_with(".tck") {
+            LayerKind::Tractogram { path: path.to_path_buf() }
+        } else {
+            return Err(format!("{}: not a NIfTI image, tractogram or scene file", path.display()));
+        };
+        Ok(LayerSpec { name, visible: true, opacity: 1.0, kind })
+    }
+}

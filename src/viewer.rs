@@ -1,0 +1,284 @@
+//! The interactive viewer: the scene plugin in a window, an orbit camera, and an egui panel listing the
+//! layers (visibility, opacity), load errors, scene save/load and frame time.
+//!
+//! Mouse: left-drag orbits, right-drag pans, wheel zooms. Keys: R resets the view, F12 saves a screenshot.
+//! Files dropped on the window are added as layers; a file that fails to load shows an error and the
+//! viewer keeps running.
+
+use std::path::PathBuf;
+
+use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
+use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
+use bevy::prelude::*;
+use bevy::render::view::screenshot::{Screenshot, save_to_disk};
+use bevy::window::FileDragAndDrop;
+use bevy_egui::input::{egui_wants_any_keyboard_input, egui_wants_any_pointer_input};
+use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
+use fascicle_render::FascicleRenderPlugin;
+
+use crate::layers::{ActiveScene, LayerErrors, ScenePlugin};
+use crate::render::BACKGROUND;
+use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene};
+
+/// Camera components shared by viewer and headless renderer, so both produce the same image.
+pub fn view_camera() -> impl Bundle {
+    (
+        Camera3d::default(),
+        Camera { clear_color: ClearColorConfig::Custom(BACKGROUND), ..default() },
+        Tonemapping::None,
+        DebandDither::Disabled,
+    )
+}
+
+#[derive(Resource)]
+struct Orbit {
+    target: Vec3,
+    distance: f32,
+    yaw: f32,
+    pitch: f32,
+    fov_y_deg: f32,
+}
+
+impl Orbit {
+    fn from_spec(s: &CameraSpec) -> Self {
+        let (eye, target) = (Vec3::from_array(s.eye), Vec3::from_array(s.target));
+        let d = eye - target;
+        let distance = d.length().max(1e-3);
+        Self {
+            target,
+            distance,
+            yaw: d.y.atan2(d.x),
+            pitch: (d.z / distance).clamp(-1.0, 1.0).asin(),
+            fov_y_deg: s.fov_y_deg,
+        }
+    }
+    fn eye(&self) -> Vec3 {
+        self.target
+            + self.distance
+                * Vec3::new(self.pitch.cos() * self.yaw.cos(), self.pitch.cos() * self.yaw.sin(), self.pitch.sin())
+    }
+    fn spec(&self) -> CameraSpec {
+        CameraSpec {
+            eye: self.eye().to_array(),
+            target: self.target.to_array(),
+            up: [0.0, 0.0, 1.0],
+            fov_y_deg: self.fov_y_deg,
+        }
+    }
+}
+
+#[derive(Resource, Default)]
+struct UiState {
+    scene_path: String,
+    message: Option<String>,
+    frame_ms: f32,
+    screenshots: u32,
+}
+
+/// Builds the starting scene from command-line files: scene files replace the scene, data files add layers.
+fn initial_scene(files: &[PathBuf]) -> (Scene, Vec<String>) {
+    if files.is_empty() {
+        return (Scene::default_scene(), vec![]);
+    }
+    let mut scene = Scene { layers: vec![], camera: CameraSpec::default() };
+    let mut errors = vec![];
+    for f in files {
+        if f.extension().is_some_and(|e| e == "ron") {
+            match Scene::load(f) {
+                Ok(s) => scene = s,
+                Err(e) => errors.push(e),
+            }
+        } else {
+            match Scene::layer_for_file(f) {
+                Ok(l) => scene.layers.push(l),
+                Err(e) => errors.push(e),
+            }
+        }
+    }
+    if !scene.layers.iter().any(|l| matches!(l.kind, LayerKind::Axes { .. })) {
+        scene.layers.push(LayerSpec {
+            name: "Axes".into(),
+            visible: true,
+            opacity: 1.0,
+            kind: LayerKind::Axes { length_mm: 30.0 },
+        });
+    }
+    (scene, errors)
+}
+
+pub fn run(files: Vec<PathBuf>) -> AppExit {
+    let (scene, errors) = initial_scene(&files);
+    let orbit = Orbit::from_spec(&scene.camera);
+    App::new()
+        .add_plugins(
+            DefaultPlugins.set(WindowPlugin {
+                primary_window: Some(Window { title: "Fascicle".into(), ..default() }),
+                ..default()
+            }),
+        )
+        .add_plugins(EguiPlugin::default())
+        .add_plugins((FascicleRenderPlugin, ScenePlugin))
+        .insert_resource(ActiveScene(scene))
+        .insert_resource(orbit)
+        .insert_resource(UiState {
+            message: (!errors.is_empty()).then(|| errors.join("\n")),
+            scene_path: "scene.ron".into(),
+            ..default()
+        })
+        .add_systems(Startup, |mut commands: Commands| {
+            commands.spawn((view_camera(), Transform::default()));
+        })
+        .add_systems(
+            Update,
+            (
+                orbit_input.run_if(not(egui_wants_any_pointer_input)),
+                keys.run_if(not(egui_wants_any_keyboard_input)),
+                dropped_files,
+                apply_orbit.run_if(resource_changed::<Orbit>),
+            ),
+        )
+        .add_systems(EguiPrimaryContextPass, panel)
+        .run()
+}
+
+fn orbit_input(
+    buttons: Res<ButtonInput<MouseButton>>,
+    motion: Res<AccumulatedMouseMotion>,
+    scroll: Res<AccumulatedMouseScroll>,
+    mut orbit: ResMut<Orbit>,
+) {
+    let d = motion.delta;
+    if buttons.pressed(MouseButton::Left) && d != Vec2::ZERO {
+        orbit.yaw -= d.x * 0.01;
+        orbit.pitch = (orbit.pitch + d.y * 0.01).clamp(-1.55, 1.55);
+    }
+    if buttons.pressed(MouseButton::Right) && d != Vec2::ZERO {
+        let fwd = (orbit.target - orbit.eye()).normalize();
+        let right = fwd.cross(Vec3::Z).normalize_or_zero();
+        let up = right.cross(fwd);
+        let k = orbit.distance * 0.0015;
+        orbit.target += (-d.x * right + d.y * up) * k;
+    }
+    if scroll.delta.y != 0.0 {
+        orbit.distance = (orbit.distance * (-0.1 * scroll.delta.y).exp()).clamp(1.0, 5000.0);
+    }
+}
+
+fn apply_orbit(orbit: Res<Orbit>, mut cam: Query<(&mut Transform, &mut Projection), With<Camera3d>>) {
+    let (tf, proj) = crate::layers::camera_from_spec(&orbit.spec());
+    for (mut t, mut p) in &mut cam {
+        *t = tf;
+        *p = proj.clone();
+    }
+}
+
+fn keys(
+    mut commands: Commands,
+    input: Res<ButtonInput<KeyCode>>,
+    scene: Res<ActiveScene>,
+    mut orbit: ResMut<Orbit>,
+    mut ui: ResMut<UiState>,
+) {
+    if input.just_pressed(KeyCode::KeyR) {
+        *orbit = Orbit::from_spec(&scene.0.camera);
+    }
+    if input.just_pressed(KeyCode::F12) {
+        let path = format!("fascicle-screenshot-{}.png", ui.screenshots);
+        ui.screenshots += 1;
+        ui.message = Some(format!("saved {path}"));
+        commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path));
+    }
+}
+
+fn dropped_files(mut events: MessageReader<FileDragAndDrop>, mut scene: ResMut<ActiveScene>, mut ui: ResMut<UiState>) {
+    for ev in events.read() {
+        if let FileDragAndDrop::DroppedFile { path_buf, .. } = ev {
+            if path_buf.extension().is_some_and(|e| e == "ron") {
+                match Scene::load(path_buf) {
+                    Ok(s) => scene.0 = s,
+                    Err(e) => ui.message = Some(e),
+                }
+                continue;
+            }
+            match Scene::layer_for_file(path_buf) {
+                Ok(l) => scene.0.layers.push(l),
+                Err(e) => ui.message = Some(e),
+            }
+        }
+    }
+}
+
+fn panel(
+    mut contexts: EguiContexts,
+    mut scene: ResMut<ActiveScene>,
+    errors: Res<LayerErrors>,
+    mut ui_state: ResMut<UiState>,
+    mut orbit: ResMut<Orbit>,
+    time: Res<Time>,
+) -> Result {
+    let ctx = contexts.ctx_mut()?;
+    let dt = time.delta_secs() * 1000.0;
+    ui_state.frame_ms = if ui_state.frame_ms == 0.0 { dt } else { 0.95 * ui_state.frame_ms + 0.05 * dt };
+    let mut edited = scene.0.clone();
+    let mut viewport_ui = egui::Ui::new(
+        ctx.clone(),
+        "viewport".into(),
+        egui::UiBuilder::new().layer_id(egui::LayerId::background()).max_rect(ctx.viewport_rect()),
+    );
+    egui::Panel::left("layers").resizable(true).show(&mut viewport_ui, |ui| {
+        ui.heading("Fascicle");
+        ui.label(format!("frame {:.1} ms", ui_state.frame_ms));
+        ui.separator();
+        ui.heading("Layers");
+        let mut remove = None;
+        for (i, layer) in edited.layers.iter_mut().enumerate() {
+            ui.horizontal(|ui| {
+                ui.checkbox(&mut layer.visible, &layer.name);
+                if ui.small_button("x").clicked() {
+                    remove = Some(i);
+                }
+            });
+            ui.add(egui::Slider::new(&mut layer.opacity, 0.0..=1.0).text("opacity"));
+        }
+        if let Some(i) = remove {
+            edited.layers.remove(i);
+        }
+        ui.separator();
+        if ui.button("Reset view (R)").clicked() {
+            *orbit = Orbit::from_spec(&edited.camera);
+        }
+        ui.horizontal(|ui| {
+            ui.text_edit_singleline(&mut ui_state.scene_path);
+        });
+        ui.horizontal(|ui| {
+            if ui.button("Save scene").clicked() {
+                let mut s = edited.clone();
+                s.camera = orbit.spec();
+                ui_state.message = Some(match s.save(std::path::Path::new(&ui_state.scene_path)) {
+                    Ok(()) => format!("saved {}", ui_state.scene_path),
+                    Err(e) => e,
+                });
+            }
+            if ui.button("Load scene").clicked() {
+                match Scene::load(std::path::Path::new(&ui_state.scene_path)) {
+                    Ok(s) => {
+                        *orbit = Orbit::from_spec(&s.camera);
+                        edited = s;
+                    }
+                    Err(e) => ui_state.message = Some(e),
+                }
+            }
+        });
+        for e in &errors.0 {
+            ui.colored_label(egui::Color32::LIGHT_RED, e);
+        }
+        if let Some(m) = &ui_state.message {
+            ui.label(m);
+        }
+        ui.label("Drop NIfTI, .trk/.tck or .ron files on the window.");
+    });
+    if edited != scene.0 {
+        scene.0 = edited;
+    }
+    Ok(())
+}
