@@ -1,0 +1,11 @@
+//! Any bytes given to the trk reader give Ok or Err, never a panic.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    let p = std::env::temp_dir().join(format!("fascicle-fuzz-{}.trk", std::process::id()));
+    if std::fs::write(&p, data).is_ok() {
+        let _ = fascicle_core::io::trk::read(&p);
+    }
+});
