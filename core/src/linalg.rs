@@ -121,3 +121,21 @@ pub fn pinv(a: &[f64], m: usize, n: usize) -> Vec<f64> {
     }
     out
 }
+
+/// Nearest orthogonal matrix to `m` (rotation or reflection, as `m`'s determinant): Newton iteration of the
+/// polar decomposition, `m <- (m + m⁻ᵀ) / 2`.
+pub fn polar_rotation(mut m: glam::DMat3) -> glam::DMat3 {
+    for _ in 0..30 {
+        let inv_t = m.inverse().transpose();
+        if !inv_t.is_finite() {
+            break;
+        }
+        let next = (m + inv_t) * 0.5;
+        let done = (next - m).abs_diff_eq(glam::DMat3::ZERO, 1e-15);
+        m = next;
+        if done {
+            break;
+        }
+    }
+    m
+}

@@ -62,6 +62,15 @@ impl<T: Scalar> Volume<T> {
         self.data[v + self.n_voxels() * c]
     }
 
+    /// Copies the values of spatial voxel `v` across all channels (a DWI's signal) into `out` as f64.
+    #[inline]
+    pub fn voxel_signal(&self, v: usize, out: &mut [f64]) {
+        let n = self.n_voxels();
+        for (c, s) in out.iter_mut().enumerate() {
+            *s = self.data[v + n * c].to_f64();
+        }
+    }
+
     /// Voxel edge lengths in mm, from the columns of the affine.
     pub fn voxel_size(&self) -> DVec3 {
         let m = self.world_from_voxel;

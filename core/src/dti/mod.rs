@@ -102,9 +102,7 @@ pub fn fit_volume_with_progress<T: Scalar>(
                 if mask.is_some_and(|m| !m[v]) {
                     continue;
                 }
-                for (c, s) in sig.iter_mut().enumerate() {
-                    *s = dwi.data[v + nvox * c].to_f64();
-                }
+                dwi.voxel_signal(v, sig);
                 *out = Some(model.fit_voxel(sig, scratch));
             }
             progress(outs.len());

@@ -400,7 +400,7 @@ pub fn write<T: Scalar>(path: impl AsRef<Path>, vol: &Volume<T>, ty: WriteType) 
     } else {
         1.0
     };
-    let q = DQuat::from_mat3(&orthonormalise(r));
+    let q = DQuat::from_mat3(&crate::linalg::polar_rotation(r));
     let q = if q.w < 0.0 { -q } else { q };
     put(&mut h, 76, &qfac.to_le_bytes());
     for (i, z) in zooms.iter().enumerate() {
@@ -444,16 +444,4 @@ pub fn write<T: Scalar>(path: impl AsRef<Path>, vol: &Volume<T>, ty: WriteType) 
         w.write_all(&out).and_then(|_| w.flush())
     };
     res.map_err(|e| Error::io(PathBuf::from(path), e))
-}
-
-/// Nearest rotation to `m` by a few Newton iterations of the polar decomposition.
-fn orthonormalise(mut m: DMat3) -> DMat3 {
-    for _ in 0..20 {
-        let inv_t = m.inverse().transpose();
-        if !inv_t.is_finite() {
-            break;
-        }
-        m = (m + inv_t) * 0.5;
-    }
-    m
 }

@@ -69,7 +69,7 @@ pub fn extension(path: &Path) -> String {
 /// axis it is closest to, among those not yet taken.
 pub fn io_orientation(affine: &DMat4) -> [(usize, f64); 3] {
     let m = DMat3::from_mat4(*affine);
-    let mut r = polar_rotation(m);
+    let mut r = crate::linalg::polar_rotation(m);
     let mut out = [(0usize, 1.0f64); 3];
     for (in_ax, o) in out.iter_mut().enumerate() {
         let col = r.col(in_ax);
@@ -103,21 +103,4 @@ pub fn axcodes(affine: &DMat4) -> String {
             _ => 'I',
         })
         .collect()
-}
-
-/// Nearest rotation (or reflection) to `m`: Newton iteration of the polar decomposition.
-pub(crate) fn polar_rotation(mut m: DMat3) -> DMat3 {
-    for _ in 0..30 {
-        let inv_t = m.inverse().transpose();
-        if !inv_t.is_finite() {
-            break;
-        }
-        let next = (m + inv_t) * 0.5;
-        let done = (next - m).abs_diff_eq(DMat3::ZERO, 1e-15);
-        m = next;
-        if done {
-            break;
-        }
-    }
-    m
 }
