@@ -16,10 +16,7 @@ pub const BACKGROUND: Color = Color::linear_rgb(0.02, 0.02, 0.025);
 pub fn render_scene(scene: &Scene, width: u32, height: u32) -> Result<Capture, String> {
     let mut app = headless::headless_app();
     app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene.clone()));
-    let target = {
-        let mut images = app.world_mut().resource_mut::<Assets<Image>>();
-        headless::target_image(&mut images, width, height)
-    };
+    let target = headless::add_target_image(&mut app, width, height);
     let (tf, proj) = camera_from_spec(&scene.camera);
     app.world_mut().spawn((
         crate::viewer::view_camera(),

@@ -107,6 +107,16 @@ impl Scene {
         std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))
     }
 
+    /// Opens a file into this scene: a scene file (.ron) replaces it, a data file adds a layer.
+    pub fn open_file(&mut self, path: &Path) -> Result<(), String> {
+        if path.extension().is_some_and(|e| e == "ron") {
+            *self = Scene::load(path)?;
+        } else {
+            self.layers.push(Scene::layer_for_file(path)?);
+        }
+        Ok(())
+    }
+
     /// A layer for a data file by its extension (NIfTI slice or tractogram), named after the file.
     pub fn layer_for_file(path: &Path) -> Result<LayerSpec, String> {
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();

@@ -83,16 +83,8 @@ fn initial_scene(files: &[PathBuf]) -> (Scene, Vec<String>) {
     let mut scene = Scene { layers: vec![], camera: CameraSpec::default() };
     let mut errors = vec![];
     for f in files {
-        if f.extension().is_some_and(|e| e == "ron") {
-            match Scene::load(f) {
-                Ok(s) => scene = s,
-                Err(e) => errors.push(e),
-            }
-        } else {
-            match Scene::layer_for_file(f) {
-                Ok(l) => scene.layers.push(l),
-                Err(e) => errors.push(e),
-            }
+        if let Err(e) = scene.open_file(f) {
+            errors.push(e);
         }
     }
     if !scene.layers.iter().any(|l| matches!(l.kind, LayerKind::Axes { .. })) {
@@ -192,18 +184,10 @@ fn keys(
 
 fn dropped_files(mut events: MessageReader<FileDragAndDrop>, mut scene: ResMut<ActiveScene>, mut ui: ResMut<UiState>) {
     for ev in events.read() {
-        if let FileDragAndDrop::DroppedFile { path_buf, .. } = ev {
-            if path_buf.extension().is_some_and(|e| e == "ron") {
-                match Scene::load(path_buf) {
-                    Ok(s) => scene.0 = s,
-                    Err(e) => ui.message = Some(e),
-                }
-                continue;
-            }
-            match Scene::layer_for_file(path_buf) {
-                Ok(l) => scene.0.layers.push(l),
-                Err(e) => ui.message = Some(e),
-            }
+        if let FileDragAndDrop::DroppedFile { path_buf, .. } = ev
+            && let Err(e) = scene.0.open_file(path_buf)
+        {
+            ui.message = Some(e);
         }
     }
 }

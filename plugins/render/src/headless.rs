@@ -105,6 +105,11 @@ pub fn target_image(images: &mut Assets<Image>, width: u32, height: u32) -> Hand
     images.add(img)
 }
 
+/// [`target_image`] added to the App's image assets.
+pub fn add_target_image(app: &mut App, width: u32, height: u32) -> Handle<Image> {
+    target_image(&mut app.world_mut().resource_mut::<Assets<Image>>(), width, height)
+}
+
 /// Camera components for exact offscreen tests: render into `target`, no tonemapping, no MSAA, so that a
 /// shader's linear output maps to the image by the sRGB transfer function alone.
 pub fn exact_camera(target: Handle<Image>) -> impl Bundle {

@@ -32,10 +32,7 @@ fn render() -> Option<Capture> {
     }
     let mut app = headless::headless_app();
     app.add_plugins(FascicleRenderPlugin);
-    let target = {
-        let mut images = app.world_mut().resource_mut::<Assets<Image>>();
-        headless::target_image(&mut images, W, H)
-    };
+    let target = headless::add_target_image(&mut app, W, H);
     let world = app.world_mut();
     let cube_mesh = world.resource_mut::<Assets<Mesh>>().add(Cuboid::new(1.0, 1.0, 1.0));
     let unit = world.resource_mut::<Assets<Mesh>>().add(Cuboid::new(1.0, 1.0, 1.0));
