@@ -7,6 +7,8 @@ fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
     let result: Result<(), String> = match args.command {
         Some(cli::Command::Fit { model }) => cli::fit::run(model).map_err(|e| e.to_string()),
+        Some(cli::Command::Bench { suite }) => cli::bench::run(suite).map_err(|e| e.to_string()),
+        Some(cli::Command::Track(a)) => cli::track::run(a).map_err(|e| e.to_string()),
         Some(cli::Command::Info { file }) => cli::info::run(&file).map_err(|e| e.to_string()),
         Some(cli::Command::Render { scene, out, size }) => fascicle::render::run(scene.as_deref(), &out, &size),
         Some(cli::Command::View { files }) => {

@@ -8,6 +8,7 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use fascicle_core::dti::{FitMethod, TensorModel, eigen};
 use fascicle_core::io::{GradientTable, nifti};
 use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis, sphere};
+use fascicle_core::tracking::{self, DirectionField, TensorField, TensorInterpolation};
 
 fn data(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../data").join(rel)
@@ -47,6 +48,42 @@ fn bench_dti(c: &mut Criterion) {
         b.iter(|| {
             i = (i + 1) % tensors.len();
             black_box(eigen::eigh(black_box(&tensors[i])))
+        })
+    });
+    c.bench_function("principal eigenvector (closed form + Rayleigh refinement)", |b| {
+        b.iter(|| {
+            i = (i + 1) % tensors.len();
+            black_box(tracking::principal_direction(black_box(&tensors[i])))
+        })
+    });
+    let frames: Vec<[f64; 6]> = (0..1000)
+        .map(|k| {
+            let q = glam::DQuat::from_euler(glam::EulerRot::XYZ, k as f64 * 0.37, k as f64 * 0.11, k as f64 * 0.07);
+            let m = glam::DMat3::from_quat(q);
+            eigen::from_eigen(&eigen::Eigen {
+                values: [1.7e-3, 0.4e-3, 0.3e-3],
+                vectors: [m.x_axis, m.y_axis, m.z_axis],
+            })
+        })
+        .collect();
+    c.bench_function("principal eigenvector, white-matter tensors", |b| {
+        b.iter(|| {
+            i = (i + 1) % frames.len();
+            black_box(tracking::principal_direction(black_box(&frames[i])))
+        })
+    });
+    let field = TensorField::new(
+        [8, 8, 8],
+        glam::DVec3::ONE,
+        (0..512).map(|v| Some(tensors[v % tensors.len()])),
+        TensorInterpolation::Componentwise,
+    )
+    .expect("field");
+    let mut p = glam::DVec3::splat(1.3);
+    c.bench_function("tensor field sample (trilinear 7 values + principal direction)", |b| {
+        b.iter(|| {
+            p.x = (p.x + 0.37) % 6.0;
+            black_box(field.sample(black_box(p)))
         })
     });
 }

@@ -12,6 +12,7 @@ pub mod io;
 pub mod linalg;
 pub mod phantom;
 pub mod sh;
+pub mod tracking;
 pub mod volume;
 
 pub use error::{Error, Result};

@@ -63,13 +63,13 @@ pub struct OdfArgs {
     pub out: PathBuf,
 }
 
-struct Loaded {
-    dwi: Volume<f32>,
-    gtab: GradientTable,
-    mask: Option<Vec<bool>>,
+pub(crate) struct Loaded {
+    pub dwi: Volume<f32>,
+    pub gtab: GradientTable,
+    pub mask: Option<Vec<bool>>,
 }
 
-fn load(a: &DwiArgs) -> Result<Loaded, Error> {
+pub(crate) fn load(a: &DwiArgs) -> Result<Loaded, Error> {
     let (dwi, _) = nifti::read::<f32>(&a.dwi)?;
     if dwi.shape.len() != 4 {
         return Err(Error::Shape(format!("{}: a DWI must be 4D, this image is {:?}", a.dwi.display(), dwi.shape)));
@@ -86,27 +86,28 @@ fn load(a: &DwiArgs) -> Result<Loaded, Error> {
     }
     let mask = match &a.mask {
         None => None,
-        Some(p) => {
-            let (m, _) = nifti::read::<f32>(p)?;
-            if m.dims3() != dwi.dims3() || m.n_channels() != 1 {
-                return Err(Error::Shape(format!(
-                    "mask {} is {:?}, the DWI's voxel grid is {:?}",
-                    p.display(),
-                    m.shape,
-                    dwi.dims3()
-                )));
-            }
-            Some(m.data.iter().map(|&v| v > 0.0).collect())
-        }
+        Some(p) => Some(read_mask(p, dwi.dims3())?),
     };
     Ok(Loaded { dwi, gtab, mask })
 }
 
-fn progress_bar(n: usize, what: &str) -> ProgressBar {
+/// A 3D mask image on a given voxel grid: voxels > 0 are in.
+pub(crate) fn read_mask(p: &Path, dims: [usize; 3]) -> Result<Vec<bool>, Error> {
+    let (m, _) = nifti::read::<f32>(p)?;
+    if m.dims3() != dims || m.n_channels() != 1 {
+        return Err(Error::Shape(format!("mask {} is {:?}, the data's voxel grid is {dims:?}", p.display(), m.shape)));
+    }
+    Ok(m.data.iter().map(|&v| v > 0.0).collect())
+}
+
+/// A progress bar counting `unit`s (voxels, seeds).
+pub(crate) fn progress_bar(n: usize, what: &str, unit: &str) -> ProgressBar {
     let pb = ProgressBar::new(n as u64);
     pb.set_style(
-        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} voxels ({per_sec}, eta {eta})")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        ProgressStyle::with_template(&format!(
+            "{{msg}} [{{bar:40}}] {{pos}}/{{len}} {unit} ({{per_sec}}, eta {{eta}})"
+        ))
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
     pb.set_message(what.to_string());
     pb
@@ -123,7 +124,7 @@ pub fn run(cmd: FitCommand) -> Result<(), Error> {
 fn fit_dti(input: &DwiArgs, method: FitMethod, out: &Path) -> Result<(), Error> {
     let l = load(input)?;
     std::fs::create_dir_all(out).map_err(|e| Error::Io { path: out.to_path_buf(), source: e })?;
-    let pb = progress_bar(l.dwi.n_voxels(), "DTI");
+    let pb = progress_bar(l.dwi.n_voxels(), "DTI", "voxels");
     let tv = dti::fit_volume_with_progress(&l.dwi, &l.gtab, method, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
     pb.finish_and_clear();
     let (nonfinite, singular) = tv.failures();
@@ -164,7 +165,7 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
     let l = load(&a.input)?;
     let basis = ShBasis::parse(&a.basis, a.legacy)?;
     let model = OdfModel::new(&l.gtab, kind, a.lmax, a.smooth, basis)?;
-    let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" });
+    let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
     let coeffs = sh::fit_odf_volume_with_progress(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
     pb.finish_and_clear();
     nifti::write(&a.out, &coeffs, nifti::WriteType::F32)?;

@@ -1,8 +1,10 @@
-//! The command line: `view`, `render`, `fit`, `info`. Names and outputs here are an interface that other
+//! The command line: `view`, `render`, `fit`, `track`, `info`, `bench`. Names and outputs here are an interface that other
 //! tools call; change them only with care.
 
+pub mod bench;
 pub mod fit;
 pub mod info;
+pub mod track;
 
 use std::path::PathBuf;
 
@@ -33,8 +35,15 @@ pub enum Command {
         #[command(subcommand)]
         model: fit::FitCommand,
     },
+    /// Track streamlines (FA-thresholded, Euler/RK2/RK4) from a DWI or tensor image into .trk/.tck.
+    Track(track::TrackArgs),
     /// Print what a NIfTI image or tractogram holds.
     Info { file: PathBuf },
+    /// Print measured tables (run time, throughput, run time against error) as Markdown.
+    Bench {
+        #[command(subcommand)]
+        suite: bench::BenchCommand,
+    },
 }
 
 /// Parses "WxH".

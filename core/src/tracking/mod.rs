@@ -1,0 +1,16 @@
+//! Deterministic streamline tracking: a direction field ([`field`]), an integrator (Euler, RK2, RK4) at a
+//! fixed step in mm, stops on FA, volume, mask, curvature and length, seeds from a mask or a file
+//! ([`seeds`]). Parallel over seeds with an output order that does not depend on the thread count.
+//!
+//! Conventions (DIPY's): points are voxel coordinates while tracking (integer = voxel centre); directions
+//! are unit vectors in the voxel-aligned mm frame (the frame the gradients, hence the tensors, are in), so a
+//! step of `h` mm along `d` moves `h d / voxel_size` voxels, which handles anisotropic voxels; output points
+//! go through the full affine (oblique included) to world RAS+ mm.
+
+pub mod field;
+pub mod seeds;
+mod tracker;
+
+pub use field::{CircleField, DirectionField, FieldSample, TensorField, TensorInterpolation, principal_direction};
+pub use seeds::{read_seeds, seeds_from_mask, to_voxel};
+pub use tracker::{Integrator, Rejection, StopReason, TrackParams, Tracker, Tracks};

@@ -1,0 +1,385 @@
+//! The deterministic tracker: fixed-step integration of a [`DirectionField`] from seeds, both ways, with
+//! FA, volume, mask, curvature and length stops.
+
+use glam::{DMat3, DMat4, DVec3};
+use rayon::prelude::*;
+
+use super::field::{DirectionField, in_grid};
+use crate::dti::eigen::LowerTri;
+use crate::error::{Error, Result};
+use crate::io::Tractogram;
+
+/// The integration scheme for `dp/ds = d(p)`, `s` the arc length in mm.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Integrator {
+    /// Explicit Euler, first order (what DIPY's EuDX and `LocalTracking` do).
+    Euler,
+    /// Midpoint rule, second order.
+    Rk2,
+    /// Classical fourth-order Runge-Kutta.
+    #[default]
+    Rk4,
+}
+
+impl std::str::FromStr for Integrator {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "euler" => Ok(Self::Euler),
+            "rk2" | "midpoint" => Ok(Self::Rk2),
+            "rk4" => Ok(Self::Rk4),
+            _ => Err(Error::Param(format!("unknown integrator '{s}' (use rk4, rk2 or euler)"))),
+        }
+    }
+}
+
+/// Why one end of a streamline stopped (or why a seed gave none).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[repr(u8)]
+pub enum StopReason {
+    /// Interpolated FA fell below the threshold.
+    LowFa,
+    /// The next point (or an integration stage) left the grid.
+    OutsideVolume,
+    /// The next point left the tracking mask.
+    OutsideMask,
+    /// The direction turned more than `max_angle_deg` in one step.
+    Angle,
+    /// The half-streamline reached half of `max_length_mm`.
+    MaxLength,
+    /// No usable direction (isotropic, zero or non-finite tensor).
+    NoDirection,
+}
+
+impl StopReason {
+    pub const ALL: [StopReason; 6] =
+        [Self::LowFa, Self::OutsideVolume, Self::OutsideMask, Self::Angle, Self::MaxLength, Self::NoDirection];
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::LowFa => "FA below threshold",
+            Self::OutsideVolume => "left the volume",
+            Self::OutsideMask => "left the mask",
+            Self::Angle => "turned too sharply",
+            Self::MaxLength => "maximum length",
+            Self::NoDirection => "no direction",
+        }
+    }
+}
+
+/// Why a seed produced no streamline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Rejection {
+    /// The seed is outside the grid or the mask.
+    SeedOutside,
+    /// FA at the seed is below the threshold, or there is no direction there.
+    SeedBelowThreshold,
+    /// Shorter than `min_length_mm` (or a single point).
+    TooShort,
+}
+
+/// Tracking parameters. Defaults: RK4 at 0.5 mm, FA 0.2, 60 degrees, lengths 0..250 mm.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrackParams {
+    pub step_mm: f64,
+    pub fa_threshold: f64,
+    pub max_angle_deg: f64,
+    pub integrator: Integrator,
+    pub min_length_mm: f64,
+    /// Whole streamline; each half gets at most half of it.
+    pub max_length_mm: f64,
+}
+
+impl Default for TrackParams {
+    fn default() -> Self {
+        Self {
+            step_mm: 0.5,
+            fa_threshold: 0.2,
+            max_angle_deg: 60.0,
+            integrator: Integrator::Rk4,
+            min_length_mm: 0.0,
+            max_length_mm: 250.0,
+        }
+    }
+}
+
+impl TrackParams {
+    /// Checks the parameters, naming the first bad one.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |what: &str, v: f64, rule: &str| Err(Error::Param(format!("{what} = {v}: {rule}")));
+        if !(self.step_mm.is_finite() && self.step_mm > 0.0) {
+            return bad("step", self.step_mm, "must be a positive number of mm");
+        }
+        if !self.fa_threshold.is_finite() {
+            return bad("FA threshold", self.fa_threshold, "must be finite");
+        }
+        if !(self.max_angle_deg > 0.0 && self.max_angle_deg <= 180.0) {
+            return bad("max angle", self.max_angle_deg, "must be in (0, 180] degrees");
+        }
+        if !(self.min_length_mm >= 0.0 && self.min_length_mm.is_finite()) {
+            return bad("min length", self.min_length_mm, "must be >= 0 mm");
+        }
+        if self.max_length_mm.is_nan() || self.max_length_mm <= 0.0 {
+            return bad("max length", self.max_length_mm, "must be > 0 mm");
+        }
+        if self.max_length_mm < self.min_length_mm {
+            return bad("max length", self.max_length_mm, "must be at least the min length");
+        }
+        Ok(())
+    }
+}
+
+/// Streamlines with what the hyperstreamline renderer and the summary need, in flat arrays.
+#[derive(Clone, Debug, Default)]
+pub struct Tracks {
+    /// Points in world RAS+ mm, CSR offsets.
+    pub tractogram: Tractogram,
+    /// Per point, the interpolated tensor rotated into the world frame (`R T Rᵀ`, `R` the rotation of the
+    /// affine), lower-triangular order, mm²/s.
+    pub tensors: Vec<[f32; 6]>,
+    /// Per streamline, why its first and last point ended the track.
+    pub ends: Vec<[StopReason; 2]>,
+    /// Per streamline, the index of its seed.
+    pub seed_index: Vec<u32>,
+    /// Seeds that gave no streamline, with why.
+    pub rejected: Vec<(u32, Rejection)>,
+}
+
+impl Tracks {
+    pub fn n_points(&self) -> usize {
+        self.tractogram.points.len()
+    }
+    /// How many streamline ends stopped for each reason.
+    pub fn stop_counts(&self) -> Vec<(StopReason, usize)> {
+        StopReason::ALL
+            .iter()
+            .map(|&r| (r, self.ends.iter().flatten().filter(|&&e| e == r).count()))
+            .filter(|&(_, n)| n > 0)
+            .collect()
+    }
+    /// How many seeds were rejected for each reason.
+    pub fn rejection_counts(&self) -> Vec<(Rejection, usize)> {
+        let mut out: Vec<(Rejection, usize)> = Vec::new();
+        for &(_, r) in &self.rejected {
+            match out.iter_mut().find(|(k, _)| *k == r) {
+                Some((_, n)) => *n += 1,
+                None => out.push((r, 1)),
+            }
+        }
+        out.sort();
+        out
+    }
+}
+
+/// Seeds per parallel work item.
+const SEED_BLOCK: usize = 64;
+
+/// The tracker: a field, where it sits in the world, an optional mask, and the parameters.
+pub struct Tracker<'a, F: DirectionField> {
+    pub field: &'a F,
+    pub world_from_voxel: DMat4,
+    /// One entry per voxel (NIfTI order); tracks stop on leaving it (nearest voxel).
+    pub mask: Option<&'a [bool]>,
+    pub params: TrackParams,
+}
+
+/// One half-streamline's integration state and scratch (reused across seeds: no per-point allocation).
+struct Half {
+    pts: Vec<DVec3>,
+}
+
+impl<'a, F: DirectionField> Tracker<'a, F> {
+    pub fn new(field: &'a F, world_from_voxel: DMat4, params: TrackParams) -> Result<Self> {
+        params.validate()?;
+        if !world_from_voxel.is_finite() || world_from_voxel.determinant() == 0.0 {
+            return Err(Error::Param("the voxel-to-world affine is singular or not finite".into()));
+        }
+        Ok(Self { field, world_from_voxel, mask: None, params })
+    }
+
+    /// Adds a tracking mask (one bool per voxel).
+    pub fn with_mask(mut self, mask: &'a [bool]) -> Result<Self> {
+        let n: usize = self.field.dims().iter().product();
+        if mask.len() != n {
+            return Err(Error::Shape(format!("the tracking mask has {} voxels, the field {n}", mask.len())));
+        }
+        self.mask = Some(mask);
+        Ok(self)
+    }
+
+    fn in_mask(&self, p: DVec3) -> bool {
+        let Some(mask) = self.mask else { return true };
+        let [nx, ny, nz] = self.field.dims();
+        let r = p.round();
+        let (x, y, z) =
+            (r.x.clamp(0.0, nx as f64 - 1.0), r.y.clamp(0.0, ny as f64 - 1.0), r.z.clamp(0.0, nz as f64 - 1.0));
+        mask[x as usize + nx * (y as usize + ny * z as usize)]
+    }
+
+    /// The field's direction at `p`, sign-aligned with `prev`; `Err` with the reason when there is none.
+    #[inline]
+    fn dir(&self, p: DVec3, prev: DVec3) -> std::result::Result<DVec3, StopReason> {
+        if !in_grid(self.field.dims(), p) {
+            return Err(StopReason::OutsideVolume);
+        }
+        let s = self.field.sample(p).ok_or(StopReason::NoDirection)?;
+        Ok(if s.direction.dot(prev) < 0.0 { -s.direction } else { s.direction })
+    }
+
+    /// One step from `p` whose field direction `k1` is known (already sign-aligned): the step direction
+    /// (not normalised: a Runge-Kutta combination of unit vectors).
+    #[inline]
+    fn step(&self, p: DVec3, k1: DVec3, h_vox: DVec3) -> std::result::Result<DVec3, StopReason> {
+        Ok(match self.params.integrator {
+            Integrator::Euler => k1,
+            Integrator::Rk2 => self.dir(p + 0.5 * h_vox * k1, k1)?,
+            Integrator::Rk4 => {
+                let k2 = self.dir(p + 0.5 * h_vox * k1, k1)?;
+                let k3 = self.dir(p + 0.5 * h_vox * k2, k2)?;
+                let k4 = self.dir(p + h_vox * k3, k3)?;
+                (k1 + 2.0 * (k2 + k3) + k4) / 6.0
+            }
+        })
+    }
+
+    /// Traces from `p0`, where the field direction is `d0` (unit, sign chosen), until a stop; pushes the
+    /// points after `p0` into `half.pts`. The sample that checks FA at a new point also gives the next
+    /// step's first stage, so Euler costs one field sample per point and RK4 four.
+    fn trace(&self, p0: DVec3, d0: DVec3, half: &mut Half) -> StopReason {
+        half.pts.clear();
+        let h = self.params.step_mm;
+        let h_vox = h / self.field.voxel_size();
+        let cos_max = self.params.max_angle_deg.to_radians().cos();
+        let max_steps = (0.5 * self.params.max_length_mm / h + 1e-9).floor() as usize;
+        let (mut p, mut d, mut k1) = (p0, d0, d0);
+        for _ in 0..max_steps {
+            let dn = match self.step(p, k1, h_vox) {
+                Ok(v) => v,
+                Err(r) => return r,
+            };
+            let len = dn.length();
+            if !(len > 0.0 && len.is_finite()) {
+                return StopReason::NoDirection;
+            }
+            if dn.dot(d) < cos_max * len {
+                return StopReason::Angle;
+            }
+            let next = p + h_vox * dn;
+            if !in_grid(self.field.dims(), next) {
+                return StopReason::OutsideVolume;
+            }
+            if !self.in_mask(next) {
+                return StopReason::OutsideMask;
+            }
+            let s = match self.field.sample(next) {
+                Some(s) if s.fa >= self.params.fa_threshold => s,
+                Some(_) => return StopReason::LowFa,
+                None => return StopReason::NoDirection,
+            };
+            half.pts.push(next);
+            p = next;
+            d = dn / len;
+            k1 = if s.direction.dot(d) < 0.0 { -s.direction } else { s.direction };
+        }
+        StopReason::MaxLength
+    }
+
+    /// Tracks one seed (voxel coordinates) both ways. Returns the joined points (voxel coordinates) and
+    /// end reasons, or why there is none.
+    fn track_seed(
+        &self,
+        seed: DVec3,
+        fwd: &mut Half,
+        bwd: &mut Half,
+        out: &mut Vec<DVec3>,
+    ) -> std::result::Result<[StopReason; 2], Rejection> {
+        out.clear();
+        if !seed.is_finite() || !in_grid(self.field.dims(), seed) || !self.in_mask(seed) {
+            return Err(Rejection::SeedOutside);
+        }
+        let s = match self.field.sample(seed) {
+            Some(s) if s.fa >= self.params.fa_threshold => s,
+            _ => return Err(Rejection::SeedBelowThreshold),
+        };
+        let end_f = self.trace(seed, s.direction, fwd);
+        let end_b = self.trace(seed, -s.direction, bwd);
+        out.extend(bwd.pts.iter().rev());
+        out.push(seed);
+        out.extend(fwd.pts.iter());
+        let length = (out.len() - 1) as f64 * self.params.step_mm;
+        if out.len() < 2 || length < self.params.min_length_mm {
+            return Err(Rejection::TooShort);
+        }
+        Ok([end_b, end_f])
+    }
+
+    /// Tracks one seed (voxel coordinates) both ways, in f64 voxel coordinates: the points from one end to
+    /// the other and why each end stopped, or why the seed gave none.
+    pub fn track_one(&self, seed: DVec3) -> std::result::Result<(Vec<DVec3>, [StopReason; 2]), Rejection> {
+        let (mut fwd, mut bwd, mut line) = (Half { pts: Vec::new() }, Half { pts: Vec::new() }, Vec::new());
+        let ends = self.track_seed(seed, &mut fwd, &mut bwd, &mut line)?;
+        Ok((line, ends))
+    }
+
+    /// Tracks every seed (voxel coordinates) in parallel. The output order is the seed order whatever the
+    /// number of threads.
+    pub fn run(&self, seeds_vox: &[DVec3]) -> Tracks {
+        self.run_with_progress(seeds_vox, &|_| {})
+    }
+
+    /// [`Tracker::run`], calling `progress(n)` from worker threads as each block of `n` seeds is done.
+    pub fn run_with_progress(&self, seeds_vox: &[DVec3], progress: &(dyn Fn(usize) + Sync)) -> Tracks {
+        let rot = crate::linalg::polar_rotation(DMat3::from_mat4(self.world_from_voxel));
+        let blocks: Vec<Tracks> = seeds_vox
+            .par_chunks(SEED_BLOCK)
+            .enumerate()
+            .map_init(
+                || (Half { pts: Vec::new() }, Half { pts: Vec::new() }, Vec::new()),
+                |(fwd, bwd, line), (b, chunk)| {
+                    let mut t = Tracks { tractogram: Tractogram::new(), ..Default::default() };
+                    for (k, &seed) in chunk.iter().enumerate() {
+                        let index = (b * SEED_BLOCK + k) as u32;
+                        match self.track_seed(seed, fwd, bwd, line) {
+                            Ok(ends) => {
+                                for &p in line.iter() {
+                                    t.tractogram.points.push(self.world_from_voxel.transform_point3(p).as_vec3());
+                                    t.tensors.push(rotate(&self.field.tensor(p), rot));
+                                }
+                                t.tractogram.offsets.push(t.tractogram.points.len());
+                                t.ends.push(ends);
+                                t.seed_index.push(index);
+                            }
+                            Err(r) => t.rejected.push((index, r)),
+                        }
+                    }
+                    progress(chunk.len());
+                    t
+                },
+            )
+            .collect();
+        concat(blocks)
+    }
+}
+
+/// `R T Rᵀ` as f32, lower-triangular.
+fn rotate(t: &LowerTri, r: DMat3) -> [f32; 6] {
+    let m = DMat3::from_cols_array(&[t[0], t[1], t[3], t[1], t[2], t[4], t[3], t[4], t[5]]);
+    let w = r * m * r.transpose();
+    [w.x_axis.x, w.x_axis.y, w.y_axis.y, w.x_axis.z, w.y_axis.z, w.z_axis.z].map(|v| v as f32)
+}
+
+fn concat(blocks: Vec<Tracks>) -> Tracks {
+    let n_pts = blocks.iter().map(|b| b.tractogram.points.len()).sum();
+    let mut out = Tracks { tractogram: Tractogram::new(), ..Default::default() };
+    out.tractogram.points.reserve(n_pts);
+    out.tensors.reserve(n_pts);
+    for b in blocks {
+        let base = out.tractogram.points.len();
+        out.tractogram.points.extend_from_slice(&b.tractogram.points);
+        out.tractogram.offsets.extend(b.tractogram.offsets[1..].iter().map(|o| o + base));
+        out.tensors.extend_from_slice(&b.tensors);
+        out.ends.extend_from_slice(&b.ends);
+        out.seed_index.extend_from_slice(&b.seed_index);
+        out.rejected.extend_from_slice(&b.rejected);
+    }
+    out
+}
