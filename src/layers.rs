@@ -239,7 +239,10 @@ fn lines(t: &Tractogram) -> Mesh {
 pub fn camera_from_spec(spec: &crate::scene::CameraSpec) -> (Transform, Projection) {
     let eye = Vec3::from_array(spec.eye);
     let tf = Transform::from_translation(eye).looking_at(Vec3::from_array(spec.target), Vec3::from_array(spec.up));
-    let proj =
-        Projection::Perspective(PerspectiveProjection { fov: spec.fov_y_deg.to_radians(), near: 0.5, ..default() });
+    let proj = Projection::Perspective(PerspectiveProjection {
+        fov: spec.fov_y_deg.to_radians(),
+        near: crate::render::NEAR,
+        ..default()
+    });
     (tf, proj)
 }

@@ -10,7 +10,9 @@ fn main() -> std::process::ExitCode {
         Some(cli::Command::Bench { suite }) => cli::bench::run(suite).map_err(|e| e.to_string()),
         Some(cli::Command::Track(a)) => cli::track::run(a).map_err(|e| e.to_string()),
         Some(cli::Command::Info { file }) => cli::info::run(&file).map_err(|e| e.to_string()),
-        Some(cli::Command::Render { scene, out, size }) => fascicle::render::run(scene.as_deref(), &out, &size),
+        Some(cli::Command::Render { scene, out, size, depth }) => {
+            fascicle::render::run(scene.as_deref(), &out, &size, depth.as_deref())
+        }
         Some(cli::Command::View { files }) => {
             fascicle::viewer::run(files);
             Ok(())

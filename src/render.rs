@@ -4,7 +4,7 @@ use std::path::Path;
 
 use bevy::prelude::*;
 use fascicle_render::FascicleRenderPlugin;
-use fascicle_render::headless::{self, Capture};
+use fascicle_render::headless::{self, Capture, DepthMap};
 
 use crate::layers::{ActiveScene, LayerErrors, ScenePlugin, camera_from_spec};
 use crate::scene::Scene;
@@ -14,33 +14,64 @@ pub const BACKGROUND: Color = Color::linear_rgb(0.02, 0.02, 0.025);
 
 /// Renders `scene` at `width x height`. Layer load errors fail the render (nothing silently missing).
 pub fn render_scene(scene: &Scene, width: u32, height: u32) -> Result<Capture, String> {
+    render_scene_with_depth(scene, width, height, false).map(|(c, _)| c)
+}
+
+/// [`render_scene`], and with `depth` also the depth buffer of the same frame. With depth, MSAA is off (a
+/// multisampled depth buffer cannot be copied), so the colour image differs from the viewer's only in the
+/// antialiasing of mesh edges.
+pub fn render_scene_with_depth(
+    scene: &Scene,
+    width: u32,
+    height: u32,
+    depth: bool,
+) -> Result<(Capture, Option<DepthMap>), String> {
     let mut app = headless::headless_app();
     app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene.clone()));
     let target = headless::add_target_image(&mut app, width, height);
     let (tf, proj) = camera_from_spec(&scene.camera);
-    app.world_mut().spawn((
-        crate::viewer::view_camera(),
-        bevy::camera::RenderTarget::Image(target.clone().into()),
-        tf,
-        proj,
-    ));
-    let capture = headless::capture(&mut app, target).map_err(|e| e.to_string())?;
+    let cam = app
+        .world_mut()
+        .spawn((crate::viewer::view_camera(), bevy::camera::RenderTarget::Image(target.clone().into()), tf, proj))
+        .id();
+    let copy = depth.then(|| headless::add_depth_copy(&mut app, width, height));
+    if let Some(c) = &copy {
+        app.world_mut().entity_mut(cam).insert(headless::depth_copy_camera(c.clone()));
+    }
+    let out = headless::capture_with_depth(&mut app, target, copy.as_ref()).map_err(|e| e.to_string())?;
     let errors = &app.world().resource::<LayerErrors>().0;
     if !errors.is_empty() {
         return Err(errors.join("\n"));
     }
-    Ok(capture)
+    Ok(out)
 }
 
-pub fn run(scene: Option<&Path>, out: &Path, size: &str) -> Result<(), String> {
+pub fn run(scene: Option<&Path>, out: &Path, size: &str, depth_out: Option<&Path>) -> Result<(), String> {
     let (w, h) = crate::cli::parse_size(size)?;
+    let depth_kind = depth_out.map(|p| fascicle_core::io::tractogram::extension(p));
+    if let Some(k) = &depth_kind
+        && k != "png"
+        && k != "npy"
+    {
+        return Err(format!(
+            "--depth file must end in .png (16-bit NDC depth) or .npy (float32 view depth), not '.{k}'"
+        ));
+    }
     let scene = match scene {
         Some(p) => Scene::load(p)?,
         None => Scene::default_scene(),
     };
-    let capture = render_scene(&scene, w, h)?;
+    let (capture, depth) = render_scene_with_depth(&scene, w, h, depth_out.is_some())?;
     let png = capture.to_png()?;
     std::fs::write(out, png).map_err(|e| format!("{}: {e}", out.display()))?;
     eprintln!("wrote {} ({w}x{h})", out.display());
+    if let (Some(path), Some(d)) = (depth_out, depth) {
+        let bytes = if depth_kind.as_deref() == Some("png") { d.to_png16()? } else { d.to_npy(NEAR) };
+        std::fs::write(path, bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+        eprintln!("wrote {} (depth)", path.display());
+    }
     Ok(())
 }
+
+/// The near plane of the scene camera (`layers::camera_from_spec`).
+pub const NEAR: f32 = 0.5;

@@ -65,3 +65,54 @@ fn scene_files_round_trip() {
     assert_eq!(fascicle::scene::Scene::load(&p).unwrap(), s);
     std::fs::remove_file(p).ok();
 }
+
+/// `--depth`: an axial slice (world z = 1 mm, the phantom's slice 12 of 24 at 2 mm) seen straight down from
+/// z = 200 lies at view depth 199 mm on every pixel it covers, and its footprint is the projected 96 mm square.
+#[test]
+fn depth_export_matches_the_slice_plane() {
+    if fascicle_render::headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    use fascicle::scene::{CameraSpec, Scene};
+    let dir = std::env::temp_dir().join(format!("fascicle-depth-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut scene = Scene::default_scene();
+    scene.layers.truncate(1); // the axial slice only
+    scene.camera = CameraSpec { eye: [0.0, 0.0, 200.0], target: [0.0, 0.0, 0.0], up: [0.0, 1.0, 0.0], fov_y_deg: 45.0 };
+    let scene_path = dir.join("top.ron");
+    scene.save(&scene_path).unwrap();
+    let (w, h) = (64usize, 48usize);
+    for depth_file in ["d.npy", "d.png"] {
+        let st = Command::new(env!("CARGO_BIN_EXE_fascicle"))
+            .args(["render", scene_path.to_str().unwrap(), "--size", "64x48"])
+            .args(["--out", dir.join("c.png").to_str().unwrap(), "--depth", dir.join(depth_file).to_str().unwrap()])
+            .status()
+            .unwrap();
+        assert!(st.success());
+    }
+    let bytes = std::fs::read(dir.join("d.npy")).unwrap();
+    let f = npyz::NpyFile::new(&bytes[..]).unwrap();
+    assert_eq!(f.shape(), &[h as u64, w as u64]);
+    let z: Vec<f32> = f.into_vec().unwrap();
+    let covered: Vec<bool> = z.iter().map(|d| d.is_finite()).collect();
+    for d in z.iter().filter(|d| d.is_finite()) {
+        assert!((d - 199.0).abs() < 1e-2, "view depth {d}, expected 199");
+    }
+    // Half-size 48 mm at 199 mm with a 45 degree vertical field: 48 * 0.5826 = 27.97 rows, and as many
+    // columns (64x48 keeps pixels square): ~782 pixels, give or take the edge rows and columns.
+    let n = covered.iter().filter(|c| **c).count();
+    assert!((n as i64 - 782).abs() <= 60, "{n} pixels covered");
+    let (_, _, png16) = decode(&std::fs::read(dir.join("d.png")).unwrap());
+    assert_eq!(png16.len(), 2 * w * h);
+    let expected = (0.5f64 / 199.0 * 65535.0).round() as i32; // reverse-Z NDC = near / depth, near 0.5
+    for (i, c) in covered.iter().enumerate() {
+        let v = u16::from_be_bytes([png16[2 * i], png16[2 * i + 1]]) as i32;
+        if *c {
+            assert!((v - expected).abs() <= 1, "pixel {i}: {v} vs {expected}");
+        } else {
+            assert_eq!(v, 0, "pixel {i}: background depth {v}");
+        }
+    }
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -29,6 +29,10 @@ pub enum Command {
         /// Image size, WxH.
         #[arg(long, default_value = "800x600")]
         size: String,
+        /// Also write the depth buffer: .png (16-bit reverse-Z NDC depth, 0 = background) or .npy (float32
+        /// distance along the view axis in mm, inf = background). Turns MSAA off.
+        #[arg(long)]
+        depth: Option<PathBuf>,
     },
     /// Fit a model to a DWI.
     Fit {

@@ -9,11 +9,22 @@
 use std::sync::{Arc, Mutex};
 
 use bevy::app::PluginsState;
+use bevy::asset::RenderAssetUsages;
 use bevy::camera::RenderTarget;
 use bevy::core_pipeline::tonemapping::Tonemapping;
+use bevy::core_pipeline::{Core3dSystems, schedule::Core3d};
 use bevy::prelude::*;
 use bevy::render::RenderApp;
-use bevy::render::render_resource::{CachedPipelineState, PipelineCache, TextureFormat, TextureUsages};
+use bevy::render::extract_component::{ExtractComponent, ExtractComponentPlugin};
+use bevy::render::gpu_readback::{Readback, ReadbackComplete};
+use bevy::render::render_asset::RenderAssets;
+use bevy::render::render_resource::{
+    CachedPipelineState, Extent3d, Origin3d, PipelineCache, TexelCopyBufferInfo, TexelCopyBufferLayout,
+    TexelCopyTextureInfo, TextureAspect, TextureFormat, TextureUsages,
+};
+use bevy::render::renderer::{RenderContext, ViewQuery};
+use bevy::render::storage::{GpuShaderBuffer, ShaderBuffer};
+use bevy::render::view::ViewDepthTexture;
 use bevy::render::view::screenshot::{Screenshot, ScreenshotCaptured};
 use bevy::render::{RenderPlugin, pipelined_rendering::PipelinedRenderingPlugin};
 use bevy::window::{ExitCondition, WindowPlugin};
@@ -44,6 +55,139 @@ impl Capture {
         }
         Ok(out)
     }
+}
+
+/// A camera's depth buffer read back from the GPU: Bevy's reverse-Z NDC depth per pixel, rows top to
+/// bottom (1 at the near plane, falling towards 0 at infinity; 0 where nothing was drawn).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthMap {
+    pub width: u32,
+    pub height: u32,
+    pub ndc: Vec<f32>,
+}
+
+impl DepthMap {
+    pub fn at(&self, x: u32, y: u32) -> f32 {
+        self.ndc[(y * self.width + x) as usize]
+    }
+
+    /// Distance along the view axis for Bevy's infinite reverse-Z perspective (`z = near / ndc`): infinite
+    /// where nothing was drawn.
+    pub fn view_depth(&self, near: f32) -> Vec<f32> {
+        self.ndc.iter().map(|&d| if d > 0.0 { near / d } else { f32::INFINITY }).collect()
+    }
+
+    /// A 16-bit greyscale PNG of the NDC depth (65535 at the near plane, 0 for the background).
+    pub fn to_png16(&self) -> Result<Vec<u8>, String> {
+        let mut out = Vec::new();
+        {
+            let mut enc = png::Encoder::new(&mut out, self.width, self.height);
+            enc.set_color(png::ColorType::Grayscale);
+            enc.set_depth(png::BitDepth::Sixteen);
+            let mut w = enc.write_header().map_err(|e| e.to_string())?;
+            let bytes: Vec<u8> =
+                self.ndc.iter().flat_map(|d| ((d.clamp(0.0, 1.0) * 65535.0).round() as u16).to_be_bytes()).collect();
+            w.write_image_data(&bytes).map_err(|e| e.to_string())?;
+        }
+        Ok(out)
+    }
+
+    /// A `.npy` (float32, shape height x width) of the view-space depth for a camera with near plane `near`.
+    pub fn to_npy(&self, near: f32) -> Vec<u8> {
+        let header =
+            format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({}, {}), }}", self.height, self.width);
+        let pad = 64 - (10 + header.len() + 1) % 64;
+        let mut out = b"\x93NUMPY\x01\x00".to_vec();
+        out.extend_from_slice(&((header.len() + pad + 1) as u16).to_le_bytes());
+        out.extend_from_slice(header.as_bytes());
+        out.extend(std::iter::repeat_n(b' ', pad));
+        out.push(b'\n');
+        for v in self.view_depth(near) {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out
+    }
+}
+
+/// On a camera: copy its depth buffer into `buffer` after the main pass of every frame, for
+/// [`capture_with_depth`]. The camera needs `Msaa::Off` (a multisampled depth buffer cannot be copied) and
+/// a `Camera3d` whose depth usages include `COPY_SRC` ([`depth_copy_camera`]).
+#[derive(Component, Clone, ExtractComponent)]
+pub struct DepthCopy {
+    pub buffer: Handle<ShaderBuffer>,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl DepthCopy {
+    /// Bytes per row in the buffer: copies need rows aligned to 256 bytes.
+    pub fn bytes_per_row(&self) -> u32 {
+        (self.width * 4).div_ceil(256) * 256
+    }
+}
+
+/// Copies depth for cameras with [`DepthCopy`].
+pub struct DepthCopyPlugin;
+
+impl Plugin for DepthCopyPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_plugins(ExtractComponentPlugin::<DepthCopy>::default());
+        if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
+            render_app
+                .add_systems(Core3d, copy_depth.after(Core3dSystems::MainPass).before(Core3dSystems::PostProcess));
+        }
+    }
+}
+
+fn copy_depth(
+    view: ViewQuery<(&ViewDepthTexture, &DepthCopy)>,
+    buffers: Res<RenderAssets<GpuShaderBuffer>>,
+    mut ctx: RenderContext,
+) {
+    let (depth, copy) = view.into_inner();
+    let Some(gpu) = buffers.get(&copy.buffer) else { return };
+    let size = depth.texture.size();
+    if size.width != copy.width || size.height != copy.height || depth.texture.sample_count() != 1 {
+        return;
+    }
+    ctx.command_encoder().copy_texture_to_buffer(
+        TexelCopyTextureInfo {
+            texture: &depth.texture,
+            mip_level: 0,
+            origin: Origin3d::ZERO,
+            aspect: TextureAspect::DepthOnly,
+        },
+        TexelCopyBufferInfo {
+            buffer: &gpu.buffer,
+            layout: TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(copy.bytes_per_row()),
+                rows_per_image: None,
+            },
+        },
+        Extent3d { width: copy.width, height: copy.height, depth_or_array_layers: 1 },
+    );
+}
+
+/// A [`DepthCopy`] for a `width x height` camera, its buffer added to the App's assets.
+pub fn add_depth_copy(app: &mut App, width: u32, height: u32) -> DepthCopy {
+    let mut copy = DepthCopy { buffer: Handle::default(), width, height };
+    let size = (copy.bytes_per_row() * height) as usize;
+    let buffer = ShaderBuffer::with_size(size, RenderAssetUsages::RENDER_WORLD);
+    copy.buffer = app.world_mut().resource_mut::<Assets<ShaderBuffer>>().add(buffer);
+    copy
+}
+
+/// Camera components for a camera whose depth is copied: a `Camera3d` with `COPY_SRC` depth usage, no MSAA.
+pub fn depth_copy_camera(copy: DepthCopy) -> impl Bundle {
+    (
+        Camera3d {
+            depth_texture_usages: (TextureUsages::RENDER_ATTACHMENT | TextureUsages::COPY_SRC).into(),
+            ..default()
+        },
+        Msaa::Off,
+        copy,
+    )
 }
 
 /// Everything that can stop a headless render.
@@ -195,22 +339,72 @@ pub fn run_until_ready(app: &mut App, max_frames: u32) -> Result<u32, HeadlessEr
 
 /// Renders until ready and reads `target` back.
 pub fn capture(app: &mut App, target: Handle<Image>) -> Result<Capture, HeadlessError> {
+    capture_with_depth(app, target, None).map(|(c, _)| c)
+}
+
+/// Renders until ready and reads `target` back, and with `depth` (the [`DepthCopy`] on the camera) the
+/// depth buffer of the same frame.
+pub fn capture_with_depth(
+    app: &mut App,
+    target: Handle<Image>,
+    depth: Option<&DepthCopy>,
+) -> Result<(Capture, Option<DepthMap>), HeadlessError> {
     run_until_ready(app, 600)?;
-    let slot: Arc<Mutex<Option<Image>>> = Arc::default();
-    let sink = slot.clone();
+    let colour: Arc<Mutex<Option<Image>>> = Arc::default();
+    let sink = colour.clone();
     app.world_mut().spawn(Screenshot::image(target)).observe(move |ev: On<ScreenshotCaptured>| {
         if let Ok(mut s) = sink.lock() {
             *s = Some(ev.image.clone());
         }
     });
+    let depth_bytes: Arc<Mutex<Option<Vec<u8>>>> = Arc::default();
+    let readback = depth.map(|d| {
+        let sink = depth_bytes.clone();
+        app.world_mut()
+            .spawn(Readback::buffer(d.buffer.clone()))
+            .observe(move |ev: On<ReadbackComplete>| {
+                if let Ok(mut s) = sink.lock() {
+                    s.get_or_insert_with(|| ev.data.clone());
+                }
+            })
+            .id()
+    });
+    let (mut got_colour, mut got_depth) = (None, None);
     for _ in 0..60 {
         app.update();
-        let got = slot.lock().ok().and_then(|mut s| s.take());
-        if let Some(img) = got {
-            return to_capture(img);
+        if got_colour.is_none() {
+            got_colour = colour.lock().ok().and_then(|mut s| s.take());
+        }
+        if got_depth.is_none() {
+            got_depth = depth_bytes.lock().ok().and_then(|mut s| s.take());
+        }
+        if let Some(img) = got_colour.take_if(|_| depth.is_none() || got_depth.is_some()) {
+            if let Some(e) = readback {
+                app.world_mut().despawn(e);
+            }
+            let depth_map = match (depth, got_depth) {
+                (Some(d), Some(bytes)) => Some(to_depth_map(d, &bytes)?),
+                _ => None,
+            };
+            return Ok((to_capture(img)?, depth_map));
         }
     }
-    Err(HeadlessError::Timeout("no screenshot arrived within 60 frames".into()))
+    Err(HeadlessError::Timeout("no screenshot (or depth readback) arrived within 60 frames".into()))
+}
+
+fn to_depth_map(d: &DepthCopy, bytes: &[u8]) -> Result<DepthMap, HeadlessError> {
+    let row = d.bytes_per_row() as usize;
+    if bytes.len() < row * d.height as usize {
+        return Err(HeadlessError::Timeout(format!("depth readback had {} bytes", bytes.len())));
+    }
+    let mut ndc = Vec::with_capacity((d.width * d.height) as usize);
+    for y in 0..d.height as usize {
+        for x in 0..d.width as usize {
+            let o = y * row + 4 * x;
+            ndc.push(f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]));
+        }
+    }
+    Ok(DepthMap { width: d.width, height: d.height, ndc })
 }
 
 fn to_capture(img: Image) -> Result<Capture, HeadlessError> {

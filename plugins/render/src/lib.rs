@@ -22,6 +22,6 @@ pub struct FascicleRenderPlugin;
 impl Plugin for FascicleRenderPlugin {
     fn build(&self, app: &mut App) {
         shaders::register(app);
-        app.add_plugins(MaterialPlugin::<impostor::SphereImpostorMaterial>::default());
+        app.add_plugins((MaterialPlugin::<impostor::SphereImpostorMaterial>::default(), headless::DepthCopyPlugin));
     }
 }

@@ -1,10 +1,10 @@
 //! A ray-cast sphere impostor (writing frag depth) beside and through a Bevy mesh cube, rendered offscreen
 //! on the GPU (lavapipe in CI), checked pixel by pixel against an independent f64 ray cast: silhouettes,
-//! which surface is nearer where they overlap, and the shaded colour.
+//! which surface is nearer where they overlap, the shaded colour, and the depth buffer read back.
 
 use bevy::prelude::*;
 use fascicle_render::FascicleRenderPlugin;
-use fascicle_render::headless::{self, Capture};
+use fascicle_render::headless::{self, Capture, DepthMap};
 use fascicle_render::impostor::SphereImpostorMaterial;
 use fascicle_render::reference::{PinholeCamera, headlight, ray_box, ray_sphere, srgb8};
 use glam::DVec3;
@@ -25,7 +25,7 @@ enum Hit {
     Cube,
 }
 
-fn render() -> Option<Capture> {
+fn render() -> Option<(Capture, DepthMap)> {
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return None;
@@ -56,8 +56,12 @@ fn render() -> Option<Capture> {
         Camera { clear_color: ClearColorConfig::Custom(Color::BLACK), ..default() },
         Transform::from_xyz(0.0, 0.0, 6.0).looking_at(Vec3::ZERO, Vec3::Y),
     ));
-    match headless::capture(&mut app, target) {
-        Ok(c) => Some(c),
+    let copy = headless::add_depth_copy(&mut app, W, H);
+    let cam = app.world_mut().query_filtered::<Entity, With<Camera3d>>().single(app.world()).expect("one camera");
+    app.world_mut().entity_mut(cam).insert(headless::depth_copy_camera(copy.clone()));
+    match headless::capture_with_depth(&mut app, target, Some(&copy)) {
+        Ok((c, Some(d))) => Some((c, d)),
+        Ok((_, None)) => panic!("no depth came back"),
         Err(e) => panic!("{e}"),
     }
 }
@@ -83,7 +87,7 @@ fn classify(cam: &PinholeCamera, x: f64, y: f64) -> (Hit, f64, DVec3, DVec3) {
 
 #[test]
 fn impostor_sphere_and_mesh_cube_match_an_f64_ray_cast() {
-    let Some(img) = render() else { return };
+    let Some((img, depth)) = render() else { return };
     if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
         std::fs::write(format!("{dir}/gpu_impostor.png"), img.to_png().expect("png")).expect("write");
     }
@@ -96,7 +100,8 @@ fn impostor_sphere_and_mesh_cube_match_an_f64_ray_cast() {
         width: W,
         height: H,
     };
-    let (mut checked, mut edges, mut worst) = (0, 0, 0f64);
+    let (mut checked, mut edges, mut worst, mut worst_depth) = (0, 0, 0f64, 0f64);
+    let forward = (cam.target - cam.eye).normalize();
     let mut counts = [0usize; 3];
     let (mut sphere_over_cube, mut cube_over_sphere) = (0, 0);
     for py in 0..H {
@@ -129,6 +134,17 @@ fn impostor_sphere_and_mesh_cube_match_an_f64_ray_cast() {
                     if hit == Hit::Sphere { sphere_over_cube += 1 } else { cube_over_sphere += 1 }
                 }
             }
+            // Depth: Bevy's infinite reverse-Z, ndc = near / z_view (near 0.1); 0 where nothing was drawn.
+            let expected_ndc = if hit == Hit::None { 0.0 } else { 0.1 / (t * d.dot(forward)) };
+            let got_ndc = depth.at(px, py) as f64;
+            let rel = (got_ndc - expected_ndc).abs() / expected_ndc.max(1e-30);
+            if hit == Hit::None {
+                assert_eq!(got_ndc, 0.0, "pixel ({px},{py}): background depth {got_ndc}");
+            } else {
+                worst_depth = worst_depth.max(rel);
+                // f32 depth from an f32 ray/rasteriser: 1e-5 relative is ~100 ulps.
+                assert!(rel < 1e-5, "pixel ({px},{py}) {hit:?}: depth {got_ndc} expected {expected_ndc}");
+            }
             counts[hit as usize] += 1;
             let got = img.pixel(px, py);
             for k in 0..3 {
@@ -148,7 +164,8 @@ fn impostor_sphere_and_mesh_cube_match_an_f64_ray_cast() {
     }
     println!(
         "checked {checked} pixels ({edges} edge pixels left out): background {}, sphere {}, cube {}; \
-         overlap: sphere nearer {sphere_over_cube}, cube nearer {cube_over_sphere}; worst error {worst:.2} levels",
+         overlap: sphere nearer {sphere_over_cube}, cube nearer {cube_over_sphere}; worst error {worst:.2} levels, \
+         worst relative depth error {worst_depth:.1e}",
         counts[0], counts[1], counts[2]
     );
     // The scene must exercise both depth orderings, or the test would prove nothing about depth.
