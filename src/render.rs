@@ -48,7 +48,7 @@ pub fn render_scene_with_depth(
 
 pub fn run(scene: Option<&Path>, out: &Path, size: &str, depth_out: Option<&Path>) -> Result<(), String> {
     let (w, h) = crate::cli::parse_size(size)?;
-    let depth_kind = depth_out.map(|p| fascicle_core::io::tractogram::extension(p));
+    let depth_kind = depth_out.map(fascicle_core::io::tractogram::extension);
     if let Some(k) = &depth_kind
         && k != "png"
         && k != "npy"
