@@ -3,6 +3,7 @@
 
 pub mod cli;
 pub mod layers;
+pub mod panels;
 pub mod render;
 pub mod scene;
 pub mod viewer;

@@ -13,12 +13,12 @@ fn main() -> std::process::ExitCode {
         Some(cli::Command::Render { scene, out, size, depth }) => {
             fascicle::render::run(scene.as_deref(), &out, &size, depth.as_deref())
         }
-        Some(cli::Command::View { files }) => {
-            fascicle::viewer::run(files);
+        Some(cli::Command::View { files, screenshot }) => {
+            fascicle::viewer::run(files, screenshot);
             Ok(())
         }
         None => {
-            fascicle::viewer::run(vec![]);
+            fascicle::viewer::run(vec![], None);
             Ok(())
         }
     };

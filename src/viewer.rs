@@ -1,5 +1,7 @@
-//! The interactive viewer: the scene plugin in a window, an orbit camera, and an egui panel listing the
-//! layers (visibility, opacity), load errors, scene save/load and frame time.
+//! The interactive viewer: the scene plugin in a window, an orbit camera, and an egui side panel listing
+//! the layers (visibility, opacity, each kind's parameter panel from [`LayerPanels`]), load errors, scene
+//! save/load and frame time. The 3D camera's viewport is the window minus the panel (egui draws with its
+//! own camera on top), so the panel never hides the scene.
 //!
 //! Mouse: left-drag orbits, right-drag pans, wheel zooms. Keys: R resets the view, F12 saves a screenshot.
 //! Files dropped on the window are added as layers; a file that fails to load shows an error and the
@@ -7,16 +9,22 @@
 
 use std::path::PathBuf;
 
+use bevy::camera::visibility::RenderLayers;
+use bevy::camera::{CameraOutputMode, Viewport};
 use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
 use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
 use bevy::prelude::*;
+use bevy::render::render_resource::BlendState;
 use bevy::render::view::screenshot::{Screenshot, save_to_disk};
-use bevy::window::FileDragAndDrop;
+use bevy::window::{FileDragAndDrop, PrimaryWindow};
 use bevy_egui::input::{egui_wants_any_keyboard_input, egui_wants_any_pointer_input};
-use bevy_egui::{EguiContexts, EguiPlugin, EguiPrimaryContextPass, egui};
+use bevy_egui::{
+    EguiContext, EguiContexts, EguiGlobalSettings, EguiPlugin, EguiPrimaryContextPass, PrimaryEguiContext, egui,
+};
 use fascicle_render::FascicleRenderPlugin;
 
 use crate::layers::{ActiveScene, LayerErrors, ScenePlugin};
+use crate::panels::LayerPanels;
 use crate::render::BACKGROUND;
 use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene};
 
@@ -98,39 +106,96 @@ fn initial_scene(files: &[PathBuf]) -> (Scene, Vec<String>) {
     (scene, errors)
 }
 
-pub fn run(files: Vec<PathBuf>) -> AppExit {
+/// `--screenshot`: the window is saved at frame `AUTO_SCREENSHOT_FRAME`, then the viewer exits.
+#[derive(Resource)]
+struct AutoScreenshot {
+    path: PathBuf,
+    frame: u32,
+}
+
+/// Frames before an automatic screenshot: pipelines compile asynchronously in a window, so this leaves them
+/// time (on lavapipe too) rather than capturing the clear colour.
+const AUTO_SCREENSHOT_FRAME: u32 = 240;
+
+fn auto_screenshot(mut commands: Commands, mut shot: ResMut<AutoScreenshot>) {
+    shot.frame += 1;
+    if shot.frame == AUTO_SCREENSHOT_FRAME {
+        let path = shot.path.clone();
+        commands.spawn(Screenshot::primary_window()).observe(
+            move |ev: On<bevy::render::view::screenshot::ScreenshotCaptured>, mut exit: MessageWriter<AppExit>| {
+                let result = ev
+                    .image
+                    .clone()
+                    .try_into_dynamic()
+                    .map_err(|e| e.to_string())
+                    .and_then(|img| img.to_rgb8().save(&path).map_err(|e| e.to_string()));
+                match result {
+                    Ok(()) => {
+                        eprintln!("wrote {}", path.display());
+                        exit.write(AppExit::Success);
+                    }
+                    Err(e) => {
+                        eprintln!("error: {}: {e}", path.display());
+                        exit.write(AppExit::error());
+                    }
+                }
+            },
+        );
+    }
+}
+
+pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     let (scene, errors) = initial_scene(&files);
     let orbit = Orbit::from_spec(&scene.camera);
-    App::new()
-        .add_plugins(
-            DefaultPlugins.set(WindowPlugin {
-                primary_window: Some(Window { title: "Fascicle".into(), ..default() }),
+    let mut app = App::new();
+    if let Some(path) = screenshot {
+        app.insert_resource(AutoScreenshot { path, frame: 0 })
+            .add_systems(Update, auto_screenshot.run_if(resource_exists::<AutoScreenshot>));
+    }
+    app.add_plugins(
+        DefaultPlugins
+            .set(WindowPlugin { primary_window: Some(Window { title: "Fascicle".into(), ..default() }), ..default() }),
+    )
+    .add_plugins(EguiPlugin::default())
+    .add_plugins((FascicleRenderPlugin, ScenePlugin))
+    .insert_resource(ActiveScene(scene))
+    .init_resource::<LayerPanels>()
+    .insert_resource(orbit)
+    .insert_resource(UiState {
+        message: (!errors.is_empty()).then(|| errors.join("\n")),
+        scene_path: "scene.ron".into(),
+        ..default()
+    })
+    .add_systems(Startup, |mut commands: Commands, mut egui_settings: ResMut<EguiGlobalSettings>| {
+        commands.spawn((view_camera(), Transform::default()));
+        // egui gets its own camera drawn over the 3D view, so the 3D camera can take a viewport.
+        egui_settings.auto_create_primary_context = false;
+        commands.spawn((
+            PrimaryEguiContext,
+            Camera2d,
+            RenderLayers::none(),
+            Camera {
+                order: 1,
+                output_mode: CameraOutputMode::Write {
+                    blend_state: Some(BlendState::ALPHA_BLENDING),
+                    clear_color: ClearColorConfig::None,
+                },
+                clear_color: ClearColorConfig::Custom(Color::NONE),
                 ..default()
-            }),
-        )
-        .add_plugins(EguiPlugin::default())
-        .add_plugins((FascicleRenderPlugin, ScenePlugin))
-        .insert_resource(ActiveScene(scene))
-        .insert_resource(orbit)
-        .insert_resource(UiState {
-            message: (!errors.is_empty()).then(|| errors.join("\n")),
-            scene_path: "scene.ron".into(),
-            ..default()
-        })
-        .add_systems(Startup, |mut commands: Commands| {
-            commands.spawn((view_camera(), Transform::default()));
-        })
-        .add_systems(
-            Update,
-            (
-                orbit_input.run_if(not(egui_wants_any_pointer_input)),
-                keys.run_if(not(egui_wants_any_keyboard_input)),
-                dropped_files,
-                apply_orbit.run_if(resource_changed::<Orbit>),
-            ),
-        )
-        .add_systems(EguiPrimaryContextPass, panel)
-        .run()
+            },
+        ));
+    })
+    .add_systems(
+        Update,
+        (
+            orbit_input.run_if(not(egui_wants_any_pointer_input)),
+            keys.run_if(not(egui_wants_any_keyboard_input)),
+            dropped_files,
+            apply_orbit.run_if(resource_changed::<Orbit>),
+        ),
+    )
+    .add_systems(EguiPrimaryContextPass, panel)
+    .run()
 }
 
 fn orbit_input(
@@ -192,13 +257,17 @@ fn dropped_files(mut events: MessageReader<FileDragAndDrop>, mut scene: ResMut<A
     }
 }
 
+#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
 fn panel(
     mut contexts: EguiContexts,
     mut scene: ResMut<ActiveScene>,
     errors: Res<LayerErrors>,
+    panels: Res<LayerPanels>,
     mut ui_state: ResMut<UiState>,
     mut orbit: ResMut<Orbit>,
     time: Res<Time>,
+    mut camera: Single<&mut Camera, (With<Camera3d>, Without<EguiContext>)>,
+    window: Single<&Window, With<PrimaryWindow>>,
 ) -> Result {
     let ctx = contexts.ctx_mut()?;
     let dt = time.delta_secs() * 1000.0;
@@ -209,7 +278,7 @@ fn panel(
         "viewport".into(),
         egui::UiBuilder::new().layer_id(egui::LayerId::background()).max_rect(ctx.viewport_rect()),
     );
-    egui::Panel::left("layers").resizable(true).show(&mut viewport_ui, |ui| {
+    let panel_width = egui::Panel::left("layers").resizable(true).show(&mut viewport_ui, |ui| {
         ui.heading("Fascicle");
         ui.label(format!("frame {:.1} ms", ui_state.frame_ms));
         ui.separator();
@@ -223,6 +292,10 @@ fn panel(
                 }
             });
             ui.add(egui::Slider::new(&mut layer.opacity, 0.0..=1.0).text("opacity"));
+            if let Some(p) = panels.find(&layer.kind) {
+                ui.push_id(i, |ui| (p.show)(ui, &mut layer.kind));
+            }
+            ui.separator();
         }
         if let Some(i) = remove {
             edited.layers.remove(i);
@@ -260,7 +333,21 @@ fn panel(
             ui.label(m);
         }
         ui.label("Drop NIfTI, .trk/.tck or .ron files on the window.");
+        ui.allocate_rect(ui.available_rect_before_wrap(), egui::Sense::hover());
     });
+    let left = (panel_width.response.rect.width() * window.scale_factor()) as u32;
+    let size = UVec2::new(window.physical_width().saturating_sub(left).max(1), window.physical_height().max(1));
+    let viewport = Viewport {
+        physical_position: UVec2::new(left.min(window.physical_width() - 1), 0),
+        physical_size: size,
+        ..default()
+    };
+    let same = camera.viewport.as_ref().is_some_and(|v| {
+        v.physical_position == viewport.physical_position && v.physical_size == viewport.physical_size
+    });
+    if !same {
+        camera.viewport = Some(viewport);
+    }
     if edited != scene.0 {
         scene.0 = edited;
     }

@@ -20,7 +20,13 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Open the viewer with files (NIfTI, .trk/.tck, scene .ron); the default phantom scene without any.
-    View { files: Vec<PathBuf> },
+    View {
+        files: Vec<PathBuf>,
+        /// Save a screenshot of the window to this PNG after the scene has drawn, then exit (scripted
+        /// screenshots, and a check that the window path works).
+        #[arg(long)]
+        screenshot: Option<PathBuf>,
+    },
     /// Render a scene headless to PNG (the default scene when none is given).
     Render {
         scene: Option<PathBuf>,

@@ -1,0 +1,117 @@
+//! Per-layer parameter panels. Each layer kind contributes its own egui controls through [`LayerPanels`]; the
+//! viewer's layer list shows, under each layer, the first panel whose `applies` accepts the layer's kind.
+//! A glyph plugin's integration registers its panel the same way as the built-in ones below.
+
+use bevy::prelude::*;
+use bevy_egui::egui;
+
+use crate::scene::{LayerKind, SliceAxis};
+
+/// One layer kind's controls: `show` edits the kind in place (an edit re-syncs the layer).
+#[derive(Clone, Copy)]
+pub struct LayerPanel {
+    pub name: &'static str,
+    pub applies: fn(&LayerKind) -> bool,
+    pub show: fn(&mut egui::Ui, &mut LayerKind),
+}
+
+/// The registry of layer panels.
+#[derive(Resource, Clone)]
+pub struct LayerPanels(pub Vec<LayerPanel>);
+
+impl Default for LayerPanels {
+    /// The built-in kinds' panels.
+    fn default() -> Self {
+        Self(vec![
+            LayerPanel { name: "slice", applies: |k| matches!(k, LayerKind::Slice { .. }), show: slice_panel },
+            LayerPanel {
+                name: "tractogram",
+                applies: |k| matches!(k, LayerKind::Tractogram { .. }),
+                show: tractogram_panel,
+            },
+            LayerPanel { name: "axes", applies: |k| matches!(k, LayerKind::Axes { .. }), show: axes_panel },
+        ])
+    }
+}
+
+impl LayerPanels {
+    /// Adds a panel; later registrations take precedence over earlier ones for the same kind.
+    pub fn register(&mut self, panel: LayerPanel) {
+        self.0.insert(0, panel);
+    }
+
+    /// The panel for a kind, if any.
+    pub fn find(&self, kind: &LayerKind) -> Option<&LayerPanel> {
+        self.0.iter().find(|p| (p.applies)(kind))
+    }
+}
+
+fn slice_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+    let LayerKind::Slice { axis, index, .. } = kind else { return };
+    ui.horizontal(|ui| {
+        for (a, label) in [(SliceAxis::X, "sagittal"), (SliceAxis::Y, "coronal"), (SliceAxis::Z, "axial")] {
+            ui.radio_value(axis, a, label);
+        }
+    });
+    ui.horizontal(|ui| {
+        let mut middle = index.is_none();
+        if ui.checkbox(&mut middle, "middle").changed() {
+            *index = if middle { None } else { Some(0) };
+        }
+        if let Some(i) = index {
+            ui.add(egui::DragValue::new(i).range(0..=4096).prefix("slice "));
+        }
+    });
+}
+
+fn tractogram_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+    let LayerKind::Tractogram { path } = kind else { return };
+    ui.label(format!("{}", path.display()));
+}
+
+fn axes_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+    let LayerKind::Axes { length_mm } = kind else { return };
+    ui.add(egui::Slider::new(length_mm, 1.0..=200.0).text("length (mm)"));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::VolumeSource;
+
+    #[test]
+    fn every_built_in_kind_has_a_panel_and_registration_overrides() {
+        let kinds = [
+            LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Z, index: None },
+            LayerKind::Tractogram { path: "x.trk".into() },
+            LayerKind::Axes { length_mm: 1.0 },
+        ];
+        let mut panels = LayerPanels::default();
+        for (k, name) in kinds.iter().zip(["slice", "tractogram", "axes"]) {
+            assert_eq!(panels.find(k).map(|p| p.name), Some(name));
+        }
+        panels.register(LayerPanel { name: "mine", applies: |k| matches!(k, LayerKind::Axes { .. }), show: |_, _| {} });
+        assert_eq!(panels.find(&kinds[2]).map(|p| p.name), Some("mine"));
+        assert_eq!(panels.find(&kinds[0]).map(|p| p.name), Some("slice"));
+    }
+
+    #[test]
+    fn panels_edit_their_kind() {
+        // Run each panel in a real egui frame with a click-free pass: it must leave an untouched kind as it
+        // was (no spurious edits that would respawn the layer every frame).
+        let ctx = egui::Context::default();
+        let panels = LayerPanels::default();
+        let mut kinds = vec![
+            LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Y, index: Some(7) },
+            LayerKind::Axes { length_mm: 30.0 },
+        ];
+        let before = kinds.clone();
+        let _ = ctx.run_ui(egui::RawInput::default(), |ui| {
+            for k in kinds.iter_mut() {
+                let p = *panels.find(k).expect("panel");
+                (p.show)(ui, k);
+            }
+        });
+        assert_eq!(kinds, before);
+    }
+}
