@@ -119,6 +119,9 @@ impl Scene {
 
     /// A layer for a data file by its extension (NIfTI slice or tractogram), named after the file.
     pub fn layer_for_file(path: &Path) -> Result<LayerSpec, String> {
+        if !path.is_file() {
+            return Err(format!("{}: no such file", path.display()));
+        }
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let lower = name.to_ascii_lowercase();
         let kind = if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {

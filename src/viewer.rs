@@ -353,3 +353,36 @@ fn panel(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Dropping files: a good one becomes a layer, a bad one an error message; the app keeps running and the
+    /// scene keeps what it had.
+    #[test]
+    fn dropped_files_add_layers_or_report_errors() {
+        let mut app = App::new();
+        app.add_plugins(MinimalPlugins)
+            .add_message::<FileDragAndDrop>()
+            .insert_resource(ActiveScene(Scene::default_scene()))
+            .insert_resource(UiState::default())
+            .add_systems(Update, dropped_files);
+        let before = app.world().resource::<ActiveScene>().0.layers.len();
+        let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+        let window = Entity::PLACEHOLDER;
+        app.world_mut()
+            .write_message(FileDragAndDrop::DroppedFile { window, path_buf: data.join("tracts/tracks300.trk") });
+        app.world_mut()
+            .write_message(FileDragAndDrop::DroppedFile { window, path_buf: data.join("no/such/file.nii.gz") });
+        app.update();
+        let scene = &app.world().resource::<ActiveScene>().0;
+        assert_eq!(scene.layers.len(), before + 1);
+        assert!(
+            matches!(&scene.layers[before].kind, LayerKind::Tractogram { path } if path.ends_with("tracks300.trk"))
+        );
+        let msg = app.world().resource::<UiState>().message.clone().unwrap_or_default();
+        assert!(msg.contains("file.nii.gz"), "{msg}");
+        app.update(); // still running
+    }
+}
