@@ -6,6 +6,7 @@
 
 pub mod basis;
 pub mod fit;
+pub mod glyph;
 pub mod legendre;
 pub mod sphere;
 

@@ -1,0 +1,178 @@
+//! The glyph ray caster's math (the f64 twin of `shaders/lib/sh.wgsl` and `shaders/sh_glyph.wgsl`) against
+//! the core's trigonometric SH evaluation, closed forms, and its own bracketing bound.
+
+mod common;
+
+use fascicle_core::sh::glyph::{
+    GLYPH_BASIS, Glyph, GlyphStyle, Lobes, Normalise, cast, cast_exact, eval_cartesian, make_glyphs,
+};
+use fascicle_core::sh::{self, ShBasis, n_coeffs};
+use glam::DVec3;
+use rand::{Rng, SeedableRng};
+
+fn random_coeffs(rng: &mut impl Rng, l_max: usize) -> Vec<f64> {
+    (0..n_coeffs(l_max)).map(|_| rng.random::<f64>() - 0.5).collect()
+}
+
+fn random_dir(rng: &mut impl Rng) -> DVec3 {
+    loop {
+        let v = DVec3::new(rng.random(), rng.random(), rng.random()) * 2.0 - 1.0;
+        if v.length_squared() > 1e-4 && v.length_squared() <= 1.0 {
+            return v.normalize();
+        }
+    }
+}
+
+#[test]
+fn cartesian_evaluation_matches_the_trigonometric_basis() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+    let mut worst = (0.0f64, 0.0f64);
+    for l_max in [0usize, 2, 4, 6, 8, 12, 16] {
+        let mut s = sh::basis::ShScratch::new(l_max);
+        for k in 0..400 {
+            let c = random_coeffs(&mut rng, l_max);
+            // Poles and the phi = 0 / 2 pi seam included.
+            let u = match k {
+                0 => DVec3::Z,
+                1 => -DVec3::Z,
+                2 => DVec3::new(1e-9, 0.0, 1.0).normalize(),
+                3 => DVec3::new(1.0, -1e-15, 0.0).normalize(),
+                _ => random_dir(&mut rng),
+            };
+            let (v_ref, g_ref) = s.value_and_gradient(GLYPH_BASIS, &c, u);
+            let (v, g) = eval_cartesian(&c, l_max, u);
+            let tangential = g - g.dot(u) * u;
+            let scale = c.iter().map(|x| x.abs()).sum::<f64>().max(1.0) * (l_max as f64 + 1.0).powi(2);
+            worst.0 = worst.0.max((v - v_ref).abs() / scale);
+            worst.1 = worst.1.max((tangential - g_ref).length() / scale);
+            assert!((v - v_ref).abs() < 1e-13 * scale, "l {l_max} u {u}: {v} vs {v_ref}");
+            assert!((tangential - g_ref).length() < 1e-12 * scale, "l {l_max} u {u}: {tangential} vs {g_ref}");
+        }
+    }
+    println!("Cartesian vs trigonometric SH: value {:.1e}, gradient {:.1e} (relative)", worst.0, worst.1);
+}
+
+#[test]
+fn every_convention_gives_the_same_glyph() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let c_dipy = random_coeffs(&mut rng, 8);
+    let u = random_dir(&mut rng);
+    let truth = sh::eval(ShBasis::default(), &c_dipy, u).unwrap();
+    for basis in ShBasis::ALL {
+        let c = sh::convert(&c_dipy, ShBasis::default(), basis);
+        let (glyphs, _) = make_glyphs(
+            [(DVec3::ZERO, &c[..])],
+            basis,
+            GlyphStyle { scale: 1.0, sharpen: 1.0, normalise: Normalise::Global },
+        )
+        .unwrap();
+        let g = &glyphs[0];
+        let k = g.rmax / sh::bound_rmax(ShBasis::default(), &c_dipy);
+        let (v, _) = eval_cartesian(&g.coeffs, 8, u);
+        assert!((v / k - truth).abs() < 1e-13, "{basis:?}: {} vs {truth}", v / k);
+    }
+}
+
+#[test]
+fn isotropic_glyph_is_an_exact_sphere() {
+    // psi = c00 Y00 = c00 / (2 sqrt(pi)): a sphere of that radius.
+    let c00 = 3.0;
+    let radius = c00 / (2.0 * std::f64::consts::PI.sqrt());
+    let g = Glyph { centre: DVec3::new(1.0, 2.0, 3.0), l_max: 0, coeffs: vec![c00], rmax: radius };
+    let o = DVec3::new(1.3, 2.1, 10.0);
+    let d = (DVec3::new(1.1, 2.05, 3.0) - o).normalize();
+    let oc = o - g.centre;
+    let b = oc.dot(d);
+    let t_exact = -b - (b * b - oc.length_squared() + radius * radius).sqrt();
+    let hit = cast_exact(&g, o, d, Lobes::Clamp).unwrap();
+    assert!((hit.t - t_exact).abs() < 1e-12, "{} vs {t_exact}", hit.t);
+    let n_exact = (hit.point - g.centre) / radius;
+    assert!((hit.normal - n_exact).length() < 1e-12);
+    // The marching caster with its default knobs is within its bracket bound.
+    let h = cast(&g, o, d, 0.01, 4, Lobes::Clamp).unwrap();
+    assert!((h.t - t_exact).abs() <= 0.01 * radius / 16.0 + 1e-12);
+}
+
+#[test]
+fn marching_error_is_within_the_bisection_bracket() {
+    // Where the marching cast finds the same surface as the reference, its depth error is at most the
+    // final bracket h * rmax / 2^refine.
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let (mut n, mut worst) = (0usize, 0.0f64);
+    for _ in 0..200 {
+        let c = random_coeffs(&mut rng, 8);
+        let (glyphs, _) = make_glyphs([(DVec3::ZERO, &c[..])], GLYPH_BASIS, GlyphStyle::default()).unwrap();
+        let g = &glyphs[0];
+        for _ in 0..20 {
+            let o = random_dir(&mut rng) * 5.0;
+            let target = random_dir(&mut rng) * 0.3;
+            let d = (target - o).normalize();
+            for lobes in [Lobes::Clamp, Lobes::Abs] {
+                let (Some(exact), Some(fast)) = (cast_exact(g, o, d, lobes), cast(g, o, d, 0.02, 5, lobes)) else {
+                    continue;
+                };
+                let bound = 0.02 * g.rmax / 32.0;
+                if (fast.t - exact.t).abs() > 0.02 * g.rmax {
+                    continue; // a lobe thinner than the step was stepped over: a different surface
+                }
+                worst = worst.max((fast.t - exact.t).abs() / bound);
+                assert!((fast.t - exact.t).abs() <= bound * (1.0 + 1e-9), "{} vs {}", fast.t, exact.t);
+                n += 1;
+            }
+        }
+    }
+    println!("{n} hits checked; worst depth error {worst:.3} of the bracket bound");
+    assert!(n > 2000);
+}
+
+#[test]
+fn normals_match_finite_differences_of_the_implicit_surface() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(13);
+    let mut worst = 0.0f64;
+    for _ in 0..300 {
+        let c = random_coeffs(&mut rng, 6);
+        let (glyphs, _) = make_glyphs([(DVec3::ZERO, &c[..])], GLYPH_BASIS, GlyphStyle::default()).unwrap();
+        let g = &glyphs[0];
+        let o = random_dir(&mut rng) * 4.0;
+        let Some(hit) = cast_exact(g, o, (-o).normalize(), Lobes::Abs) else { continue };
+        let e = 1e-6;
+        let f = |p: DVec3| g.implicit(p, Lobes::Abs);
+        let fd = DVec3::new(
+            f(hit.point + DVec3::X * e) - f(hit.point - DVec3::X * e),
+            f(hit.point + DVec3::Y * e) - f(hit.point - DVec3::Y * e),
+            f(hit.point + DVec3::Z * e) - f(hit.point - DVec3::Z * e),
+        );
+        if fd.length() < 1e-3 {
+            continue;
+        }
+        let angle = hit.normal.angle_between(fd.normalize()).to_degrees();
+        worst = worst.max(angle);
+        assert!(angle < 1e-3, "normal {} vs finite difference {} ({angle} deg)", hit.normal, fd.normalize());
+    }
+    println!("normal vs finite differences: worst {worst:.1e} degrees");
+}
+
+#[test]
+fn styles_normalise_and_reject_bad_input() {
+    let big: Vec<f64> = (0..15).map(|j| if j == 0 { 4.0 } else { 0.3 }).collect();
+    let small: Vec<f64> = big.iter().map(|v| v * 0.25).collect();
+    let zero = vec![0.0; 15];
+    let nan = vec![f64::NAN; 15];
+    let items = [(DVec3::ZERO, &big[..]), (DVec3::X, &small[..]), (DVec3::Y, &zero[..]), (DVec3::Z, &nan[..])];
+    let per = GlyphStyle { scale: 2.0, sharpen: 1.0, normalise: Normalise::PerGlyph };
+    let (g, skipped) = make_glyphs(items, ShBasis::default(), per).unwrap();
+    assert_eq!(skipped, vec![2, 3]);
+    assert!(g.iter().all(|g| (g.rmax - 2.0).abs() < 1e-12));
+    let global = GlyphStyle { normalise: Normalise::Global, ..per };
+    let (g, _) = make_glyphs(items, ShBasis::default(), global).unwrap();
+    assert!((g[0].rmax - 2.0).abs() < 1e-12 && (g[1].rmax - 0.5).abs() < 1e-12);
+    // Sharpening divides a_00 only.
+    let sharp = GlyphStyle { sharpen: 2.0, ..global };
+    let (s, _) = make_glyphs([(DVec3::ZERO, &big[..])], ShBasis::default(), sharp).unwrap();
+    let conv = sh::convert(&big, ShBasis::default(), GLYPH_BASIS);
+    let k = s[0].coeffs[1] / conv[1];
+    assert!((s[0].coeffs[0] / k - conv[0] / 2.0).abs() < 1e-12);
+    assert!(make_glyphs(items, ShBasis::default(), GlyphStyle { scale: 0.0, ..per }).is_err());
+    assert!(make_glyphs(items, ShBasis::default(), GlyphStyle { sharpen: 0.5, ..per }).is_err());
+    assert!(make_glyphs([(DVec3::ZERO, &[1.0, 2.0][..])], ShBasis::default(), per).is_err());
+}
