@@ -156,8 +156,8 @@ fn normals_match_finite_differences_of_the_implicit_surface() {
 fn styles_normalise_and_reject_bad_input() {
     let big: Vec<f64> = (0..15).map(|j| if j == 0 { 4.0 } else { 0.3 }).collect();
     let small: Vec<f64> = big.iter().map(|v| v * 0.25).collect();
-    let zero = vec![0.0; 15];
-    let nan = vec![f64::NAN; 15];
+    let zero = [0.0; 15];
+    let nan = [f64::NAN; 15];
     let items = [(DVec3::ZERO, &big[..]), (DVec3::X, &small[..]), (DVec3::Y, &zero[..]), (DVec3::Z, &nan[..])];
     let per = GlyphStyle { scale: 2.0, sharpen: 1.0, normalise: Normalise::PerGlyph };
     let (g, skipped) = make_glyphs(items, ShBasis::default(), per).unwrap();
