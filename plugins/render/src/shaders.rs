@@ -9,13 +9,17 @@ pub const RAY: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a
 pub const LIGHTING: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a02");
 pub const COLORMAP: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a03");
 pub const SPHERE_IMPOSTOR: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a04");
+pub const SH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a05");
+pub const SH_GLYPH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a06");
 
 /// (handle, path under `shaders/`, source) of every shader this crate owns.
-pub const SOURCES: [(Handle<Shader>, &str, &str); 4] = [
+pub const SOURCES: [(Handle<Shader>, &str, &str); 6] = [
     (RAY, "lib/ray.wgsl", include_str!("../../../shaders/lib/ray.wgsl")),
     (LIGHTING, "lib/lighting.wgsl", include_str!("../../../shaders/lib/lighting.wgsl")),
     (COLORMAP, "lib/colormap.wgsl", include_str!("../../../shaders/lib/colormap.wgsl")),
     (SPHERE_IMPOSTOR, "sphere_impostor.wgsl", include_str!("../../../shaders/sphere_impostor.wgsl")),
+    (SH, "lib/sh.wgsl", include_str!("../../../shaders/lib/sh.wgsl")),
+    (SH_GLYPH, "sh_glyph.wgsl", include_str!("../../../shaders/sh_glyph.wgsl")),
 ];
 
 pub(crate) fn register(app: &mut App) {

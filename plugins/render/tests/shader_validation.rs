@@ -7,7 +7,19 @@ use std::path::{Path, PathBuf};
 
 use naga_oil::compose::{ComposableModuleDescriptor, Composer, NagaModuleDescriptor, ShaderDefValue, ShaderLanguage};
 
-const BEVY_STUBS: [(&str, &str); 2] = [
+const BEVY_STUBS: [(&str, &str); 4] = [
+    (
+        "stub/mesh_functions.wgsl",
+        "#define_import_path bevy_pbr::mesh_functions
+fn get_world_from_local(instance_index: u32) -> mat4x4<f32> { return mat4x4<f32>(); }
+fn mesh_position_local_to_world(m: mat4x4<f32>, p: vec4<f32>) -> vec4<f32> { return m * p; }
+fn get_tag(instance_index: u32) -> u32 { return instance_index; }",
+    ),
+    (
+        "stub/view_transformations.wgsl",
+        "#define_import_path bevy_pbr::view_transformations
+fn position_world_to_clip(p: vec3<f32>) -> vec4<f32> { return vec4<f32>(p, 1.0); }",
+    ),
     (
         "stub/forward_io.wgsl",
         "#define_import_path bevy_pbr::forward_io

@@ -1,0 +1,221 @@
+//! Ray-cast spherical-harmonic glyphs (SEEDS.md §4) as a Bevy plugin.
+//!
+//! A glyph set is one [`ShGlyphMaterial`] holding every glyph's centre, rmax and coefficients in GPU
+//! storage buffers, and one entity per glyph ([`ShVoxel`]): a unit-cube proxy mesh scaled to the glyph's
+//! bounding cube, with a `MeshTag` that indexes the buffers. Bevy batches the entities into instanced
+//! draws of the same mesh and material. The fragment shader (`shaders/sh_glyph.wgsl`) casts the view ray
+//! against `r = ψ(u)` and writes true depth, so glyphs intersect meshes, tubes and each other in the
+//! opaque pass. Hiding a glyph is hiding its entity; nothing is re-uploaded for that.
+//!
+//! The math (basis conversion, sharpening, normalisation, rmax, the ray caster in f64) lives in
+//! `fascicle_core::sh::glyph`, which is also the test reference.
+
+use bevy::asset::RenderAssetUsages;
+use bevy::mesh::{MeshTag, MeshVertexBufferLayoutRef};
+use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
+use bevy::prelude::*;
+use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
+use bevy::render::storage::ShaderBuffer;
+use bevy::shader::ShaderRef;
+use fascicle_core::sh::glyph::{Glyph, Lobes};
+use fascicle_render::shaders;
+
+/// Registers the glyph material. Needs `fascicle_render::FascicleRenderPlugin` (the shaders).
+pub struct ShGlyphPlugin;
+
+impl Plugin for ShGlyphPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_plugins(MaterialPlugin::<ShGlyphMaterial>::default());
+    }
+}
+
+/// How glyphs are coloured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum GlyphColour {
+    /// |direction from the centre| as RGB (red = left-right, green = anterior-posterior, blue = up-down).
+    #[default]
+    Direction,
+    /// The unit normal mapped to RGB (`n / 2 + 1/2`), unlit: for checking normals.
+    Normal,
+    /// Flat grey, lit.
+    Grey,
+}
+
+/// The ray caster's quality knobs and drawing options.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct RayCastSettings {
+    /// Linear-search step, in units of the glyph's rmax.
+    pub h: f32,
+    /// Bisection steps after the search.
+    pub refine: u32,
+    pub lobes: Lobes,
+    pub colour: GlyphColour,
+    /// Ambient fraction of the headlight shading.
+    pub ambient: f32,
+}
+
+impl Default for RayCastSettings {
+    fn default() -> Self {
+        Self { h: 0.02, refine: 4, lobes: Lobes::Clamp, colour: GlyphColour::Direction, ambient: 0.25 }
+    }
+}
+
+/// GPU parameters. Keep in sync with `GlyphParams` in `shaders/sh_glyph.wgsl`.
+#[derive(Clone, Copy, Debug, ShaderType)]
+pub struct ShGlyphUniform {
+    pub l_max: u32,
+    pub stride: u32,
+    pub refine: u32,
+    pub lobes: u32,
+    pub h: f32,
+    pub ambient: f32,
+    pub colour_mode: u32,
+    pub max_steps: u32,
+}
+
+const _: () = assert!(std::mem::size_of::<ShGlyphUniform>() == 32);
+
+impl ShGlyphUniform {
+    pub fn new(l_max: usize, s: &RayCastSettings) -> Self {
+        let h = s.h.max(1e-4);
+        Self {
+            l_max: l_max as u32,
+            stride: fascicle_core::sh::n_coeffs(l_max) as u32,
+            refine: s.refine.min(32),
+            lobes: match s.lobes {
+                Lobes::Clamp => 0,
+                Lobes::Abs => 1,
+            },
+            h,
+            ambient: s.ambient,
+            colour_mode: match s.colour {
+                GlyphColour::Direction => 0,
+                GlyphColour::Normal => 1,
+                GlyphColour::Grey => 2,
+            },
+            // The chord is at most 2 rmax: 2 / h steps, plus the last clamped one.
+            max_steps: (2.0 / h).ceil() as u32 + 2,
+        }
+    }
+}
+
+/// The material of one glyph set.
+#[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
+pub struct ShGlyphMaterial {
+    #[uniform(0)]
+    pub params: ShGlyphUniform,
+    /// `vec4(centre, rmax)` per glyph.
+    #[storage(1, read_only)]
+    pub glyphs: Handle<ShaderBuffer>,
+    /// `stride` f32 coefficients per glyph, in `fascicle_core::sh::glyph::GLYPH_BASIS`.
+    #[storage(2, read_only)]
+    pub coeffs: Handle<ShaderBuffer>,
+}
+
+impl Material for ShGlyphMaterial {
+    fn vertex_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::SH_GLYPH)
+    }
+    fn fragment_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::SH_GLYPH)
+    }
+    // See `fascicle_render::impostor`: the default prepass would write the proxy's depth.
+    fn enable_prepass() -> bool {
+        false
+    }
+    fn enable_shadows() -> bool {
+        false
+    }
+    fn specialize(
+        _pipeline: &MaterialPipeline,
+        descriptor: &mut RenderPipelineDescriptor,
+        _layout: &MeshVertexBufferLayoutRef,
+        _key: MaterialPipelineKey<Self>,
+    ) -> Result<(), SpecializedMeshPipelineError> {
+        // The camera may sit inside a proxy: draw back faces too.
+        descriptor.primitive.cull_mode = None;
+        Ok(())
+    }
+}
+
+/// One displayed glyph: its index in the set's buffers and, when it came from a volume, its voxel.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ShVoxel {
+    pub index: u32,
+    pub voxel: Option<[u32; 3]>,
+}
+
+/// A glyph set: the parent of its [`ShVoxel`] entities.
+#[derive(Component, Clone, Debug)]
+pub struct ShGlyphSet {
+    pub material: Handle<ShGlyphMaterial>,
+    pub l_max: usize,
+    pub len: usize,
+}
+
+/// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rmax)` and the coefficients.
+pub fn pack(glyphs: &[Glyph], l_max: usize) -> (Vec<u8>, Vec<u8>) {
+    let stride = fascicle_core::sh::n_coeffs(l_max);
+    let mut head = Vec::with_capacity(glyphs.len() * 16);
+    let mut coeffs = Vec::with_capacity(glyphs.len() * stride * 4);
+    for g in glyphs {
+        for v in [g.centre.x, g.centre.y, g.centre.z, g.rmax] {
+            head.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+        for j in 0..stride {
+            coeffs.extend_from_slice(&(g.coeffs.get(j).copied().unwrap_or(0.0) as f32).to_le_bytes());
+        }
+    }
+    (head, coeffs)
+}
+
+/// Spawns a glyph set (all glyphs must share `l_max`, as from one field). Returns the parent entity;
+/// `voxels[i]`, if given, is recorded on glyph i's entity. An empty set spawns only the parent.
+pub fn spawn_glyph_set(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<ShGlyphMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    glyphs: &[Glyph],
+    voxels: Option<&[[u32; 3]]>,
+    settings: &RayCastSettings,
+) -> Entity {
+    let l_max = glyphs.iter().map(|g| g.l_max).max().unwrap_or(0);
+    let (head, coeffs) = pack(glyphs, l_max);
+    // Storage buffers must not be empty.
+    let buffer = |bytes: Vec<u8>| {
+        let bytes = if bytes.is_empty() { vec![0u8; 16] } else { bytes };
+        ShaderBuffer::new(&bytes, RenderAssetUsages::RENDER_WORLD)
+    };
+    let material = materials.add(ShGlyphMaterial {
+        params: ShGlyphUniform::new(l_max, settings),
+        glyphs: buffers.add(buffer(head)),
+        coeffs: buffers.add(buffer(coeffs)),
+    });
+    let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
+    let parent = commands
+        .spawn((
+            ShGlyphSet { material: material.clone(), l_max, len: glyphs.len() },
+            Transform::default(),
+            Visibility::default(),
+        ))
+        .id();
+    for (i, g) in glyphs.iter().enumerate() {
+        commands.spawn((
+            ShVoxel { index: i as u32, voxel: voxels.and_then(|v| v.get(i).copied()) },
+            Mesh3d(cube.clone()),
+            MeshMaterial3d(material.clone()),
+            MeshTag(i as u32),
+            Transform::from_translation(g.centre.as_vec3()).with_scale(Vec3::splat(g.rmax as f32)),
+            ChildOf(parent),
+        ));
+    }
+    parent
+}
+
+/// Changes a set's ray-cast settings in place (one small uniform upload; no buffer is re-sent).
+pub fn update_settings(materials: &mut Assets<ShGlyphMaterial>, set: &ShGlyphSet, settings: &RayCastSettings) {
+    if let Some(mut m) = materials.get_mut(&set.material) {
+        m.params = ShGlyphUniform::new(set.l_max, settings);
+    }
+}

@@ -1,0 +1,195 @@
+//! Ray-cast SH glyphs on the GPU (lavapipe in CI) against the f64 reference ray caster
+//! (`fascicle_core::sh::glyph`): silhouette, depth and normals, for an lmax-8 three-fibre crossing, a thin
+//! CSA peanut fitted by DIPY (`data/reference/csa`), and a glyph with negative lobes drawn as |ψ|.
+
+use std::path::PathBuf;
+
+use bevy::prelude::*;
+use fascicle_core::sh::glyph::{Glyph, GlyphStyle, Lobes, cast, make_glyphs};
+use fascicle_core::sh::{self, ShBasis};
+use fascicle_render::FascicleRenderPlugin;
+use fascicle_render::headless::{self, Capture, DepthMap};
+use fascicle_render::reference::PinholeCamera;
+use fascicle_sh_glyphs::{GlyphColour, RayCastSettings, ShGlyphMaterial, ShGlyphPlugin, spawn_glyph_set};
+use glam::DVec3;
+
+const W: u32 = 200;
+const H: u32 = 150;
+const EYE: DVec3 = DVec3::new(0.3, -0.8, 7.0);
+/// Bevy's default perspective near plane.
+const NEAR: f64 = 0.1;
+/// Every glyph's rmax (per-glyph normalisation): the Cauchy-Schwarz bound is loose for peaked glyphs, so
+/// their proxies overlap while the glyphs do not, which also exercises glyph-behind-proxy ordering.
+const RMAX: f64 = 2.5;
+
+fn data(rel: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data").join(rel)
+}
+
+/// The test glyphs (rmax `RMAX` each) and how each draws negative lobes.
+fn glyphs() -> Vec<(Glyph, Lobes)> {
+    let basis = ShBasis::default();
+    // Three fibres at 60 and 90 degrees: the l <= 8 projection of three delta functions, plus an offset.
+    let fibres = [DVec3::X, DVec3::new(0.5, 0.866, 0.0), DVec3::new(0.0, 0.3, 0.95).normalize()];
+    let m = sh::sh_matrix(basis, 8, &fibres);
+    let mut crossing: Vec<f64> = (0..45).map(|j| (0..3).map(|i| m[i * 45 + j]).sum()).collect();
+    crossing[0] += 0.5;
+    // DIPY's CSA l8 coefficients at the small_64D voxel of largest GFA (descoteaux07 legacy).
+    let bytes = std::fs::read(data("reference/csa/small_64D_csa_l8_coeffs.npy")).expect("csa coefficients");
+    let all: Vec<f64> = npyz::NpyFile::new(&bytes[..]).unwrap().into_vec().unwrap();
+    let v = ((9 * 10) + 6) * 10 + 6;
+    let peanut = all[v * 45..(v + 1) * 45].to_vec();
+    // psi = 0.2 Y00 + Y20: positive caps along z, a negative belt around the equator.
+    let mut negative = vec![0.0; 15];
+    negative[0] = 0.2;
+    negative[3] = 1.0;
+    let style = GlyphStyle { scale: RMAX, ..GlyphStyle::default() };
+    let one = |c: &[f64], at: DVec3| make_glyphs([(at, c)], basis, style).unwrap().0.remove(0);
+    vec![
+        (one(&crossing, DVec3::new(-2.1, 0.0, 0.0)), Lobes::Clamp),
+        (one(&peanut, DVec3::new(0.0, 0.2, 0.3)), Lobes::Clamp),
+        (one(&negative, DVec3::new(2.1, -0.1, -0.2)), Lobes::Abs),
+    ]
+}
+
+fn render(glyphs: &[(Glyph, Lobes)], settings: RayCastSettings) -> Option<(Capture, DepthMap)> {
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return None;
+    }
+    let mut app = headless::headless_app();
+    app.add_plugins((FascicleRenderPlugin, ShGlyphPlugin));
+    let target = headless::add_target_image(&mut app, W, H);
+    let copy = headless::add_depth_copy(&mut app, W, H);
+    app.add_systems(Startup, {
+        let glyphs = glyphs.to_vec();
+        move |mut commands: Commands,
+              mut meshes: ResMut<Assets<Mesh>>,
+              mut materials: ResMut<Assets<ShGlyphMaterial>>,
+              mut buffers: ResMut<Assets<bevy::render::storage::ShaderBuffer>>| {
+            for (g, lobes) in &glyphs {
+                let s = RayCastSettings { lobes: *lobes, ..settings };
+                spawn_glyph_set(
+                    &mut commands,
+                    &mut meshes,
+                    &mut materials,
+                    &mut buffers,
+                    std::slice::from_ref(g),
+                    None,
+                    &s,
+                );
+            }
+        }
+    });
+    app.world_mut()
+        .spawn((
+            headless::exact_camera(target.clone()),
+            Camera { clear_color: ClearColorConfig::Custom(Color::BLACK), ..default() },
+            Transform::from_translation(EYE.as_vec3()).looking_at(Vec3::ZERO, Vec3::Y),
+        ))
+        .insert(headless::depth_copy_camera(copy.clone()));
+    match headless::capture_with_depth(&mut app, target, Some(&copy)) {
+        Ok((c, Some(d))) => Some((c, d)),
+        Ok(_) => panic!("no depth came back"),
+        Err(e) => panic!("{e}"),
+    }
+}
+
+/// Reference per pixel: (view depth, normal) of the nearest glyph surface along the pixel-centre ray.
+fn reference(glyphs: &[(Glyph, Lobes)], cam: &PinholeCamera) -> Vec<Option<(f64, DVec3)>> {
+    let forward = (cam.target - cam.eye).normalize();
+    let rows: Vec<u32> = (0..H).collect();
+    let mut out = vec![None; (W * H) as usize];
+    std::thread::scope(|s| {
+        let chunks: Vec<_> = rows
+            .chunks(H as usize / 2 + 1)
+            .zip(out.chunks_mut(((H as usize / 2) + 1) * W as usize))
+            .map(|(ys, dst)| {
+                s.spawn(move || {
+                    for (k, &py) in ys.iter().enumerate() {
+                        for px in 0..W {
+                            let (o, d) = cam.subpixel_ray(px as f64 + 0.5, py as f64 + 0.5);
+                            // Reference: steps of 1e-3 rmax, 50 bisections (to rounding).
+                            let best = glyphs
+                                .iter()
+                                .filter_map(|(g, lobes)| cast(g, o, d, 1e-3, 50, *lobes))
+                                .min_by(|a, b| a.t.total_cmp(&b.t));
+                            dst[k * W as usize + px as usize] = best.map(|h| (h.t * d.dot(forward), h.normal));
+                        }
+                    }
+                })
+            })
+            .collect();
+        for c in chunks {
+            c.join().expect("reference thread");
+        }
+    });
+    out
+}
+
+fn srgb_to_linear(v: u8) -> f64 {
+    let c = v as f64 / 255.0;
+    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+}
+
+#[test]
+fn ray_cast_glyphs_match_the_f64_reference() {
+    let glyphs = glyphs();
+    let settings = RayCastSettings { colour: GlyphColour::Normal, h: 0.01, refine: 4, ..default() };
+    let Some((img, depth)) = render(&glyphs, settings) else { return };
+    if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
+        std::fs::write(format!("{dir}/gpu_sh_glyphs.png"), img.to_png().expect("png")).expect("write");
+    }
+    let cam = PinholeCamera {
+        eye: EYE,
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        fov_y: std::f64::consts::FRAC_PI_4,
+        width: W,
+        height: H,
+    };
+    let reference = reference(&glyphs, &cam);
+    let (mut union, mut mismatch, mut both, mut depth_ok) = (0usize, 0usize, 0usize, 0usize);
+    let mut worst_depth = 0.0f64;
+    let mut angles = Vec::new();
+    for py in 0..H {
+        for px in 0..W {
+            let gpu = depth.at(px, py) as f64;
+            let r = reference[(py * W + px) as usize];
+            let covered = gpu > 0.0;
+            if covered || r.is_some() {
+                union += 1;
+            }
+            if covered != r.is_some() {
+                mismatch += 1;
+                continue;
+            }
+            let Some((z_ref, n_ref)) = r else { continue };
+            both += 1;
+            let z = NEAR / gpu;
+            let err = (z - z_ref).abs() / RMAX;
+            worst_depth = worst_depth.max(err);
+            if err <= 0.005 {
+                depth_ok += 1;
+            }
+            let p = img.pixel(px, py);
+            let n = DVec3::new(srgb_to_linear(p[0]), srgb_to_linear(p[1]), srgb_to_linear(p[2])) * 2.0 - 1.0;
+            angles.push(n.normalize().angle_between(n_ref).to_degrees());
+        }
+    }
+    angles.sort_by(f64::total_cmp);
+    let median = angles[angles.len() / 2];
+    let depth_frac = depth_ok as f64 / both as f64;
+    let sil = mismatch as f64 / union as f64;
+    println!(
+        "{both} covered pixels: depth within 0.5% of rmax on {:.2}% (worst {worst_depth:.4} rmax); silhouette \
+         mismatch {mismatch} of {union} ({:.2}%); normal angle median {median:.2} deg, 90th pct {:.2} deg",
+        100.0 * depth_frac,
+        100.0 * sil,
+        angles[angles.len() * 9 / 10]
+    );
+    assert!(both > 2000, "only {both} glyph pixels: the scene does not exercise the glyphs");
+    assert!(depth_frac > 0.99, "depth within 0.5% of rmax on {:.3}% of pixels", 100.0 * depth_frac);
+    assert!(sil <= 0.01, "silhouette mismatch {:.3}%", 100.0 * sil);
+    assert!(median <= 2.0, "median normal error {median} degrees");
+}

@@ -1,0 +1,155 @@
+// Ray-cast SH glyphs (SEEDS.md section 4): the surface r = s(psi(u)) around each glyph centre, s = max(., 0)
+// or |.|, drawn per pixel on a bounding cube proxy, no tessellation.
+//
+// Per fragment: the view ray meets the bounding sphere of radius rmax (Cauchy-Schwarz bound) on
+// [t0, t1]; march from t0 in steps of h * rmax until F(p) = |p - c| - s(psi(u)) < 0, then bisect `refine`
+// times between the last outside and first inside point; discard if no inside point is found. Normal:
+// grad F = u - s'(psi) (I - u u^T) grad g / r (analytic). Headlight shading, true fragment depth.
+// The f64 twin of this algorithm is `fascicle_core::sh::glyph::cast`. Keep `GlyphParams` in sync with
+// `ShGlyphUniform` in `plugins/sh_glyphs/src/lib.rs`.
+
+#import bevy_pbr::mesh_functions
+#import bevy_pbr::view_transformations::position_world_to_clip
+#import bevy_pbr::mesh_view_bindings::view
+#import fascicle::ray::{Ray, view_ray, depth_of}
+#import fascicle::lighting::headlight
+#import fascicle::sh::{sh_value, sh_value_grad}
+
+struct GlyphParams {
+    l_max: u32,
+    stride: u32,
+    refine: u32,
+    // 0: clamp negative lobes, 1: |psi| with negative lobes marked
+    lobes: u32,
+    h: f32,
+    ambient: f32,
+    // 0: direction RGB, 1: normal as colour (tests), 2: flat grey
+    colour_mode: u32,
+    max_steps: u32,
+};
+
+@group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: GlyphParams;
+// Per glyph: centre (world, mm) and rmax.
+@group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> glyphs: array<vec4<f32>>;
+// Per glyph, `stride` coefficients in the glyph basis.
+@group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> coeffs: array<f32>;
+
+struct Vertex {
+    @builtin(instance_index) instance_index: u32,
+    @location(0) position: vec3<f32>,
+};
+
+struct GlyphVertexOutput {
+    @builtin(position) clip_position: vec4<f32>,
+    @location(0) world_position: vec3<f32>,
+    @location(1) @interpolate(flat) tag: u32,
+};
+
+@vertex
+fn vertex(v: Vertex) -> GlyphVertexOutput {
+    var out: GlyphVertexOutput;
+    let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
+    let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
+    out.clip_position = position_world_to_clip(w.xyz);
+    out.world_position = w.xyz;
+    out.tag = mesh_functions::get_tag(v.instance_index);
+    return out;
+}
+
+struct FragmentOutput {
+    @location(0) color: vec4<f32>,
+    @builtin(frag_depth) depth: f32,
+};
+
+fn shape(psi: f32) -> f32 {
+    return select(max(psi, 0.0), abs(psi), params.lobes == 1u);
+}
+
+// F(p) < 0 inside the glyph.
+fn implicit(c: ptr<function, array<f32, 153>>, v: vec3<f32>) -> f32 {
+    let r = length(v);
+    if r <= 0.0 {
+        return -1.0;
+    }
+    return r - shape(sh_value(c, params.l_max, v / r));
+}
+
+@fragment
+fn fragment(in: GlyphVertexOutput) -> FragmentOutput {
+    let g = glyphs[in.tag];
+    let centre = g.xyz;
+    let rmax = g.w;
+    var c: array<f32, 153>;
+    let first = in.tag * params.stride;
+    for (var j = 0u; j < params.stride; j++) {
+        c[j] = coeffs[first + j];
+    }
+    let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
+    // Work relative to the centre: the glyph is small next to its distance from the camera.
+    let oc = ray.origin - centre;
+    let b = dot(oc, ray.dir);
+    let disc = b * b - (dot(oc, oc) - rmax * rmax);
+    if disc < 0.0 {
+        discard;
+    }
+    let s = sqrt(disc);
+    let t1 = -b + s;
+    if t1 <= 0.0 {
+        discard;
+    }
+    let t0 = max(-b - s, 0.0);
+    let step = max(params.h, 1e-4) * rmax;
+    var lo = t0;
+    var t = t0;
+    var inside = false;
+    for (var i = 0u; i < params.max_steps; i++) {
+        if implicit(&c, oc + t * ray.dir) < 0.0 {
+            inside = true;
+            break;
+        }
+        lo = t;
+        if t >= t1 {
+            break;
+        }
+        t = min(t + step, t1);
+    }
+    if !inside {
+        discard;
+    }
+    var hi = t;
+    for (var k = 0u; k < params.refine; k++) {
+        let mid = 0.5 * (lo + hi);
+        if implicit(&c, oc + mid * ray.dir) < 0.0 {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    let v = oc + hi * ray.dir;
+    let r = max(length(v), 1e-20);
+    let u = v / r;
+    let pg = sh_value_grad(&c, params.l_max, u);
+    let sgn = select(1.0, sign(pg.x), params.lobes == 1u);
+    let tangential = pg.yzw - dot(pg.yzw, u) * u;
+    var n = u - sgn * tangential / r;
+    n = select(u, normalize(n), dot(n, n) > 0.0);
+    var base = abs(u);
+    if params.colour_mode == 1u {
+        base = n * 0.5 + 0.5;
+    } else if params.colour_mode == 2u {
+        base = vec3<f32>(0.8);
+    }
+    var out: FragmentOutput;
+    if params.colour_mode == 1u {
+        out.color = vec4<f32>(base, 1.0);
+    } else {
+        var shaded = headlight(base, n, ray.dir, params.ambient);
+        if params.lobes == 1u && pg.x < 0.0 {
+            // Negative lobes: desaturated, as mrview marks them.
+            shaded = vec3<f32>(dot(shaded, vec3<f32>(0.3, 0.4, 0.3))) * 0.6;
+        }
+        out.color = vec4<f32>(shaded, 1.0);
+    }
+    out.depth = depth_of(view.clip_from_world, centre + v);
+    return out;
+}
