@@ -12,7 +12,12 @@ use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
 use fascicle_core::Volume;
 use fascicle_core::io::{Tractogram, nifti};
 
-use crate::scene::{LayerKind, LayerSpec, Scene, SliceAxis, VolumeSource};
+use bevy::render::storage::ShaderBuffer;
+use fascicle_core::sh::glyph::{Glyph, GlyphStyle, make_glyphs};
+use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
+use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
+
+use crate::scene::{LayerKind, LayerSpec, Scene, ShSource, SliceAxis, VolumeSource};
 
 /// The scene being shown.
 #[derive(Resource, Clone, Debug)]
@@ -34,6 +39,9 @@ pub struct ScenePlugin;
 
 impl Plugin for ScenePlugin {
     fn build(&self, app: &mut App) {
+        if !app.is_plugin_added::<ShGlyphPlugin>() {
+            app.add_plugins(ShGlyphPlugin);
+        }
         app.init_resource::<LayerErrors>()
             .init_resource::<Spawned>()
             .add_systems(Update, sync_scene.run_if(resource_exists_and_changed::<ActiveScene>));
@@ -50,9 +58,22 @@ fn sync_scene(
     mut meshes: ResMut<Assets<Mesh>>,
     mut images: ResMut<Assets<Image>>,
     mut materials: ResMut<Assets<StandardMaterial>>,
+    mut glyph_materials: ResMut<Assets<ShGlyphMaterial>>,
+    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    glyph_sets: Query<(&ShGlyphSet, &LayerEntity)>,
 ) {
     let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
-    if kinds == spawned.0 {
+    let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
+    if structure(&kinds) == structure(&spawned.0) {
+        // Draw settings of glyph layers: a uniform update, nothing re-uploaded.
+        for (set, le) in &glyph_sets {
+            if let Some(LayerKind::ShGlyphs { render, .. }) = kinds.get(le.0)
+                && spawned.0.get(le.0) != kinds.get(le.0)
+            {
+                update_settings(&mut glyph_materials, set, render);
+            }
+        }
+        spawned.0 = kinds;
         for (e, le, mat) in &existing {
             let Some(spec) = scene.0.layers.get(le.0) else { continue };
             commands.entity(e).insert(if spec.visible { Visibility::Inherited } else { Visibility::Hidden });
@@ -68,6 +89,24 @@ fn sync_scene(
     errors.0.clear();
     for (i, spec) in scene.0.layers.iter().enumerate() {
         let vis = if spec.visible { Visibility::Inherited } else { Visibility::Hidden };
+        if let LayerKind::ShGlyphs { source, axis, index, spacing, style, render } = &spec.kind {
+            match plane_glyphs(source, *axis, *index, *spacing, *style) {
+                Ok((glyphs, voxels)) => {
+                    let set = spawn_glyph_set(
+                        &mut commands,
+                        &mut meshes,
+                        &mut glyph_materials,
+                        &mut buffers,
+                        &glyphs,
+                        Some(&voxels),
+                        render,
+                    );
+                    commands.entity(set).insert((vis, LayerEntity(i)));
+                }
+                Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
+            }
+            continue;
+        }
         match spawn_layer(spec, &mut meshes, &mut images, &mut materials) {
             Ok(parts) => {
                 for (mesh, mat, tf) in parts {
@@ -133,6 +172,7 @@ fn spawn_layer(
             m.base_color_texture = Some(images.add(image));
             Ok(vec![(meshes.add(quad(corners)), materials.add(m), Transform::IDENTITY)])
         }
+        LayerKind::ShGlyphs { .. } => Ok(vec![]), // spawned by `spawn_glyph_set`
         LayerKind::Tractogram { path } => {
             let t = Tractogram::read(path).map_err(|e| e.to_string())?;
             if t.points.is_empty() {
@@ -141,6 +181,87 @@ fn spawn_layer(
             Ok(vec![(meshes.add(lines(&t)), materials.add(unlit(spec.opacity)), Transform::IDENTITY)])
         }
     }
+}
+
+/// SH coefficients (X,Y,Z,n) and their basis for a glyph layer; for the phantom only the voxels of
+/// `mask` are fitted.
+fn sh_field(source: &ShSource, mask: impl Fn([usize; 3]) -> bool) -> Result<(Volume<f32>, ShBasis), String> {
+    match source {
+        ShSource::PhantomCsa { l_max } => {
+            let ph = fascicle_core::phantom::ring_cross([48, 48, 24]);
+            let (dwi, gtab) = ph.dwi(64, 1000.0).map_err(|e| e.to_string())?;
+            let basis = ShBasis::default();
+            let model = OdfModel::new(&gtab, OdfKind::Csa, *l_max, 0.006, basis).map_err(|e| e.to_string())?;
+            let d = ph.dims;
+            let m: Vec<bool> =
+                (0..d.iter().product()).map(|v| mask([v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1])])).collect();
+            Ok((sh::fit_odf_volume(&dwi, &model, Some(&m)).map_err(|e| e.to_string())?, basis))
+        }
+        ShSource::Nifti { path, basis } => {
+            let (v, _) = nifti::read::<f32>(path).map_err(|e| e.to_string())?;
+            if v.shape.len() < 4 || sh::l_max_for(v.n_channels()).is_none() {
+                return Err(format!(
+                    "{}: {:?} is not an SH coefficient image (X,Y,Z,n with n = 1, 6, 15, 28, 45, ...)",
+                    path.display(),
+                    v.shape
+                ));
+            }
+            Ok((v, *basis))
+        }
+    }
+}
+
+/// One glyph per `spacing`-th voxel of a slice (voxel centres, nearest sampling), skipping voxels with no
+/// signal.
+pub fn plane_glyphs(
+    source: &ShSource,
+    axis: SliceAxis,
+    index: Option<usize>,
+    spacing: usize,
+    style: GlyphStyle,
+) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
+    if spacing == 0 {
+        return Err("glyph spacing must be at least 1 voxel".into());
+    }
+    let ax = match axis {
+        SliceAxis::X => 0,
+        SliceAxis::Y => 1,
+        SliceAxis::Z => 2,
+    };
+    // The phantom's grid is known before fitting; a file's is checked after reading.
+    let probe = match source {
+        ShSource::PhantomCsa { .. } => [48usize, 48, 24],
+        ShSource::Nifti { .. } => [usize::MAX; 3],
+    };
+    let k = index.unwrap_or(if probe[ax] == usize::MAX { usize::MAX } else { probe[ax] / 2 });
+    let (vol, basis) = sh_field(source, |p| p[ax] == k)?;
+    let d = vol.dims3();
+    let k = if k == usize::MAX { d[ax] / 2 } else { k };
+    if k >= d[ax] {
+        return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", d[ax]));
+    }
+    let (n, nc) = (vol.n_voxels(), vol.n_channels());
+    let mut items = Vec::new();
+    for z in 0..d[2] {
+        for y in 0..d[1] {
+            for x in 0..d[0] {
+                let p = [x, y, z];
+                if p[ax] != k || (0..3).any(|a| a != ax && p[a] % spacing != 0) {
+                    continue;
+                }
+                let v = x + d[0] * (y + d[1] * z);
+                let c: Vec<f64> = (0..nc).map(|j| vol.data[v + n * j] as f64).collect();
+                if c[0] > 0.0 {
+                    let centre = vol.world_from_voxel.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64));
+                    items.push((centre, c, [x as u32, y as u32, z as u32]));
+                }
+            }
+        }
+    }
+    let (glyphs, skipped) =
+        make_glyphs(items.iter().map(|(c, co, _)| (*c, &co[..])), basis, style).map_err(|e| e.to_string())?;
+    let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
+    Ok((glyphs, voxels))
 }
 
 /// A grey image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world

@@ -5,7 +5,10 @@
 use bevy::prelude::*;
 use bevy_egui::egui;
 
-use crate::scene::{LayerKind, SliceAxis};
+use fascicle_core::sh::glyph::{Lobes, Normalise};
+use fascicle_sh_glyphs::GlyphColour;
+
+use crate::scene::{LayerKind, ShSource, SliceAxis};
 
 /// One layer kind's controls: `show` edits the kind in place (an edit re-syncs the layer).
 #[derive(Clone, Copy)]
@@ -30,6 +33,7 @@ impl Default for LayerPanels {
                 show: tractogram_panel,
             },
             LayerPanel { name: "axes", applies: |k| matches!(k, LayerKind::Axes { .. }), show: axes_panel },
+            LayerPanel { name: "sh glyphs", applies: |k| matches!(k, LayerKind::ShGlyphs { .. }), show: glyph_panel },
         ])
     }
 }
@@ -64,6 +68,39 @@ fn slice_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
     });
 }
 
+/// SH glyphs: plane, size and shape (rebuild the glyphs), then the ray caster's knobs and colour (a uniform
+/// update only).
+fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+    let LayerKind::ShGlyphs { source, axis, index, spacing, style, render } = kind else { return };
+    ui.label(match source {
+        ShSource::PhantomCsa { l_max } => format!("phantom CSA, l_max {l_max}"),
+        ShSource::Nifti { path, basis } => format!("{} ({})", path.display(), basis.name()),
+    });
+    let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
+    slice_panel(ui, &mut slice);
+    if let LayerKind::Slice { axis: a, index: i, .. } = slice {
+        (*axis, *index) = (a, i);
+    }
+    ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
+    ui.add(egui::Slider::new(&mut style.scale, 0.1..=10.0).text("size (mm)"));
+    ui.add(egui::Slider::new(&mut style.sharpen, 1.0..=10.0).text("sharpening"));
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut style.normalise, Normalise::PerGlyph, "per glyph");
+        ui.radio_value(&mut style.normalise, Normalise::Global, "global");
+    });
+    ui.add(egui::Slider::new(&mut render.h, 0.002..=0.2).logarithmic(true).text("step h (rmax)"));
+    ui.add(egui::Slider::new(&mut render.refine, 0..=12).text("bisections"));
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut render.lobes, Lobes::Clamp, "clamp negative");
+        ui.radio_value(&mut render.lobes, Lobes::Abs, "|psi|, mark negative");
+    });
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut render.colour, GlyphColour::Direction, "direction");
+        ui.radio_value(&mut render.colour, GlyphColour::Grey, "grey");
+        ui.radio_value(&mut render.colour, GlyphColour::Normal, "normal");
+    });
+}
+
 fn tractogram_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
     let LayerKind::Tractogram { path } = kind else { return };
     ui.label(format!("{}", path.display()));
@@ -85,9 +122,10 @@ mod tests {
             LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Z, index: None },
             LayerKind::Tractogram { path: "x.trk".into() },
             LayerKind::Axes { length_mm: 1.0 },
+            crate::scene::Scene::default_scene().layers[2].kind.clone(),
         ];
         let mut panels = LayerPanels::default();
-        for (k, name) in kinds.iter().zip(["slice", "tractogram", "axes"]) {
+        for (k, name) in kinds.iter().zip(["slice", "tractogram", "axes", "sh glyphs"]) {
             assert_eq!(panels.find(k).map(|p| p.name), Some(name));
         }
         panels.register(LayerPanel { name: "mine", applies: |k| matches!(k, LayerKind::Axes { .. }), show: |_, _| {} });
@@ -104,6 +142,7 @@ mod tests {
         let mut kinds = vec![
             LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Y, index: Some(7) },
             LayerKind::Axes { length_mm: 30.0 },
+            crate::scene::Scene::default_scene().layers[2].kind.clone(),
         ];
         let before = kinds.clone();
         let _ = ctx.run_ui(egui::RawInput::default(), |ui| {

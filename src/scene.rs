@@ -4,6 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
+use fascicle_core::sh::ShBasis;
+use fascicle_core::sh::glyph::GlyphStyle;
+use fascicle_sh_glyphs::RayCastSettings;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -31,6 +34,9 @@ fn yes() -> bool {
 fn one() -> f32 {
     1.0
 }
+fn one_usize() -> usize {
+    1
+}
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum LayerKind {
@@ -40,6 +46,47 @@ pub enum LayerKind {
     Tractogram { path: PathBuf },
     /// World axes from the origin: R red, A green, S blue.
     Axes { length_mm: f32 },
+    /// Ray-cast ODF glyphs, one per voxel of a slice of an SH field.
+    ShGlyphs {
+        source: ShSource,
+        axis: SliceAxis,
+        index: Option<usize>,
+        /// Every `spacing`-th voxel along each in-plane axis (1 = every voxel).
+        #[serde(default = "one_usize")]
+        spacing: usize,
+        #[serde(default)]
+        style: GlyphStyle,
+        #[serde(default)]
+        render: RayCastSettings,
+    },
+}
+
+impl LayerKind {
+    /// The kind without its draw-only settings: two kinds with the same structure differ only in what a
+    /// uniform update can change, so the layer is not rebuilt or re-uploaded.
+    pub fn structure(&self) -> LayerKind {
+        match self {
+            LayerKind::ShGlyphs { source, axis, index, spacing, style, .. } => LayerKind::ShGlyphs {
+                source: source.clone(),
+                axis: *axis,
+                index: *index,
+                spacing: *spacing,
+                style: *style,
+                render: RayCastSettings::default(),
+            },
+            other => other.clone(),
+        }
+    }
+}
+
+/// Where SH coefficients come from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum ShSource {
+    /// CSA ODFs fitted (DIPY's CsaOdfModel, smooth 0.006) to a noiseless multi-tensor DWI of the built-in
+    /// phantom (64 directions, b 1000).
+    PhantomCsa { l_max: usize },
+    /// A coefficient image (X,Y,Z,n) as `fascicle fit csa`, DIPY or MRtrix write it, in `basis`.
+    Nifti { path: PathBuf, basis: ShBasis },
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -86,6 +133,19 @@ impl Scene {
             layers: vec![
                 slice("FA axial", SliceAxis::Z),
                 slice("FA coronal", SliceAxis::Y),
+                LayerSpec {
+                    name: "ODF glyphs (CSA)".into(),
+                    visible: true,
+                    opacity: 1.0,
+                    kind: LayerKind::ShGlyphs {
+                        source: ShSource::PhantomCsa { l_max: 6 },
+                        axis: SliceAxis::Z,
+                        index: None,
+                        spacing: 2,
+                        style: GlyphStyle { scale: 3.0, ..GlyphStyle::default() },
+                        render: RayCastSettings::default(),
+                    },
+                },
                 LayerSpec {
                     name: "Axes".into(),
                     visible: true,

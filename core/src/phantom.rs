@@ -74,6 +74,40 @@ pub fn ring_cross(dims: [usize; 3]) -> Phantom {
 }
 
 impl Phantom {
+    /// A noiseless DWI of the phantom: `S0 = 100`, one b0 then `n_dirs` Fibonacci directions at `b`
+    /// (s/mm²). Each fibre of a voxel is an equal compartment with [`FIBRE_EVALS`] (a multi-tensor signal,
+    /// so crossings show two ODF lobes); the background is isotropic with [`BACKGROUND_MD`]. For ODF glyphs
+    /// in scenes that need no files.
+    pub fn dwi(&self, n_dirs: usize, b: f64) -> crate::Result<(Volume<f32>, crate::io::GradientTable)> {
+        let dirs = crate::sh::sphere::fibonacci(n_dirs);
+        let mut bvals = vec![0.0];
+        let mut bvecs = vec![glam::DVec3::ZERO];
+        bvals.extend(std::iter::repeat_n(b, dirs.len()));
+        bvecs.extend(dirs.iter().copied());
+        let gtab = crate::io::GradientTable::new(bvals, bvecs, crate::io::gradients::DEFAULT_B0_THRESHOLD)?;
+        let n = self.tensors.len();
+        let mut vol = Volume::zeros(&[self.dims[0], self.dims[1], self.dims[2], gtab.len()], self.world_from_voxel);
+        let compartments: Vec<Vec<LowerTri>> =
+            self.fibres.iter().map(|f| f.iter().map(|d| fibre_tensor(*d)).collect()).collect();
+        for v in 0..n {
+            for (k, (bk, g)) in gtab.bvals.iter().zip(&gtab.bvecs).enumerate() {
+                let adc = |t: &LowerTri| {
+                    t[0] * g.x * g.x
+                        + t[2] * g.y * g.y
+                        + t[5] * g.z * g.z
+                        + 2.0 * (t[1] * g.x * g.y + t[3] * g.x * g.z + t[4] * g.y * g.z)
+                };
+                let s = if compartments[v].is_empty() {
+                    (-bk * BACKGROUND_MD).exp()
+                } else {
+                    compartments[v].iter().map(|t| (-bk * adc(t)).exp()).sum::<f64>() / compartments[v].len() as f64
+                };
+                vol.data[v + n * k] = (100.0 * s) as f32;
+            }
+        }
+        Ok((vol, gtab))
+    }
+
     /// The FA map.
     pub fn fa(&self) -> Volume<f32> {
         let mut v = Volume::zeros(&self.dims, self.world_from_voxel);

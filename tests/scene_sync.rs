@@ -1,0 +1,71 @@
+//! Scene sync does only the work a change needs: a glyph layer's draw settings update its material's
+//! uniform in place (same entities, no new buffers); a change of what is drawn rebuilds the layer; a hidden
+//! layer keeps its entities.
+
+use bevy::prelude::*;
+use bevy::render::storage::ShaderBuffer;
+use fascicle::layers::{ActiveScene, LayerErrors, ScenePlugin};
+use fascicle::scene::{LayerKind, Scene};
+use fascicle_render::FascicleRenderPlugin;
+use fascicle_render::headless;
+use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphSet, ShVoxel};
+
+fn glyph_layer(scene: &mut Scene) -> &mut LayerKind {
+    let i = scene.layers.iter().position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. })).expect("glyph layer");
+    &mut scene.layers[i].kind
+}
+
+#[test]
+fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let mut app = headless::headless_app();
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(Scene::default_scene()));
+    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    app.update();
+    assert!(app.world().resource::<LayerErrors>().0.is_empty(), "{:?}", app.world().resource::<LayerErrors>().0);
+    let set = |app: &mut App| {
+        let mut q = app.world_mut().query::<(Entity, &ShGlyphSet)>();
+        let (e, s) = q.single(app.world()).expect("one glyph set");
+        (e, s.material.clone(), s.len)
+    };
+    let (e0, mat0, n0) = set(&mut app);
+    assert!(n0 > 100, "{n0} glyphs");
+    let voxels = app.world_mut().query::<&ShVoxel>().iter(app.world()).count();
+    assert_eq!(voxels, n0);
+    let buffers0 = app.world().resource::<Assets<ShaderBuffer>>().len();
+
+    // Draw settings: same entity, same buffers, the uniform changed.
+    if let LayerKind::ShGlyphs { render, .. } = glyph_layer(&mut app.world_mut().resource_mut::<ActiveScene>().0) {
+        render.h = 0.05;
+        render.refine = 7;
+    }
+    app.update();
+    let (e1, mat1, _) = set(&mut app);
+    assert_eq!((e1, &mat1), (e0, &mat0));
+    assert_eq!(app.world().resource::<Assets<ShaderBuffer>>().len(), buffers0);
+    let params = app.world().resource::<Assets<ShGlyphMaterial>>().get(&mat1).expect("material").params;
+    assert_eq!((params.h, params.refine), (0.05, 7));
+
+    // Hiding: same entity, hidden.
+    app.world_mut().resource_mut::<ActiveScene>().0.layers[2].visible = false;
+    app.update();
+    let (e2, _, _) = set(&mut app);
+    assert_eq!(e2, e0);
+    assert_eq!(app.world().get::<Visibility>(e2), Some(&Visibility::Hidden));
+
+    // Size: the glyphs are rebuilt.
+    if let LayerKind::ShGlyphs { style, .. } = glyph_layer(&mut app.world_mut().resource_mut::<ActiveScene>().0) {
+        style.scale *= 2.0;
+    }
+    app.update();
+    let (e3, mat3, n3) = set(&mut app);
+    assert_ne!(e3, e0);
+    assert_ne!(mat3, mat0);
+    assert_eq!(n3, n0);
+    // The old glyph entities went with their set.
+    let voxels = app.world_mut().query::<&ShVoxel>().iter(app.world()).count();
+    assert_eq!(voxels, n3);
+}
