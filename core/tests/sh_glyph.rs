@@ -78,7 +78,7 @@ fn isotropic_glyph_is_an_exact_sphere() {
     // psi = c00 Y00 = c00 / (2 sqrt(pi)): a sphere of that radius.
     let c00 = 3.0;
     let radius = c00 / (2.0 * std::f64::consts::PI.sqrt());
-    let g = Glyph { centre: DVec3::new(1.0, 2.0, 3.0), l_max: 0, coeffs: vec![c00], rmax: radius };
+    let g = Glyph { centre: DVec3::new(1.0, 2.0, 3.0), l_max: 0, coeffs: vec![c00], rmax: radius, rbound: radius };
     let o = DVec3::new(1.3, 2.1, 10.0);
     let d = (DVec3::new(1.1, 2.05, 3.0) - o).normalize();
     let oc = o - g.centre;
@@ -111,8 +111,8 @@ fn marching_error_is_within_the_bisection_bracket() {
                 let (Some(exact), Some(fast)) = (cast_exact(g, o, d, lobes), cast(g, o, d, 0.02, 5, lobes)) else {
                     continue;
                 };
-                let bound = 0.02 * g.rmax / 32.0;
-                if (fast.t - exact.t).abs() > 0.02 * g.rmax {
+                let bound = 0.02 * g.rbound / 32.0;
+                if (fast.t - exact.t).abs() > 0.02 * g.rbound {
                     continue; // a lobe thinner than the step was stepped over: a different surface
                 }
                 worst = worst.max((fast.t - exact.t).abs() / bound);
@@ -123,6 +123,29 @@ fn marching_error_is_within_the_bisection_bracket() {
     }
     println!("{n} hits checked; worst depth error {worst:.3} of the bracket bound");
     assert!(n > 2000);
+}
+
+#[test]
+fn render_bound_contains_the_glyph_and_is_tighter_than_cauchy_schwarz() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(19);
+    let dense = sh::sphere::fibonacci(40_000);
+    for l_max in [2usize, 4, 8, 12] {
+        let mut ratio = 0.0;
+        for _ in 0..40 {
+            // Peaked ODFs: a few sharp fibres, the case where Cauchy-Schwarz is loose.
+            let fibres: Vec<DVec3> = (0..3).map(|_| random_dir(&mut rng)).collect();
+            let m = sh::sh_matrix(GLYPH_BASIS, l_max, &fibres);
+            let n = n_coeffs(l_max);
+            let c: Vec<f64> = (0..n).map(|j| (0..3).map(|f| m[f * n + j]).sum::<f64>()).collect();
+            let (g, _) = make_glyphs([(DVec3::ZERO, &c[..])], GLYPH_BASIS, GlyphStyle::default()).unwrap();
+            let g = &g[0];
+            let true_max = dense.iter().map(|u| eval_cartesian(&g.coeffs, l_max, *u).0.abs()).fold(0.0, f64::max);
+            assert!(g.rbound >= true_max * (1.0 - 1e-12), "l {l_max}: bound {} below max {true_max}", g.rbound);
+            assert!(g.rbound <= g.rmax * (1.0 + 1e-12));
+            ratio += g.rmax / g.rbound / 40.0;
+        }
+        println!("l_max {l_max}: Cauchy-Schwarz rmax / render bound = {ratio:.2} (mean over 40 three-fibre ODFs)");
+    }
 }
 
 #[test]
@@ -175,4 +198,26 @@ fn styles_normalise_and_reject_bad_input() {
     assert!(make_glyphs(items, ShBasis::default(), GlyphStyle { scale: 0.0, ..per }).is_err());
     assert!(make_glyphs(items, ShBasis::default(), GlyphStyle { sharpen: 0.5, ..per }).is_err());
     assert!(make_glyphs([(DVec3::ZERO, &[1.0, 2.0][..])], ShBasis::default(), per).is_err());
+}
+
+#[test]
+fn icosphere_counts_and_mesh_vertices_lie_on_the_glyph() {
+    use fascicle_core::sh::glyph::{glyph_mesh, icosphere};
+    for order in 0..5 {
+        let (v, f) = icosphere(order);
+        assert_eq!(v.len(), 10 * 4usize.pow(order) + 2);
+        assert_eq!(f.len(), 20 * 4usize.pow(order));
+        assert!(v.iter().all(|p| (p.length() - 1.0).abs() < 1e-15));
+        // Closed and outward: the signed volume of the triangle fan is positive, close to 4/3 pi.
+        let vol: f64 = f.iter().map(|&[a, b, c]| v[a as usize].dot(v[b as usize].cross(v[c as usize])) / 6.0).sum();
+        assert!(vol > 0.0 && vol < 4.0 / 3.0 * std::f64::consts::PI + 1e-12, "order {order}: volume {vol}");
+    }
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(17);
+    let c = random_coeffs(&mut rng, 8);
+    let (g, _) = make_glyphs([(DVec3::new(1.0, -2.0, 0.5), &c[..])], GLYPH_BASIS, GlyphStyle::default()).unwrap();
+    let (pos, nrm, _) = glyph_mesh(&g[0], 3, Lobes::Abs);
+    for (p, n) in pos.iter().zip(&nrm) {
+        assert!(g[0].implicit(*p, Lobes::Abs).abs() < 1e-12);
+        assert!((n.length() - 1.0).abs() < 1e-12);
+    }
 }

@@ -26,11 +26,24 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 1)]
         seed_density: usize,
     },
+    /// SH glyphs: frame time and depth error of ray casting (over h and bisections) and of deformed
+    /// icosphere meshes (over subdivision order), for 1k-64k glyphs at l_max 4 and 8.
+    Glyphs {
+        /// 1k glyphs at 256x256 only (under 2 minutes here).
+        #[arg(long)]
+        quick: bool,
+        /// Also write the rows as CSV (method,n,l_max,param,frame_ms,error).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
 }
 
 pub fn run(cmd: BenchCommand) -> Result<(), Error> {
     match cmd {
         BenchCommand::Tracking { phantom, seed_density } => tracking(&phantom, seed_density),
+        BenchCommand::Glyphs { quick, csv } => {
+            super::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+        }
     }
 }
 

@@ -2,6 +2,7 @@
 //! tools call; change them only with care.
 
 pub mod bench;
+pub mod bench_glyphs;
 pub mod fit;
 pub mod info;
 pub mod track;

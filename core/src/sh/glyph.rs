@@ -120,13 +120,69 @@ impl Default for GlyphStyle {
     }
 }
 
-/// A glyph ready for the GPU: centre, coefficients in [`GLYPH_BASIS`], and the bound `|ψ| <= rmax`.
+/// A glyph ready for the GPU: centre, coefficients in [`GLYPH_BASIS`], the Cauchy-Schwarz bound
+/// `|ψ| <= rmax` (what sizes are normalised by), and the tighter bound `rbound <= rmax` the renderer uses
+/// for the proxy and the ray's bounding sphere ([`render_bound`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Glyph {
     pub centre: DVec3,
     pub l_max: usize,
     pub coeffs: Vec<f64>,
     pub rmax: f64,
+    pub rbound: f64,
+}
+
+/// Directions of an order-4 icosphere (2,562) and their covering radius (the largest angle from any point
+/// of the sphere to the nearest direction), computed once.
+fn bound_sample() -> &'static (Vec<DVec3>, f64) {
+    static SAMPLE: std::sync::OnceLock<(Vec<DVec3>, f64)> = std::sync::OnceLock::new();
+    SAMPLE.get_or_init(|| {
+        let (v, f) = icosphere(4);
+        // Each face's circumcentre is the point of the face farthest from its vertices.
+        let cover = f
+            .iter()
+            .map(|&[a, b, c]| {
+                let (a, b, c) = (v[a as usize], v[b as usize], v[c as usize]);
+                let n = (b - a).cross(c - a).normalize();
+                a.angle_between(n).max(b.angle_between(n)).max(c.angle_between(n))
+            })
+            .fold(0.0f64, f64::max);
+        (v, cover)
+    })
+}
+
+/// The basis matrix of [`bound_sample`] at `l_max`, computed once per order.
+fn bound_matrix(l_max: usize) -> std::sync::Arc<Vec<f64>> {
+    static CACHE: std::sync::Mutex<Vec<(usize, std::sync::Arc<Vec<f64>>)>> = std::sync::Mutex::new(Vec::new());
+    let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, m)) = cache.iter().find(|(l, _)| *l == l_max) {
+        return m.clone();
+    }
+    let m = std::sync::Arc::new(super::sh_matrix(GLYPH_BASIS, l_max, &bound_sample().0));
+    cache.push((l_max, m.clone()));
+    m
+}
+
+/// A bound on `max |ψ|` much tighter than Cauchy-Schwarz for peaked ODFs, and still guaranteed. Let the
+/// maximum M of |ψ| be at u*, `m` the largest |ψ| over 2,562 directions of covering radius δ, and s the
+/// sample nearest u*. Along the great circle from u* to s, ψ is a trigonometric polynomial of degree L
+/// whose derivative vanishes at u*; Bernstein's inequality twice bounds its second derivative by L² M, so
+/// `m >= |ψ(s)| >= M (1 - (L δ)² / 2)`, i.e. `M <= m / (1 - (L δ)² / 2)`. Falls back to `rmax` where
+/// that is not smaller.
+pub fn render_bound(c: &[f64], l_max: usize, rmax: f64) -> f64 {
+    let (dirs, delta) = bound_sample();
+    let shrink = 1.0 - 0.5 * (l_max as f64 * delta).powi(2);
+    if shrink <= 0.05 {
+        return rmax;
+    }
+    let n = c.len();
+    let b = bound_matrix(l_max);
+    let m = b
+        .chunks_exact(n)
+        .take(dirs.len())
+        .map(|row| row.iter().zip(c).map(|(x, y)| x * y).sum::<f64>().abs())
+        .fold(0.0f64, f64::max);
+    (m / shrink).min(rmax)
 }
 
 /// Converts coefficients to [`GLYPH_BASIS`] and applies sharpening: the unscaled glyph shape and its rmax.
@@ -168,13 +224,15 @@ pub fn make_glyphs<'a>(
         }
     }
     let global = shapes.iter().map(|s| s.2).fold(0.0f64, f64::max);
+    use rayon::prelude::*;
     let glyphs = shapes
-        .into_iter()
+        .into_par_iter()
         .map(|(centre, mut c, rmax)| {
             let k = style.scale / if style.normalise == Normalise::PerGlyph { rmax } else { global };
             c.iter_mut().for_each(|v| *v *= k);
             let l_max = l_max_for(c.len()).unwrap_or(0);
-            Glyph { centre, l_max, coeffs: c, rmax: rmax * k }
+            let rbound = render_bound(&c, l_max, rmax * k);
+            Glyph { centre, l_max, coeffs: c, rmax: rmax * k, rbound }
         })
         .collect();
     Ok((glyphs, skipped))
@@ -236,11 +294,16 @@ pub fn ray_sphere_interval(o: DVec3, d: DVec3, c: DVec3, r: f64) -> Option<(f64,
     (t1 > 0.0).then_some((t0.max(0.0), t1))
 }
 
-/// The shader's ray cast in f64: from the bounding sphere's entry, steps of `h · rmax` until inside, then
-/// `refine` bisections between the last outside and first inside point. `d` must be unit.
+/// The shader's ray cast in f64: from the entry into the sphere of radius `rbound`, steps of `h · rbound`
+/// until inside, then `refine` bisections between the last outside and first inside point. `d` unit.
 pub fn cast(g: &Glyph, o: DVec3, d: DVec3, h: f64, refine: u32, lobes: Lobes) -> Option<Hit> {
-    let (t0, t1) = ray_sphere_interval(o, d, g.centre, g.rmax)?;
-    let step = (h * g.rmax).max(1e-12 * g.rmax);
+    cast_within(g, g.rbound, o, d, h, refine, lobes)
+}
+
+/// [`cast`] inside a sphere of the given radius (steps `h · radius`).
+pub fn cast_within(g: &Glyph, radius: f64, o: DVec3, d: DVec3, h: f64, refine: u32, lobes: Lobes) -> Option<Hit> {
+    let (t0, t1) = ray_sphere_interval(o, d, g.centre, radius)?;
+    let step = (h * radius).max(1e-12 * radius);
     let (mut lo, mut t) = (t0, t0);
     loop {
         if g.implicit(o + t * d, lobes) < 0.0 {
@@ -266,13 +329,101 @@ pub fn cast(g: &Glyph, o: DVec3, d: DVec3, h: f64, refine: u32, lobes: Lobes) ->
     Some(Hit { t: hi, point, normal, negative })
 }
 
-/// The reference: a search 100 times finer than the finest knob the renderer offers (1e-4 rmax) and
-/// bisection to rounding.
+/// The reference: inside the guaranteed Cauchy-Schwarz sphere (not the renderer's tighter bound), a search
+/// of 1e-4 rmax steps, and bisection to rounding.
 pub fn cast_exact(g: &Glyph, o: DVec3, d: DVec3, lobes: Lobes) -> Option<Hit> {
-    cast(g, o, d, 1e-4, 60, lobes)
+    cast_within(g, g.rmax, o, d, 1e-4, 60, lobes)
 }
 
 /// Number of coefficients the shader reads per glyph at `l_max`.
 pub fn glyph_stride(l_max: usize) -> usize {
     n_coeffs(l_max)
+}
+
+/// An icosphere: the icosahedron with each triangle split in four `order` times (order 0: 12 vertices;
+/// order k: 10·4^k + 2). Unit vertices, counter-clockwise faces seen from outside.
+pub fn icosphere(order: u32) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut v: Vec<DVec3> = [
+        (-1.0, t, 0.0),
+        (1.0, t, 0.0),
+        (-1.0, -t, 0.0),
+        (1.0, -t, 0.0),
+        (0.0, -1.0, t),
+        (0.0, 1.0, t),
+        (0.0, -1.0, -t),
+        (0.0, 1.0, -t),
+        (t, 0.0, -1.0),
+        (t, 0.0, 1.0),
+        (-t, 0.0, -1.0),
+        (-t, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
+    .collect();
+    let mut f: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..order {
+        let mut mid = std::collections::HashMap::new();
+        let mut split = |a: u32, b: u32, v: &mut Vec<DVec3>| -> u32 {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                v.push((v[a as usize] + v[b as usize]).normalize());
+                (v.len() - 1) as u32
+            })
+        };
+        let mut next = Vec::with_capacity(f.len() * 4);
+        for [a, b, c] in f {
+            let (ab, bc, ca) = (split(a, b, &mut v), split(b, c, &mut v), split(c, a, &mut v));
+            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        f = next;
+    }
+    (v, f)
+}
+
+/// The mesh baseline (as FURY, mrview and DSI Studio draw ODFs): an icosphere of `order` deformed to
+/// `r = s(ψ(u))` about the glyph centre. Returns world positions, unit vertex normals (area-weighted face
+/// normals) and triangles.
+pub fn glyph_mesh(g: &Glyph, order: u32, lobes: Lobes) -> (Vec<DVec3>, Vec<DVec3>, Vec<[u32; 3]>) {
+    let (dirs, faces) = icosphere(order);
+    let pos: Vec<DVec3> = dirs
+        .iter()
+        .map(|&u| {
+            let (psi, _) = eval_cartesian(&g.coeffs, g.l_max, u);
+            let r = match lobes {
+                Lobes::Clamp => psi.max(0.0),
+                Lobes::Abs => psi.abs(),
+            };
+            g.centre + r * u
+        })
+        .collect();
+    let mut nrm = vec![DVec3::ZERO; pos.len()];
+    for &[a, b, c] in &faces {
+        let n = (pos[b as usize] - pos[a as usize]).cross(pos[c as usize] - pos[a as usize]);
+        for i in [a, b, c] {
+            nrm[i as usize] += n;
+        }
+    }
+    let nrm = nrm.iter().zip(&dirs).map(|(n, u)| n.normalize_or(*u)).collect();
+    (pos, nrm, faces)
 }

@@ -220,25 +220,31 @@ impl std::error::Error for HeadlessError {}
 
 /// An App with Bevy's rendering and no window. Add plugins and entities, then call [`capture`].
 pub fn headless_app() -> App {
+    // The global logger can be set once per process; later apps (benchmarks render many) go without.
+    static LOGGER_SET: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    let first = !LOGGER_SET.swap(true, std::sync::atomic::Ordering::SeqCst);
     let mut app = App::new();
-    app.add_plugins(
-        DefaultPlugins
-            .set(WindowPlugin {
-                primary_window: None,
-                exit_condition: ExitCondition::DontExit,
-                close_when_requested: false,
-                ..default()
-            })
-            .set(RenderPlugin { synchronous_pipeline_compilation: true, ..default() })
-            .disable::<bevy::winit::WinitPlugin>()
-            .disable::<PipelinedRenderingPlugin>()
-            // Warnings and errors only (shader compile errors must be seen); B0006 on software adapters is expected.
-            .set(bevy::log::LogPlugin {
-                level: bevy::log::Level::WARN,
-                filter: "wgpu=error,naga=warn".into(),
-                ..default()
-            }),
-    );
+    let plugins = DefaultPlugins
+        .set(WindowPlugin {
+            primary_window: None,
+            exit_condition: ExitCondition::DontExit,
+            close_when_requested: false,
+            ..default()
+        })
+        .set(RenderPlugin { synchronous_pipeline_compilation: true, ..default() })
+        .disable::<bevy::winit::WinitPlugin>()
+        .disable::<PipelinedRenderingPlugin>()
+        // Warnings and errors only (shader compile errors must be seen); B0006 on software adapters is expected.
+        .set(bevy::log::LogPlugin {
+            level: bevy::log::Level::WARN,
+            filter: "wgpu=error,naga=warn".into(),
+            ..default()
+        });
+    if first {
+        app.add_plugins(plugins);
+    } else {
+        app.add_plugins(plugins.disable::<bevy::log::LogPlugin>());
+    }
     app
 }
 

@@ -104,7 +104,7 @@ impl ShGlyphUniform {
 pub struct ShGlyphMaterial {
     #[uniform(0)]
     pub params: ShGlyphUniform,
-    /// `vec4(centre, rmax)` per glyph.
+    /// `vec4(centre, rbound)` per glyph (the render bound, `Glyph::rbound`).
     #[storage(1, read_only)]
     pub glyphs: Handle<ShaderBuffer>,
     /// `stride` f32 coefficients per glyph, in `fascicle_core::sh::glyph::GLYPH_BASIS`.
@@ -154,13 +154,13 @@ pub struct ShGlyphSet {
     pub len: usize,
 }
 
-/// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rmax)` and the coefficients.
+/// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rbound)` and the coefficients.
 pub fn pack(glyphs: &[Glyph], l_max: usize) -> (Vec<u8>, Vec<u8>) {
     let stride = fascicle_core::sh::n_coeffs(l_max);
     let mut head = Vec::with_capacity(glyphs.len() * 16);
     let mut coeffs = Vec::with_capacity(glyphs.len() * stride * 4);
     for g in glyphs {
-        for v in [g.centre.x, g.centre.y, g.centre.z, g.rmax] {
+        for v in [g.centre.x, g.centre.y, g.centre.z, g.rbound] {
             head.extend_from_slice(&(v as f32).to_le_bytes());
         }
         for j in 0..stride {
@@ -207,7 +207,7 @@ pub fn spawn_glyph_set(
             Mesh3d(cube.clone()),
             MeshMaterial3d(material.clone()),
             MeshTag(i as u32),
-            Transform::from_translation(g.centre.as_vec3()).with_scale(Vec3::splat(g.rmax as f32)),
+            Transform::from_translation(g.centre.as_vec3()).with_scale(Vec3::splat(g.rbound as f32)),
             ChildOf(parent),
         ));
     }
@@ -219,4 +219,36 @@ pub fn update_settings(materials: &mut Assets<ShGlyphMaterial>, set: &ShGlyphSet
     if let Some(mut m) = materials.get_mut(&set.material) {
         m.params = ShGlyphUniform::new(set.l_max, settings);
     }
+}
+
+/// The mesh baseline: all glyphs as one merged mesh of deformed icospheres of `order` (colour |direction|),
+/// drawn by Bevy's standard pipeline. Returns the entity. For side-by-side comparison with ray casting.
+pub fn spawn_mesh_glyphs(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<StandardMaterial>,
+    glyphs: &[Glyph],
+    order: u32,
+    lobes: Lobes,
+) -> Entity {
+    use bevy::mesh::{Indices, PrimitiveTopology};
+    let (mut pos, mut nrm, mut col, mut idx) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for g in glyphs {
+        let (p, n, f) = fascicle_core::sh::glyph::glyph_mesh(g, order, lobes);
+        let base = pos.len() as u32;
+        for (p, n) in p.iter().zip(&n) {
+            let d = (*p - g.centre).normalize_or_zero().abs();
+            pos.push(p.as_vec3().to_array());
+            nrm.push(n.as_vec3().to_array());
+            col.push([d.x as f32, d.y as f32, d.z as f32, 1.0]);
+        }
+        idx.extend(f.iter().flat_map(|t| t.map(|i| i + base)));
+    }
+    let mesh = Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_NORMAL, nrm)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
+        .with_inserted_indices(Indices::U32(idx));
+    let material = materials.add(StandardMaterial { base_color: Color::WHITE, unlit: true, ..default() });
+    commands.spawn((Mesh3d(meshes.add(mesh)), MeshMaterial3d(material), Transform::default())).id()
 }

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use bevy::prelude::*;
-use fascicle_core::sh::glyph::{Glyph, GlyphStyle, Lobes, cast, make_glyphs};
+use fascicle_core::sh::glyph::{Glyph, GlyphStyle, Lobes, cast_within, make_glyphs};
 use fascicle_core::sh::{self, ShBasis};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture, DepthMap};
@@ -109,10 +109,11 @@ fn reference(glyphs: &[(Glyph, Lobes)], cam: &PinholeCamera) -> Vec<Option<(f64,
                     for (k, &py) in ys.iter().enumerate() {
                         for px in 0..W {
                             let (o, d) = cam.subpixel_ray(px as f64 + 0.5, py as f64 + 0.5);
-                            // Reference: steps of 1e-3 rmax, 50 bisections (to rounding).
+                            // Reference: inside the guaranteed Cauchy-Schwarz sphere (not the renderer's
+                            // bound), steps of 1e-3 rmax, 50 bisections (to rounding).
                             let best = glyphs
                                 .iter()
-                                .filter_map(|(g, lobes)| cast(g, o, d, 1e-3, 50, *lobes))
+                                .filter_map(|(g, lobes)| cast_within(g, g.rmax, o, d, 1e-3, 50, *lobes))
                                 .min_by(|a, b| a.t.total_cmp(&b.t));
                             dst[k * W as usize + px as usize] = best.map(|h| (h.t * d.dot(forward), h.normal));
                         }
