@@ -13,6 +13,7 @@
 #import bevy_pbr::mesh_view_bindings::view
 #import fascicle::ray::{Ray, view_ray, depth_of}
 #import fascicle::lighting::headlight
+#import fascicle::colormap::viridis
 #import fascicle::sh::{sh_value, sh_value_grad}
 
 struct GlyphParams {
@@ -23,13 +24,13 @@ struct GlyphParams {
     lobes: u32,
     h: f32,
     ambient: f32,
-    // 0: direction RGB, 1: normal as colour (tests), 2: flat grey
+    // 0: direction RGB, 1: normal as colour (tests), 2: flat grey, 3: GFA through viridis
     colour_mode: u32,
     max_steps: u32,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: GlyphParams;
-// Per glyph: centre (world, mm) and rmax.
+// Per glyph, two entries: (centre (world, mm), render bound), (GFA, 0, 0, 0).
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> glyphs: array<vec4<f32>>;
 // Per glyph, `stride` coefficients in the glyph basis.
 @group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> coeffs: array<f32>;
@@ -76,7 +77,7 @@ fn implicit(c: ptr<function, array<f32, 153>>, v: vec3<f32>) -> f32 {
 
 @fragment
 fn fragment(in: GlyphVertexOutput) -> FragmentOutput {
-    let g = glyphs[in.tag];
+    let g = glyphs[2u * in.tag];
     let centre = g.xyz;
     let rmax = g.w;
     var c: array<f32, 153>;
@@ -138,6 +139,8 @@ fn fragment(in: GlyphVertexOutput) -> FragmentOutput {
         base = n * 0.5 + 0.5;
     } else if params.colour_mode == 2u {
         base = vec3<f32>(0.8);
+    } else if params.colour_mode == 3u {
+        base = viridis(glyphs[2u * in.tag + 1u].x);
     }
     var out: FragmentOutput;
     if params.colour_mode == 1u {

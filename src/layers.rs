@@ -13,7 +13,7 @@ use fascicle_core::Volume;
 use fascicle_core::io::{Tractogram, nifti};
 
 use bevy::render::storage::ShaderBuffer;
-use fascicle_core::sh::glyph::{Glyph, GlyphStyle, make_glyphs};
+use fascicle_core::sh::glyph::{Glyph, GlyphPlane, GlyphStyle, Sampling, make_glyphs, sample_plane};
 use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
 
@@ -89,8 +89,12 @@ fn sync_scene(
     errors.0.clear();
     for (i, spec) in scene.0.layers.iter().enumerate() {
         let vis = if spec.visible { Visibility::Inherited } else { Visibility::Hidden };
-        if let LayerKind::ShGlyphs { source, axis, index, spacing, style, render } = &spec.kind {
-            match plane_glyphs(source, *axis, *index, *spacing, *style) {
+        if let LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, style, render } = &spec.kind {
+            let glyphs = match plane {
+                Some(p) => free_plane_glyphs(source, p, *sampling, *style),
+                None => plane_glyphs(source, *axis, *index, *spacing, *style),
+            };
+            match glyphs {
                 Ok((glyphs, voxels)) => {
                     let set = spawn_glyph_set(
                         &mut commands,
@@ -209,6 +213,30 @@ fn sh_field(source: &ShSource, mask: impl Fn([usize; 3]) -> bool) -> Result<(Vol
             Ok((v, *basis))
         }
     }
+}
+
+/// Glyphs on a free plane of interest (any orientation; nearest or trilinear sampling). For the phantom,
+/// only voxels within two voxels of the plane are fitted.
+pub fn free_plane_glyphs(
+    source: &ShSource,
+    plane: &GlyphPlane,
+    sampling: Sampling,
+    style: GlyphStyle,
+) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
+    let near_plane = |affine: glam::DMat4| {
+        let (c, n) = (glam::DVec3::from_array(plane.centre), glam::DVec3::from_array(plane.normal).normalize_or_zero());
+        move |p: [usize; 3]| {
+            let w = affine.transform_point3(glam::DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+            (w - c).dot(n).abs() <= 2.0 * affine.x_axis.truncate().length().max(affine.z_axis.truncate().length())
+        }
+    };
+    let affine = fascicle_core::phantom::ring_cross([48, 48, 24]).world_from_voxel;
+    let (vol, basis) = sh_field(source, near_plane(affine))?;
+    let items = sample_plane(&vol, plane, sampling).map_err(|e| e.to_string())?;
+    let (glyphs, skipped) =
+        make_glyphs(items.iter().map(|(p, c, _)| (*p, &c[..])), basis, style).map_err(|e| e.to_string())?;
+    let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
+    Ok((glyphs, voxels))
 }
 
 /// One glyph per `spacing`-th voxel of a slice (voxel centres, nearest sampling), skipping voxels with no

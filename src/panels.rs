@@ -5,7 +5,7 @@
 use bevy::prelude::*;
 use bevy_egui::egui;
 
-use fascicle_core::sh::glyph::{Lobes, Normalise};
+use fascicle_core::sh::glyph::{GlyphPlane, Lobes, Normalise, Sampling};
 use fascicle_sh_glyphs::GlyphColour;
 
 use crate::scene::{LayerKind, ShSource, SliceAxis};
@@ -71,17 +71,43 @@ fn slice_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
 /// SH glyphs: plane, size and shape (rebuild the glyphs), then the ray caster's knobs and colour (a uniform
 /// update only).
 fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
-    let LayerKind::ShGlyphs { source, axis, index, spacing, style, render } = kind else { return };
+    let LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, style, render } = kind else { return };
     ui.label(match source {
         ShSource::PhantomCsa { l_max } => format!("phantom CSA, l_max {l_max}"),
         ShSource::Nifti { path, basis } => format!("{} ({})", path.display(), basis.name()),
     });
-    let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
-    slice_panel(ui, &mut slice);
-    if let LayerKind::Slice { axis: a, index: i, .. } = slice {
-        (*axis, *index) = (a, i);
+    let mut free = plane.is_some();
+    if ui.checkbox(&mut free, "free plane").changed() {
+        *plane =
+            free.then_some(GlyphPlane { centre: [0.0; 3], normal: [0.0, 0.0, 1.0], half_size: 48.0, spacing: 2.0 });
     }
-    ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
+    if let Some(p) = plane {
+        ui.horizontal(|ui| {
+            ui.label("centre");
+            for c in p.centre.iter_mut() {
+                ui.add(egui::DragValue::new(c).speed(0.5));
+            }
+        });
+        ui.horizontal(|ui| {
+            ui.label("normal");
+            for c in p.normal.iter_mut() {
+                ui.add(egui::DragValue::new(c).speed(0.02).range(-1.0..=1.0));
+            }
+        });
+        ui.add(egui::Slider::new(&mut p.half_size, 1.0..=200.0).text("half size (mm)"));
+        ui.add(egui::Slider::new(&mut p.spacing, 0.25..=10.0).text("spacing (mm)"));
+        ui.horizontal(|ui| {
+            ui.radio_value(sampling, Sampling::Nearest, "nearest");
+            ui.radio_value(sampling, Sampling::Trilinear, "trilinear");
+        });
+    } else {
+        let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
+        slice_panel(ui, &mut slice);
+        if let LayerKind::Slice { axis: a, index: i, .. } = slice {
+            (*axis, *index) = (a, i);
+        }
+        ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
+    }
     ui.add(egui::Slider::new(&mut style.scale, 0.1..=10.0).text("size (mm)"));
     ui.add(egui::Slider::new(&mut style.sharpen, 1.0..=10.0).text("sharpening"));
     ui.horizontal(|ui| {
@@ -97,6 +123,7 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
     ui.horizontal(|ui| {
         ui.radio_value(&mut render.colour, GlyphColour::Direction, "direction");
         ui.radio_value(&mut render.colour, GlyphColour::Grey, "grey");
+        ui.radio_value(&mut render.colour, GlyphColour::Gfa, "GFA");
         ui.radio_value(&mut render.colour, GlyphColour::Normal, "normal");
     });
 }

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use fascicle_core::sh::ShBasis;
-use fascicle_core::sh::glyph::GlyphStyle;
+use fascicle_core::sh::glyph::{GlyphPlane, GlyphStyle, Sampling};
 use fascicle_sh_glyphs::RayCastSettings;
 use serde::{Deserialize, Serialize};
 
@@ -54,6 +54,12 @@ pub enum LayerKind {
         /// Every `spacing`-th voxel along each in-plane axis (1 = every voxel).
         #[serde(default = "one_usize")]
         spacing: usize,
+        /// A free plane of interest (any orientation, spacing in mm), used instead of axis/index/spacing.
+        #[serde(default)]
+        plane: Option<GlyphPlane>,
+        /// How a free plane reads the field.
+        #[serde(default)]
+        sampling: Sampling,
         #[serde(default)]
         style: GlyphStyle,
         #[serde(default)]
@@ -66,11 +72,13 @@ impl LayerKind {
     /// uniform update can change, so the layer is not rebuilt or re-uploaded.
     pub fn structure(&self) -> LayerKind {
         match self {
-            LayerKind::ShGlyphs { source, axis, index, spacing, style, .. } => LayerKind::ShGlyphs {
+            LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, style, .. } => LayerKind::ShGlyphs {
                 source: source.clone(),
                 axis: *axis,
                 index: *index,
                 spacing: *spacing,
+                plane: *plane,
+                sampling: *sampling,
                 style: *style,
                 render: RayCastSettings::default(),
             },
@@ -142,6 +150,8 @@ impl Scene {
                         axis: SliceAxis::Z,
                         index: None,
                         spacing: 2,
+                        plane: None,
+                        sampling: Sampling::Nearest,
                         style: GlyphStyle { scale: 3.0, ..GlyphStyle::default() },
                         render: RayCastSettings::default(),
                     },

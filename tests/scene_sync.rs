@@ -69,3 +69,55 @@ fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
     let voxels = app.world_mut().query::<&ShVoxel>().iter(app.world()).count();
     assert_eq!(voxels, n3);
 }
+
+/// A free, oblique plane of interest with trilinear sampling: every glyph sits on the plane, inside the
+/// phantom, and the layer renders (the GFA colour map shows the ring brighter than the background).
+#[test]
+fn oblique_glyph_plane_renders_on_the_plane() {
+    use fascicle::scene::{CameraSpec, LayerSpec, ShSource, SliceAxis};
+    use fascicle_core::sh::glyph::{GlyphPlane, GlyphStyle, Sampling};
+    use fascicle_sh_glyphs::{GlyphColour, RayCastSettings};
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let plane = GlyphPlane { centre: [0.0, 0.0, 1.0], normal: [0.0, 0.4, 1.0], half_size: 40.0, spacing: 3.0 };
+    let scene = Scene {
+        layers: vec![LayerSpec {
+            name: "oblique".into(),
+            visible: true,
+            opacity: 1.0,
+            kind: LayerKind::ShGlyphs {
+                source: ShSource::PhantomCsa { l_max: 4 },
+                axis: SliceAxis::Z,
+                index: None,
+                spacing: 1,
+                plane: Some(plane),
+                sampling: Sampling::Trilinear,
+                style: GlyphStyle { scale: 2.5, ..GlyphStyle::default() },
+                render: RayCastSettings { colour: GlyphColour::Gfa, ..RayCastSettings::default() },
+            },
+        }],
+        camera: CameraSpec { eye: [0.0, -60.0, 90.0], target: [0.0, 0.0, 0.0], up: [0.0, 0.0, 1.0], fov_y_deg: 45.0 },
+    };
+    let (glyphs, _) = fascicle::layers::free_plane_glyphs(
+        &ShSource::PhantomCsa { l_max: 4 },
+        &plane,
+        Sampling::Trilinear,
+        GlyphStyle { scale: 2.5, ..GlyphStyle::default() },
+    )
+    .unwrap();
+    let n = glam::DVec3::new(0.0, 0.4, 1.0).normalize();
+    assert!(glyphs.len() > 300, "{} glyphs", glyphs.len());
+    for g in &glyphs {
+        assert!((g.centre - glam::DVec3::new(0.0, 0.0, 1.0)).dot(n).abs() < 1e-9);
+    }
+    // Ring glyphs (GFA high) and background glyphs (GFA ~0) both present.
+    assert!(glyphs.iter().any(|g| g.gfa > 0.4) && glyphs.iter().any(|g| g.gfa < 0.05));
+    let img = fascicle::render::render_scene(&scene, 160, 120).unwrap_or_else(|e| panic!("{e}"));
+    if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
+        std::fs::write(format!("{dir}/oblique_glyphs.png"), img.to_png().unwrap()).unwrap();
+    }
+    let drawn = img.rgba.chunks(4).filter(|p| p[0].max(p[1]).max(p[2]) > 40).count();
+    assert!(drawn > 1000, "{drawn} glyph pixels");
+}

@@ -78,7 +78,14 @@ fn isotropic_glyph_is_an_exact_sphere() {
     // psi = c00 Y00 = c00 / (2 sqrt(pi)): a sphere of that radius.
     let c00 = 3.0;
     let radius = c00 / (2.0 * std::f64::consts::PI.sqrt());
-    let g = Glyph { centre: DVec3::new(1.0, 2.0, 3.0), l_max: 0, coeffs: vec![c00], rmax: radius, rbound: radius };
+    let g = Glyph {
+        centre: DVec3::new(1.0, 2.0, 3.0),
+        l_max: 0,
+        coeffs: vec![c00],
+        rmax: radius,
+        rbound: radius,
+        gfa: 0.0,
+    };
     let o = DVec3::new(1.3, 2.1, 10.0);
     let d = (DVec3::new(1.1, 2.05, 3.0) - o).normalize();
     let oc = o - g.centre;
@@ -220,4 +227,52 @@ fn icosphere_counts_and_mesh_vertices_lie_on_the_glyph() {
         assert!(g[0].implicit(*p, Lobes::Abs).abs() < 1e-12);
         assert!((n.length() - 1.0).abs() < 1e-12);
     }
+}
+
+#[test]
+fn plane_sampling_nearest_and_trilinear() {
+    use fascicle_core::Volume;
+    use fascicle_core::sh::glyph::{GlyphPlane, Sampling, gfa, sample_plane};
+    // A 4x4x4 field (2 mm voxels, oblique affine) whose coefficients are affine in the voxel position:
+    // trilinear sampling must reproduce the affine function exactly inside the grid, nearest the voxel's.
+    let affine = glam::DMat4::from_rotation_z(0.3) * glam::DMat4::from_scale(DVec3::splat(2.0));
+    let mut f = Volume::<f32>::zeros(&[4, 4, 4, 6], affine);
+    let value = |p: DVec3, j: usize| 1.0 + 0.1 * p.x + 0.2 * p.y - 0.05 * p.z + j as f64;
+    for z in 0..4 {
+        for y in 0..4 {
+            for x in 0..4 {
+                for j in 0..6 {
+                    f.data[x + 4 * (y + 4 * z) + 64 * j] = value(DVec3::new(x as f64, y as f64, z as f64), j) as f32;
+                }
+            }
+        }
+    }
+    let centre = affine.transform_point3(DVec3::new(1.5, 1.5, 1.2));
+    let plane = GlyphPlane { centre: centre.to_array(), normal: [0.2, 0.1, 1.0], half_size: 3.0, spacing: 0.7 };
+    let inv = affine.inverse();
+    let tri = sample_plane(&f, &plane, Sampling::Trilinear).unwrap();
+    assert!(tri.len() > 20);
+    for (p, c, _) in &tri {
+        let q = inv.transform_point3(*p);
+        // Inside the voxel-centre hull the blend is exact; beyond it, edges are replicated.
+        if (0..3).all(|a| q[a] >= 0.0 && q[a] <= 3.0) {
+            for (j, cj) in c.iter().enumerate() {
+                assert!((cj - value(q, j)).abs() < 1e-5, "{cj} vs {}", value(q, j));
+            }
+        }
+        // Every point is on the plane.
+        let nrm = DVec3::new(0.2, 0.1, 1.0).normalize();
+        assert!((*p - centre).dot(nrm).abs() < 1e-9);
+    }
+    for (p, c, v) in sample_plane(&f, &plane, Sampling::Nearest).unwrap() {
+        let q = inv.transform_point3(p).round();
+        assert_eq!(v, [q.x as u32, q.y as u32, q.z as u32]);
+        assert!((c[0] - value(q, 0)).abs() < 1e-5);
+    }
+    assert!(sample_plane(&f, &GlyphPlane { normal: [0.0; 3], ..plane }, Sampling::Nearest).is_err());
+    assert!(sample_plane(&f, &GlyphPlane { spacing: 0.0, ..plane }, Sampling::Nearest).is_err());
+    // GFA: 0 for an isotropic ODF, close to 1 for one sharp fibre.
+    assert_eq!(gfa(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0]), 0.0);
+    let m = sh::sh_matrix(GLYPH_BASIS, 8, &[DVec3::Z]);
+    assert!(gfa(&m) > 0.9);
 }

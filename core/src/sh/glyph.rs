@@ -130,6 +130,15 @@ pub struct Glyph {
     pub coeffs: Vec<f64>,
     pub rmax: f64,
     pub rbound: f64,
+    /// Generalised anisotropy of the ODF before sharpening ([`gfa`]), for colour maps.
+    pub gfa: f64,
+}
+
+/// GFA of an ODF from its coefficients in an orthonormal basis: the ratio of the standard deviation to the
+/// RMS of ψ over the sphere, `sqrt(1 - c00² / Σ c²)` (the continuous form of DIPY's sampled GFA).
+pub fn gfa(c: &[f64]) -> f64 {
+    let total: f64 = c.iter().map(|v| v * v).sum();
+    if total > 0.0 { (1.0 - c[0] * c[0] / total).max(0.0).sqrt() } else { 0.0 }
 }
 
 /// Directions of an order-4 icosphere (2,562) and their covering radius (the largest angle from any point
@@ -185,9 +194,10 @@ pub fn render_bound(c: &[f64], l_max: usize, rmax: f64) -> f64 {
     (m / shrink).min(rmax)
 }
 
-/// Converts coefficients to [`GLYPH_BASIS`] and applies sharpening: the unscaled glyph shape and its rmax.
+/// Converts coefficients to [`GLYPH_BASIS`] and applies sharpening: the unscaled glyph shape, its rmax and
+/// its GFA (before sharpening).
 /// `None` for an all-zero or non-finite set (nothing to draw).
-pub fn shape(coeffs: &[f64], basis: ShBasis, sharpen: f64) -> Result<Option<(Vec<f64>, f64)>> {
+pub fn shape(coeffs: &[f64], basis: ShBasis, sharpen: f64) -> Result<Option<(Vec<f64>, f64, f64)>> {
     let l_max = l_max_for(coeffs.len())
         .ok_or_else(|| Error::Shape(format!("{} SH coefficients is not a full even-order set", coeffs.len())))?;
     if l_max > MAX_GLYPH_L {
@@ -200,9 +210,10 @@ pub fn shape(coeffs: &[f64], basis: ShBasis, sharpen: f64) -> Result<Option<(Vec
         return Ok(None);
     }
     let mut c = convert(coeffs, basis, GLYPH_BASIS);
+    let anisotropy = gfa(&c);
     c[0] /= sharpen;
     let rmax = bound_rmax(GLYPH_BASIS, &c);
-    Ok((rmax > 0.0).then_some((c, rmax)))
+    Ok((rmax > 0.0).then_some((c, rmax, anisotropy)))
 }
 
 /// Glyphs from (centre, coefficients) pairs: converted, sharpened, normalised. Sets with nothing to draw
@@ -219,7 +230,7 @@ pub fn make_glyphs<'a>(
     let mut skipped = Vec::new();
     for (i, (centre, c)) in items.into_iter().enumerate() {
         match shape(c, basis, style.sharpen)? {
-            Some((c, rmax)) if centre.is_finite() => shapes.push((centre, c, rmax)),
+            Some((c, rmax, a)) if centre.is_finite() => shapes.push((centre, c, rmax, a)),
             _ => skipped.push(i),
         }
     }
@@ -227,12 +238,12 @@ pub fn make_glyphs<'a>(
     use rayon::prelude::*;
     let glyphs = shapes
         .into_par_iter()
-        .map(|(centre, mut c, rmax)| {
+        .map(|(centre, mut c, rmax, gfa)| {
             let k = style.scale / if style.normalise == Normalise::PerGlyph { rmax } else { global };
             c.iter_mut().for_each(|v| *v *= k);
             let l_max = l_max_for(c.len()).unwrap_or(0);
             let rbound = render_bound(&c, l_max, rmax * k);
-            Glyph { centre, l_max, coeffs: c, rmax: rmax * k, rbound }
+            Glyph { centre, l_max, coeffs: c, rmax: rmax * k, rbound, gfa }
         })
         .collect();
     Ok((glyphs, skipped))
@@ -426,4 +437,95 @@ pub fn glyph_mesh(g: &Glyph, order: u32, lobes: Lobes) -> (Vec<DVec3>, Vec<DVec3
     }
     let nrm = nrm.iter().zip(&dirs).map(|(n, u)| n.normalize_or(*u)).collect();
     (pos, nrm, faces)
+}
+
+/// A plane of interest in world coordinates: glyph positions on a grid of `spacing` mm over a
+/// `2 half_size` square centred on `centre`, perpendicular to `normal` (any orientation).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct GlyphPlane {
+    pub centre: [f64; 3],
+    pub normal: [f64; 3],
+    pub half_size: f64,
+    pub spacing: f64,
+}
+
+/// How the field is read at a glyph position.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Sampling {
+    /// The voxel containing the point (its coefficients unchanged); the glyph sits at the point.
+    #[default]
+    Nearest,
+    /// Trilinear blend of the 8 surrounding voxels' coefficients (SH is linear, so this is the ODF blend).
+    Trilinear,
+}
+
+/// Where the glyphs of a plane go and what they show: `(world position, coefficients, nearest voxel)` for
+/// every grid point of the plane inside the field whose coefficients are usable (finite, `c00 > 0`).
+/// `field` is (X,Y,Z,n) with its affine.
+pub fn sample_plane(
+    field: &crate::Volume<f32>,
+    plane: &GlyphPlane,
+    sampling: Sampling,
+) -> Result<Vec<(DVec3, Vec<f64>, [u32; 3])>> {
+    let n = DVec3::from_array(plane.normal);
+    let c = DVec3::from_array(plane.centre);
+    if !(n.is_finite() && n.length() > 0.0 && c.is_finite()) {
+        return Err(Error::Param("the glyph plane needs a finite centre and a non-zero normal".into()));
+    }
+    if !(plane.spacing > 0.0 && plane.half_size >= 0.0 && plane.half_size / plane.spacing <= 2048.0) {
+        return Err(Error::Param(format!(
+            "glyph plane: spacing {} mm and half size {} mm must be positive, at most 4096 glyphs across",
+            plane.spacing, plane.half_size
+        )));
+    }
+    let nc = field.n_channels();
+    if l_max_for(nc).is_none() || field.shape.len() < 4 {
+        return Err(Error::Shape(format!("{:?} is not an SH coefficient image (X,Y,Z,n)", field.shape)));
+    }
+    let n = n.normalize();
+    let u = n.any_orthonormal_vector();
+    let v = n.cross(u);
+    let inv = field.world_from_voxel.inverse();
+    let d = field.dims3();
+    let nvox = field.n_voxels();
+    let k = (plane.half_size / plane.spacing).floor() as i64;
+    let read = |x: usize, y: usize, z: usize, w: f64, out: &mut [f64]| {
+        let vox = x + d[0] * (y + d[1] * z);
+        for (j, o) in out.iter_mut().enumerate() {
+            *o += w * field.data[vox + nvox * j] as f64;
+        }
+    };
+    let mut out = Vec::new();
+    for j in -k..=k {
+        for i in -k..=k {
+            let p = c + (i as f64 * u + j as f64 * v) * plane.spacing;
+            let q = inv.transform_point3(p);
+            if !(0..3).all(|a| q[a] >= -0.5 && q[a] < d[a] as f64 - 0.5) {
+                continue;
+            }
+            let r = q.round();
+            let near = [r.x.max(0.0) as usize, r.y.max(0.0) as usize, r.z.max(0.0) as usize];
+            let mut coeffs = vec![0.0; nc];
+            match sampling {
+                Sampling::Nearest => read(near[0], near[1], near[2], 1.0, &mut coeffs),
+                Sampling::Trilinear => {
+                    let f = q.floor();
+                    let w = q - f;
+                    let lo = |a: usize| (f[a].max(0.0) as usize).min(d[a] - 1);
+                    let hi = |a: usize| ((f[a] + 1.0).max(0.0) as usize).min(d[a] - 1);
+                    for (z, wz) in [(lo(2), 1.0 - w.z), (hi(2), w.z)] {
+                        for (y, wy) in [(lo(1), 1.0 - w.y), (hi(1), w.y)] {
+                            for (x, wx) in [(lo(0), 1.0 - w.x), (hi(0), w.x)] {
+                                read(x, y, z, wx * wy * wz, &mut coeffs);
+                            }
+                        }
+                    }
+                }
+            }
+            if coeffs.iter().all(|x| x.is_finite()) && coeffs[0] > 0.0 {
+                out.push((p, coeffs, near.map(|x| x as u32)));
+            }
+        }
+    }
+    Ok(out)
 }

@@ -39,6 +39,8 @@ pub enum GlyphColour {
     Normal,
     /// Flat grey, lit.
     Grey,
+    /// The glyph's GFA through the viridis colour map.
+    Gfa,
 }
 
 /// The ray caster's quality knobs and drawing options.
@@ -92,6 +94,7 @@ impl ShGlyphUniform {
                 GlyphColour::Direction => 0,
                 GlyphColour::Normal => 1,
                 GlyphColour::Grey => 2,
+                GlyphColour::Gfa => 3,
             },
             // The chord is at most 2 rmax: 2 / h steps, plus the last clamped one.
             max_steps: (2.0 / h).ceil() as u32 + 2,
@@ -104,7 +107,7 @@ impl ShGlyphUniform {
 pub struct ShGlyphMaterial {
     #[uniform(0)]
     pub params: ShGlyphUniform,
-    /// `vec4(centre, rbound)` per glyph (the render bound, `Glyph::rbound`).
+    /// Two `vec4` per glyph: `(centre, rbound)` (the render bound, `Glyph::rbound`) and `(gfa, 0, 0, 0)`.
     #[storage(1, read_only)]
     pub glyphs: Handle<ShaderBuffer>,
     /// `stride` f32 coefficients per glyph, in `fascicle_core::sh::glyph::GLYPH_BASIS`.
@@ -154,13 +157,14 @@ pub struct ShGlyphSet {
     pub len: usize,
 }
 
-/// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rbound)` and the coefficients.
+/// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rbound), vec4(gfa, 0, 0, 0)` and
+/// the coefficients.
 pub fn pack(glyphs: &[Glyph], l_max: usize) -> (Vec<u8>, Vec<u8>) {
     let stride = fascicle_core::sh::n_coeffs(l_max);
-    let mut head = Vec::with_capacity(glyphs.len() * 16);
+    let mut head = Vec::with_capacity(glyphs.len() * 32);
     let mut coeffs = Vec::with_capacity(glyphs.len() * stride * 4);
     for g in glyphs {
-        for v in [g.centre.x, g.centre.y, g.centre.z, g.rbound] {
+        for v in [g.centre.x, g.centre.y, g.centre.z, g.rbound, g.gfa, 0.0, 0.0, 0.0] {
             head.extend_from_slice(&(v as f32).to_le_bytes());
         }
         for j in 0..stride {
