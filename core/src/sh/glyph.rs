@@ -459,14 +459,13 @@ pub enum Sampling {
     Trilinear,
 }
 
+/// A glyph position on a plane: world position, coefficients, nearest voxel.
+pub type PlaneSample = (DVec3, Vec<f64>, [u32; 3]);
+
 /// Where the glyphs of a plane go and what they show: `(world position, coefficients, nearest voxel)` for
 /// every grid point of the plane inside the field whose coefficients are usable (finite, `c00 > 0`).
 /// `field` is (X,Y,Z,n) with its affine.
-pub fn sample_plane(
-    field: &crate::Volume<f32>,
-    plane: &GlyphPlane,
-    sampling: Sampling,
-) -> Result<Vec<(DVec3, Vec<f64>, [u32; 3])>> {
+pub fn sample_plane(field: &crate::Volume<f32>, plane: &GlyphPlane, sampling: Sampling) -> Result<Vec<PlaneSample>> {
     let n = DVec3::from_array(plane.normal);
     let c = DVec3::from_array(plane.centre);
     if !(n.is_finite() && n.length() > 0.0 && c.is_finite()) {
