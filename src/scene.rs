@@ -194,7 +194,26 @@ impl Scene {
         }
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let lower = name.to_ascii_lowercase();
-        let kind = if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
+        let sh_image = || {
+            fascicle_core::io::nifti::read_header(path).ok().is_some_and(|h| {
+                h.shape.len() >= 4
+                    && h.shape[3..].iter().product::<usize>() >= 6
+                    && fascicle_core::sh::l_max_for(h.shape[3..].iter().product()).is_some()
+            })
+        };
+        let kind = if (lower.ends_with(".nii") || lower.ends_with(".nii.gz")) && sh_image() {
+            // 6, 15, 28, 45, ... volumes: SH coefficients (DIPY's default basis; change it in the scene).
+            LayerKind::ShGlyphs {
+                source: ShSource::Nifti { path: path.to_path_buf(), basis: ShBasis::default() },
+                axis: SliceAxis::Z,
+                index: None,
+                spacing: 1,
+                plane: None,
+                sampling: Sampling::Nearest,
+                style: GlyphStyle::default(),
+                render: RayCastSettings::default(),
+            }
+        } else if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
             LayerKind::Slice {
                 source: VolumeSource::Nifti { path: path.to_path_buf(), volume: 0 },
                 axis: SliceAxis::Z,

@@ -384,5 +384,11 @@ mod tests {
         let msg = app.world().resource::<UiState>().message.clone().unwrap_or_default();
         assert!(msg.contains("file.nii.gz"), "{msg}");
         app.update(); // still running
+        // An SH coefficient image becomes a glyph layer (func_coef: 45 coefficients, l_max 8).
+        let sh = data.join("sh/func_coef.nii.gz");
+        app.world_mut().write_message(FileDragAndDrop::DroppedFile { window, path_buf: sh });
+        app.update();
+        let scene = &app.world().resource::<ActiveScene>().0;
+        assert!(matches!(scene.layers.last().map(|l| &l.kind), Some(LayerKind::ShGlyphs { .. })));
     }
 }

@@ -121,3 +121,34 @@ fn oblique_glyph_plane_renders_on_the_plane() {
     let drawn = img.rgba.chunks(4).filter(|p| p[0].max(p[1]).max(p[2]) > 40).count();
     assert!(drawn > 1000, "{drawn} glyph pixels");
 }
+
+/// DIPY's `func_coef.nii.gz` (2x3x4 voxels, 45 coefficients) opened as a file becomes a glyph layer that
+/// renders without errors.
+#[test]
+fn sh_coefficient_file_renders_as_glyphs() {
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/sh/func_coef.nii.gz");
+    let mut layer = Scene::layer_for_file(&path).unwrap();
+    if let LayerKind::ShGlyphs { index, style, .. } = &mut layer.kind {
+        *index = Some(1);
+        style.scale = 0.5;
+    } else {
+        panic!("not a glyph layer: {:?}", layer.kind);
+    }
+    // Voxels are 1 mm with the identity affine: the z = 1 slice spans x 0..1, y 0..2.
+    let scene = Scene {
+        layers: vec![layer],
+        camera: fascicle::scene::CameraSpec {
+            eye: [0.5, 1.0, 6.0],
+            target: [0.5, 1.0, 1.0],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 45.0,
+        },
+    };
+    let img = fascicle::render::render_scene(&scene, 96, 96).unwrap_or_else(|e| panic!("{e}"));
+    let drawn = img.rgba.chunks(4).filter(|p| p[0].max(p[1]).max(p[2]) > 40).count();
+    assert!(drawn > 200, "{drawn} glyph pixels");
+}
