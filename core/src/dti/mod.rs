@@ -2,6 +2,7 @@
 
 pub mod eigen;
 pub mod fit;
+pub mod glyph;
 pub mod metrics;
 
 use glam::DVec3;
