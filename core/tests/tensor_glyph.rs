@@ -73,7 +73,16 @@ fn superquadric_limits_and_normals() {
         }
         let a = h.normal.angle_between(fd.normalize()).to_degrees();
         worst = worst.max(a);
-        assert!(a < 0.05, "normal off by {a} degrees: cl {} cp {} exps {:?} radii {:?} n {} fd {}", g.cl, g.cp, g.exponents(3.0), g.radii, h.normal, fd.normalize());
+        assert!(
+            a < 0.05,
+            "normal off by {a} degrees: cl {} cp {} exps {:?} radii {:?} n {} fd {}",
+            g.cl,
+            g.cp,
+            g.exponents(3.0),
+            g.radii,
+            h.normal,
+            fd.normalize()
+        );
     }
     println!("superquadric normals vs finite differences: worst {worst:.1e} degrees");
 }

@@ -11,15 +11,17 @@ pub const COLORMAP: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0
 pub const SPHERE_IMPOSTOR: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a04");
 pub const SH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a05");
 pub const SH_GLYPH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a06");
+pub const TENSOR_GLYPH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a07");
 
 /// (handle, path under `shaders/`, source) of every shader this crate owns.
-pub const SOURCES: [(Handle<Shader>, &str, &str); 6] = [
+pub const SOURCES: [(Handle<Shader>, &str, &str); 7] = [
     (RAY, "lib/ray.wgsl", include_str!("../../../shaders/lib/ray.wgsl")),
     (LIGHTING, "lib/lighting.wgsl", include_str!("../../../shaders/lib/lighting.wgsl")),
     (COLORMAP, "lib/colormap.wgsl", include_str!("../../../shaders/lib/colormap.wgsl")),
     (SPHERE_IMPOSTOR, "sphere_impostor.wgsl", include_str!("../../../shaders/sphere_impostor.wgsl")),
     (SH, "lib/sh.wgsl", include_str!("../../../shaders/lib/sh.wgsl")),
     (SH_GLYPH, "sh_glyph.wgsl", include_str!("../../../shaders/sh_glyph.wgsl")),
+    (TENSOR_GLYPH, "tensor_glyph.wgsl", include_str!("../../../shaders/tensor_glyph.wgsl")),
 ];
 
 pub(crate) fn register(app: &mut App) {

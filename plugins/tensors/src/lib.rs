@@ -1,0 +1,225 @@
+//! Tensor glyphs as a Bevy plugin: ray-cast ellipsoids and Kindlmann superquadrics, one entity per tensor
+//! sample ([`TensorSample`]), instanced on a shared cube proxy with a `MeshTag` into one storage buffer.
+//! The fragment shader (`shaders/tensor_glyph.wgsl`) intersects the view ray with the glyph (closed form
+//! for ellipsoids, search and bisection for superquadrics) and writes true depth. The math and the test
+//! references are in `fascicle_core::dti::glyph`.
+
+use bevy::asset::RenderAssetUsages;
+use bevy::mesh::{MeshTag, MeshVertexBufferLayoutRef};
+use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
+use bevy::prelude::*;
+use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
+use bevy::render::storage::ShaderBuffer;
+use bevy::shader::ShaderRef;
+use fascicle_core::dti::glyph::{MIN_EXPONENT, TensorGlyph, TensorShape};
+use fascicle_render::shaders;
+
+/// Registers the tensor glyph material. Needs `fascicle_render::FascicleRenderPlugin` (the shaders).
+pub struct TensorGlyphPlugin;
+
+impl Plugin for TensorGlyphPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_plugins(MaterialPlugin::<TensorGlyphMaterial>::default());
+    }
+}
+
+/// How tensor glyphs are coloured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum TensorColour {
+    /// |e1| as RGB, weighted by FA (floor 0.2).
+    #[default]
+    Direction,
+    /// FA through viridis.
+    Fa,
+    /// The unit normal as RGB, unlit (tests).
+    Normal,
+}
+
+/// Shape and ray-caster knobs.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TensorGlyphSettings {
+    pub shape: TensorShape,
+    /// Superquadric search step in units of the glyph's bound.
+    pub h: f32,
+    pub refine: u32,
+    pub colour: TensorColour,
+    pub ambient: f32,
+}
+
+impl Default for TensorGlyphSettings {
+    fn default() -> Self {
+        Self { shape: TensorShape::default(), h: 0.02, refine: 5, colour: TensorColour::Direction, ambient: 0.25 }
+    }
+}
+
+/// GPU parameters. Keep in sync with `TensorParams` in `shaders/tensor_glyph.wgsl`.
+#[derive(Clone, Copy, Debug, ShaderType)]
+pub struct TensorGlyphUniform {
+    pub shape: u32,
+    pub gamma: f32,
+    pub h: f32,
+    pub refine: u32,
+    pub colour_mode: u32,
+    pub ambient: f32,
+    pub max_steps: u32,
+    pub min_exponent: f32,
+}
+
+const _: () = assert!(std::mem::size_of::<TensorGlyphUniform>() == 32);
+
+impl From<&TensorGlyphSettings> for TensorGlyphUniform {
+    fn from(s: &TensorGlyphSettings) -> Self {
+        let h = s.h.max(1e-4);
+        let (shape, gamma) = match s.shape {
+            TensorShape::Ellipsoid => (0, 0.0),
+            TensorShape::Superquadric { gamma } => (1, gamma as f32),
+        };
+        Self {
+            shape,
+            gamma,
+            h,
+            refine: s.refine.min(32),
+            colour_mode: match s.colour {
+                TensorColour::Direction => 0,
+                TensorColour::Fa => 1,
+                TensorColour::Normal => 2,
+            },
+            ambient: s.ambient,
+            max_steps: (2.0 / h).ceil() as u32 + 2,
+            min_exponent: MIN_EXPONENT as f32,
+        }
+    }
+}
+
+#[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
+pub struct TensorGlyphMaterial {
+    #[uniform(0)]
+    pub params: TensorGlyphUniform,
+    /// Five `vec4` per glyph: (centre, bound), (e1, r1), (e2, r2), (e3, r3), (cl, cp, fa, 0).
+    #[storage(1, read_only)]
+    pub glyphs: Handle<ShaderBuffer>,
+}
+
+impl Material for TensorGlyphMaterial {
+    fn vertex_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::TENSOR_GLYPH)
+    }
+    fn fragment_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::TENSOR_GLYPH)
+    }
+    fn enable_prepass() -> bool {
+        false
+    }
+    fn enable_shadows() -> bool {
+        false
+    }
+    fn specialize(
+        _pipeline: &MaterialPipeline,
+        descriptor: &mut RenderPipelineDescriptor,
+        _layout: &MeshVertexBufferLayoutRef,
+        _key: MaterialPipelineKey<Self>,
+    ) -> Result<(), SpecializedMeshPipelineError> {
+        // Back faces only: one fragment per proxy and pixel, and drawn with the camera inside a proxy.
+        descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Front);
+        Ok(())
+    }
+}
+
+/// One tensor sample on screen: its index in the set's buffer, its voxel, and what systems select on.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct TensorSample {
+    pub index: u32,
+    pub voxel: Option<[u32; 3]>,
+    pub fa: f32,
+    pub cl: f32,
+    pub cp: f32,
+}
+
+/// A tensor glyph set: the parent of its [`TensorSample`] entities.
+#[derive(Component, Clone, Debug)]
+pub struct TensorGlyphSet {
+    pub material: Handle<TensorGlyphMaterial>,
+    pub shape: TensorShape,
+    pub len: usize,
+}
+
+/// The storage buffer's bytes for `glyphs` drawn as `shape`.
+pub fn pack(glyphs: &[TensorGlyph], shape: TensorShape) -> Vec<u8> {
+    let mut out = Vec::with_capacity(glyphs.len() * 80);
+    for g in glyphs {
+        let c = g.centre;
+        let [a, b, e] = g.axes;
+        let r = g.radii;
+        let vals = [
+            c.x,
+            c.y,
+            c.z,
+            g.bound(shape),
+            a.x,
+            a.y,
+            a.z,
+            r[0],
+            b.x,
+            b.y,
+            b.z,
+            r[1],
+            e.x,
+            e.y,
+            e.z,
+            r[2],
+            g.cl,
+            g.cp,
+            g.fa,
+            0.0,
+        ];
+        for v in vals {
+            out.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Spawns a tensor glyph set; returns the parent. `voxels[i]`, if given, is recorded on sample i.
+pub fn spawn_tensor_glyphs(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<TensorGlyphMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    glyphs: &[TensorGlyph],
+    voxels: Option<&[[u32; 3]]>,
+    settings: &TensorGlyphSettings,
+) -> Entity {
+    let mut bytes = pack(glyphs, settings.shape);
+    if bytes.is_empty() {
+        bytes = vec![0u8; 80]; // storage buffers must not be empty
+    }
+    let material = materials.add(TensorGlyphMaterial {
+        params: settings.into(),
+        glyphs: buffers.add(ShaderBuffer::new(&bytes, RenderAssetUsages::RENDER_WORLD)),
+    });
+    let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
+    let parent = commands
+        .spawn((
+            TensorGlyphSet { material: material.clone(), shape: settings.shape, len: glyphs.len() },
+            Transform::default(),
+            Visibility::default(),
+        ))
+        .id();
+    for (i, g) in glyphs.iter().enumerate() {
+        commands.spawn((
+            TensorSample {
+                index: i as u32,
+                voxel: voxels.and_then(|v| v.get(i).copied()),
+                fa: g.fa as f32,
+                cl: g.cl as f32,
+                cp: g.cp as f32,
+            },
+            Mesh3d(cube.clone()),
+            MeshMaterial3d(material.clone()),
+            MeshTag(i as u32),
+            Transform::from_translation(g.centre.as_vec3()).with_scale(Vec3::splat(g.bound(settings.shape) as f32)),
+            ChildOf(parent),
+        ));
+    }
+    parent
+}
