@@ -16,8 +16,9 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::sh::glyph::{Glyph, GlyphPlane, GlyphStyle, Sampling, make_glyphs, sample_plane};
 use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
+use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
 
-use crate::scene::{LayerKind, LayerSpec, Scene, ShSource, SliceAxis, VolumeSource};
+use crate::scene::{LayerKind, LayerSpec, Scene, ShSource, SliceAxis, TensorSource, VolumeSource};
 
 /// The scene being shown.
 #[derive(Resource, Clone, Debug)]
@@ -42,6 +43,9 @@ impl Plugin for ScenePlugin {
         if !app.is_plugin_added::<ShGlyphPlugin>() {
             app.add_plugins(ShGlyphPlugin);
         }
+        if !app.is_plugin_added::<TensorGlyphPlugin>() {
+            app.add_plugins(TensorGlyphPlugin);
+        }
         app.init_resource::<LayerErrors>()
             .init_resource::<Spawned>()
             .add_systems(Update, sync_scene.run_if(resource_exists_and_changed::<ActiveScene>));
@@ -61,6 +65,8 @@ fn sync_scene(
     mut glyph_materials: ResMut<Assets<ShGlyphMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     glyph_sets: Query<(&ShGlyphSet, &LayerEntity)>,
+    mut tensor_materials: ResMut<Assets<TensorGlyphMaterial>>,
+    tensor_sets: Query<(&TensorGlyphSet, &LayerEntity)>,
 ) {
     let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
     let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
@@ -71,6 +77,14 @@ fn sync_scene(
                 && spawned.0.get(le.0) != kinds.get(le.0)
             {
                 update_settings(&mut glyph_materials, set, render);
+            }
+        }
+        for (set, le) in &tensor_sets {
+            if let Some(LayerKind::TensorGlyphs { render, .. }) = kinds.get(le.0)
+                && spawned.0.get(le.0) != kinds.get(le.0)
+                && let Some(mut m) = tensor_materials.get_mut(&set.material)
+            {
+                m.params = render.into();
             }
         }
         spawned.0 = kinds;
@@ -100,6 +114,24 @@ fn sync_scene(
                         &mut commands,
                         &mut meshes,
                         &mut glyph_materials,
+                        &mut buffers,
+                        &glyphs,
+                        Some(&voxels),
+                        render,
+                    );
+                    commands.entity(set).insert((vis, LayerEntity(i)));
+                }
+                Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
+            }
+            continue;
+        }
+        if let LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, render } = &spec.kind {
+            match slice_tensor_glyphs(source, *axis, *index, *spacing, *size, *min_fa) {
+                Ok((glyphs, voxels)) => {
+                    let set = spawn_tensor_glyphs(
+                        &mut commands,
+                        &mut meshes,
+                        &mut tensor_materials,
                         &mut buffers,
                         &glyphs,
                         Some(&voxels),
@@ -176,7 +208,7 @@ fn spawn_layer(
             m.base_color_texture = Some(images.add(image));
             Ok(vec![(meshes.add(quad(corners)), materials.add(m), Transform::IDENTITY)])
         }
-        LayerKind::ShGlyphs { .. } => Ok(vec![]), // spawned by `spawn_glyph_set`
+        LayerKind::ShGlyphs { .. } | LayerKind::TensorGlyphs { .. } => Ok(vec![]), // spawned by their plugins
         LayerKind::Tractogram { path } => {
             let t = Tractogram::read(path).map_err(|e| e.to_string())?;
             if t.points.is_empty() {
@@ -236,6 +268,71 @@ pub fn free_plane_glyphs(
     let (glyphs, skipped) =
         make_glyphs(items.iter().map(|(p, c, _)| (*p, &c[..])), basis, style).map_err(|e| e.to_string())?;
     let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
+    Ok((glyphs, voxels))
+}
+
+/// Tensor glyphs on a slice: one per `spacing`-th voxel with FA >= `min_fa`, tensors rotated into the world
+/// frame, largest radius `size` times the smallest voxel edge.
+pub fn slice_tensor_glyphs(
+    source: &TensorSource,
+    axis: SliceAxis,
+    index: Option<usize>,
+    spacing: usize,
+    size: f64,
+    min_fa: f64,
+) -> Result<(Vec<fascicle_core::dti::glyph::TensorGlyph>, Vec<[u32; 3]>), String> {
+    if spacing == 0 {
+        return Err("glyph spacing must be at least 1 voxel".into());
+    }
+    let (dims, affine, tensors): (_, _, Vec<[f64; 6]>) = match source {
+        TensorSource::Phantom => {
+            let p = fascicle_core::phantom::ring_cross([48, 48, 24]);
+            (p.dims, p.world_from_voxel, p.tensors)
+        }
+        TensorSource::Nifti { path } => {
+            let (v, _) = nifti::read::<f64>(path).map_err(|e| e.to_string())?;
+            if v.shape.len() < 4 || v.n_channels() != 6 {
+                return Err(format!("{}: {:?} is not a tensor image (X,Y,Z,6)", path.display(), v.shape));
+            }
+            let n = v.n_voxels();
+            let t = (0..n).map(|i| std::array::from_fn(|c| v.data[i + n * c])).collect();
+            (v.dims3(), v.world_from_voxel, t)
+        }
+    };
+    let ax = match axis {
+        SliceAxis::X => 0,
+        SliceAxis::Y => 1,
+        SliceAxis::Z => 2,
+    };
+    let k = index.unwrap_or(dims[ax] / 2);
+    if k >= dims[ax] {
+        return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", dims[ax]));
+    }
+    let rot = fascicle_core::linalg::polar_rotation(glam::DMat3::from_mat4(affine));
+    let edge =
+        [affine.x_axis, affine.y_axis, affine.z_axis].iter().map(|c| c.truncate().length()).fold(f64::MAX, f64::min);
+    let (mut glyphs, mut voxels) = (Vec::new(), Vec::new());
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let p = [x, y, z];
+                if p[ax] != k || (0..3).any(|a| a != ax && p[a] % spacing != 0) {
+                    continue;
+                }
+                let t = tensors[x + dims[0] * (y + dims[1] * z)];
+                let m = glam::DMat3::from_cols_array(&[t[0], t[1], t[3], t[1], t[2], t[4], t[3], t[4], t[5]]);
+                let w = rot * m * rot.transpose();
+                let tw = [w.x_axis.x, w.x_axis.y, w.y_axis.y, w.x_axis.z, w.y_axis.z, w.z_axis.z];
+                let centre = affine.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64));
+                if let Some(g) = fascicle_core::dti::glyph::tensor_glyph(centre, &tw, size * edge / 2.0, 0.1)
+                    && g.fa >= min_fa
+                {
+                    glyphs.push(g);
+                    voxels.push([x as u32, y as u32, z as u32]);
+                }
+            }
+        }
+    }
     Ok((glyphs, voxels))
 }
 

@@ -5,8 +5,10 @@
 use bevy::prelude::*;
 use bevy_egui::egui;
 
+use fascicle_core::dti::glyph::TensorShape;
 use fascicle_core::sh::glyph::{GlyphPlane, Lobes, Normalise, Sampling};
 use fascicle_sh_glyphs::GlyphColour;
+use fascicle_tensors::TensorColour;
 
 use crate::scene::{LayerKind, ShSource, SliceAxis};
 
@@ -34,6 +36,11 @@ impl Default for LayerPanels {
             },
             LayerPanel { name: "axes", applies: |k| matches!(k, LayerKind::Axes { .. }), show: axes_panel },
             LayerPanel { name: "sh glyphs", applies: |k| matches!(k, LayerKind::ShGlyphs { .. }), show: glyph_panel },
+            LayerPanel {
+                name: "tensor glyphs",
+                applies: |k| matches!(k, LayerKind::TensorGlyphs { .. }),
+                show: tensor_panel,
+            },
         ])
     }
 }
@@ -125,6 +132,37 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
         ui.radio_value(&mut render.colour, GlyphColour::Grey, "grey");
         ui.radio_value(&mut render.colour, GlyphColour::Gfa, "GFA");
         ui.radio_value(&mut render.colour, GlyphColour::Normal, "normal");
+    });
+}
+
+/// Tensor glyphs: slice and size (rebuild), shape (rebuild), knobs and colour (uniform only).
+fn tensor_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+    let LayerKind::TensorGlyphs { axis, index, spacing, size, min_fa, render, .. } = kind else { return };
+    let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
+    slice_panel(ui, &mut slice);
+    if let LayerKind::Slice { axis: a, index: i, .. } = slice {
+        (*axis, *index) = (a, i);
+    }
+    ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
+    ui.add(egui::Slider::new(size, 0.1..=3.0).text("size (voxels)"));
+    ui.add(egui::Slider::new(min_fa, 0.0..=1.0).text("min FA"));
+    let mut superquadric = matches!(render.shape, TensorShape::Superquadric { .. });
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut superquadric, false, "ellipsoid");
+        ui.radio_value(&mut superquadric, true, "superquadric");
+    });
+    render.shape = match (superquadric, render.shape) {
+        (false, _) => TensorShape::Ellipsoid,
+        (true, TensorShape::Superquadric { gamma }) => {
+            let mut g = gamma;
+            ui.add(egui::Slider::new(&mut g, 0.0..=6.0).text("sharpness gamma"));
+            TensorShape::Superquadric { gamma: g }
+        }
+        (true, TensorShape::Ellipsoid) => TensorShape::default(),
+    };
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut render.colour, TensorColour::Direction, "direction");
+        ui.radio_value(&mut render.colour, TensorColour::Fa, "FA");
     });
 }
 

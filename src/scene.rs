@@ -4,9 +4,11 @@
 
 use std::path::{Path, PathBuf};
 
+use fascicle_core::dti::glyph::TensorShape;
 use fascicle_core::sh::ShBasis;
 use fascicle_core::sh::glyph::{GlyphPlane, GlyphStyle, Sampling};
 use fascicle_sh_glyphs::RayCastSettings;
+use fascicle_tensors::TensorGlyphSettings;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -65,6 +67,26 @@ pub enum LayerKind {
         #[serde(default)]
         render: RayCastSettings,
     },
+    /// Ray-cast tensor glyphs (ellipsoids or superquadrics), one per voxel of a slice.
+    TensorGlyphs {
+        source: TensorSource,
+        axis: SliceAxis,
+        index: Option<usize>,
+        #[serde(default = "one_usize")]
+        spacing: usize,
+        /// Largest radius as a fraction of the voxel size.
+        #[serde(default = "glyph_size")]
+        size: f64,
+        /// Only voxels with FA at or above this.
+        #[serde(default)]
+        min_fa: f64,
+        #[serde(default)]
+        render: TensorGlyphSettings,
+    },
+}
+
+fn glyph_size() -> f64 {
+    0.9
 }
 
 impl LayerKind {
@@ -82,9 +104,35 @@ impl LayerKind {
                 style: *style,
                 render: RayCastSettings::default(),
             },
+            LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, render } => LayerKind::TensorGlyphs {
+                source: source.clone(),
+                axis: *axis,
+                index: *index,
+                spacing: *spacing,
+                size: *size,
+                min_fa: *min_fa,
+                // Ellipsoid or superquadric changes the buffer's bounds: structural. Gamma, knobs and colour
+                // are uniform updates.
+                render: TensorGlyphSettings {
+                    shape: match render.shape {
+                        TensorShape::Ellipsoid => TensorShape::Ellipsoid,
+                        TensorShape::Superquadric { .. } => TensorShape::default(),
+                    },
+                    ..TensorGlyphSettings::default()
+                },
+            },
             other => other.clone(),
         }
     }
+}
+
+/// Where tensors come from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum TensorSource {
+    /// The built-in phantom's tensors.
+    Phantom,
+    /// A tensor image (X,Y,Z,6 lower-triangular) as `fascicle fit dti` and DIPY write it.
+    Nifti { path: PathBuf },
 }
 
 /// Where SH coefficients come from.

@@ -152,3 +152,64 @@ fn sh_coefficient_file_renders_as_glyphs() {
     let drawn = img.rgba.chunks(4).filter(|p| p[0].max(p[1]).max(p[2]) > 40).count();
     assert!(drawn > 200, "{drawn} glyph pixels");
 }
+
+/// Tensor glyphs of the phantom on the axial slice: one sample entity per voxel above the FA cut; gamma and
+/// colour edits update the uniform only; ellipsoid <-> superquadric rebuilds.
+#[test]
+fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
+    use fascicle::scene::{LayerSpec, SliceAxis, TensorSource};
+    use fascicle_core::dti::glyph::TensorShape;
+    use fascicle_tensors::{TensorColour, TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, TensorSample};
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let layer = LayerSpec {
+        name: "tensors".into(),
+        visible: true,
+        opacity: 1.0,
+        kind: LayerKind::TensorGlyphs {
+            source: TensorSource::Phantom,
+            axis: SliceAxis::Z,
+            index: None,
+            spacing: 1,
+            size: 0.9,
+            min_fa: 0.3,
+            render: TensorGlyphSettings::default(),
+        },
+    };
+    let mut app = headless::headless_app();
+    let scene = Scene { layers: vec![layer], camera: Default::default() };
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene));
+    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    app.update();
+    assert!(app.world().resource::<LayerErrors>().0.is_empty());
+    let set = |app: &mut App| {
+        let mut q = app.world_mut().query::<(Entity, &TensorGlyphSet)>();
+        let (e, s) = q.single(app.world()).expect("one tensor set");
+        (e, s.material.clone(), s.len)
+    };
+    let (e0, m0, n0) = set(&mut app);
+    // The ring on slice 12: every sample is anisotropic enough, and there are hundreds.
+    let fas: Vec<f32> = app.world_mut().query::<&TensorSample>().iter(app.world()).map(|s| s.fa).collect();
+    assert_eq!(fas.len(), n0);
+    assert!(n0 > 300 && fas.iter().all(|f| *f >= 0.3), "{n0} samples");
+    if let LayerKind::TensorGlyphs { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[0].kind
+    {
+        render.shape = TensorShape::Superquadric { gamma: 1.5 };
+        render.colour = TensorColour::Fa;
+    }
+    app.update();
+    let (e1, m1, _) = set(&mut app);
+    assert_eq!((e1, &m1), (e0, &m0));
+    let p = app.world().resource::<Assets<TensorGlyphMaterial>>().get(&m1).unwrap().params;
+    assert_eq!((p.gamma, p.colour_mode), (1.5, 1));
+    if let LayerKind::TensorGlyphs { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[0].kind
+    {
+        render.shape = TensorShape::Ellipsoid;
+    }
+    app.update();
+    let (e2, _, n2) = set(&mut app);
+    assert_ne!(e2, e0);
+    assert_eq!(n2, n0);
+}
