@@ -8,8 +8,7 @@
 // The f64 twin of this algorithm is `fascicle_core::sh::glyph::cast`. Keep `GlyphParams` in sync with
 // `ShGlyphUniform` in `plugins/sh_glyphs/src/lib.rs`.
 
-#import bevy_pbr::mesh_functions
-#import bevy_pbr::view_transformations::position_world_to_clip
+#import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex}
 #import bevy_pbr::mesh_view_bindings::view
 #import fascicle::ray::{Ray, view_ray, depth_of}
 #import fascicle::lighting::headlight
@@ -35,26 +34,9 @@ struct GlyphParams {
 // Per glyph, `stride` coefficients in the glyph basis.
 @group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> coeffs: array<f32>;
 
-struct Vertex {
-    @builtin(instance_index) instance_index: u32,
-    @location(0) position: vec3<f32>,
-};
-
-struct GlyphVertexOutput {
-    @builtin(position) clip_position: vec4<f32>,
-    @location(0) world_position: vec3<f32>,
-    @location(1) @interpolate(flat) tag: u32,
-};
-
 @vertex
-fn vertex(v: Vertex) -> GlyphVertexOutput {
-    var out: GlyphVertexOutput;
-    let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
-    let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
-    out.clip_position = position_world_to_clip(w.xyz);
-    out.world_position = w.xyz;
-    out.tag = mesh_functions::get_tag(v.instance_index);
-    return out;
+fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
+    return proxy_vertex(v);
 }
 
 struct FragmentOutput {
@@ -76,7 +58,7 @@ fn implicit(c: ptr<function, array<f32, 153>>, v: vec3<f32>) -> f32 {
 }
 
 @fragment
-fn fragment(in: GlyphVertexOutput) -> FragmentOutput {
+fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     let g = glyphs[2u * in.tag];
     let centre = g.xyz;
     let rmax = g.w;

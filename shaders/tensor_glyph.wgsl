@@ -3,8 +3,7 @@
 // cube proxy per glyph. The f64 twin is `fascicle_core::dti::glyph`; keep `TensorParams` in sync with
 // `TensorGlyphUniform` in `plugins/tensors/src/lib.rs`.
 
-#import bevy_pbr::mesh_functions
-#import bevy_pbr::view_transformations::position_world_to_clip
+#import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex}
 #import bevy_pbr::mesh_view_bindings::view
 #import fascicle::ray::{Ray, view_ray, depth_of}
 #import fascicle::lighting::headlight
@@ -27,26 +26,9 @@ struct TensorParams {
 // Five vec4 per glyph: (centre, bound), (e1, r1), (e2, r2), (e3, r3), (cl, cp, fa, 0).
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> glyphs: array<vec4<f32>>;
 
-struct Vertex {
-    @builtin(instance_index) instance_index: u32,
-    @location(0) position: vec3<f32>,
-};
-
-struct TensorVertexOutput {
-    @builtin(position) clip_position: vec4<f32>,
-    @location(0) world_position: vec3<f32>,
-    @location(1) @interpolate(flat) tag: u32,
-};
-
 @vertex
-fn vertex(v: Vertex) -> TensorVertexOutput {
-    var out: TensorVertexOutput;
-    let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
-    let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
-    out.clip_position = position_world_to_clip(w.xyz);
-    out.world_position = w.xyz;
-    out.tag = mesh_functions::get_tag(v.instance_index);
-    return out;
+fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
+    return proxy_vertex(v);
 }
 
 struct FragmentOutput {
@@ -117,7 +99,7 @@ fn superquadric_gradient(q: vec3<f32>, e: vec3<f32>) -> vec3<f32> {
 }
 
 @fragment
-fn fragment(in: TensorVertexOutput) -> FragmentOutput {
+fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     let g = load_glyph(in.tag);
     let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
     let oc = ray.origin - g.centre;

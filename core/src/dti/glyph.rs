@@ -177,29 +177,7 @@ pub fn cast_marching(
     h: f64,
     refine: u32,
 ) -> Option<TensorHit> {
-    let r = g.bound(shape);
-    let (t0, t1) = crate::sh::glyph::ray_sphere_interval(o, d, g.centre, r)?;
-    let step = (h * r).max(1e-12 * r);
-    let (mut lo, mut t) = (t0, t0);
-    loop {
-        if g.implicit(o + t * d, shape) < 0.0 {
-            break;
-        }
-        lo = t;
-        if t >= t1 {
-            return None;
-        }
-        t = (t + step).min(t1);
-    }
-    let mut hi = t;
-    for _ in 0..refine {
-        let mid = 0.5 * (lo + hi);
-        if g.implicit(o + mid * d, shape) < 0.0 {
-            hi = mid;
-        } else {
-            lo = mid;
-        }
-    }
-    let point = o + hi * d;
-    Some(TensorHit { t: hi, point, normal: g.normal(point, shape) })
+    let t = crate::sh::glyph::march(o, d, g.centre, g.bound(shape), h, refine, |p| g.implicit(p, shape) < 0.0)?;
+    let point = o + t * d;
+    Some(TensorHit { t, point, normal: g.normal(point, shape) })
 }

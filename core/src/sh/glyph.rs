@@ -313,11 +313,29 @@ pub fn cast(g: &Glyph, o: DVec3, d: DVec3, h: f64, refine: u32, lobes: Lobes) ->
 
 /// [`cast`] inside a sphere of the given radius (steps `h · radius`).
 pub fn cast_within(g: &Glyph, radius: f64, o: DVec3, d: DVec3, h: f64, refine: u32, lobes: Lobes) -> Option<Hit> {
-    let (t0, t1) = ray_sphere_interval(o, d, g.centre, radius)?;
+    let t = march(o, d, g.centre, radius, h, refine, |p| g.implicit(p, lobes) < 0.0)?;
+    let point = o + t * d;
+    let (normal, negative) = g.normal(point, lobes);
+    Some(Hit { t, point, normal, negative })
+}
+
+/// The glyph shaders' root search, in f64: from the entry into the sphere (`centre`, `radius`), steps of
+/// `h · radius` along the unit ray until `inside`, then `refine` bisections between the last point outside
+/// and the first inside. The distance of the hit, or `None` if the ray leaves the sphere first.
+pub fn march(
+    o: DVec3,
+    d: DVec3,
+    centre: DVec3,
+    radius: f64,
+    h: f64,
+    refine: u32,
+    inside: impl Fn(DVec3) -> bool,
+) -> Option<f64> {
+    let (t0, t1) = ray_sphere_interval(o, d, centre, radius)?;
     let step = (h * radius).max(1e-12 * radius);
     let (mut lo, mut t) = (t0, t0);
     loop {
-        if g.implicit(o + t * d, lobes) < 0.0 {
+        if inside(o + t * d) {
             break;
         }
         lo = t;
@@ -329,15 +347,13 @@ pub fn cast_within(g: &Glyph, radius: f64, o: DVec3, d: DVec3, h: f64, refine: u
     let mut hi = t;
     for _ in 0..refine {
         let mid = 0.5 * (lo + hi);
-        if g.implicit(o + mid * d, lobes) < 0.0 {
+        if inside(o + mid * d) {
             hi = mid;
         } else {
             lo = mid;
         }
     }
-    let point = o + hi * d;
-    let (normal, negative) = g.normal(point, lobes);
-    Some(Hit { t: hi, point, normal, negative })
+    Some(hi)
 }
 
 /// The reference: inside the guaranteed Cauchy-Schwarz sphere (not the renderer's tighter bound), a search

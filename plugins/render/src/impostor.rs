@@ -48,6 +48,13 @@ impl SphereImpostorMaterial {
     }
 }
 
+/// `Material::specialize` for instanced proxy glyphs (SH glyphs, tensor glyphs): back faces only, so each
+/// proxy gives one fragment per pixel (half the work of both faces) and still draws with the camera inside
+/// it. Their `enable_prepass`/`enable_shadows` return false for the reason given in this module.
+pub fn specialize_back_faces(descriptor: &mut bevy::render::render_resource::RenderPipelineDescriptor) {
+    descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Front);
+}
+
 impl Material for SphereImpostorMaterial {
     fn fragment_shader() -> ShaderRef {
         ShaderRef::Handle(shaders::SPHERE_IMPOSTOR)

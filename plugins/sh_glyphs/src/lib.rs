@@ -135,9 +135,7 @@ impl Material for ShGlyphMaterial {
         _layout: &MeshVertexBufferLayoutRef,
         _key: MaterialPipelineKey<Self>,
     ) -> Result<(), SpecializedMeshPipelineError> {
-        // Back faces only: one fragment per proxy and pixel (half the work of both faces), and still drawn
-        // when the camera is inside a proxy.
-        descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Front);
+        fascicle_render::impostor::specialize_back_faces(descriptor);
         Ok(())
     }
 }

@@ -119,8 +119,7 @@ impl Material for TensorGlyphMaterial {
         _layout: &MeshVertexBufferLayoutRef,
         _key: MaterialPipelineKey<Self>,
     ) -> Result<(), SpecializedMeshPipelineError> {
-        // Back faces only: one fragment per proxy and pixel, and drawn with the camera inside a proxy.
-        descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Front);
+        fascicle_render::impostor::specialize_back_faces(descriptor);
         Ok(())
     }
 }
