@@ -53,20 +53,10 @@ fn principal_direction_matches_jacobi() {
 /// Error after a full turn around a circle of radius `r` (two half turns from the seed), against step.
 fn circle_error(integrator: Integrator, r: f64, n_half: usize) -> f64 {
     let field = CircleField { dims: [128, 128, 8], centre: DVec3::new(64.0, 64.0, 4.0) };
-    let h = std::f64::consts::PI * r / n_half as f64;
-    let params = TrackParams {
-        step_mm: h,
-        integrator,
-        max_angle_deg: 90.0,
-        max_length_mm: 2.0 * std::f64::consts::PI * r + h / 2.0,
-        ..Default::default()
-    };
-    let tracker = Tracker::new(&field, DMat4::IDENTITY, params).unwrap();
-    let seed = field.centre + DVec3::new(r, 0.0, 0.0);
+    let (tracker, seed, exact) = field.one_turn(r, n_half, integrator).unwrap();
     let (s, ends) = tracker.track_one(seed).unwrap();
     assert_eq!(ends, [StopReason::MaxLength; 2]);
     assert_eq!(s.len(), 2 * n_half + 1);
-    let exact = field.centre - DVec3::new(r, 0.0, 0.0);
     (s[0] - exact).length().max((s[s.len() - 1] - exact).length())
 }
 

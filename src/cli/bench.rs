@@ -10,7 +10,7 @@ use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD, nifti};
 use fascicle_core::tracking::{
     CircleField, Integrator, TensorInterpolation, TrackParams, Tracker, Tracks, seeds_from_mask,
 };
-use glam::{DMat4, DVec3};
+use glam::DVec3;
 
 use super::track::{Prepared, fa_seed_mask, field_from_dwi, write_tracks};
 
@@ -126,16 +126,7 @@ fn tracking(dir: &std::path::Path, density: usize) -> Result<(), Error> {
     for integrator in [Integrator::Euler, Integrator::Rk2, Integrator::Rk4] {
         for n_half in [16usize, 32, 64, 128, 256, 512] {
             let h = std::f64::consts::PI * r / n_half as f64;
-            let params = TrackParams {
-                step_mm: h,
-                integrator,
-                max_angle_deg: 90.0,
-                max_length_mm: 2.0 * std::f64::consts::PI * r + h / 2.0,
-                ..Default::default()
-            };
-            let tracker = Tracker::new(&field, DMat4::IDENTITY, params)?;
-            let seed = field.centre + DVec3::new(r, 0.0, 0.0);
-            let exact = field.centre - DVec3::new(r, 0.0, 0.0);
+            let (tracker, seed, exact) = field.one_turn(r, n_half, integrator)?;
             let reps = 20_000 / n_half + 1;
             let (t, err) = best_of(3, || {
                 pool1.install(|| {

@@ -77,3 +77,14 @@ pub fn srgb8(linear: f64) -> f64 {
     let s = if c <= 0.0031308 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 };
     s * 255.0
 }
+
+/// The inverse of [`srgb8`]: an 8-bit sRGB value to linear 0..1.
+pub fn srgb8_to_linear(v: u8) -> f64 {
+    let c = v as f64 / 255.0;
+    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+}
+
+/// A unit normal written as colour `n / 2 + 1/2` (unlit) and read back as sRGB8.
+pub fn decode_normal(rgba: [u8; 4]) -> DVec3 {
+    (DVec3::new(srgb8_to_linear(rgba[0]), srgb8_to_linear(rgba[1]), srgb8_to_linear(rgba[2])) * 2.0 - 1.0).normalize()
+}

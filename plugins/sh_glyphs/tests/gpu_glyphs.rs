@@ -9,7 +9,7 @@ use fascicle_core::sh::glyph::{Glyph, GlyphStyle, Lobes, cast_within, make_glyph
 use fascicle_core::sh::{self, ShBasis};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture, DepthMap};
-use fascicle_render::reference::PinholeCamera;
+use fascicle_render::reference::{PinholeCamera, decode_normal};
 use fascicle_sh_glyphs::{GlyphColour, RayCastSettings, ShGlyphMaterial, ShGlyphPlugin, spawn_glyph_set};
 use glam::DVec3;
 
@@ -128,11 +128,6 @@ fn reference(glyphs: &[(Glyph, Lobes)], cam: &PinholeCamera) -> Vec<Option<(f64,
     out
 }
 
-fn srgb_to_linear(v: u8) -> f64 {
-    let c = v as f64 / 255.0;
-    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
-}
-
 #[test]
 fn ray_cast_glyphs_match_the_f64_reference() {
     let glyphs = glyphs();
@@ -174,8 +169,7 @@ fn ray_cast_glyphs_match_the_f64_reference() {
                 depth_ok += 1;
             }
             let p = img.pixel(px, py);
-            let n = DVec3::new(srgb_to_linear(p[0]), srgb_to_linear(p[1]), srgb_to_linear(p[2])) * 2.0 - 1.0;
-            angles.push(n.normalize().angle_between(n_ref).to_degrees());
+            angles.push(decode_normal(p).angle_between(n_ref).to_degrees());
         }
     }
     angles.sort_by(f64::total_cmp);

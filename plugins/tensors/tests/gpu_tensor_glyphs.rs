@@ -7,7 +7,7 @@ use fascicle_core::dti::eigen::{Eigen, from_eigen};
 use fascicle_core::dti::glyph::{TensorGlyph, TensorShape, cast_ellipsoid, cast_marching, tensor_glyph};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture, DepthMap};
-use fascicle_render::reference::PinholeCamera;
+use fascicle_render::reference::{PinholeCamera, decode_normal};
 use fascicle_tensors::{
     TensorColour, TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSettings, spawn_tensor_glyphs,
 };
@@ -75,11 +75,6 @@ fn render(glyphs: &[TensorGlyph], settings: TensorGlyphSettings) -> Option<(Capt
     }
 }
 
-fn srgb_to_linear(v: u8) -> f64 {
-    let c = v as f64 / 255.0;
-    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
-}
-
 /// (pixels covered by both, silhouette mismatch fraction, fraction of depths within `tol` of the bound,
 /// median normal error in degrees).
 fn compare(
@@ -127,8 +122,7 @@ fn compare(
                 ok += 1;
             }
             let p = img.pixel(px, py);
-            let n = DVec3::new(srgb_to_linear(p[0]), srgb_to_linear(p[1]), srgb_to_linear(p[2])) * 2.0 - 1.0;
-            angles.push(n.normalize().angle_between(hit.normal).to_degrees());
+            angles.push(decode_normal(p).angle_between(hit.normal).to_degrees());
         }
     }
     angles.sort_by(f64::total_cmp);
