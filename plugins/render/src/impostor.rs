@@ -48,11 +48,37 @@ impl SphereImpostorMaterial {
     }
 }
 
-/// `Material::specialize` for instanced proxy glyphs (SH glyphs, tensor glyphs): back faces only, so each
-/// proxy gives one fragment per pixel (half the work of both faces) and still draws with the camera inside
-/// it. Their `enable_prepass`/`enable_shadows` return false for the reason given in this module.
-pub fn specialize_back_faces(descriptor: &mut bevy::render::render_resource::RenderPipelineDescriptor) {
-    descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Front);
+/// Implements `Material` for an instanced proxy-glyph material whose vertex and fragment stages are both in
+/// `$shader` (SH glyphs, tensor glyphs): no prepass and no shadows (the reason is in this module's docs),
+/// and back faces only, so each proxy gives one fragment per pixel (half the work of both faces) and still
+/// draws with the camera inside it.
+#[macro_export]
+macro_rules! proxy_glyph_material {
+    ($material:ty, $shader:expr) => {
+        impl bevy::pbr::Material for $material {
+            fn vertex_shader() -> bevy::shader::ShaderRef {
+                bevy::shader::ShaderRef::Handle($shader)
+            }
+            fn fragment_shader() -> bevy::shader::ShaderRef {
+                bevy::shader::ShaderRef::Handle($shader)
+            }
+            fn enable_prepass() -> bool {
+                false
+            }
+            fn enable_shadows() -> bool {
+                false
+            }
+            fn specialize(
+                _pipeline: &bevy::pbr::MaterialPipeline,
+                descriptor: &mut bevy::render::render_resource::RenderPipelineDescriptor,
+                _layout: &bevy::mesh::MeshVertexBufferLayoutRef,
+                _key: bevy::pbr::MaterialPipelineKey<Self>,
+            ) -> Result<(), bevy::render::render_resource::SpecializedMeshPipelineError> {
+                descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Front);
+                Ok(())
+            }
+        }
+    };
 }
 
 impl Material for SphereImpostorMaterial {

@@ -11,12 +11,10 @@
 //! `fascicle_core::sh::glyph`, which is also the test reference.
 
 use bevy::asset::RenderAssetUsages;
-use bevy::mesh::{MeshTag, MeshVertexBufferLayoutRef};
-use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
+use bevy::mesh::MeshTag;
 use bevy::prelude::*;
-use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
+use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
-use bevy::shader::ShaderRef;
 use fascicle_core::sh::glyph::{Glyph, Lobes};
 use fascicle_render::shaders;
 
@@ -115,30 +113,7 @@ pub struct ShGlyphMaterial {
     pub coeffs: Handle<ShaderBuffer>,
 }
 
-impl Material for ShGlyphMaterial {
-    fn vertex_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::SH_GLYPH)
-    }
-    fn fragment_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::SH_GLYPH)
-    }
-    // See `fascicle_render::impostor`: the default prepass would write the proxy's depth.
-    fn enable_prepass() -> bool {
-        false
-    }
-    fn enable_shadows() -> bool {
-        false
-    }
-    fn specialize(
-        _pipeline: &MaterialPipeline,
-        descriptor: &mut RenderPipelineDescriptor,
-        _layout: &MeshVertexBufferLayoutRef,
-        _key: MaterialPipelineKey<Self>,
-    ) -> Result<(), SpecializedMeshPipelineError> {
-        fascicle_render::impostor::specialize_back_faces(descriptor);
-        Ok(())
-    }
-}
+fascicle_render::proxy_glyph_material!(ShGlyphMaterial, shaders::SH_GLYPH);
 
 /// One displayed glyph: its index in the set's buffers and, when it came from a volume, its voxel.
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]

@@ -5,12 +5,10 @@
 //! references are in `fascicle_core::dti::glyph`.
 
 use bevy::asset::RenderAssetUsages;
-use bevy::mesh::{MeshTag, MeshVertexBufferLayoutRef};
-use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
+use bevy::mesh::MeshTag;
 use bevy::prelude::*;
-use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
+use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
-use bevy::shader::ShaderRef;
 use fascicle_core::dti::glyph::{MIN_EXPONENT, TensorGlyph, TensorShape};
 use fascicle_render::shaders;
 
@@ -100,29 +98,7 @@ pub struct TensorGlyphMaterial {
     pub glyphs: Handle<ShaderBuffer>,
 }
 
-impl Material for TensorGlyphMaterial {
-    fn vertex_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::TENSOR_GLYPH)
-    }
-    fn fragment_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::TENSOR_GLYPH)
-    }
-    fn enable_prepass() -> bool {
-        false
-    }
-    fn enable_shadows() -> bool {
-        false
-    }
-    fn specialize(
-        _pipeline: &MaterialPipeline,
-        descriptor: &mut RenderPipelineDescriptor,
-        _layout: &MeshVertexBufferLayoutRef,
-        _key: MaterialPipelineKey<Self>,
-    ) -> Result<(), SpecializedMeshPipelineError> {
-        fascicle_render::impostor::specialize_back_faces(descriptor);
-        Ok(())
-    }
-}
+fascicle_render::proxy_glyph_material!(TensorGlyphMaterial, shaders::TENSOR_GLYPH);
 
 /// One tensor sample on screen: its index in the set's buffer, its voxel, and what systems select on.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
