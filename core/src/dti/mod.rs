@@ -4,6 +4,7 @@ pub mod eigen;
 pub mod fit;
 pub mod glyph;
 pub mod metrics;
+pub mod splat;
 
 use glam::DVec3;
 use rayon::prelude::*;

@@ -35,8 +35,10 @@ struct VertexOutput {
 struct View {
     clip_from_world: mat4x4<f32>,
     world_from_view: mat4x4<f32>,
+    view_from_world: mat4x4<f32>,
     clip_from_view: mat4x4<f32>,
     world_position: vec3<f32>,
+    viewport: vec4<f32>,
 };
 @group(0) @binding(0) var<uniform> view: View;",
     ),

@@ -1,4 +1,4 @@
-//! Tensor glyphs as a Bevy plugin: ray-cast ellipsoids and Kindlmann superquadrics, one entity per tensor
+//! Tensor glyphs and tensor splats ([`splat`]) as a Bevy plugin. Glyphs: ray-cast ellipsoids and Kindlmann superquadrics, one entity per tensor
 //! sample ([`TensorSample`]), instanced on a shared cube proxy with a `MeshTag` into one storage buffer.
 //! The fragment shader (`shaders/tensor_glyph.wgsl`) intersects the view ray with the glyph (closed form
 //! for ellipsoids, search and bisection for superquadrics) and writes true depth. The math and the test
@@ -12,12 +12,17 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::dti::glyph::{MIN_EXPONENT, TensorGlyph, TensorShape};
 use fascicle_render::shaders;
 
+pub mod splat;
+
 /// Registers the tensor glyph material. Needs `fascicle_render::FascicleRenderPlugin` (the shaders).
 pub struct TensorGlyphPlugin;
 
 impl Plugin for TensorGlyphPlugin {
     fn build(&self, app: &mut App) {
-        app.add_plugins(MaterialPlugin::<TensorGlyphMaterial>::default());
+        app.add_plugins((
+            MaterialPlugin::<TensorGlyphMaterial>::default(),
+            MaterialPlugin::<splat::SplatMaterial>::default(),
+        ));
     }
 }
 
