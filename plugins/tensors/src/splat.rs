@@ -2,12 +2,18 @@
 //! Bevy's transparent phase, which sorts them far to near by their centres' depth every frame and tests them
 //! against the opaque depth (glyphs, meshes) without writing it. The vertex shader does the EWA projection;
 //! the fragment shader the elliptical Gaussian opacity, premultiplied.
+//!
+//! Splats carry `NoAutomaticBatching`: batched, Bevy's GPU preprocessing compacts the instances of a batch
+//! out of order and the far-to-near order is lost (measured: 1 % of pixels off by up to 27 levels). One draw
+//! per splat is correct but costs a draw call each; a custom phase item drawing a sorted index buffer in one
+//! call is the next step for 1M splats.
 
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::NoFrustumCulling;
 use bevy::mesh::{MeshTag, MeshVertexBufferLayoutRef};
 use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
+use bevy::render::batching::NoAutomaticBatching;
 use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
 use bevy::render::storage::ShaderBuffer;
 use bevy::shader::ShaderRef;
@@ -151,6 +157,7 @@ pub fn spawn_splats(
             // The translation is the sort key of the transparent phase; the footprint is placed by the shader.
             Transform::from_translation(s.centre.as_vec3()),
             NoFrustumCulling,
+            NoAutomaticBatching,
             ChildOf(parent),
         ));
     }
