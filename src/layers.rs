@@ -16,6 +16,7 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::sh::glyph::{Glyph, GlyphPlane, GlyphStyle, Sampling, make_glyphs, sample_plane};
 use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
+use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
 
 use crate::scene::{LayerKind, LayerSpec, Scene, ShSource, SliceAxis, TensorSource, VolumeSource};
@@ -67,6 +68,8 @@ fn sync_scene(
     glyph_sets: Query<(&ShGlyphSet, &LayerEntity)>,
     mut tensor_materials: ResMut<Assets<TensorGlyphMaterial>>,
     tensor_sets: Query<(&TensorGlyphSet, &LayerEntity)>,
+    mut splat_materials: ResMut<Assets<SplatMaterial>>,
+    splat_sets: Query<(&SplatSet, &LayerEntity)>,
 ) {
     let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
     let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
@@ -77,6 +80,14 @@ fn sync_scene(
                 && spawned.0.get(le.0) != kinds.get(le.0)
             {
                 update_settings(&mut glyph_materials, set, render);
+            }
+        }
+        for (set, le) in &splat_sets {
+            if let Some(LayerKind::TensorSplats { render, .. }) = kinds.get(le.0)
+                && spawned.0.get(le.0) != kinds.get(le.0)
+                && let Some(mut m) = splat_materials.get_mut(&set.material)
+            {
+                m.params = render.into();
             }
         }
         for (set, le) in &tensor_sets {
@@ -119,6 +130,17 @@ fn sync_scene(
                         Some(&voxels),
                         render,
                     );
+                    commands.entity(set).insert((vis, LayerEntity(i)));
+                }
+                Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
+            }
+            continue;
+        }
+        if let LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, render } = &spec.kind {
+            match slab_splats(source, *axis, *index, *thickness, *size, *min_fa) {
+                Ok(splats) => {
+                    let set =
+                        spawn_splats(&mut commands, &mut meshes, &mut splat_materials, &mut buffers, &splats, render);
                     commands.entity(set).insert((vis, LayerEntity(i)));
                 }
                 Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
@@ -208,7 +230,7 @@ fn spawn_layer(
             m.base_color_texture = Some(images.add(image));
             Ok(vec![(meshes.add(quad(corners)), materials.add(m), Transform::IDENTITY)])
         }
-        LayerKind::ShGlyphs { .. } | LayerKind::TensorGlyphs { .. } => Ok(vec![]), // spawned by their plugins
+        LayerKind::ShGlyphs { .. } | LayerKind::TensorGlyphs { .. } | LayerKind::TensorSplats { .. } => Ok(vec![]), // spawned by their plugins
         LayerKind::Tractogram { path } => {
             let t = Tractogram::read(path).map_err(|e| e.to_string())?;
             if t.points.is_empty() {
@@ -284,7 +306,125 @@ pub fn slice_tensor_glyphs(
     if spacing == 0 {
         return Err("glyph spacing must be at least 1 voxel".into());
     }
-    let (dims, affine, tensors): (_, _, Vec<[f64; 6]>) = match source {
+    let (dims, affine, tensors) = tensor_field(source)?;
+    let ax = axis_index(axis);
+    let k = index.unwrap_or(dims[ax] / 2);
+    if k >= dims[ax] {
+        return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", dims[ax]));
+    }
+    let edge = min_edge(affine);
+    let (mut glyphs, mut voxels) = (Vec::new(), Vec::new());
+    for_world_tensors(
+        dims,
+        affine,
+        &tensors,
+        |p| p[ax] == k && (0..3).all(|a| a == ax || p[a] % spacing == 0),
+        |p, centre, tw| {
+            if let Some(g) = fascicle_core::dti::glyph::tensor_glyph(centre, &tw, size * edge / 2.0, 0.1)
+                && g.fa >= min_fa
+            {
+                glyphs.push(g);
+                voxels.push(p.map(|x| x as u32));
+            }
+        },
+    );
+    Ok((glyphs, voxels))
+}
+
+/// Splats of a slab of `thickness` slices centred on a slice: covariance largest standard deviation `size`
+/// voxels, colour FA through viridis, opacity FA.
+pub fn slab_splats(
+    source: &TensorSource,
+    axis: SliceAxis,
+    index: Option<usize>,
+    thickness: usize,
+    size: f64,
+    min_fa: f64,
+) -> Result<Vec<fascicle_core::dti::splat::Splat>, String> {
+    let (dims, affine, tensors) = tensor_field(source)?;
+    let ax = axis_index(axis);
+    let k = index.unwrap_or(dims[ax] / 2);
+    if k >= dims[ax] || thickness == 0 {
+        return Err(format!(
+            "slab {k} (thickness {thickness}) is outside the field's {} slices along {axis:?}",
+            dims[ax]
+        ));
+    }
+    let (lo, hi) = (k.saturating_sub((thickness - 1) / 2), (k + thickness / 2).min(dims[ax] - 1));
+    let edge = min_edge(affine);
+    let mut out = Vec::new();
+    for_world_tensors(
+        dims,
+        affine,
+        &tensors,
+        |p| p[ax] >= lo && p[ax] <= hi,
+        |_, centre, tw| {
+            let fa = fascicle_core::dti::eigh(&tw).map_or(0.0, |e| fascicle_core::dti::metrics::fa(&e.values));
+            if fa >= min_fa
+                && let Some(s) =
+                    fascicle_core::dti::splat::tensor_splat(centre, &tw, size * edge, viridis(fa), fa.max(0.05))
+            {
+                out.push(s);
+            }
+        },
+    );
+    Ok(out)
+}
+
+/// Viridis through the same five stops as `shaders/lib/colormap.wgsl`, linear RGB.
+fn viridis(v: f64) -> glam::DVec3 {
+    const STOPS: [[f64; 3]; 5] = [
+        [0.0578, 0.0, 0.0844],
+        [0.0423, 0.0865, 0.2582],
+        [0.0152, 0.2831, 0.2623],
+        [0.1119, 0.5841, 0.1221],
+        [0.9823, 0.7913, 0.0194],
+    ];
+    let x = v.clamp(0.0, 1.0) * 4.0;
+    let i = (x as usize).min(3);
+    glam::DVec3::from_array(STOPS[i]).lerp(glam::DVec3::from_array(STOPS[i + 1]), x - i as f64)
+}
+
+fn axis_index(axis: SliceAxis) -> usize {
+    match axis {
+        SliceAxis::X => 0,
+        SliceAxis::Y => 1,
+        SliceAxis::Z => 2,
+    }
+}
+
+fn min_edge(affine: glam::DMat4) -> f64 {
+    [affine.x_axis, affine.y_axis, affine.z_axis].iter().map(|c| c.truncate().length()).fold(f64::MAX, f64::min)
+}
+
+/// Calls `f(voxel, world centre, world-frame tensor)` for every voxel `keep` accepts.
+fn for_world_tensors(
+    dims: [usize; 3],
+    affine: glam::DMat4,
+    tensors: &[[f64; 6]],
+    keep: impl Fn([usize; 3]) -> bool,
+    mut f: impl FnMut([usize; 3], glam::DVec3, [f64; 6]),
+) {
+    let rot = fascicle_core::linalg::polar_rotation(glam::DMat3::from_mat4(affine));
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                if !keep([x, y, z]) {
+                    continue;
+                }
+                let t = tensors[x + dims[0] * (y + dims[1] * z)];
+                let m = glam::DMat3::from_cols_array(&[t[0], t[1], t[3], t[1], t[2], t[4], t[3], t[4], t[5]]);
+                let w = rot * m * rot.transpose();
+                let tw = [w.x_axis.x, w.x_axis.y, w.y_axis.y, w.x_axis.z, w.y_axis.z, w.z_axis.z];
+                f([x, y, z], affine.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64)), tw);
+            }
+        }
+    }
+}
+
+/// The tensors of a source: grid, affine, lower-triangular tensors per voxel.
+fn tensor_field(source: &TensorSource) -> Result<([usize; 3], glam::DMat4, Vec<[f64; 6]>), String> {
+    Ok(match source {
         TensorSource::Phantom => {
             let p = fascicle_core::phantom::ring_cross([48, 48, 24]);
             (p.dims, p.world_from_voxel, p.tensors)
@@ -298,42 +438,7 @@ pub fn slice_tensor_glyphs(
             let t = (0..n).map(|i| std::array::from_fn(|c| v.data[i + n * c])).collect();
             (v.dims3(), v.world_from_voxel, t)
         }
-    };
-    let ax = match axis {
-        SliceAxis::X => 0,
-        SliceAxis::Y => 1,
-        SliceAxis::Z => 2,
-    };
-    let k = index.unwrap_or(dims[ax] / 2);
-    if k >= dims[ax] {
-        return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", dims[ax]));
-    }
-    let rot = fascicle_core::linalg::polar_rotation(glam::DMat3::from_mat4(affine));
-    let edge =
-        [affine.x_axis, affine.y_axis, affine.z_axis].iter().map(|c| c.truncate().length()).fold(f64::MAX, f64::min);
-    let (mut glyphs, mut voxels) = (Vec::new(), Vec::new());
-    for z in 0..dims[2] {
-        for y in 0..dims[1] {
-            for x in 0..dims[0] {
-                let p = [x, y, z];
-                if p[ax] != k || (0..3).any(|a| a != ax && p[a] % spacing != 0) {
-                    continue;
-                }
-                let t = tensors[x + dims[0] * (y + dims[1] * z)];
-                let m = glam::DMat3::from_cols_array(&[t[0], t[1], t[3], t[1], t[2], t[4], t[3], t[4], t[5]]);
-                let w = rot * m * rot.transpose();
-                let tw = [w.x_axis.x, w.x_axis.y, w.y_axis.y, w.x_axis.z, w.y_axis.z, w.z_axis.z];
-                let centre = affine.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64));
-                if let Some(g) = fascicle_core::dti::glyph::tensor_glyph(centre, &tw, size * edge / 2.0, 0.1)
-                    && g.fa >= min_fa
-                {
-                    glyphs.push(g);
-                    voxels.push([x as u32, y as u32, z as u32]);
-                }
-            }
-        }
-    }
-    Ok((glyphs, voxels))
+    })
 }
 
 /// One glyph per `spacing`-th voxel of a slice (voxel centres, nearest sampling), skipping voxels with no

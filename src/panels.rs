@@ -37,6 +37,11 @@ impl Default for LayerPanels {
             LayerPanel { name: "axes", applies: |k| matches!(k, LayerKind::Axes { .. }), show: axes_panel },
             LayerPanel { name: "sh glyphs", applies: |k| matches!(k, LayerKind::ShGlyphs { .. }), show: glyph_panel },
             LayerPanel {
+                name: "tensor splats",
+                applies: |k| matches!(k, LayerKind::TensorSplats { .. }),
+                show: splat_panel,
+            },
+            LayerPanel {
                 name: "tensor glyphs",
                 applies: |k| matches!(k, LayerKind::TensorGlyphs { .. }),
                 show: tensor_panel,
@@ -135,6 +140,21 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
     });
 }
 
+/// Tensor splats: slab and size (rebuild), attenuation and opacity (uniform only).
+fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+    let LayerKind::TensorSplats { axis, index, thickness, size, min_fa, render, .. } = kind else { return };
+    let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
+    slice_panel(ui, &mut slice);
+    if let LayerKind::Slice { axis: a, index: i, .. } = slice {
+        (*axis, *index) = (a, i);
+    }
+    ui.add(egui::Slider::new(thickness, 1..=15).text("slab (slices)"));
+    ui.add(egui::Slider::new(size, 0.1..=2.0).text("size (voxels)"));
+    ui.add(egui::Slider::new(min_fa, 0.0..=1.0).text("min FA"));
+    ui.checkbox(&mut render.attenuation, "depth attenuation");
+    ui.add(egui::Slider::new(&mut render.opacity, 0.0..=2.0).text("opacity"));
+}
+
 /// Tensor glyphs: slice and size (rebuild), shape (rebuild), knobs and colour (uniform only).
 fn tensor_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
     let LayerKind::TensorGlyphs { axis, index, spacing, size, min_fa, render, .. } = kind else { return };
@@ -188,9 +208,10 @@ mod tests {
             LayerKind::Tractogram { path: "x.trk".into() },
             LayerKind::Axes { length_mm: 1.0 },
             crate::scene::Scene::default_scene().layers[2].kind.clone(),
+            crate::scene::Scene::default_scene().layers[1].kind.clone(),
         ];
         let mut panels = LayerPanels::default();
-        for (k, name) in kinds.iter().zip(["slice", "tractogram", "axes", "sh glyphs"]) {
+        for (k, name) in kinds.iter().zip(["slice", "tractogram", "axes", "sh glyphs", "tensor splats"]) {
             assert_eq!(panels.find(k).map(|p| p.name), Some(name));
         }
         panels.register(LayerPanel { name: "mine", applies: |k| matches!(k, LayerKind::Axes { .. }), show: |_, _| {} });

@@ -9,6 +9,7 @@ use fascicle_core::sh::ShBasis;
 use fascicle_core::sh::glyph::{GlyphPlane, GlyphStyle, Sampling};
 use fascicle_sh_glyphs::RayCastSettings;
 use fascicle_tensors::TensorGlyphSettings;
+use fascicle_tensors::splat::SplatSettings;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -67,6 +68,22 @@ pub enum LayerKind {
         #[serde(default)]
         render: RayCastSettings,
     },
+    /// Tensor splats (EWA Gaussian footprints), one per voxel of a slab of `thickness` slices around a slice,
+    /// coloured by FA (viridis) with opacity `opacity · FA`.
+    TensorSplats {
+        source: TensorSource,
+        axis: SliceAxis,
+        index: Option<usize>,
+        #[serde(default = "one_usize")]
+        thickness: usize,
+        /// Largest standard deviation as a fraction of the voxel size.
+        #[serde(default = "splat_size")]
+        size: f64,
+        #[serde(default)]
+        min_fa: f64,
+        #[serde(default)]
+        render: SplatSettings,
+    },
     /// Ray-cast tensor glyphs (ellipsoids or superquadrics), one per voxel of a slice.
     TensorGlyphs {
         source: TensorSource,
@@ -88,6 +105,9 @@ pub enum LayerKind {
 fn glyph_size() -> f64 {
     0.9
 }
+fn splat_size() -> f64 {
+    0.5
+}
 
 impl LayerKind {
     /// The kind without its draw-only settings: two kinds with the same structure differ only in what a
@@ -103,6 +123,15 @@ impl LayerKind {
                 sampling: *sampling,
                 style: *style,
                 render: RayCastSettings::default(),
+            },
+            LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => LayerKind::TensorSplats {
+                source: source.clone(),
+                axis: *axis,
+                index: *index,
+                thickness: *thickness,
+                size: *size,
+                min_fa: *min_fa,
+                render: SplatSettings::default(),
             },
             LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, render } => LayerKind::TensorGlyphs {
                 source: source.clone(),
@@ -188,7 +217,20 @@ impl Scene {
         Self {
             layers: vec![
                 slice("FA axial", SliceAxis::Z),
-                slice("FA coronal", SliceAxis::Y),
+                LayerSpec {
+                    name: "Tensor splats (coronal slab)".into(),
+                    visible: true,
+                    opacity: 1.0,
+                    kind: LayerKind::TensorSplats {
+                        source: TensorSource::Phantom,
+                        axis: SliceAxis::Y,
+                        index: None,
+                        thickness: 3,
+                        size: 0.5,
+                        min_fa: 0.0,
+                        render: SplatSettings::default(),
+                    },
+                },
                 LayerSpec {
                     name: "ODF glyphs (CSA)".into(),
                     visible: true,
