@@ -422,8 +422,11 @@ fn for_world_tensors(
     }
 }
 
-/// The tensors of a source: grid, affine, lower-triangular tensors per voxel.
-fn tensor_field(source: &TensorSource) -> Result<([usize; 3], glam::DMat4, Vec<[f64; 6]>), String> {
+/// A tensor grid: dimensions, voxel-to-world affine, lower-triangular tensors per voxel (NIfTI order).
+type TensorGrid = ([usize; 3], glam::DMat4, Vec<[f64; 6]>);
+
+/// The tensors of a source.
+fn tensor_field(source: &TensorSource) -> Result<TensorGrid, String> {
     Ok(match source {
         TensorSource::Phantom => {
             let p = fascicle_core::phantom::ring_cross([48, 48, 24]);
