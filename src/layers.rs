@@ -114,8 +114,11 @@ fn sync_scene(
     errors.0.clear();
     for (i, spec) in scene.0.layers.iter().enumerate() {
         let vis = if spec.visible { Visibility::Inherited } else { Visibility::Hidden };
-        if let LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, style, render } = &spec.kind {
+        if let LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, full_volume, style, render } =
+            &spec.kind
+        {
             let glyphs = match plane {
+                _ if *full_volume => volume_glyphs(source, *spacing, *style),
                 Some(p) => free_plane_glyphs(source, p, *sampling, *style),
                 None => plane_glyphs(source, *axis, *index, *spacing, *style),
             };
@@ -444,6 +447,50 @@ fn tensor_field(source: &TensorSource) -> Result<TensorGrid, String> {
     })
 }
 
+/// One glyph per `spacing`-th voxel (along each axis) of the whole field with signal (`c00 > 0`).
+pub fn volume_glyphs(
+    source: &ShSource,
+    spacing: usize,
+    style: GlyphStyle,
+) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
+    if spacing == 0 {
+        return Err("glyph spacing must be at least 1 voxel".into());
+    }
+    let (vol, basis) = sh_field(source, |p| p.iter().all(|c| c % spacing == 0))?;
+    voxel_glyphs(&vol, basis, style, |p| p.iter().all(|c| c % spacing == 0))
+}
+
+/// Glyphs at the centres of the voxels `keep` accepts that have signal (`c00 > 0`), with their voxels.
+fn voxel_glyphs(
+    vol: &Volume<f32>,
+    basis: ShBasis,
+    style: GlyphStyle,
+    keep: impl Fn([usize; 3]) -> bool,
+) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
+    let d = vol.dims3();
+    let (n, nc) = (vol.n_voxels(), vol.n_channels());
+    let mut items = Vec::new();
+    for z in 0..d[2] {
+        for y in 0..d[1] {
+            for x in 0..d[0] {
+                if !keep([x, y, z]) {
+                    continue;
+                }
+                let v = x + d[0] * (y + d[1] * z);
+                let c: Vec<f64> = (0..nc).map(|j| vol.data[v + n * j] as f64).collect();
+                if c[0] > 0.0 {
+                    let centre = vol.world_from_voxel.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64));
+                    items.push((centre, c, [x as u32, y as u32, z as u32]));
+                }
+            }
+        }
+    }
+    let (glyphs, skipped) =
+        make_glyphs(items.iter().map(|(c, co, _)| (*c, &co[..])), basis, style).map_err(|e| e.to_string())?;
+    let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
+    Ok((glyphs, voxels))
+}
+
 /// One glyph per `spacing`-th voxel of a slice (voxel centres, nearest sampling), skipping voxels with no
 /// signal.
 pub fn plane_glyphs(
@@ -473,28 +520,7 @@ pub fn plane_glyphs(
     if k >= d[ax] {
         return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", d[ax]));
     }
-    let (n, nc) = (vol.n_voxels(), vol.n_channels());
-    let mut items = Vec::new();
-    for z in 0..d[2] {
-        for y in 0..d[1] {
-            for x in 0..d[0] {
-                let p = [x, y, z];
-                if p[ax] != k || (0..3).any(|a| a != ax && p[a] % spacing != 0) {
-                    continue;
-                }
-                let v = x + d[0] * (y + d[1] * z);
-                let c: Vec<f64> = (0..nc).map(|j| vol.data[v + n * j] as f64).collect();
-                if c[0] > 0.0 {
-                    let centre = vol.world_from_voxel.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64));
-                    items.push((centre, c, [x as u32, y as u32, z as u32]));
-                }
-            }
-        }
-    }
-    let (glyphs, skipped) =
-        make_glyphs(items.iter().map(|(c, co, _)| (*c, &co[..])), basis, style).map_err(|e| e.to_string())?;
-    let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
-    Ok((glyphs, voxels))
+    voxel_glyphs(&vol, basis, style, |p| p[ax] == k && (0..3).all(|a| a == ax || p[a] % spacing == 0))
 }
 
 /// A grey image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world

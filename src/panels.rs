@@ -83,17 +83,23 @@ fn slice_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
 /// SH glyphs: plane, size and shape (rebuild the glyphs), then the ray caster's knobs and colour (a uniform
 /// update only).
 fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
-    let LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, style, render } = kind else { return };
+    let LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, full_volume, style, render } = kind else {
+        return;
+    };
     ui.label(match source {
         ShSource::PhantomCsa { l_max } => format!("phantom CSA, l_max {l_max}"),
         ShSource::Nifti { path, basis } => format!("{} ({})", path.display(), basis.name()),
     });
+    ui.checkbox(full_volume, "whole volume");
     let mut free = plane.is_some();
-    if ui.checkbox(&mut free, "free plane").changed() {
+    if *full_volume {
+        ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
+    } else if ui.checkbox(&mut free, "free plane").changed() {
         *plane =
             free.then_some(GlyphPlane { centre: [0.0; 3], normal: [0.0, 0.0, 1.0], half_size: 48.0, spacing: 2.0 });
     }
-    if let Some(p) = plane {
+    if *full_volume {
+    } else if let Some(p) = plane {
         ui.horizontal(|ui| {
             ui.label("centre");
             for c in p.centre.iter_mut() {

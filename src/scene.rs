@@ -63,6 +63,9 @@ pub enum LayerKind {
         /// How a free plane reads the field.
         #[serde(default)]
         sampling: Sampling,
+        /// Every voxel of the field (every `spacing`-th along each axis) instead of a plane.
+        #[serde(default)]
+        full_volume: bool,
         #[serde(default)]
         style: GlyphStyle,
         #[serde(default)]
@@ -114,16 +117,19 @@ impl LayerKind {
     /// uniform update can change, so the layer is not rebuilt or re-uploaded.
     pub fn structure(&self) -> LayerKind {
         match self {
-            LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, style, .. } => LayerKind::ShGlyphs {
-                source: source.clone(),
-                axis: *axis,
-                index: *index,
-                spacing: *spacing,
-                plane: *plane,
-                sampling: *sampling,
-                style: *style,
-                render: RayCastSettings::default(),
-            },
+            LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, full_volume, style, .. } => {
+                LayerKind::ShGlyphs {
+                    source: source.clone(),
+                    axis: *axis,
+                    index: *index,
+                    spacing: *spacing,
+                    plane: *plane,
+                    sampling: *sampling,
+                    full_volume: *full_volume,
+                    style: *style,
+                    render: RayCastSettings::default(),
+                }
+            }
             LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => LayerKind::TensorSplats {
                 source: source.clone(),
                 axis: *axis,
@@ -242,6 +248,7 @@ impl Scene {
                         spacing: 2,
                         plane: None,
                         sampling: Sampling::Nearest,
+                        full_volume: false,
                         style: GlyphStyle { scale: 3.0, ..GlyphStyle::default() },
                         render: RayCastSettings::default(),
                     },
@@ -300,6 +307,7 @@ impl Scene {
                 spacing: 1,
                 plane: None,
                 sampling: Sampling::Nearest,
+                full_volume: false,
                 style: GlyphStyle::default(),
                 render: RayCastSettings::default(),
             }

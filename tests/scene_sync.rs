@@ -94,6 +94,7 @@ fn oblique_glyph_plane_renders_on_the_plane() {
                 spacing: 1,
                 plane: Some(plane),
                 sampling: Sampling::Trilinear,
+                full_volume: false,
                 style: GlyphStyle { scale: 2.5, ..GlyphStyle::default() },
                 render: RayCastSettings { colour: GlyphColour::Gfa, ..RayCastSettings::default() },
             },
@@ -212,4 +213,18 @@ fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
     let (e2, _, n2) = set(&mut app);
     assert_ne!(e2, e0);
     assert_eq!(n2, n0);
+}
+
+/// Full-volume mode: one glyph per voxel of the field (here every 4th of the phantom's non-background
+/// voxels), centred on the voxels.
+#[test]
+fn full_volume_glyphs_cover_the_field() {
+    use fascicle::scene::ShSource;
+    use fascicle_core::sh::glyph::GlyphStyle;
+    let (glyphs, voxels) =
+        fascicle::layers::volume_glyphs(&ShSource::PhantomCsa { l_max: 4 }, 4, GlyphStyle::default()).unwrap();
+    // 12 x 12 x 6 grid points, all with signal (the phantom's background is isotropic, not empty).
+    assert_eq!(glyphs.len(), 12 * 12 * 6);
+    let slices: std::collections::BTreeSet<u32> = voxels.iter().map(|v| v[2]).collect();
+    assert_eq!(slices.len(), 6, "every 4th slice of 24");
 }
