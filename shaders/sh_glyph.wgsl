@@ -29,7 +29,7 @@ struct GlyphParams {
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: GlyphParams;
-// Per glyph, two entries: (centre (world, mm), render bound), (GFA, 0, 0, 0).
+// Per glyph, two entries: (centre (world, mm), render bound), (GFA, highlighted, 0, 0).
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> glyphs: array<vec4<f32>>;
 // Per glyph, `stride` coefficients in the glyph basis.
 @group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> coeffs: array<f32>;
@@ -132,6 +132,10 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
         if params.lobes == 1u && pg.x < 0.0 {
             // Negative lobes: desaturated, as mrview marks them.
             shaded = vec3<f32>(dot(shaded, vec3<f32>(0.3, 0.4, 0.3))) * 0.6;
+        }
+        if glyphs[2u * in.tag + 1u].y > 0.5 {
+            // Picked: tinted towards yellow.
+            shaded = mix(shaded, vec3<f32>(1.0, 0.85, 0.1), 0.6);
         }
         out.color = vec4<f32>(shaded, 1.0);
     }

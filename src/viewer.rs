@@ -3,7 +3,8 @@
 //! save/load and frame time. The 3D camera's viewport is the window minus the panel (egui draws with its
 //! own camera on top), so the panel never hides the scene.
 //!
-//! Mouse: left-drag orbits, right-drag pans, wheel zooms. Keys: R resets the view, F12 saves a screenshot.
+//! Mouse: left-drag orbits, right-drag pans, wheel zooms, a left click on an SH glyph highlights it and
+//! reports its voxel. Keys: R resets the view, F12 saves a screenshot.
 //! Files dropped on the window are added as layers; a file that fails to load shows an error and the
 //! viewer keeps running.
 
@@ -27,6 +28,7 @@ use crate::layers::{ActiveScene, LayerErrors, ScenePlugin};
 use crate::panels::LayerPanels;
 use crate::render::BACKGROUND;
 use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene};
+use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
 
 /// Camera components shared by viewer and headless renderer, so both produce the same image.
 pub fn view_camera() -> impl Bundle {
@@ -189,6 +191,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
         Update,
         (
             orbit_input.run_if(not(egui_wants_any_pointer_input)),
+            pick_glyph.run_if(not(egui_wants_any_pointer_input)),
             keys.run_if(not(egui_wants_any_keyboard_input)),
             dropped_files,
             apply_orbit.run_if(resource_changed::<Orbit>),
@@ -218,6 +221,58 @@ fn orbit_input(
     }
     if scroll.delta.y != 0.0 {
         orbit.distance = (orbit.distance * (-0.1 * scroll.delta.y).exp()).clamp(1.0, 5000.0);
+    }
+}
+
+/// A click (press and release without dragging) on an SH glyph toggles its highlight and reports its voxel.
+#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
+fn pick_glyph(
+    mut commands: Commands,
+    buttons: Res<ButtonInput<MouseButton>>,
+    motion: Res<AccumulatedMouseMotion>,
+    mut dragged: Local<f32>,
+    window: Single<&Window, With<PrimaryWindow>>,
+    camera: Single<(&Camera, &GlobalTransform), With<Camera3d>>,
+    sets: Query<(&ShGlyphSet, &Children)>,
+    voxels: Query<(&ShVoxel, Has<Highlighted>)>,
+    mut ui: ResMut<UiState>,
+) {
+    if buttons.just_pressed(MouseButton::Left) {
+        *dragged = 0.0;
+    }
+    if buttons.pressed(MouseButton::Left) {
+        *dragged += motion.delta.length();
+    }
+    if !buttons.just_released(MouseButton::Left) || *dragged > 3.0 {
+        return;
+    }
+    let Some(cursor) = window.cursor_position() else { return };
+    let (cam, tf) = *camera;
+    let offset = cam.viewport.as_ref().map_or(Vec2::ZERO, |v| v.physical_position.as_vec2() / window.scale_factor());
+    let Ok(ray) = cam.viewport_to_world(tf, cursor - offset) else { return };
+    let (o, d) = (ray.origin.as_dvec3(), ray.direction.as_vec3().as_dvec3());
+    let best = sets
+        .iter()
+        .filter_map(|(set, children)| set.pick(o, d).map(|(i, hit)| (set, children, i, hit)))
+        .min_by(|a, b| a.3.t.total_cmp(&b.3.t));
+    let Some((set, children, i, hit)) = best else { return };
+    for child in children.iter() {
+        if let Ok((v, lit)) = voxels.get(child)
+            && v.index == i
+        {
+            if lit {
+                commands.entity(child).remove::<Highlighted>();
+            } else {
+                commands.entity(child).insert(Highlighted);
+            }
+            let g = &set.glyphs[i as usize];
+            ui.message = Some(format!(
+                "glyph {i}: voxel {:?}, GFA {:.3}, hit at {:.1?} mm",
+                v.voxel,
+                g.gfa,
+                hit.point.to_array()
+            ));
+        }
     }
 }
 
@@ -284,19 +339,23 @@ fn panel(
         ui.separator();
         ui.heading("Layers");
         let mut remove = None;
-        for (i, layer) in edited.layers.iter_mut().enumerate() {
-            ui.horizontal(|ui| {
-                ui.checkbox(&mut layer.visible, &layer.name);
-                if ui.small_button("x").clicked() {
-                    remove = Some(i);
+        // The layer list scrolls; scene controls and messages stay visible below it.
+        let list_height = (ui.available_height() - 220.0).max(120.0);
+        egui::ScrollArea::vertical().max_height(list_height).show(ui, |ui| {
+            for (i, layer) in edited.layers.iter_mut().enumerate() {
+                ui.horizontal(|ui| {
+                    ui.checkbox(&mut layer.visible, &layer.name);
+                    if ui.small_button("x").clicked() {
+                        remove = Some(i);
+                    }
+                });
+                ui.add(egui::Slider::new(&mut layer.opacity, 0.0..=1.0).text("opacity"));
+                if let Some(p) = panels.find(&layer.kind) {
+                    ui.push_id(i, |ui| (p.show)(ui, &mut layer.kind));
                 }
-            });
-            ui.add(egui::Slider::new(&mut layer.opacity, 0.0..=1.0).text("opacity"));
-            if let Some(p) = panels.find(&layer.kind) {
-                ui.push_id(i, |ui| (p.show)(ui, &mut layer.kind));
+                ui.separator();
             }
-            ui.separator();
-        }
+        });
         if let Some(i) = remove {
             edited.layers.remove(i);
         }

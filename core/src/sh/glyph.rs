@@ -356,6 +356,17 @@ pub fn march(
     Some(hi)
 }
 
+/// The glyph a ray hits first (index and hit), by the same caster as the shader (`h`, `refine`); glyphs
+/// whose bounding sphere the ray misses cost one sphere test.
+pub fn pick(glyphs: &[Glyph], o: DVec3, d: DVec3, h: f64, refine: u32, lobes: Lobes) -> Option<(usize, Hit)> {
+    glyphs
+        .iter()
+        .enumerate()
+        .filter(|(_, g)| ray_sphere_interval(o, d, g.centre, g.rbound).is_some())
+        .filter_map(|(i, g)| cast(g, o, d, h, refine, lobes).map(|hit| (i, hit)))
+        .min_by(|a, b| a.1.t.total_cmp(&b.1.t))
+}
+
 /// The reference: inside the guaranteed Cauchy-Schwarz sphere (not the renderer's tighter bound), a search
 /// of 1e-4 rmax steps, and bisection to rounding.
 pub fn cast_exact(g: &Glyph, o: DVec3, d: DVec3, lobes: Lobes) -> Option<Hit> {

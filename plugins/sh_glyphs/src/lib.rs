@@ -23,7 +23,7 @@ pub struct ShGlyphPlugin;
 
 impl Plugin for ShGlyphPlugin {
     fn build(&self, app: &mut App) {
-        app.add_plugins(MaterialPlugin::<ShGlyphMaterial>::default());
+        app.add_plugins(MaterialPlugin::<ShGlyphMaterial>::default()).add_systems(PostUpdate, apply_highlights);
     }
 }
 
@@ -105,7 +105,8 @@ impl ShGlyphUniform {
 pub struct ShGlyphMaterial {
     #[uniform(0)]
     pub params: ShGlyphUniform,
-    /// Two `vec4` per glyph: `(centre, rbound)` (the render bound, `Glyph::rbound`) and `(gfa, 0, 0, 0)`.
+    /// Two `vec4` per glyph: `(centre, rbound)` (the render bound, `Glyph::rbound`) and
+    /// `(gfa, highlighted, 0, 0)`.
     #[storage(1, read_only)]
     pub glyphs: Handle<ShaderBuffer>,
     /// `stride` f32 coefficients per glyph, in `fascicle_core::sh::glyph::GLYPH_BASIS`.
@@ -122,23 +123,73 @@ pub struct ShVoxel {
     pub voxel: Option<[u32; 3]>,
 }
 
-/// A glyph set: the parent of its [`ShVoxel`] entities.
+/// A glyph set: the parent of its [`ShVoxel`] entities, with the CPU copy of its glyphs (for picking and
+/// for rewriting the small per-glyph header when highlights change).
 #[derive(Component, Clone, Debug)]
 pub struct ShGlyphSet {
     pub material: Handle<ShGlyphMaterial>,
     pub l_max: usize,
     pub len: usize,
+    pub glyphs: std::sync::Arc<Vec<Glyph>>,
+    pub lobes: Lobes,
+}
+
+/// Marks a glyph entity drawn highlighted (the shader tints it).
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct Highlighted;
+
+impl ShGlyphSet {
+    /// The first glyph of this set the world-space ray hits: its index and the hit.
+    pub fn pick(&self, origin: glam::DVec3, dir: glam::DVec3) -> Option<(u32, fascicle_core::sh::glyph::Hit)> {
+        fascicle_core::sh::glyph::pick(&self.glyphs, origin, dir.normalize(), 0.01, 8, self.lobes)
+            .map(|(i, h)| (i as u32, h))
+    }
+}
+
+/// Rewrites a set's header buffer (two `vec4` per glyph, no coefficients) when highlights change.
+fn apply_highlights(
+    changed: Query<&ChildOf, Added<Highlighted>>,
+    mut removed: RemovedComponents<Highlighted>,
+    parents: Query<&ChildOf, With<ShVoxel>>,
+    sets: Query<(&ShGlyphSet, &Children)>,
+    lit: Query<&ShVoxel, With<Highlighted>>,
+    materials: Res<Assets<ShGlyphMaterial>>,
+    mut buffers: ResMut<Assets<ShaderBuffer>>,
+) {
+    let mut dirty: Vec<Entity> = changed.iter().map(|c| c.parent()).collect();
+    dirty.extend(removed.read().filter_map(|e| parents.get(e).ok().map(|c| c.parent())));
+    dirty.sort();
+    dirty.dedup();
+    for parent in dirty {
+        let Ok((set, children)) = sets.get(parent) else { continue };
+        let flags: Vec<u32> = children.iter().filter_map(|c| lit.get(c).ok().map(|v| v.index)).collect();
+        let Some(material) = materials.get(&set.material) else { continue };
+        if let Some(mut buffer) = buffers.get_mut(&material.glyphs) {
+            let (head, _) = pack_with(&set.glyphs, set.l_max, &flags, false);
+            buffer.data = Some(head);
+        }
+    }
 }
 
 /// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rbound), vec4(gfa, 0, 0, 0)` and
 /// the coefficients.
 pub fn pack(glyphs: &[Glyph], l_max: usize) -> (Vec<u8>, Vec<u8>) {
+    pack_with(glyphs, l_max, &[], true)
+}
+
+/// [`pack`] with the glyphs at `highlighted` flagged (the `y` of their second `vec4`); the coefficients
+/// only when `with_coeffs`.
+fn pack_with(glyphs: &[Glyph], l_max: usize, highlighted: &[u32], with_coeffs: bool) -> (Vec<u8>, Vec<u8>) {
     let stride = fascicle_core::sh::n_coeffs(l_max);
     let mut head = Vec::with_capacity(glyphs.len() * 32);
     let mut coeffs = Vec::with_capacity(glyphs.len() * stride * 4);
-    for g in glyphs {
-        for v in [g.centre.x, g.centre.y, g.centre.z, g.rbound, g.gfa, 0.0, 0.0, 0.0] {
+    for (i, g) in glyphs.iter().enumerate() {
+        let lit = if highlighted.contains(&(i as u32)) { 1.0 } else { 0.0 };
+        for v in [g.centre.x, g.centre.y, g.centre.z, g.rbound, g.gfa, lit, 0.0, 0.0] {
             head.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+        if !with_coeffs {
+            continue;
         }
         for j in 0..stride {
             coeffs.extend_from_slice(&(g.coeffs.get(j).copied().unwrap_or(0.0) as f32).to_le_bytes());
@@ -173,7 +224,13 @@ pub fn spawn_glyph_set(
     let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
     let parent = commands
         .spawn((
-            ShGlyphSet { material: material.clone(), l_max, len: glyphs.len() },
+            ShGlyphSet {
+                material: material.clone(),
+                l_max,
+                len: glyphs.len(),
+                glyphs: std::sync::Arc::new(glyphs.to_vec()),
+                lobes: settings.lobes,
+            },
             Transform::default(),
             Visibility::default(),
         ))

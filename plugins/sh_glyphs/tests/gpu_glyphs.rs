@@ -188,3 +188,85 @@ fn ray_cast_glyphs_match_the_f64_reference() {
     assert!(sil <= 0.01, "silhouette mismatch {:.3}%", 100.0 * sil);
     assert!(median <= 2.0, "median normal error {median} degrees");
 }
+
+/// Picking by the CPU twin of the shader, then highlighting: only the header buffer is rewritten (the
+/// coefficients are not), and the picked glyph is drawn tinted while the others are not.
+#[test]
+fn picking_and_highlighting() {
+    use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let glyphs: Vec<Glyph> = glyphs().into_iter().map(|(g, _)| g).collect();
+    let mut app = headless::headless_app();
+    app.add_plugins((FascicleRenderPlugin, ShGlyphPlugin));
+    let target = headless::add_target_image(&mut app, W, H);
+    {
+        let glyphs = glyphs.clone();
+        app.add_systems(
+            Startup,
+            move |mut commands: Commands,
+                  mut meshes: ResMut<Assets<Mesh>>,
+                  mut materials: ResMut<Assets<ShGlyphMaterial>>,
+                  mut buffers: ResMut<Assets<bevy::render::storage::ShaderBuffer>>| {
+                let s = RayCastSettings { colour: GlyphColour::Grey, ..default() };
+                spawn_glyph_set(&mut commands, &mut meshes, &mut materials, &mut buffers, &glyphs, None, &s);
+            },
+        );
+    }
+    app.world_mut().spawn((
+        headless::exact_camera(target.clone()),
+        Camera { clear_color: ClearColorConfig::Custom(Color::BLACK), ..default() },
+        Transform::from_translation(EYE.as_vec3()).looking_at(Vec3::ZERO, Vec3::Y),
+    ));
+    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    app.update();
+    // A ray from the eye through the third glyph's centre (its caps point along z, towards the camera)
+    // picks it, on the near cap.
+    let set = app.world_mut().query::<&ShGlyphSet>().single(app.world()).expect("set").clone();
+    let (i, hit) = set.pick(EYE, glyphs[2].centre - EYE).expect("the ray hits the capped glyph");
+    assert_eq!(i, 2);
+    assert!(hit.t < (glyphs[2].centre - EYE).length());
+    let coeff_bytes = |app: &App| {
+        let m = app.world().resource::<Assets<ShGlyphMaterial>>().get(&set.material).unwrap().coeffs.clone();
+        app.world().resource::<Assets<bevy::render::storage::ShaderBuffer>>().get(&m).unwrap().data.clone()
+    };
+    let before = coeff_bytes(&app);
+    let picked = app
+        .world_mut()
+        .query::<(Entity, &ShVoxel)>()
+        .iter(app.world())
+        .find(|(_, v)| v.index == i)
+        .map(|(e, _)| e)
+        .unwrap();
+    app.world_mut().entity_mut(picked).insert(Highlighted);
+    let img = headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(coeff_bytes(&app), before, "coefficients must not be rewritten");
+    // Grey glyphs are neutral; the highlighted one is yellow (red and green well above blue).
+    let cam = PinholeCamera {
+        eye: EYE,
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        fov_y: std::f64::consts::FRAC_PI_4,
+        width: W,
+        height: H,
+    };
+    let (mut tinted, mut neutral) = (0usize, 0usize);
+    for py in 0..H {
+        for px in 0..W {
+            let (o, d) = cam.subpixel_ray(px as f64 + 0.5, py as f64 + 0.5);
+            let Some((k, _)) = set.pick(o, d) else { continue };
+            let p = img.pixel(px, py);
+            let yellow = p[0] as i32 - p[2] as i32 > 40 && p[1] as i32 - p[2] as i32 > 30;
+            if k == i && yellow {
+                tinted += 1;
+            }
+            if k != i && !yellow {
+                neutral += 1;
+            }
+        }
+    }
+    println!("highlight: {tinted} tinted pixels on the picked glyph, {neutral} neutral on the others");
+    assert!(tinted > 100 && neutral > 300);
+}
