@@ -122,50 +122,31 @@ fn sync_scene(
                 Some(p) => free_plane_glyphs(source, p, *sampling, *style),
                 None => plane_glyphs(source, *axis, *index, *spacing, *style),
             };
-            match glyphs {
-                Ok((glyphs, voxels)) => {
-                    let set = spawn_glyph_set(
-                        &mut commands,
-                        &mut meshes,
-                        &mut glyph_materials,
-                        &mut buffers,
-                        &glyphs,
-                        Some(&voxels),
-                        render,
-                    );
-                    commands.entity(set).insert((vis, LayerEntity(i)));
-                }
-                Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
-            }
+            let set = glyphs.map(|(g, v)| {
+                spawn_glyph_set(&mut commands, &mut meshes, &mut glyph_materials, &mut buffers, &g, Some(&v), render)
+            });
+            place(&mut commands, &mut errors, set, spec, vis, i);
             continue;
         }
         if let LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, render } = &spec.kind {
-            match slab_splats(source, *axis, *index, *thickness, *size, *min_fa) {
-                Ok(splats) => {
-                    let set =
-                        spawn_splats(&mut commands, &mut meshes, &mut splat_materials, &mut buffers, &splats, render);
-                    commands.entity(set).insert((vis, LayerEntity(i)));
-                }
-                Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
-            }
+            let set = slab_splats(source, *axis, *index, *thickness, *size, *min_fa)
+                .map(|s| spawn_splats(&mut commands, &mut meshes, &mut splat_materials, &mut buffers, &s, render));
+            place(&mut commands, &mut errors, set, spec, vis, i);
             continue;
         }
         if let LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, render } = &spec.kind {
-            match slice_tensor_glyphs(source, *axis, *index, *spacing, *size, *min_fa) {
-                Ok((glyphs, voxels)) => {
-                    let set = spawn_tensor_glyphs(
-                        &mut commands,
-                        &mut meshes,
-                        &mut tensor_materials,
-                        &mut buffers,
-                        &glyphs,
-                        Some(&voxels),
-                        render,
-                    );
-                    commands.entity(set).insert((vis, LayerEntity(i)));
-                }
-                Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
-            }
+            let set = slice_tensor_glyphs(source, *axis, *index, *spacing, *size, *min_fa).map(|(g, v)| {
+                spawn_tensor_glyphs(
+                    &mut commands,
+                    &mut meshes,
+                    &mut tensor_materials,
+                    &mut buffers,
+                    &g,
+                    Some(&v),
+                    render,
+                )
+            });
+            place(&mut commands, &mut errors, set, spec, vis, i);
             continue;
         }
         match spawn_layer(spec, &mut meshes, &mut images, &mut materials) {
@@ -178,6 +159,23 @@ fn sync_scene(
         }
     }
     spawned.0 = kinds;
+}
+
+/// Tags a plugin-spawned layer root with its layer and visibility, or records why it could not be built.
+fn place(
+    commands: &mut Commands,
+    errors: &mut LayerErrors,
+    root: Result<Entity, String>,
+    spec: &LayerSpec,
+    vis: Visibility,
+    index: usize,
+) {
+    match root {
+        Ok(e) => {
+            commands.entity(e).insert((vis, LayerEntity(index)));
+        }
+        Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
+    }
 }
 
 fn set_opacity(m: &mut StandardMaterial, opacity: f32) {

@@ -272,6 +272,18 @@ pub fn exact_camera(target: Handle<Image>) -> impl Bundle {
     )
 }
 
+/// The GPU tests' camera: an [`exact_camera`] into `target` with a black background, at `eye` looking at
+/// `look_at` with +Y up.
+pub fn spawn_test_camera(app: &mut App, target: Handle<Image>, eye: Vec3, look_at: Vec3) -> Entity {
+    app.world_mut()
+        .spawn((
+            exact_camera(target),
+            Camera { clear_color: ClearColorConfig::Custom(Color::BLACK), ..default() },
+            Transform::from_translation(eye).looking_at(look_at, Vec3::Y),
+        ))
+        .id()
+}
+
 /// Finishes plugin set-up (creating the GPU device). Fails with [`HeadlessError::NoAdapter`] when no
 /// adapter exists instead of panicking.
 pub fn initialise(app: &mut App) -> Result<(), HeadlessError> {

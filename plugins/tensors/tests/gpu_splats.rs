@@ -66,12 +66,8 @@ fn render(splats: &[Splat], settings: SplatSettings) -> Option<Capture> {
             spawn_splats(&mut commands, &mut meshes, &mut materials, &mut buffers, &splats, &settings);
         },
     );
-    app.world_mut().spawn((
-        headless::exact_camera(target.clone()),
-        bevy::camera::Hdr,
-        Camera { clear_color: ClearColorConfig::Custom(Color::BLACK), ..default() },
-        Transform::from_translation(EYE).looking_at(Vec3::ZERO, Vec3::Y),
-    ));
+    let cam = headless::spawn_test_camera(&mut app, target.clone(), EYE, Vec3::ZERO);
+    app.world_mut().entity_mut(cam).insert(bevy::camera::Hdr);
     match headless::capture(&mut app, target) {
         Ok(c) => Some(c),
         Err(e) => panic!("{e}"),

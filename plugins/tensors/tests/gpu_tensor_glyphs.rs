@@ -61,13 +61,8 @@ fn render(glyphs: &[TensorGlyph], settings: TensorGlyphSettings) -> Option<(Capt
             spawn_tensor_glyphs(&mut commands, &mut meshes, &mut materials, &mut buffers, &glyphs, None, &settings);
         },
     );
-    app.world_mut()
-        .spawn((
-            headless::exact_camera(target.clone()),
-            Camera { clear_color: ClearColorConfig::Custom(Color::BLACK), ..default() },
-            Transform::from_translation(EYE.as_vec3()).looking_at(Vec3::ZERO, Vec3::Y),
-        ))
-        .insert(headless::depth_copy_camera(copy.clone()));
+    let cam = headless::spawn_test_camera(&mut app, target.clone(), EYE.as_vec3(), Vec3::ZERO);
+    app.world_mut().entity_mut(cam).insert(headless::depth_copy_camera(copy.clone()));
     match headless::capture_with_depth(&mut app, target, Some(&copy)) {
         Ok((c, Some(d))) => Some((c, d)),
         Ok(_) => panic!("no depth came back"),
