@@ -52,6 +52,18 @@ fn glyphs() -> Vec<(Glyph, Lobes)> {
     ]
 }
 
+/// The f64 twin of the tests' Bevy camera (default 45-degree perspective).
+fn test_camera() -> PinholeCamera {
+    PinholeCamera {
+        eye: EYE,
+        target: DVec3::ZERO,
+        up: DVec3::Y,
+        fov_y: std::f64::consts::FRAC_PI_4,
+        width: W,
+        height: H,
+    }
+}
+
 fn render(glyphs: &[(Glyph, Lobes)], settings: RayCastSettings) -> Option<(Capture, DepthMap)> {
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
@@ -131,14 +143,7 @@ fn ray_cast_glyphs_match_the_f64_reference() {
     if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
         std::fs::write(format!("{dir}/gpu_sh_glyphs.png"), img.to_png().expect("png")).expect("write");
     }
-    let cam = PinholeCamera {
-        eye: EYE,
-        target: DVec3::ZERO,
-        up: DVec3::Y,
-        fov_y: std::f64::consts::FRAC_PI_4,
-        width: W,
-        height: H,
-    };
+    let cam = test_camera();
     let reference = reference(&glyphs, &cam);
     let (mut union, mut mismatch, mut both, mut depth_ok) = (0usize, 0usize, 0usize, 0usize);
     let mut worst_depth = 0.0f64;
@@ -235,14 +240,7 @@ fn picking_and_highlighting() {
     let img = headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(coeff_bytes(&app), before, "coefficients must not be rewritten");
     // Grey glyphs are neutral; the highlighted one is yellow (red and green well above blue).
-    let cam = PinholeCamera {
-        eye: EYE,
-        target: DVec3::ZERO,
-        up: DVec3::Y,
-        fov_y: std::f64::consts::FRAC_PI_4,
-        width: W,
-        height: H,
-    };
+    let cam = test_camera();
     let (mut tinted, mut neutral) = (0usize, 0usize);
     for py in 0..H {
         for px in 0..W {
