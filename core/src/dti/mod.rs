@@ -1,5 +1,6 @@
 //! Diffusion tensor imaging: log-linear fits, the eigen-system, and the scalar maps.
 
+pub mod barycentric;
 pub mod eigen;
 pub mod fit;
 pub mod glyph;
