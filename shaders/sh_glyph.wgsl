@@ -10,7 +10,7 @@
 
 #import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex}
 #import bevy_pbr::mesh_view_bindings::view
-#import fascicle::ray::{Ray, view_ray, depth_of}
+#import fascicle::ray::{Ray, view_ray, depth_of, sphere_interval}
 #import fascicle::lighting::headlight
 #import fascicle::colormap::viridis
 #import fascicle::sh::{sh_value, sh_value_grad}
@@ -70,17 +70,12 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
     // Work relative to the centre: the glyph is small next to its distance from the camera.
     let oc = ray.origin - centre;
-    let b = dot(oc, ray.dir);
-    let disc = b * b - (dot(oc, oc) - rmax * rmax);
-    if disc < 0.0 {
+    let span = sphere_interval(oc, ray.dir, rmax);
+    if span.y <= 0.0 {
         discard;
     }
-    let s = sqrt(disc);
-    let t1 = -b + s;
-    if t1 <= 0.0 {
-        discard;
-    }
-    let t0 = max(-b - s, 0.0);
+    let t0 = span.x;
+    let t1 = span.y;
     let step = max(params.h, 1e-4) * rmax;
     var lo = t0;
     var t = t0;

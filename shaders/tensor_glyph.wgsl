@@ -5,7 +5,7 @@
 
 #import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex}
 #import bevy_pbr::mesh_view_bindings::view
-#import fascicle::ray::{Ray, view_ray, depth_of}
+#import fascicle::ray::{Ray, view_ray, depth_of, sphere_interval}
 #import fascicle::lighting::headlight
 #import fascicle::colormap::viridis
 
@@ -132,17 +132,12 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
         grad_local = oq + t_hit * dq;
     } else {
         let e = exponents(g);
-        let b = dot(oc, ray.dir);
-        let disc = b * b - (dot(oc, oc) - g.bound * g.bound);
-        if disc < 0.0 {
+        let span = sphere_interval(oc, ray.dir, g.bound);
+        if span.y <= 0.0 {
             discard;
         }
-        let s = sqrt(disc);
-        let t1 = -b + s;
-        if t1 <= 0.0 {
-            discard;
-        }
-        let t0 = max(-b - s, 0.0);
+        let t0 = span.x;
+        let t1 = span.y;
         let step = max(params.h, 1e-4) * g.bound;
         var lo = t0;
         var t = t0;

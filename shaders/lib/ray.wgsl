@@ -35,6 +35,19 @@ fn ray_sphere(r: Ray, center: vec3<f32>, radius: f32) -> f32 {
     return select(-1.0, t1, t1 > 0.0);
 }
 
+// Entry (clamped to 0) and exit distances of a unit ray through a sphere, the ray's origin given relative to
+// the centre (`oc`); a miss or a sphere behind the ray gives y <= 0. The twin of
+// `fascicle_core::sh::glyph::ray_sphere_interval`.
+fn sphere_interval(oc: vec3<f32>, dir: vec3<f32>, radius: f32) -> vec2<f32> {
+    let b = dot(oc, dir);
+    let disc = b * b - (dot(oc, oc) - radius * radius);
+    if disc < 0.0 {
+        return vec2<f32>(0.0, -1.0);
+    }
+    let s = sqrt(disc);
+    return vec2<f32>(max(-b - s, 0.0), -b + s);
+}
+
 // Entry and exit distances of a ray through an axis-aligned box (slab method); x > y means a miss.
 fn ray_box(r: Ray, lo: vec3<f32>, hi: vec3<f32>) -> vec2<f32> {
     let inv = 1.0 / r.dir;
