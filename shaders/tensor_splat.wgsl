@@ -1,7 +1,11 @@
 // Tensor splatting (SEEDS.md section 1): each splat a 3D Gaussian whose footprint is projected with the
 // local affine approximation of the perspective projection (EWA), drawn as a camera-facing quad bounding the
-// footprint at 3 standard deviations, with an elliptical Gaussian opacity, premultiplied alpha, composited
-// in Bevy's sorted transparent phase (far to near, by the splat centre's depth) against the opaque depth.
+// footprint at 3 standard deviations, with an elliptical Gaussian opacity, premultiplied alpha.
+//
+// A splat set is one draw: a static mesh of N quads whose vertices carry their quad's slot (position.z);
+// `order[slot]` names the splat drawn there. The CPU re-sorts `order` far to near only when the view
+// direction changes, so quads are rasterised, and blended, in depth order within the single draw.
+// Colour and opacity come from `styles` (rewritten alone when the transfer function changes).
 // The f64 reference is `fascicle_core::dti::splat`; keep `SplatParams` in sync with `SplatUniform` in
 // `plugins/tensors/src/splat.rs`.
 
@@ -13,14 +17,25 @@ struct SplatParams {
     k: f32,
     dilation: f32,
     opacity_scale: f32,
+    lit: u32,
+    ambient: f32,
+    diffuse: f32,
+    specular: f32,
+    shininess: f32,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: SplatParams;
-// Four vec4 per splat: (centre, opacity), (xx, xy, xz, yy), (yz, zz, 0, 0), (linear rgb, 0).
+// Five vec4 per splat: (centre, cl), (xx, xy, xz, yy), (yz, zz, cp, cs), (e1, 1/s^2), (e3, 0), s the
+// splat's largest standard deviation (depth attenuation is measured in units of it).
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> splats: array<vec4<f32>>;
+// One vec4 per splat: linear rgb, opacity.
+@group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> styles: array<vec4<f32>>;
+// Splat index per quad slot, far to near.
+@group(#{MATERIAL_BIND_GROUP}) @binding(3) var<storage, read> order: array<u32>;
 
 struct SplatVertex {
     @builtin(instance_index) instance_index: u32,
+    // (corner x, corner y, slot)
     @location(0) position: vec3<f32>,
 };
 
@@ -32,27 +47,42 @@ struct SplatVertexOutput {
     @location(2) @interpolate(flat) colour_alpha: vec4<f32>,
 };
 
+// Lit-tensor shading (Kindlmann), headlight; `fascicle_core::dti::splat::LitTensor` is the reference.
+fn lit_colour(colour: vec3<f32>, to_eye: vec3<f32>, e1: vec3<f32>, e3: vec3<f32>, shape: vec3<f32>) -> vec3<f32> {
+    let le = dot(to_eye, e1);
+    let dl = sqrt(max(1.0 - le * le, 0.0));
+    let dp = abs(dot(to_eye, e3));
+    let d = shape.x * dl + shape.y * dp + shape.z;
+    let s = shape.x * pow(dl, params.shininess) + shape.y * pow(dp, params.shininess);
+    return colour * (params.ambient + params.diffuse * d) + vec3<f32>(params.specular * s);
+}
+
 @vertex
 fn vertex(v: SplatVertex) -> SplatVertexOutput {
     var out: SplatVertexOutput;
-    let b = 4u * mesh_functions::get_tag(v.instance_index);
+    let id = order[u32(v.position.z)];
+    let b = 5u * id;
     let s0 = splats[b];
     let s1 = splats[b + 1u];
     let s2 = splats[b + 2u];
-    let cov = mat3x3<f32>(
+    let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
+    let m = mat3x3<f32>(world_from_local[0].xyz, world_from_local[1].xyz, world_from_local[2].xyz);
+    let cov_local = mat3x3<f32>(
         vec3<f32>(s1.x, s1.y, s1.z),
         vec3<f32>(s1.y, s1.w, s2.x),
         vec3<f32>(s1.z, s2.x, s2.y),
     );
-    let p = (view.view_from_world * vec4<f32>(s0.xyz, 1.0)).xyz;
+    let centre = (world_from_local * vec4<f32>(s0.xyz, 1.0)).xyz;
+    let style = styles[id];
+    let p = (view.view_from_world * vec4<f32>(centre, 1.0)).xyz;
     let z = -p.z;
-    if z <= 1e-6 {
-        // Behind the camera: outside the clip volume.
+    if z <= 1e-6 || style.w <= 0.0 {
+        // Behind the camera, or transparent: outside the clip volume.
         out.clip_position = vec4<f32>(2.0, 2.0, 2.0, 1.0);
         return out;
     }
-    let w = mat3x3<f32>(view.view_from_world[0].xyz, view.view_from_world[1].xyz, view.view_from_world[2].xyz);
-    let vc = w * cov * transpose(w);
+    let w = mat3x3<f32>(view.view_from_world[0].xyz, view.view_from_world[1].xyz, view.view_from_world[2].xyz) * m;
+    let vc = w * cov_local * transpose(w);
     let f = view.clip_from_view[1][1] * view.viewport.w * 0.5;
     let j0 = vec3<f32>(f / z, 0.0, f * p.x / (z * z));
     let j1 = vec3<f32>(0.0, -f / z, -f * p.y / (z * z));
@@ -73,20 +103,27 @@ fn vertex(v: SplatVertex) -> SplatVertexOutput {
     }
     let e2 = vec2<f32>(-e1.y, e1.x);
     let offset = v.position.x * 3.0 * sqrt(l1) * e1 + v.position.y * 3.0 * sqrt(l2) * e2;
-    let centre = view.clip_from_view * vec4<f32>(p, 1.0);
-    out.clip_position = centre + vec4<f32>(
-        offset.x * 2.0 / view.viewport.z * centre.w,
-        -offset.y * 2.0 / view.viewport.w * centre.w,
+    let clip = view.clip_from_view * vec4<f32>(p, 1.0);
+    out.clip_position = clip + vec4<f32>(
+        offset.x * 2.0 / view.viewport.z * clip.w,
+        -offset.y * 2.0 / view.viewport.w * clip.w,
         0.0,
         0.0,
     );
     out.offset = offset;
     out.conic = vec3<f32>(c / det, -bb / det, a / det);
-    var alpha0 = s0.w * params.opacity_scale;
+    var alpha0 = style.w * params.opacity_scale;
     if params.attenuation == 1u {
-        alpha0 *= exp(-2.0 * params.k * sqrt(max(vc[2][2], 0.0)));
+        alpha0 *= exp(-2.0 * params.k * sqrt(max(vc[2][2] * splats[b + 3u].w, 0.0)));
     }
-    out.colour_alpha = vec4<f32>(splats[b + 3u].xyz, alpha0);
+    var colour = style.xyz;
+    if params.lit == 1u {
+        let to_eye = normalize(view.world_position - centre);
+        let a1 = normalize(m * splats[b + 3u].xyz);
+        let a3 = normalize(m * splats[b + 4u].xyz);
+        colour = lit_colour(colour, to_eye, a1, a3, vec3<f32>(s0.w, s2.z, s2.w));
+    }
+    out.colour_alpha = vec4<f32>(colour, alpha0);
     return out;
 }
 

@@ -19,6 +19,7 @@ use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
 
+use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
 use crate::scene::{LayerKind, LayerSpec, Scene, ShSource, SliceAxis, TensorSource, VolumeSource};
 
 /// The scene being shown.
@@ -49,7 +50,25 @@ impl Plugin for ScenePlugin {
         }
         app.init_resource::<LayerErrors>()
             .init_resource::<Spawned>()
-            .add_systems(Update, sync_scene.run_if(resource_exists_and_changed::<ActiveScene>));
+            .init_resource::<LayerDataMap>()
+            .add_systems(Update, (sync_scene.run_if(resource_exists_and_changed::<ActiveScene>), report_layer_data));
+    }
+}
+
+/// Refreshes what spawned layers report to their panels when a layer was (re)spawned.
+fn report_layer_data(
+    added: Query<(), Added<LayerEntity>>,
+    sets: Query<(&SplatSet, &LayerEntity)>,
+    mut map: ResMut<LayerDataMap>,
+) {
+    if added.is_empty() {
+        return;
+    }
+    map.0.clear();
+    for (set, le) in &sets {
+        let stride = set.len().div_ceil(SCATTER_SAMPLES).max(1);
+        let values = set.splats.iter().step_by(stride).map(|s| s.values).collect();
+        map.0.insert(le.0, LayerData { eigenvalues: std::sync::Arc::new(values) });
     }
 }
 
@@ -69,7 +88,7 @@ fn sync_scene(
     mut tensor_materials: ResMut<Assets<TensorGlyphMaterial>>,
     tensor_sets: Query<(&TensorGlyphSet, &LayerEntity)>,
     mut splat_materials: ResMut<Assets<SplatMaterial>>,
-    splat_sets: Query<(&SplatSet, &LayerEntity)>,
+    mut splat_sets: Query<(&mut SplatSet, &LayerEntity)>,
 ) {
     let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
     let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
@@ -82,12 +101,18 @@ fn sync_scene(
                 update_settings(&mut glyph_materials, set, render);
             }
         }
-        for (set, le) in &splat_sets {
+        for (mut set, le) in &mut splat_sets {
             if let Some(LayerKind::TensorSplats { render, .. }) = kinds.get(le.0)
-                && spawned.0.get(le.0) != kinds.get(le.0)
-                && let Some(mut m) = splat_materials.get_mut(&set.material)
+                && let Some(LayerKind::TensorSplats { render: before, .. }) = spawned.0.get(le.0)
+                && render != before
             {
-                m.params = render.into();
+                if render.colouring != before.colouring {
+                    // Colour and opacity only: the style buffer, not the geometry or the order.
+                    set.restyle(&render.colouring, &splat_materials, &mut buffers);
+                }
+                if let Some(mut m) = splat_materials.get_mut(&set.material) {
+                    m.params = render.into();
+                }
             }
         }
         for (set, le) in &tensor_sets {
@@ -129,8 +154,10 @@ fn sync_scene(
             continue;
         }
         if let LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, render } = &spec.kind {
-            let set = slab_splats(source, *axis, *index, *thickness, *size, *min_fa)
-                .map(|s| spawn_splats(&mut commands, &mut meshes, &mut splat_materials, &mut buffers, &s, render));
+            let set = slab_splats(source, *axis, *index, *thickness, *size, *min_fa).map(|mut s| {
+                render.colouring.apply(&mut s);
+                spawn_splats(&mut commands, &mut meshes, &mut splat_materials, &mut buffers, &s, render)
+            });
             place(&mut commands, &mut errors, set, spec, vis, i);
             continue;
         }
@@ -307,6 +334,18 @@ pub fn slice_tensor_glyphs(
     if spacing == 0 {
         return Err("glyph spacing must be at least 1 voxel".into());
     }
+    let (mut glyphs, mut voxels) = (Vec::new(), Vec::new());
+    if let TensorSource::Spiral { n } = source {
+        for (i, (centre, t)) in fascicle_core::phantom::spiral(*n).into_iter().enumerate() {
+            if let Some(g) = fascicle_core::dti::glyph::tensor_glyph(centre, &t, size * SPIRAL_EDGE / 2.0, 0.1)
+                && g.fa >= min_fa
+            {
+                glyphs.push(g);
+                voxels.push([i as u32, 0, 0]);
+            }
+        }
+        return Ok((glyphs, voxels));
+    }
     let (dims, affine, tensors) = tensor_field(source)?;
     let ax = axis_index(axis);
     let k = index.unwrap_or(dims[ax] / 2);
@@ -314,7 +353,6 @@ pub fn slice_tensor_glyphs(
         return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", dims[ax]));
     }
     let edge = min_edge(affine);
-    let (mut glyphs, mut voxels) = (Vec::new(), Vec::new());
     for_world_tensors(
         dims,
         affine,
@@ -333,7 +371,7 @@ pub fn slice_tensor_glyphs(
 }
 
 /// Splats of a slab of `thickness` slices centred on a slice: covariance largest standard deviation `size`
-/// voxels, colour FA through viridis, opacity FA.
+/// voxels (colour and opacity unset: apply a `SplatColouring`).
 pub fn slab_splats(
     source: &TensorSource,
     axis: SliceAxis,
@@ -342,6 +380,15 @@ pub fn slab_splats(
     size: f64,
     min_fa: f64,
 ) -> Result<Vec<fascicle_core::dti::splat::Splat>, String> {
+    if let TensorSource::Spiral { n } = source {
+        return Ok(fascicle_core::phantom::spiral(*n)
+            .into_iter()
+            .filter_map(|(c, t)| {
+                fascicle_core::dti::splat::tensor_splat(c, &t, size * SPIRAL_EDGE, glam::DVec3::ONE, 1.0)
+            })
+            .filter(|s| s.fa() >= min_fa)
+            .collect());
+    }
     let (dims, affine, tensors) = tensor_field(source)?;
     let ax = axis_index(axis);
     let k = index.unwrap_or(dims[ax] / 2);
@@ -360,10 +407,8 @@ pub fn slab_splats(
         &tensors,
         |p| p[ax] >= lo && p[ax] <= hi,
         |_, centre, tw| {
-            let fa = fascicle_core::dti::eigh(&tw).map_or(0.0, |e| fascicle_core::dti::metrics::fa(&e.values));
-            if fa >= min_fa
-                && let Some(s) =
-                    fascicle_core::dti::splat::tensor_splat(centre, &tw, size * edge, viridis(fa), fa.max(0.05))
+            if let Some(s) = fascicle_core::dti::splat::tensor_splat(centre, &tw, size * edge, glam::DVec3::ONE, 1.0)
+                && s.fa() >= min_fa
             {
                 out.push(s);
             }
@@ -372,19 +417,8 @@ pub fn slab_splats(
     Ok(out)
 }
 
-/// Viridis through the same five stops as `shaders/lib/colormap.wgsl`, linear RGB.
-fn viridis(v: f64) -> glam::DVec3 {
-    const STOPS: [[f64; 3]; 5] = [
-        [0.0578, 0.0, 0.0844],
-        [0.0423, 0.0865, 0.2582],
-        [0.0152, 0.2831, 0.2623],
-        [0.1119, 0.5841, 0.1221],
-        [0.9823, 0.7913, 0.0194],
-    ];
-    let x = v.clamp(0.0, 1.0) * 4.0;
-    let i = (x as usize).min(3);
-    glam::DVec3::from_array(STOPS[i]).lerp(glam::DVec3::from_array(STOPS[i + 1]), x - i as f64)
-}
+/// The length sizes of spiral glyphs and splats are fractions of (mm): about the spacing of its tensors.
+const SPIRAL_EDGE: f64 = 8.0;
 
 fn axis_index(axis: SliceAxis) -> usize {
     match axis {
@@ -433,6 +467,7 @@ fn tensor_field(source: &TensorSource) -> Result<TensorGrid, String> {
             let p = fascicle_core::phantom::ring_cross([48, 48, 24]);
             (p.dims, p.world_from_voxel, p.tensors)
         }
+        TensorSource::Spiral { .. } => return Err("the spiral is not a voxel grid".into()),
         TensorSource::Nifti { path } => {
             let (v, _) = nifti::read::<f64>(path).map_err(|e| e.to_string())?;
             if v.shape.len() < 4 || v.n_channels() != 6 {

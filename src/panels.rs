@@ -2,8 +2,14 @@
 //! viewer's layer list shows, under each layer, the first panel whose `applies` accepts the layer's kind.
 //! A glyph plugin's integration registers its panel the same way as the built-in ones below.
 
+use std::collections::HashMap;
+use std::sync::Arc;
+
 use bevy::prelude::*;
 use bevy_egui::egui;
+use fascicle_core::dti::barycentric::BarycentricTf;
+use fascicle_core::dti::metrics::WestinDenominator;
+use fascicle_core::dti::splat::SplatColourMode;
 
 use fascicle_core::dti::glyph::TensorShape;
 use fascicle_core::sh::glyph::{GlyphPlane, Lobes, Normalise, Sampling};
@@ -12,13 +18,29 @@ use fascicle_tensors::TensorColour;
 
 use crate::scene::{LayerKind, ShSource, SliceAxis};
 
-/// One layer kind's controls: `show` edits the kind in place (an edit re-syncs the layer).
+/// One layer kind's controls: `show` edits the kind in place (an edit re-syncs the layer); `data` is what
+/// the layer's spawned entities report back (e.g. the samples' eigenvalues for a scattergram).
 #[derive(Clone, Copy)]
 pub struct LayerPanel {
     pub name: &'static str,
     pub applies: fn(&LayerKind) -> bool,
-    pub show: fn(&mut egui::Ui, &mut LayerKind),
+    pub show: fn(&mut egui::Ui, &mut LayerKind, &LayerData),
 }
+
+/// What a spawned layer reports to its panel.
+#[derive(Clone, Debug, Default)]
+pub struct LayerData {
+    /// Eigenvalues (largest first) of up to [`SCATTER_SAMPLES`] of the layer's tensor samples, evenly
+    /// strided over all of them.
+    pub eigenvalues: Arc<Vec<[f64; 3]>>,
+}
+
+/// Per layer index, its [`LayerData`].
+#[derive(Resource, Clone, Debug, Default)]
+pub struct LayerDataMap(pub HashMap<usize, LayerData>);
+
+/// Most samples a scattergram draws.
+pub const SCATTER_SAMPLES: usize = 4000;
 
 /// The registry of layer panels.
 #[derive(Resource, Clone)]
@@ -62,7 +84,7 @@ impl LayerPanels {
     }
 }
 
-fn slice_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+fn slice_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     let LayerKind::Slice { axis, index, .. } = kind else { return };
     ui.horizontal(|ui| {
         for (a, label) in [(SliceAxis::X, "sagittal"), (SliceAxis::Y, "coronal"), (SliceAxis::Z, "axial")] {
@@ -82,7 +104,7 @@ fn slice_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
 
 /// SH glyphs: plane, size and shape (rebuild the glyphs), then the ray caster's knobs and colour (a uniform
 /// update only).
-fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     let LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, full_volume, style, render } = kind else {
         return;
     };
@@ -120,7 +142,7 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
         });
     } else {
         let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
-        slice_panel(ui, &mut slice);
+        slice_panel(ui, &mut slice, &LayerData::default());
         if let LayerKind::Slice { axis: a, index: i, .. } = slice {
             (*axis, *index) = (a, i);
         }
@@ -147,10 +169,10 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
 }
 
 /// Tensor splats: slab and size (rebuild), attenuation and opacity (uniform only).
-fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     let LayerKind::TensorSplats { axis, index, thickness, size, min_fa, render, .. } = kind else { return };
     let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
-    slice_panel(ui, &mut slice);
+    slice_panel(ui, &mut slice, &LayerData::default());
     if let LayerKind::Slice { axis: a, index: i, .. } = slice {
         (*axis, *index) = (a, i);
     }
@@ -159,13 +181,115 @@ fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
     ui.add(egui::Slider::new(min_fa, 0.0..=1.0).text("min FA"));
     ui.checkbox(&mut render.attenuation, "depth attenuation");
     ui.add(egui::Slider::new(&mut render.opacity, 0.0..=2.0).text("opacity"));
+    ui.checkbox(&mut render.lit, "lit-tensor shading");
+    ui.horizontal(|ui| {
+        let mode = &mut render.colouring.mode;
+        ui.radio_value(mode, SplatColourMode::Fa, "FA");
+        ui.radio_value(mode, SplatColourMode::Direction, "direction");
+        ui.radio_value(mode, SplatColourMode::Barycentric, "barycentric");
+    });
+    if render.colouring.mode == SplatColourMode::Barycentric {
+        barycentric_widget(ui, &mut render.colouring.tf, &data.eigenvalues);
+    }
+}
+
+/// Triangle corners in widget units (side 1, y down): linear bottom left, planar bottom right, spherical top.
+const TRI: [[f32; 2]; 3] = [[0.0, 0.866], [1.0, 0.866], [0.5, 0.0]];
+
+/// The barycentric transfer-function editor (SEEDS.md §1): the cl/cp/cs triangle shaded with the corner
+/// colours, a scattergram of the samples, the bump's centre as a circle of its width (drag or click to move
+/// it), sliders for width, threshold and opacity, invert and stretch, the denominator, a colour per corner.
+pub fn barycentric_widget(ui: &mut egui::Ui, tf: &mut BarycentricTf, eigenvalues: &[[f64; 3]]) {
+    let side = 200.0f32;
+    let (resp, painter) =
+        ui.allocate_painter(egui::vec2(side + 16.0, side * 0.866 + 16.0), egui::Sense::click_and_drag());
+    let origin = resp.rect.min + egui::vec2(8.0, 8.0);
+    let to_screen = |w: [f64; 3]| {
+        let t = w.iter().sum::<f64>().max(1e-12);
+        let (x, y) =
+            (0..3).fold((0.0, 0.0), |(x, y), k| (x + TRI[k][0] as f64 * w[k] / t, y + TRI[k][1] as f64 * w[k] / t));
+        origin + egui::vec2(x as f32 * side, y as f32 * side)
+    };
+    let colour = |c: [f64; 3]| {
+        let g = |v: f64| (fascicle_render::reference::srgb8(v.clamp(0.0, 1.0))).round() as u8;
+        egui::Color32::from_rgb(g(c[0]), g(c[1]), g(c[2]))
+    };
+    let mut mesh = egui::Mesh::default();
+    for k in 0..3 {
+        let mut w = [0.0; 3];
+        w[k] = 1.0;
+        mesh.colored_vertex(to_screen(w), colour(tf.corners[k]).gamma_multiply(0.6));
+    }
+    mesh.add_triangle(0, 1, 2);
+    painter.add(egui::Shape::mesh(mesh));
+    let measures: Vec<[f64; 3]> = eigenvalues.iter().map(|l| tf.measures(l)).collect();
+    let ranges = fascicle_core::dti::barycentric::ranges(&measures);
+    for m in &measures {
+        let (_, a) = tf.eval(*m, Some(&ranges));
+        let shown = if tf.stretch { stretch(*m, &ranges) } else { *m };
+        let grey = (80.0 + 175.0 * a) as u8;
+        painter.circle_filled(to_screen(shown), 1.2, egui::Color32::from_gray(grey));
+    }
+    let centre = to_screen(tf.centre);
+    painter.circle_stroke(centre, (tf.width as f32 * side).max(2.0), egui::Stroke::new(1.5, egui::Color32::WHITE));
+    painter.circle_filled(centre, 3.0, egui::Color32::WHITE);
+    for (k, label) in ["linear", "planar", "spherical"].iter().enumerate() {
+        let mut w = [0.0; 3];
+        w[k] = 1.0;
+        let anchor = [egui::Align2::LEFT_TOP, egui::Align2::RIGHT_TOP, egui::Align2::CENTER_BOTTOM][k];
+        painter.text(to_screen(w), anchor, *label, egui::FontId::proportional(11.0), egui::Color32::LIGHT_GRAY);
+    }
+    if let Some(p) = resp.interact_pointer_pos().filter(|_| resp.dragged() || resp.clicked()) {
+        let q = (p - origin) / side;
+        tf.centre = to_barycentric([q.x, q.y]);
+    }
+    ui.add(egui::Slider::new(&mut tf.width, 0.02..=1.0).text("width"));
+    ui.add(egui::Slider::new(&mut tf.threshold, 0.0..=1.0).text("threshold"));
+    ui.add(egui::Slider::new(&mut tf.opacity, 0.0..=1.0).text("max opacity"));
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut tf.invert, "invert");
+        ui.checkbox(&mut tf.stretch, "stretch");
+    });
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut tf.denominator, WestinDenominator::Trace, "trace");
+        ui.radio_value(&mut tf.denominator, WestinDenominator::Largest, "l1");
+    });
+    ui.horizontal(|ui| {
+        for (k, label) in ["linear", "planar", "spherical"].iter().enumerate() {
+            let mut c = tf.corners[k].map(|v| v as f32);
+            if ui.color_edit_button_rgb(&mut c).changed() {
+                tf.corners[k] = c.map(f64::from);
+            }
+            ui.label(*label);
+        }
+    });
+}
+
+/// Each measure mapped to its data range, as the function's stretch does.
+fn stretch(w: [f64; 3], r: &fascicle_core::dti::barycentric::Ranges) -> [f64; 3] {
+    std::array::from_fn(|k| {
+        let span = r[k].1 - r[k].0;
+        if span > 0.0 { ((w[k] - r[k].0) / span).clamp(0.0, 1.0) } else { 0.0 }
+    })
+}
+
+/// Barycentric coordinates (cl, cp, cs) of a point in widget units, clamped into the triangle.
+pub fn to_barycentric(q: [f32; 2]) -> [f64; 3] {
+    let [a, b, c] = TRI.map(|v| [v[0] as f64, v[1] as f64]);
+    let (px, py) = (q[0] as f64, q[1] as f64);
+    let det = (b[1] - c[1]) * (a[0] - c[0]) + (c[0] - b[0]) * (a[1] - c[1]);
+    let l0 = ((b[1] - c[1]) * (px - c[0]) + (c[0] - b[0]) * (py - c[1])) / det;
+    let l1 = ((c[1] - a[1]) * (px - c[0]) + (a[0] - c[0]) * (py - c[1])) / det;
+    let w = [l0, l1, 1.0 - l0 - l1].map(|v| v.max(0.0));
+    let t: f64 = w.iter().sum();
+    w.map(|v| v / t)
 }
 
 /// Tensor glyphs: slice and size (rebuild), shape (rebuild), knobs and colour (uniform only).
-fn tensor_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+fn tensor_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     let LayerKind::TensorGlyphs { axis, index, spacing, size, min_fa, render, .. } = kind else { return };
     let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
-    slice_panel(ui, &mut slice);
+    slice_panel(ui, &mut slice, &LayerData::default());
     if let LayerKind::Slice { axis: a, index: i, .. } = slice {
         (*axis, *index) = (a, i);
     }
@@ -192,12 +316,12 @@ fn tensor_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
     });
 }
 
-fn tractogram_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+fn tractogram_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     let LayerKind::Tractogram { path } = kind else { return };
     ui.label(format!("{}", path.display()));
 }
 
-fn axes_panel(ui: &mut egui::Ui, kind: &mut LayerKind) {
+fn axes_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     let LayerKind::Axes { length_mm } = kind else { return };
     ui.add(egui::Slider::new(length_mm, 1.0..=200.0).text("length (mm)"));
 }
@@ -220,7 +344,11 @@ mod tests {
         for (k, name) in kinds.iter().zip(["slice", "tractogram", "axes", "sh glyphs", "tensor splats"]) {
             assert_eq!(panels.find(k).map(|p| p.name), Some(name));
         }
-        panels.register(LayerPanel { name: "mine", applies: |k| matches!(k, LayerKind::Axes { .. }), show: |_, _| {} });
+        panels.register(LayerPanel {
+            name: "mine",
+            applies: |k| matches!(k, LayerKind::Axes { .. }),
+            show: |_, _, _| {},
+        });
         assert_eq!(panels.find(&kinds[2]).map(|p| p.name), Some("mine"));
         assert_eq!(panels.find(&kinds[0]).map(|p| p.name), Some("slice"));
     }
@@ -240,9 +368,38 @@ mod tests {
         let _ = ctx.run_ui(egui::RawInput::default(), |ui| {
             for k in kinds.iter_mut() {
                 let p = *panels.find(k).expect("panel");
-                (p.show)(ui, k);
+                (p.show)(ui, k, &LayerData::default());
             }
         });
         assert_eq!(kinds, before);
+    }
+
+    #[test]
+    fn barycentric_widget_points_map_back_to_their_measures() {
+        for w in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.2, 0.3, 0.5], [0.6, 0.4, 0.0]] {
+            let q = (0..3).fold([0.0f32; 2], |q, k| [q[0] + TRI[k][0] * w[k] as f32, q[1] + TRI[k][1] * w[k] as f32]);
+            let back = to_barycentric(q);
+            assert!((0..3).all(|k| (back[k] - w[k]).abs() < 1e-6), "{w:?} -> {back:?}");
+        }
+        // Outside the triangle: clamped onto it, still summing to 1.
+        let out = to_barycentric([2.0, 2.0]);
+        assert!((out.iter().sum::<f64>() - 1.0).abs() < 1e-12 && out.iter().all(|v| *v >= 0.0));
+    }
+
+    #[test]
+    fn splat_panel_with_barycentric_widget_leaves_an_unedited_kind() {
+        let ctx = egui::Context::default();
+        let mut kind = crate::scene::Scene::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/scenes/spiral50.ron"
+        )))
+        .unwrap()
+        .layers[0]
+            .kind
+            .clone();
+        let before = kind.clone();
+        let data = LayerData { eigenvalues: Arc::new(vec![[1.0, 0.5, 0.1], [1.0, 1.0, 1.0]]) };
+        let _ = ctx.run_ui(egui::RawInput::default(), |ui| splat_panel(ui, &mut kind, &data));
+        assert_eq!(kind, before);
     }
 }

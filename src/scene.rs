@@ -168,6 +168,9 @@ pub enum TensorSource {
     Phantom,
     /// A tensor image (X,Y,Z,6 lower-triangular) as `fascicle fit dti` and DIPY write it.
     Nifti { path: PathBuf },
+    /// The seed's synthetic spiral of `n` tensors (`fascicle_core::phantom::spiral`); the slice settings
+    /// are ignored and sizes are fractions of 8 mm.
+    Spiral { n: usize },
 }
 
 /// Where SH coefficients come from.

@@ -318,6 +318,7 @@ fn panel(
     mut scene: ResMut<ActiveScene>,
     errors: Res<LayerErrors>,
     panels: Res<LayerPanels>,
+    layer_data: Res<crate::panels::LayerDataMap>,
     mut ui_state: ResMut<UiState>,
     mut orbit: ResMut<Orbit>,
     time: Res<Time>,
@@ -351,7 +352,8 @@ fn panel(
                 });
                 ui.add(egui::Slider::new(&mut layer.opacity, 0.0..=1.0).text("opacity"));
                 if let Some(p) = panels.find(&layer.kind) {
-                    ui.push_id(i, |ui| (p.show)(ui, &mut layer.kind));
+                    let data = layer_data.0.get(&i).cloned().unwrap_or_default();
+                    ui.push_id(i, |ui| (p.show)(ui, &mut layer.kind, &data));
                 }
                 ui.separator();
             }

@@ -116,3 +116,29 @@ fn depth_export_matches_the_slice_plane() {
     }
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// The seed's 50-tensor spiral scene renders: lit barycentric splats, green (linear) at one end of the
+/// helix and red (spherical) at the other.
+#[test]
+fn spiral_scene_renders() {
+    if fascicle_render::headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("fascicle-spiral-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("spiral.png");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/spiral50.ron");
+    let st = Command::new(env!("CARGO_BIN_EXE_fascicle"))
+        .args(["render", scene, "--out", out.to_str().unwrap(), "--size", "320x240"])
+        .status()
+        .expect("run fascicle");
+    assert!(st.success());
+    let (_, _, px) = decode(&std::fs::read(&out).unwrap());
+    let rgb = |p: &[u8]| (p[0] as i32, p[1] as i32, p[2] as i32);
+    let green = px.chunks(4).map(rgb).filter(|&(r, g, b)| g > 70 && g > r + 5 && g > b + 30).count();
+    let red = px.chunks(4).map(rgb).filter(|&(r, g, b)| r > 60 && r > g + 15 && r > b + 15).count();
+    println!("green {green}, red {red}");
+    assert!(green > 50 && red > 50, "green {green}, red {red}");
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -228,3 +228,54 @@ fn full_volume_glyphs_cover_the_field() {
     let slices: std::collections::BTreeSet<u32> = voxels.iter().map(|v| v[2]).collect();
     assert_eq!(slices.len(), 6, "every 4th slice of 24");
 }
+
+/// Splats (the spiral scene): the barycentric function's edits rewrite the style buffer only (same entity,
+/// same geometry, no re-sort); the panel's scattergram gets the samples' eigenvalues.
+#[test]
+fn splat_recolouring_rewrites_only_the_styles() {
+    use fascicle_core::dti::splat::SplatColourMode;
+    use fascicle_tensors::splat::{SplatMaterial, SplatSet, SplatSortStats};
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let scene = Scene::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/spiral50.ron")))
+        .expect("spiral scene");
+    let mut app = headless::headless_app();
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene));
+    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    app.world_mut().spawn((Camera3d::default(), Transform::from_xyz(0.0, -90.0, 40.0).looking_at(Vec3::ZERO, Vec3::Z)));
+    app.update();
+    app.update();
+    let snapshot = |app: &mut App| {
+        let mut q = app.world_mut().query::<(Entity, &SplatSet)>();
+        let (e, s) = q.single(app.world()).expect("one splat set");
+        (e, s.material.clone(), s.splats.clone())
+    };
+    let (e0, mat0, splats0) = snapshot(&mut app);
+    assert_eq!(splats0.len(), 50);
+    let data = app.world().resource::<fascicle::panels::LayerDataMap>();
+    assert_eq!(data.0.get(&0).map(|d| d.eigenvalues.len()), Some(50));
+    let sorts0 = app.world().resource::<SplatSortStats>().sorts;
+    assert!(sorts0 >= 1);
+    let material = app.world().resource::<Assets<SplatMaterial>>().get(&mat0).unwrap().clone();
+    let geometry0 = app.world().resource::<Assets<ShaderBuffer>>().get(&material.splats).unwrap().data.clone();
+
+    if let LayerKind::TensorSplats { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[0].kind
+    {
+        assert_eq!(render.colouring.mode, SplatColourMode::Barycentric);
+        render.colouring.tf.centre = [0.0, 0.0, 1.0];
+    }
+    app.update();
+    let (e1, mat1, splats1) = snapshot(&mut app);
+    assert_eq!((e1, &mat1), (e0, &mat0));
+    assert_eq!(app.world().resource::<SplatSortStats>().sorts, sorts0, "no re-sort");
+    let buffers = app.world().resource::<Assets<ShaderBuffer>>();
+    assert_eq!(buffers.get(&material.splats).unwrap().data, geometry0, "geometry untouched");
+    // The bump moved from the linear to the spherical corner: the spherical end became more opaque, the
+    // linear start less.
+    assert!(splats1[49].opacity > splats0[49].opacity && splats1[0].opacity < splats0[0].opacity);
+    let styles = buffers.get(&material.styles).unwrap().data.as_ref().expect("styles kept in the main world");
+    let alpha49 = f32::from_le_bytes(styles[49 * 16 + 12..49 * 16 + 16].try_into().unwrap());
+    assert!((alpha49 as f64 - splats1[49].opacity).abs() < 1e-6);
+}

@@ -117,3 +117,49 @@ impl Phantom {
         v
     }
 }
+
+/// The seed's synthetic spiral (SEEDS.md §1 figures): `n` tensors along a two-turn helix (radius 20 mm,
+/// 15 mm rise per turn, axis z, centred on the origin), each with its major axis along the helix's tangent
+/// and its shape sweeping the barycentric triangle: linear to planar over the first half (l2 from 0.1 to 1
+/// of l1), planar to spherical over the second (l3 from 0.1 to 1). Returns (centre mm, tensor `[xx, xy,
+/// yy, xz, yz, zz]` in mm²/s with l1 = 1.7e-3).
+pub fn spiral(n: usize) -> Vec<(glam::DVec3, [f64; 6])> {
+    use glam::{DMat3, DVec3};
+    let (r, rise, turns, l1) = (20.0, 15.0, 2.0, 1.7e-3);
+    (0..n)
+        .map(|i| {
+            let t = if n > 1 { i as f64 / (n - 1) as f64 } else { 0.0 };
+            let a = t * turns * std::f64::consts::TAU;
+            let h = rise / std::f64::consts::TAU;
+            let centre = DVec3::new(r * a.cos(), r * a.sin(), h * a - rise * turns / 2.0);
+            let tangent = DVec3::new(-r * a.sin(), r * a.cos(), h).normalize();
+            let normal = DVec3::new(-a.cos(), -a.sin(), 0.0);
+            let binormal = tangent.cross(normal);
+            let (l2, l3) = if t < 0.5 { (0.1 + 1.8 * t, 0.1) } else { (1.0, 0.1 + 1.8 * (t - 0.5)) };
+            let frame = DMat3::from_cols(tangent, normal, binormal);
+            let m = frame * DMat3::from_diagonal(DVec3::new(l1, l1 * l2, l1 * l3)) * frame.transpose();
+            (centre, [m.x_axis.x, m.x_axis.y, m.y_axis.y, m.x_axis.z, m.y_axis.z, m.z_axis.z])
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod spiral_tests {
+    #[test]
+    fn spiral_sweeps_the_triangle_along_its_tangent() {
+        use crate::dti::metrics::{WestinDenominator, westin};
+        let s = super::spiral(50);
+        assert_eq!(s.len(), 50);
+        let shapes: Vec<[f64; 3]> =
+            s.iter().map(|(_, t)| westin(&crate::dti::eigh(t).unwrap().values, WestinDenominator::Trace)).collect();
+        // Starts linear, is planar half-way, ends spherical.
+        assert!(shapes[0][0] > 0.7 && shapes[24][1] > 0.6 && shapes[49][2] > 0.99, "{shapes:?}");
+        // Along the linear part the major axis follows the helix: within 8 degrees of the chord to the next
+        // centre (half the 14.7-degree turn per step), centres about 5.3 mm apart.
+        for w in s.windows(2).take(10) {
+            let e1 = crate::dti::eigh(&w[0].1).unwrap().vectors[0];
+            let step = w[1].0 - w[0].0;
+            assert!(step.length() > 4.0 && e1.dot(step.normalize()).abs() > 8f64.to_radians().cos());
+        }
+    }
+}

@@ -36,6 +36,16 @@ pub enum BenchCommand {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// Tensor splats (10k, 100k, 1M) and ellipsoid/superquadric glyphs: static and orbiting frame time,
+    /// CPU sort time, static CPU cost, colour error against the f64 compositor.
+    Splats {
+        /// 10k and 100k at 256x256 only (under 2 minutes here).
+        #[arg(long)]
+        quick: bool,
+        /// Also write the rows as CSV (method,n,param,frame_ms,orbit_ms,sort_radix_ms,sort_rayon_ms,static_us,error).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
 }
 
 pub fn run(cmd: BenchCommand) -> Result<(), Error> {
@@ -43,6 +53,9 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         BenchCommand::Tracking { phantom, seed_density } => tracking(&phantom, seed_density),
         BenchCommand::Glyphs { quick, csv } => {
             super::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+        }
+        BenchCommand::Splats { quick, csv } => {
+            super::bench_splats::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
     }
 }

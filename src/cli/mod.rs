@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub mod bench_glyphs;
+pub mod bench_splats;
 pub mod fit;
 pub mod info;
 pub mod track;

@@ -212,14 +212,16 @@ pub fn spawn_glyph_set(
     let l_max = glyphs.iter().map(|g| g.l_max).max().unwrap_or(0);
     let (head, coeffs) = pack(glyphs, l_max);
     // Storage buffers must not be empty.
-    let buffer = |bytes: Vec<u8>| {
+    let buffer = |bytes: Vec<u8>, usage| {
         let bytes = if bytes.is_empty() { vec![0u8; 16] } else { bytes };
-        ShaderBuffer::new(&bytes, RenderAssetUsages::RENDER_WORLD)
+        ShaderBuffer::new(&bytes, usage)
     };
     let material = materials.add(ShGlyphMaterial {
         params: ShGlyphUniform::new(l_max, settings),
-        glyphs: buffers.add(buffer(head)),
-        coeffs: buffers.add(buffer(coeffs)),
+        // The header is rewritten on highlighting: it stays in the main world too (a render-world-only
+        // buffer reached the GPU only on its first rewrite in Bevy 0.19.1; see fascicle-tensors' splats).
+        glyphs: buffers.add(buffer(head, RenderAssetUsages::default())),
+        coeffs: buffers.add(buffer(coeffs, RenderAssetUsages::RENDER_WORLD)),
     });
     let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
     let parent = commands

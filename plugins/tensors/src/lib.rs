@@ -22,7 +22,9 @@ impl Plugin for TensorGlyphPlugin {
         app.add_plugins((
             MaterialPlugin::<TensorGlyphMaterial>::default(),
             MaterialPlugin::<splat::SplatMaterial>::default(),
-        ));
+        ))
+        .init_resource::<splat::SplatSortStats>()
+        .add_systems(PostUpdate, splat::sort_splats.after(bevy::transform::TransformSystems::Propagate));
     }
 }
 

@@ -1,23 +1,31 @@
-//! Tensor splats: one entity per splat (a `MeshTag` into one storage buffer) on a shared quad, drawn in
-//! Bevy's transparent phase, which sorts them far to near by their centres' depth every frame and tests them
-//! against the opaque depth (glyphs, meshes) without writing it. The vertex shader does the EWA projection;
-//! the fragment shader the elliptical Gaussian opacity, premultiplied.
+//! Tensor splats, at whole-brain scale: a splat set is one entity and one draw. Its static mesh holds N
+//! quads whose vertices carry their slot; three storage buffers hold the splats' Gaussians and shapes
+//! (written once), their colours and opacities (rewritten alone when the colouring or the barycentric
+//! transfer function changes: no re-projection, no re-sort) and the far-to-near order of the slots.
 //!
-//! Splats carry `NoAutomaticBatching`: batched, Bevy's GPU preprocessing compacts the instances of a batch
-//! out of order and the far-to-near order is lost (measured: 1 % of pixels off by up to 27 levels). One draw
-//! per splat is correct but costs a draw call each; a custom phase item drawing a sorted index buffer in one
-//! call is the next step for 1M splats.
+//! [`sort_splats`] re-sorts a set only when the view direction relative to the set changes (the order of
+//! `dot(centre, forward)` does not depend on where the camera is, only where it looks), with the O(n)
+//! radix argsort of `fascicle_core::dti::splat::argsort_desc`, and uploads 4 bytes per splat. Quads are
+//! rasterised and blended in primitive order, so one draw composites them in that order; the set is drawn
+//! in Bevy's transparent phase, after the opaque layers, tested against their depth without writing it.
+//!
+//! (The first version drew one entity per splat through Bevy's sorted transparent phase: correct, but
+//! a draw call and a phase item per splat, and Bevy's batching reorders instances; see `gpu_splats`.)
+
+use std::sync::Arc;
+use std::time::Instant;
 
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::NoFrustumCulling;
-use bevy::mesh::{MeshTag, MeshVertexBufferLayoutRef};
+use bevy::mesh::{Indices, MeshVertexBufferLayoutRef, PrimitiveTopology};
 use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
-use bevy::render::batching::NoAutomaticBatching;
 use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
 use bevy::render::storage::ShaderBuffer;
 use bevy::shader::ShaderRef;
-use fascicle_core::dti::splat::{ATTENUATION_K, DILATION_PX2, Splat};
+use fascicle_core::dti::splat::{
+    ATTENUATION_K, DILATION_PX2, LitTensor, Splat, SplatColouring, SplatRender, argsort_desc, depth_keys,
+};
 use fascicle_render::shaders;
 
 /// Splat drawing options.
@@ -27,11 +35,32 @@ pub struct SplatSettings {
     pub attenuation: bool,
     /// Multiplies every splat's opacity.
     pub opacity: f32,
+    /// Lit-tensor shading.
+    #[serde(default)]
+    pub lit: bool,
+    #[serde(default)]
+    pub lighting: LitTensor,
+    /// Colour and opacity per splat (a change rewrites the style buffer only).
+    #[serde(default)]
+    pub colouring: SplatColouring,
 }
 
 impl Default for SplatSettings {
     fn default() -> Self {
-        Self { attenuation: true, opacity: 1.0 }
+        Self {
+            attenuation: true,
+            opacity: 1.0,
+            lit: false,
+            lighting: LitTensor::default(),
+            colouring: SplatColouring::default(),
+        }
+    }
+}
+
+impl SplatSettings {
+    /// The knobs the f64 reference compositor shares.
+    pub fn reference(&self) -> SplatRender {
+        SplatRender { attenuation: self.attenuation, lighting: self.lit.then_some(self.lighting) }
     }
 }
 
@@ -42,6 +71,11 @@ pub struct SplatUniform {
     pub k: f32,
     pub dilation: f32,
     pub opacity_scale: f32,
+    pub lit: u32,
+    pub ambient: f32,
+    pub diffuse: f32,
+    pub specular: f32,
+    pub shininess: f32,
 }
 
 impl From<&SplatSettings> for SplatUniform {
@@ -51,6 +85,11 @@ impl From<&SplatSettings> for SplatUniform {
             k: ATTENUATION_K as f32,
             dilation: DILATION_PX2 as f32,
             opacity_scale: s.opacity,
+            lit: u32::from(s.lit),
+            ambient: s.lighting.ambient as f32,
+            diffuse: s.lighting.diffuse as f32,
+            specular: s.lighting.specular as f32,
+            shininess: s.lighting.shininess as f32,
         }
     }
 }
@@ -59,9 +98,15 @@ impl From<&SplatSettings> for SplatUniform {
 pub struct SplatMaterial {
     #[uniform(0)]
     pub params: SplatUniform,
-    /// Four `vec4` per splat: (centre, opacity), (xx, xy, xz, yy), (yz, zz, 0, 0), (linear rgb, 0).
+    /// Five `vec4` per splat: (centre, cl), (xx, xy, xz, yy), (yz, zz, cp, cs), (e1, 1/s²), (e3, 0).
     #[storage(1, read_only)]
     pub splats: Handle<ShaderBuffer>,
+    /// One `vec4` per splat: linear RGB, opacity.
+    #[storage(2, read_only)]
+    pub styles: Handle<ShaderBuffer>,
+    /// One `u32` per slot: the splat drawn there, far to near.
+    #[storage(3, read_only)]
+    pub order: Handle<ShaderBuffer>,
 }
 
 impl Material for SplatMaterial {
@@ -96,25 +141,82 @@ impl Material for SplatMaterial {
     }
 }
 
-/// A splat set: the parent of its splat entities.
+/// A splat set: one entity, one draw.
 #[derive(Component, Clone, Debug)]
 pub struct SplatSet {
     pub material: Handle<SplatMaterial>,
-    pub len: usize,
+    /// The splats (colour and opacity as last styled).
+    pub splats: Arc<Vec<Splat>>,
+    /// The view direction (set frame) the order buffer was sorted for.
+    pub sorted_for: Option<Vec3>,
 }
 
-/// One splat on screen: its index in the set's buffer.
-#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
-pub struct SplatIndex(pub u32);
+impl SplatSet {
+    pub fn len(&self) -> usize {
+        self.splats.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.splats.is_empty()
+    }
 
-/// The storage buffer's bytes.
-pub fn pack(splats: &[Splat]) -> Vec<u8> {
-    let mut out = Vec::with_capacity(splats.len() * 64);
+    /// Recolours the set: rewrites its style buffer (16 bytes per splat) and nothing else.
+    pub fn restyle(
+        &mut self,
+        colouring: &SplatColouring,
+        materials: &Assets<SplatMaterial>,
+        buffers: &mut Assets<ShaderBuffer>,
+    ) {
+        let mut splats = (*self.splats).clone();
+        colouring.apply(&mut splats);
+        if let Some(m) = materials.get(&self.material)
+            && let Some(mut b) = buffers.get_mut(&m.styles)
+        {
+            b.data = Some(pad(pack_styles(&splats)));
+        }
+        self.splats = Arc::new(splats);
+    }
+}
+
+/// Costs of the last frames' sorting, for benchmarks and the viewer's status line.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct SplatSortStats {
+    /// Sorts done so far.
+    pub sorts: u64,
+    /// Wall time of the last sort (keys, argsort, packing), ms.
+    pub last_sort_ms: f64,
+    /// Bytes uploaded by the last sort.
+    pub last_upload_bytes: usize,
+    /// Wall time of the last run of [`sort_splats`], ms (tiny when nothing moved).
+    pub last_system_ms: f64,
+}
+
+/// Geometry buffer bytes: five `vec4<f32>` per splat.
+pub fn pack_geometry(splats: &[Splat]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(splats.len() * 80);
     for s in splats {
         let c = s.cov;
+        let [cl, cp, cs] = s.shape();
         let vals = [
-            s.centre.x, s.centre.y, s.centre.z, s.opacity, c.x_axis.x, c.x_axis.y, c.x_axis.z, c.y_axis.y, c.y_axis.z,
-            c.z_axis.z, 0.0, 0.0, s.colour.x, s.colour.y, s.colour.z, 0.0,
+            s.centre.x,
+            s.centre.y,
+            s.centre.z,
+            cl,
+            c.x_axis.x,
+            c.x_axis.y,
+            c.x_axis.z,
+            c.y_axis.y,
+            c.y_axis.z,
+            c.z_axis.z,
+            cp,
+            cs,
+            s.e1.x,
+            s.e1.y,
+            s.e1.z,
+            1.0 / s.size2,
+            s.e3.x,
+            s.e3.y,
+            s.e3.z,
+            0.0,
         ];
         for v in vals {
             out.extend_from_slice(&(v as f32).to_le_bytes());
@@ -123,7 +225,41 @@ pub fn pack(splats: &[Splat]) -> Vec<u8> {
     out
 }
 
-/// Spawns a splat set; returns the parent.
+/// Style buffer bytes: linear RGB and opacity per splat.
+pub fn pack_styles(splats: &[Splat]) -> Vec<u8> {
+    splats
+        .iter()
+        .flat_map(|s| [s.colour.x, s.colour.y, s.colour.z, s.opacity])
+        .flat_map(|v| (v as f32).to_le_bytes())
+        .collect()
+}
+
+/// A storage buffer may not be empty.
+fn pad(mut bytes: Vec<u8>) -> Vec<u8> {
+    if bytes.is_empty() {
+        bytes = vec![0u8; 16];
+    }
+    bytes
+}
+
+/// N quads; each vertex is (corner x, corner y, slot).
+pub fn quads(n: usize) -> Mesh {
+    let mut pos = Vec::with_capacity(4 * n);
+    let mut idx = Vec::with_capacity(6 * n);
+    for i in 0..n.max(1) {
+        let s = i as f32;
+        pos.extend([[-1.0, -1.0, s], [1.0, -1.0, s], [1.0, 1.0, s], [-1.0, 1.0, s]]);
+        let b = 4 * i as u32;
+        idx.extend([b, b + 1, b + 2, b, b + 2, b + 3]);
+    }
+    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
+        .with_inserted_indices(Indices::U32(idx))
+}
+
+/// Spawns a splat set with the splats' colours and opacities as given (style them first with
+/// `settings.colouring.apply`); returns its entity. The order is filled by [`sort_splats`] before the first
+/// frame is drawn.
 pub fn spawn_splats(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
@@ -132,34 +268,60 @@ pub fn spawn_splats(
     splats: &[Splat],
     settings: &SplatSettings,
 ) -> Entity {
-    let mut bytes = pack(splats);
-    if bytes.is_empty() {
-        bytes = vec![0u8; 64];
-    }
+    let splats = splats.to_vec();
+    let n = splats.len();
     let material = materials.add(SplatMaterial {
         params: settings.into(),
-        splats: buffers.add(ShaderBuffer::new(&bytes, RenderAssetUsages::RENDER_WORLD)),
+        splats: buffers.add(ShaderBuffer::new(&pad(pack_geometry(&splats)), RenderAssetUsages::RENDER_WORLD)),
+        // The two rewritable buffers stay in the main world too: rewriting a render-world-only buffer
+        // reached the GPU once and then never again (Bevy 0.19.1, seen in `gpu_splats`).
+        styles: buffers.add(ShaderBuffer::new(&pad(pack_styles(&splats)), RenderAssetUsages::default())),
+        order: buffers.add(ShaderBuffer::new(&vec![0u8; 4 * n.max(1)], RenderAssetUsages::default())),
     });
-    let quad = meshes.add(Rectangle::new(2.0, 2.0));
-    let parent = commands
-        .spawn((
-            SplatSet { material: material.clone(), len: splats.len() },
-            Transform::default(),
-            Visibility::default(),
-        ))
-        .id();
-    for (i, s) in splats.iter().enumerate() {
-        commands.spawn((
-            SplatIndex(i as u32),
-            Mesh3d(quad.clone()),
-            MeshMaterial3d(material.clone()),
-            MeshTag(i as u32),
-            // The translation is the sort key of the transparent phase; the footprint is placed by the shader.
-            Transform::from_translation(s.centre.as_vec3()),
-            NoFrustumCulling,
-            NoAutomaticBatching,
-            ChildOf(parent),
-        ));
+    let mut e = commands.spawn((
+        SplatSet { material: material.clone(), splats: Arc::new(splats), sorted_for: None },
+        Transform::default(),
+        Visibility::default(),
+    ));
+    if n > 0 {
+        // The quads are placed by the shader: no frustum test on the mesh's bounds.
+        e.insert((Mesh3d(meshes.add(quads(n))), MeshMaterial3d(material), NoFrustumCulling));
     }
-    parent
+    e.id()
+}
+
+/// Re-sorts every splat set whose view direction changed since its last sort, for the active 3D camera
+/// drawn last (the viewer's or the headless renderer's).
+pub fn sort_splats(
+    cameras: Query<(&Camera, &GlobalTransform), With<Camera3d>>,
+    mut sets: Query<(&mut SplatSet, &GlobalTransform)>,
+    materials: Res<Assets<SplatMaterial>>,
+    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut stats: ResMut<SplatSortStats>,
+) {
+    let t0 = Instant::now();
+    let Some((_, cam)) = cameras.iter().filter(|(c, _)| c.is_active).max_by_key(|(c, _)| c.order) else { return };
+    let forward = cam.forward().as_vec3();
+    for (mut set, gt) in &mut sets {
+        // depth = dot(M c + t - eye, f) = dot(c, Mᵀ f) + const.
+        let m = gt.affine().matrix3;
+        let dir = Vec3::from(m.transpose() * bevy::math::Vec3A::from(forward));
+        if set.sorted_for == Some(dir) || set.splats.is_empty() {
+            continue;
+        }
+        let s0 = Instant::now();
+        let keys = depth_keys(set.splats.iter().map(|s| s.centre.as_vec3().to_array()), dir.to_array());
+        let order = argsort_desc(&keys);
+        let bytes: Vec<u8> = order.iter().flat_map(|i| i.to_le_bytes()).collect();
+        stats.last_upload_bytes = bytes.len();
+        if let Some(mat) = materials.get(&set.material)
+            && let Some(mut b) = buffers.get_mut(&mat.order)
+        {
+            b.data = Some(bytes);
+        }
+        set.sorted_for = Some(dir);
+        stats.sorts += 1;
+        stats.last_sort_ms = s0.elapsed().as_secs_f64() * 1e3;
+    }
+    stats.last_system_ms = t0.elapsed().as_secs_f64() * 1e3;
 }

@@ -1,18 +1,22 @@
 //! Tensor splats on the GPU (lavapipe in CI) against the f64 reference compositor
 //! (`fascicle_core::dti::splat::composite`): the same EWA footprints, the same far-to-near order, the same
 //! "over" operator, for random splats including isotropic, needle-like and tiny tensors, with and without
-//! depth attenuation (200 overlapping splats). The camera renders in
+//! depth attenuation and lit-tensor shading, from four views (each re-sorted on the CPU and drawn in one
+//! call), and after a barycentric recolouring (200 overlapping splats). The camera renders in
 //! HDR (f16 blending), so per-layer quantisation does not accumulate; the bound is 8-bit output rounding
 //! plus f32 projection error: 3 levels on 99 % of pixels.
 
 use bevy::prelude::*;
+use fascicle_core::dti::barycentric::BarycentricTf;
 use fascicle_core::dti::eigen::{Eigen, from_eigen};
-use fascicle_core::dti::splat::{Splat, SplatCamera, composite, tensor_splat};
+use fascicle_core::dti::splat::{
+    Splat, SplatCamera, SplatColourMode, SplatColouring, SplatRender, composite, tensor_splat,
+};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture};
 use fascicle_render::reference::srgb8;
 use fascicle_tensors::TensorGlyphPlugin;
-use fascicle_tensors::splat::{SplatMaterial, SplatSettings, spawn_splats};
+use fascicle_tensors::splat::{SplatMaterial, SplatSet, SplatSettings, SplatSortStats, spawn_splats};
 use glam::{DMat3, DMat4, DQuat, DVec3};
 use rand::{Rng, SeedableRng};
 
@@ -48,7 +52,14 @@ fn splats() -> Vec<Splat> {
         .collect()
 }
 
-fn render(splats: &[Splat], settings: SplatSettings) -> Option<Capture> {
+/// Renders the splats with `settings` from each eye in turn (one app: the set is re-sorted between views),
+/// and, last, after recolouring with `recolour` (the style buffer only).
+fn render(
+    splats: &[Splat],
+    settings: SplatSettings,
+    eyes: &[Vec3],
+    recolour: Option<SplatColouring>,
+) -> Option<(Vec<Capture>, SplatSortStats, Vec<Splat>)> {
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return None;
@@ -66,50 +77,88 @@ fn render(splats: &[Splat], settings: SplatSettings) -> Option<Capture> {
             spawn_splats(&mut commands, &mut meshes, &mut materials, &mut buffers, &splats, &settings);
         },
     );
-    let cam = headless::spawn_test_camera(&mut app, target.clone(), EYE, Vec3::ZERO);
+    let cam = headless::spawn_test_camera(&mut app, target.clone(), eyes[0], Vec3::ZERO);
     app.world_mut().entity_mut(cam).insert(bevy::camera::Hdr);
-    match headless::capture(&mut app, target) {
-        Ok(c) => Some(c),
-        Err(e) => panic!("{e}"),
+    let mut out = Vec::new();
+    for eye in eyes {
+        app.world_mut().entity_mut(cam).insert(Transform::from_translation(*eye).looking_at(Vec3::ZERO, Vec3::Y));
+        out.push(headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}")));
+    }
+    let sorts_before = app.world().resource::<SplatSortStats>().sorts;
+    if let Some(c) = recolour {
+        let world = app.world_mut();
+        let mut q = world.query::<&mut SplatSet>();
+        let mut set = q.single_mut(world).unwrap().clone();
+        world.resource_scope(|world, mut buffers: Mut<Assets<bevy::render::storage::ShaderBuffer>>| {
+            set.restyle(&c, world.resource::<Assets<SplatMaterial>>(), &mut buffers);
+        });
+        *q.single_mut(world).unwrap() = set;
+        out.push(headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}")));
+    }
+    let stats = *app.world().resource::<SplatSortStats>();
+    assert_eq!(stats.sorts, sorts_before, "recolouring must not re-sort");
+    let mut q = app.world_mut().query::<&SplatSet>();
+    let styled = q.single(app.world()).unwrap().splats.to_vec();
+    Some((out, stats, styled))
+}
+
+/// Per-pixel error (max over channels, 8-bit levels) of `img` against the f64 reference; returns the 99th
+/// percentile after checking coverage.
+fn compare(img: &Capture, splats: &[Splat], eye: Vec3, render: &SplatRender, label: &str) -> f64 {
+    let view_from_world = DMat4::look_at_rh(eye.as_dvec3(), DVec3::ZERO, DVec3::Y);
+    let cam = SplatCamera { view_from_world, fov_y: std::f64::consts::FRAC_PI_4, width: W, height: H };
+    let reference = composite(splats, &cam, render, DVec3::ZERO);
+    if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
+        std::fs::write(format!("{dir}/gpu_splats_{label}.png"), img.to_png().unwrap()).unwrap();
+        let rgba = reference.iter().flat_map(|c| [srgb8(c.x) as u8, srgb8(c.y) as u8, srgb8(c.z) as u8, 255]).collect();
+        let cap = Capture { width: W, height: H, rgba };
+        std::fs::write(format!("{dir}/ref_splats_{label}.png"), cap.to_png().unwrap()).unwrap();
+    }
+    let (mut errors, mut lit) = (Vec::new(), 0usize);
+    for (i, r) in reference.iter().enumerate() {
+        let got = img.pixel(i as u32 % W, i as u32 / W);
+        let e = (0..3).map(|k| (got[k] as f64 - srgb8(r[k])).abs()).fold(0.0, f64::max);
+        errors.push(e);
+        lit += usize::from(r.max_element() > 0.05);
+    }
+    errors.sort_by(f64::total_cmp);
+    let p99 = errors[errors.len() * 99 / 100];
+    let worst = errors[errors.len() - 1];
+    println!("{label}: {lit} lit pixels; error 99th percentile {p99:.2} levels, worst {worst:.1}");
+    assert!(lit > 1000, "{label}: {lit} lit pixels");
+    p99
+}
+
+#[test]
+fn splats_match_the_f64_compositor_from_every_view() {
+    let splats = splats();
+    assert!(splats.len() >= N_SPLATS - N_SPLATS / 10);
+    // All ~200 deep-overlapping splats, seen from four sides: the set is re-sorted on the CPU for each
+    // view and drawn in one call; the reference sorts with a comparison sort in f64.
+    let eyes = [Vec3::new(8.0, 1.0, -3.0), EYE, Vec3::new(-2.0, 7.0, 4.0), Vec3::new(0.3, 0.2, -9.0)];
+    let settings = SplatSettings { attenuation: false, ..SplatSettings::default() };
+    let Some((imgs, stats, _)) = render(&splats, settings, &eyes, None) else { return };
+    assert!(stats.sorts >= eyes.len() as u64, "{} sorts for {} views", stats.sorts, eyes.len());
+    for (k, (img, eye)) in imgs.iter().zip(eyes).enumerate() {
+        let p99 = compare(img, &splats, eye, &settings.reference(), &format!("view{k}"));
+        assert!(p99 <= 3.0, "view {k}: 99th percentile error {p99} levels");
     }
 }
 
 #[test]
-fn splats_match_the_f64_compositor() {
+fn attenuation_lit_tensors_and_barycentric_recolouring() {
     let splats = splats();
-    assert!(splats.len() >= N_SPLATS - N_SPLATS / 10);
-    // All 200 deep-overlapping splats: this also checks the draw order. (With Bevy's automatic batching the
-    // GPU preprocessing compacts instances out of order and about 1 % of pixels differed by up to 27 levels
-    // from run to run; splats are therefore spawned with `NoAutomaticBatching`.)
-    for (attenuation, n) in [(false, splats.len()), (true, splats.len())] {
-        let splats = &splats[..n];
-        let Some(img) = render(splats, SplatSettings { attenuation, opacity: 1.0 }) else { return };
-        if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
-            std::fs::write(format!("{dir}/gpu_splats_{attenuation}.png"), img.to_png().unwrap()).unwrap();
-        }
-        let view_from_world = DMat4::look_at_rh(EYE.as_dvec3(), DVec3::ZERO, DVec3::Y);
-        let cam = SplatCamera { view_from_world, fov_y: std::f64::consts::FRAC_PI_4, width: W, height: H };
-        let reference = composite(splats, &cam, attenuation, DVec3::ZERO);
-        if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
-            let rgba =
-                reference.iter().flat_map(|c| [srgb8(c.x) as u8, srgb8(c.y) as u8, srgb8(c.z) as u8, 255]).collect();
-            let cap = Capture { width: W, height: H, rgba };
-            std::fs::write(format!("{dir}/ref_splats_{attenuation}.png"), cap.to_png().unwrap()).unwrap();
-        }
-        let (mut errors, mut lit) = (Vec::new(), 0usize);
-        for (i, r) in reference.iter().enumerate() {
-            let got = img.pixel(i as u32 % W, i as u32 / W);
-            let e = (0..3).map(|k| (got[k] as f64 - srgb8(r[k])).abs()).fold(0.0, f64::max);
-            errors.push(e);
-            lit += usize::from(r.max_element() > 0.05);
-        }
-        errors.sort_by(f64::total_cmp);
-        let p99 = errors[errors.len() * 99 / 100];
-        let worst = errors[errors.len() - 1];
-        println!(
-            "attenuation {attenuation}: {lit} lit pixels; error 99th percentile {p99:.2} levels, worst {worst:.1}"
-        );
-        assert!(lit > 1000, "{lit} lit pixels");
-        assert!(p99 <= 3.0, "99th percentile error {p99} levels");
-    }
+    let settings = SplatSettings { attenuation: true, lit: true, ..SplatSettings::default() };
+    let tf = SplatColouring {
+        mode: SplatColourMode::Barycentric,
+        tf: BarycentricTf { centre: [0.2, 0.6, 0.2], width: 0.3, threshold: 0.05, ..BarycentricTf::default() },
+    };
+    let Some((imgs, _, styled)) = render(&splats, settings, &[EYE], Some(tf)) else { return };
+    let p99 = compare(&imgs[0], &splats, EYE, &settings.reference(), "lit");
+    assert!(p99 <= 3.0, "lit: 99th percentile error {p99} levels");
+    let mut want = splats.clone();
+    tf.apply(&mut want);
+    assert_eq!(styled, want, "the set keeps the restyled splats");
+    let p99 = compare(&imgs[1], &want, EYE, &settings.reference(), "barycentric");
+    assert!(p99 <= 3.0, "barycentric: 99th percentile error {p99} levels");
 }
