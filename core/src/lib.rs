@@ -7,6 +7,7 @@
 //! Everything is checked against DIPY's own arrays (see `tests/`); nothing here panics on bad input.
 
 pub mod dti;
+pub mod dvr;
 pub mod error;
 pub mod io;
 pub mod linalg;

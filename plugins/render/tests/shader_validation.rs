@@ -37,6 +37,7 @@ struct View {
     world_from_view: mat4x4<f32>,
     view_from_world: mat4x4<f32>,
     clip_from_view: mat4x4<f32>,
+    view_from_clip: mat4x4<f32>,
     world_position: vec3<f32>,
     viewport: vec4<f32>,
 };

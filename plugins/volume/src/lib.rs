@@ -1,0 +1,425 @@
+//! Volume context as a Bevy plugin: a scalar volume (T1, FA, MD, any 3D NIfTI) as a 3D texture placed by
+//! its affine, drawn by GPU ray casting or by view-aligned 3D-texture slicing with the same transfer
+//! function (`shaders/volume.wgsl`, f64 reference `fascicle_core::dvr`). Both are composited in the
+//! transparent phase and stop at the opaque layers' depth: [`OpaqueDepth`] is a copy of the camera's depth
+//! buffer taken between Bevy's opaque and transparent passes, so glyphs inside the volume hide what lies
+//! behind them and are tinted by what lies in front. A new method is one more `VolumeMethod` branch in the
+//! shader and one more mesh here.
+
+use bevy::asset::RenderAssetUsages;
+use bevy::camera::visibility::NoFrustumCulling;
+use bevy::core_pipeline::core_3d::{main_opaque_pass_3d, main_transparent_pass_3d};
+use bevy::core_pipeline::schedule::Core3d;
+use bevy::image::{ImageSampler, ImageSamplerDescriptor};
+use bevy::mesh::{Indices, MeshVertexBufferLayoutRef, PrimitiveTopology};
+use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
+use bevy::prelude::*;
+use bevy::render::RenderApp;
+use bevy::render::camera::ExtractedCamera;
+use bevy::render::extract_resource::{ExtractResource, ExtractResourcePlugin};
+use bevy::render::render_asset::RenderAssets;
+use bevy::render::render_resource::{
+    AsBindGroup, CompareFunction, Extent3d, Origin3d, RenderPipelineDescriptor, ShaderType,
+    SpecializedMeshPipelineError, TexelCopyTextureInfo, TextureAspect, TextureDimension, TextureFormat, TextureUsages,
+};
+use bevy::render::renderer::{RenderContext, ViewQuery};
+use bevy::render::storage::ShaderBuffer;
+use bevy::render::texture::GpuImage;
+use bevy::render::view::ViewDepthTexture;
+use bevy::shader::ShaderRef;
+use fascicle_core::Volume;
+use fascicle_core::dvr::{MarchParams, TransferFunction, preintegrate};
+use fascicle_render::shaders;
+
+/// Pre-integration table size (entries per axis).
+pub const TABLE_N: usize = 64;
+
+/// How a volume is drawn.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum VolumeMethod {
+    /// Image order: a ray per pixel, front to back.
+    #[default]
+    Raycast,
+    /// Object order: view-aligned planes through a 3D texture, back to front.
+    Slicing,
+}
+
+/// Drawing options of a volume layer.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct VolumeSettings {
+    pub method: VolumeMethod,
+    pub tf: TransferFunction,
+    /// Step (ray casting) or slice spacing target (slicing), mm.
+    pub step: f64,
+    /// Early ray termination at this accumulated opacity (> 1: off).
+    pub termination: f64,
+    /// Jittered ray start (against wood-grain artefacts).
+    pub jitter: bool,
+    /// Gradient (Lambert headlight) shading.
+    pub shading: bool,
+    /// Pre-integrated classification (ray casting).
+    pub preintegrated: bool,
+}
+
+impl Default for VolumeSettings {
+    fn default() -> Self {
+        Self {
+            method: VolumeMethod::Raycast,
+            tf: TransferFunction::default(),
+            step: 0.5,
+            termination: 0.99,
+            jitter: true,
+            shading: false,
+            preintegrated: false,
+        }
+    }
+}
+
+impl VolumeSettings {
+    pub fn march(&self) -> MarchParams {
+        MarchParams { step: self.step, termination: self.termination, preintegrated: self.preintegrated }
+    }
+}
+
+/// GPU parameters. Keep in sync with `VolumeParams` in `shaders/volume.wgsl`.
+#[derive(Clone, Copy, Debug, ShaderType)]
+pub struct VolumeUniform {
+    pub voxel_from_world: Mat4,
+    pub dims: Vec4,
+    pub sphere: Vec4,
+    pub range: Vec2,
+    pub step: f32,
+    pub termination: f32,
+    pub jitter: u32,
+    pub shading: u32,
+    pub preintegrated: u32,
+    pub n_slices: u32,
+    pub table_n: u32,
+    pub ambient: f32,
+}
+
+#[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
+pub struct VolumeMaterial {
+    #[uniform(0)]
+    pub params: VolumeUniform,
+    #[texture(1, dimension = "3d", sample_type = "float", filterable = false)]
+    pub volume: Handle<Image>,
+    #[storage(2, read_only)]
+    pub lut: Handle<ShaderBuffer>,
+    #[storage(3, read_only)]
+    pub table: Handle<ShaderBuffer>,
+    #[texture(4, sample_type = "depth")]
+    pub opaque_depth: Handle<Image>,
+}
+
+impl Material for VolumeMaterial {
+    fn vertex_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::VOLUME)
+    }
+    fn fragment_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::VOLUME)
+    }
+    fn alpha_mode(&self) -> AlphaMode {
+        AlphaMode::Premultiplied
+    }
+    fn enable_prepass() -> bool {
+        false
+    }
+    fn enable_shadows() -> bool {
+        false
+    }
+    fn specialize(
+        _pipeline: &MaterialPipeline,
+        descriptor: &mut RenderPipelineDescriptor,
+        _layout: &MeshVertexBufferLayoutRef,
+        _key: MaterialPipelineKey<Self>,
+    ) -> Result<(), SpecializedMeshPipelineError> {
+        // Back-face culling: the box is wound inwards, so only its far faces are drawn (one ray per pixel,
+        // also with the camera inside); slices are wound to face the camera. The shader tests against the
+        // opaque depth itself (the ray stops there), so no depth test or write.
+        descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Back);
+        if let Some(ds) = descriptor.depth_stencil.as_mut() {
+            ds.depth_write_enabled = Some(false);
+            ds.depth_compare = Some(CompareFunction::Always);
+        }
+        Ok(())
+    }
+}
+
+/// The copy of the main 3D camera's depth buffer after the opaque pass, sampled by volume materials.
+#[derive(Resource, Clone, ExtractResource)]
+pub struct OpaqueDepth(pub Handle<Image>);
+
+/// A volume layer: one entity.
+#[derive(Component, Clone, Debug)]
+pub struct VolumeSet {
+    pub material: Handle<VolumeMaterial>,
+    pub dims: [usize; 3],
+    pub settings: VolumeSettings,
+}
+
+pub struct VolumePlugin;
+
+impl Plugin for VolumePlugin {
+    fn build(&self, app: &mut App) {
+        app.add_plugins((MaterialPlugin::<VolumeMaterial>::default(), ExtractResourcePlugin::<OpaqueDepth>::default()))
+            .add_systems(Startup, create_opaque_depth)
+            .add_systems(PostUpdate, (prepare_cameras, fit_opaque_depth));
+        if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
+            render_app
+                .add_systems(Core3d, copy_opaque_depth.after(main_opaque_pass_3d).before(main_transparent_pass_3d));
+        }
+    }
+}
+
+fn depth_image(width: u32, height: u32) -> Image {
+    // No initial data: depth textures cannot be written from the CPU. Until the first copy it reads
+    // whatever the driver cleared it to; the copy runs before any volume is drawn.
+    let mut img = Image::new_uninit(
+        Extent3d { width: width.max(1), height: height.max(1), depth_or_array_layers: 1 },
+        TextureDimension::D2,
+        TextureFormat::Depth32Float,
+        RenderAssetUsages::RENDER_WORLD,
+    );
+    img.texture_descriptor.usage = TextureUsages::TEXTURE_BINDING | TextureUsages::COPY_DST;
+    img.sampler = ImageSampler::Descriptor(ImageSamplerDescriptor {
+        compare: Some(bevy::image::ImageCompareFunction::Always),
+        ..default()
+    });
+    img
+}
+
+fn create_opaque_depth(mut commands: Commands, mut images: ResMut<Assets<Image>>) {
+    commands.insert_resource(OpaqueDepth(images.add(depth_image(1, 1))));
+}
+
+/// With a volume in the scene, 3D cameras keep a copyable, single-sampled depth buffer.
+fn prepare_cameras(
+    volumes: Query<(), With<VolumeSet>>,
+    mut cameras: Query<(Entity, &mut Camera3d, Option<&Msaa>)>,
+    mut commands: Commands,
+) {
+    if volumes.is_empty() {
+        return;
+    }
+    for (e, mut cam, msaa) in &mut cameras {
+        let usage = TextureUsages::from(cam.depth_texture_usages);
+        if !usage.contains(TextureUsages::COPY_SRC) {
+            cam.depth_texture_usages = (usage | TextureUsages::COPY_SRC).into();
+        }
+        if msaa != Some(&Msaa::Off) {
+            commands.entity(e).insert(Msaa::Off);
+        }
+    }
+}
+
+/// Keeps the depth copy the size of the active 3D camera's target.
+fn fit_opaque_depth(
+    depth: Option<Res<OpaqueDepth>>,
+    cameras: Query<&Camera, With<Camera3d>>,
+    volumes: Query<(), With<VolumeSet>>,
+    mut images: ResMut<Assets<Image>>,
+    mut materials: ResMut<Assets<VolumeMaterial>>,
+    sets: Query<&VolumeSet>,
+) {
+    let Some(depth) = depth else { return };
+    if volumes.is_empty() {
+        return;
+    }
+    let Some(size) =
+        cameras.iter().filter(|c| c.is_active).max_by_key(|c| c.order).and_then(|c| c.physical_target_size())
+    else {
+        return;
+    };
+    let Some(img) = images.get(&depth.0) else { return };
+    if img.width() == size.x && img.height() == size.y {
+        return;
+    }
+    if let Some(mut img) = images.get_mut(&depth.0) {
+        *img = depth_image(size.x, size.y);
+    }
+    // Rebuild the materials' bind groups around the new texture.
+    for set in &sets {
+        if let Some(mut m) = materials.get_mut(&set.material) {
+            let _: &mut VolumeMaterial = &mut m;
+        }
+    }
+}
+
+fn copy_opaque_depth(
+    view: ViewQuery<(&ExtractedCamera, &ViewDepthTexture)>,
+    target: Option<Res<OpaqueDepth>>,
+    images: Res<RenderAssets<GpuImage>>,
+    mut ctx: RenderContext,
+) {
+    let Some(target) = target else { return };
+    let (_, depth) = view.into_inner();
+    let Some(dst) = images.get(target.0.id()) else { return };
+    let size = depth.texture.size();
+    if depth.texture.sample_count() != 1
+        || !depth.texture.usage().contains(TextureUsages::COPY_SRC)
+        || dst.texture.size() != size
+    {
+        return;
+    }
+    ctx.command_encoder().copy_texture_to_texture(
+        TexelCopyTextureInfo {
+            texture: &depth.texture,
+            mip_level: 0,
+            origin: Origin3d::ZERO,
+            aspect: TextureAspect::DepthOnly,
+        },
+        TexelCopyTextureInfo {
+            texture: &dst.texture,
+            mip_level: 0,
+            origin: Origin3d::ZERO,
+            aspect: TextureAspect::DepthOnly,
+        },
+        Extent3d { width: size.width, height: size.height, depth_or_array_layers: 1 },
+    );
+}
+
+/// The volume's bounding box (voxel centres ± 0.5) as 12 triangles in world space, wound inwards.
+fn box_mesh(dims: [usize; 3], world_from_voxel: glam::DMat4) -> Mesh {
+    let hi = [dims[0] as f64 - 0.5, dims[1] as f64 - 0.5, dims[2] as f64 - 0.5];
+    let corner = |i: usize| {
+        let p = glam::DVec3::new(
+            if i & 1 == 0 { -0.5 } else { hi[0] },
+            if i & 2 == 0 { -0.5 } else { hi[1] },
+            if i & 4 == 0 { -0.5 } else { hi[2] },
+        );
+        world_from_voxel.transform_point3(p).as_vec3().to_array()
+    };
+    let pos: Vec<[f32; 3]> = (0..8).map(corner).collect();
+    // Outward counter-clockwise triangles, then reversed so the far faces are the front faces (a mirroring
+    // affine reverses them once more).
+    let mut idx: Vec<u32> = vec![
+        0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4, 6, 1, 3, 5, 3, 7, 5,
+    ];
+    if glam::DMat3::from_mat4(world_from_voxel).determinant() > 0.0 {
+        for t in idx.chunks_mut(3) {
+            t.swap(1, 2);
+        }
+    }
+    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
+        .with_inserted_indices(Indices::U32(idx))
+}
+
+/// `n` quads, vertices (corner x, corner y, slice index); the vertex shader faces them to the camera.
+fn slice_mesh(n: u32) -> Mesh {
+    let mut pos = Vec::with_capacity(4 * n as usize);
+    let mut idx = Vec::with_capacity(6 * n as usize);
+    for k in 0..n {
+        let s = k as f32;
+        pos.extend([[-1.0, -1.0, s], [1.0, -1.0, s], [1.0, 1.0, s], [-1.0, 1.0, s]]);
+        let b = 4 * k;
+        idx.extend([b, b + 1, b + 2, b, b + 2, b + 3]);
+    }
+    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
+        .with_inserted_indices(Indices::U32(idx))
+}
+
+/// World bounding sphere (centre, radius) of a volume's box.
+fn bounding_sphere(dims: [usize; 3], world_from_voxel: glam::DMat4) -> (glam::DVec3, f64) {
+    let c = glam::DVec3::new(dims[0] as f64 - 1.0, dims[1] as f64 - 1.0, dims[2] as f64 - 1.0) / 2.0;
+    let centre = world_from_voxel.transform_point3(c);
+    let r = (0..8)
+        .map(|i| {
+            let p = glam::DVec3::new(
+                if i & 1 == 0 { -0.5 } else { dims[0] as f64 - 0.5 },
+                if i & 2 == 0 { -0.5 } else { dims[1] as f64 - 0.5 },
+                if i & 4 == 0 { -0.5 } else { dims[2] as f64 - 0.5 },
+            );
+            (world_from_voxel.transform_point3(p) - centre).length()
+        })
+        .fold(0.0, f64::max);
+    (centre, r)
+}
+
+impl VolumeUniform {
+    pub fn new(dims: [usize; 3], world_from_voxel: glam::DMat4, s: &VolumeSettings) -> Self {
+        let (centre, r) = bounding_sphere(dims, world_from_voxel);
+        let method = match s.method {
+            VolumeMethod::Raycast => 0.0,
+            VolumeMethod::Slicing => 1.0,
+        };
+        Self {
+            voxel_from_world: world_from_voxel.inverse().as_mat4(),
+            dims: Vec4::new(dims[0] as f32, dims[1] as f32, dims[2] as f32, method),
+            sphere: Vec4::new(centre.x as f32, centre.y as f32, centre.z as f32, r as f32),
+            range: Vec2::new(s.tf.range[0] as f32, s.tf.range[1] as f32),
+            step: s.step as f32,
+            termination: s.termination as f32,
+            jitter: u32::from(s.jitter),
+            shading: u32::from(s.shading),
+            preintegrated: u32::from(s.preintegrated),
+            n_slices: slices(r, s.step),
+            table_n: TABLE_N as u32,
+            ambient: 0.35,
+        }
+    }
+}
+
+/// Slices covering a bounding sphere of radius `r` at spacing about `step` (at most 4096).
+pub fn slices(r: f64, step: f64) -> u32 {
+    ((2.0 * r / step.max(1e-3)).ceil() as u32).clamp(1, 4096)
+}
+
+/// The transfer function's LUT and pre-integrated table as buffer bytes.
+pub fn tf_buffers(s: &VolumeSettings) -> (Vec<u8>, Vec<u8>) {
+    let lut = s.tf.lut();
+    let table = preintegrate(&lut, TABLE_N, s.step.max(1e-3), 64);
+    let tb = table.iter().flat_map(|v| v.to_array()).flat_map(|v| (v as f32).to_le_bytes()).collect();
+    (lut.to_bytes(), tb)
+}
+
+/// Spawns a volume layer (a 3D scalar image) drawn with `settings`; returns its entity.
+#[allow(clippy::too_many_arguments, reason = "the asset stores a volume layer writes to")]
+pub fn spawn_volume(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    images: &mut Assets<Image>,
+    materials: &mut Assets<VolumeMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    depth: &OpaqueDepth,
+    vol: &Volume<f32>,
+    settings: &VolumeSettings,
+) -> Entity {
+    let d = vol.dims3();
+    let n = d[0] * d[1] * d[2];
+    let bytes: Vec<u8> =
+        vol.data[..n].iter().flat_map(|v| if v.is_finite() { *v } else { 0.0 }.to_le_bytes()).collect();
+    let mut tex = Image::new(
+        Extent3d { width: d[0] as u32, height: d[1] as u32, depth_or_array_layers: d[2] as u32 },
+        TextureDimension::D3,
+        bytes,
+        TextureFormat::R32Float,
+        RenderAssetUsages::RENDER_WORLD,
+    );
+    tex.sampler = ImageSampler::nearest();
+    let (lut, table) = tf_buffers(settings);
+    let params = VolumeUniform::new(d, vol.world_from_voxel, settings);
+    let material = materials.add(VolumeMaterial {
+        params,
+        volume: images.add(tex),
+        lut: buffers.add(ShaderBuffer::new(&lut, RenderAssetUsages::default())),
+        table: buffers.add(ShaderBuffer::new(&table, RenderAssetUsages::default())),
+        opaque_depth: depth.0.clone(),
+    });
+    let mesh = match settings.method {
+        VolumeMethod::Raycast => box_mesh(d, vol.world_from_voxel),
+        VolumeMethod::Slicing => slice_mesh(params.n_slices),
+    };
+    commands
+        .spawn((
+            VolumeSet { material: material.clone(), dims: d, settings: settings.clone() },
+            Mesh3d(meshes.add(mesh)),
+            MeshMaterial3d(material),
+            Transform::default(),
+            Visibility::default(),
+            NoFrustumCulling,
+        ))
+        .id()
+}
