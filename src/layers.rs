@@ -18,6 +18,7 @@ use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
+use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, VolumeUniform, spawn_volume, tf_buffers};
 
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
 use crate::scene::{LayerKind, LayerSpec, Scene, ShSource, SliceAxis, TensorSource, VolumeSource};
@@ -48,6 +49,9 @@ impl Plugin for ScenePlugin {
         if !app.is_plugin_added::<TensorGlyphPlugin>() {
             app.add_plugins(TensorGlyphPlugin);
         }
+        if !app.is_plugin_added::<VolumePlugin>() {
+            app.add_plugins(VolumePlugin);
+        }
         app.init_resource::<LayerErrors>()
             .init_resource::<Spawned>()
             .init_resource::<LayerDataMap>()
@@ -59,6 +63,7 @@ impl Plugin for ScenePlugin {
 fn report_layer_data(
     added: Query<(), Added<LayerEntity>>,
     sets: Query<(&SplatSet, &LayerEntity)>,
+    volumes: Query<(&VolumeSet, &LayerEntity)>,
     mut map: ResMut<LayerDataMap>,
 ) {
     if added.is_empty() {
@@ -68,7 +73,10 @@ fn report_layer_data(
     for (set, le) in &sets {
         let stride = set.len().div_ceil(SCATTER_SAMPLES).max(1);
         let values = set.splats.iter().step_by(stride).map(|s| s.values).collect();
-        map.0.insert(le.0, LayerData { eigenvalues: std::sync::Arc::new(values) });
+        map.0.insert(le.0, LayerData { eigenvalues: std::sync::Arc::new(values), ..default() });
+    }
+    for (set, le) in &volumes {
+        map.0.insert(le.0, LayerData { histogram: set.histogram.clone(), ..default() });
     }
 }
 
@@ -89,7 +97,9 @@ fn sync_scene(
     tensor_sets: Query<(&TensorGlyphSet, &LayerEntity)>,
     mut splat_materials: ResMut<Assets<SplatMaterial>>,
     mut splat_sets: Query<(&mut SplatSet, &LayerEntity)>,
+    volume: VolumeAssets,
 ) {
+    let VolumeAssets { materials: mut volume_materials, sets: volume_sets, depth } = volume;
     let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
     let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
     if structure(&kinds) == structure(&spawned.0) {
@@ -113,6 +123,21 @@ fn sync_scene(
                 if let Some(mut m) = splat_materials.get_mut(&set.material) {
                     m.params = render.into();
                 }
+            }
+        }
+        for (set, le) in &volume_sets {
+            if let Some(LayerKind::Volume { render, .. }) = kinds.get(le.0)
+                && spawned.0.get(le.0) != kinds.get(le.0)
+                && let Some(mut m) = volume_materials.get_mut(&set.material)
+            {
+                // The transfer function's table and pre-integration table, and the uniform.
+                let (lut, table) = tf_buffers(render);
+                for (h, bytes) in [(m.lut.clone(), lut), (m.table.clone(), table)] {
+                    if let Some(mut b) = buffers.get_mut(&h) {
+                        b.data = Some(bytes);
+                    }
+                }
+                m.params = VolumeUniform::new(set.dims, set.world_from_voxel, render);
             }
         }
         for (set, le) in &tensor_sets {
@@ -158,6 +183,24 @@ fn sync_scene(
                 render.colouring.apply(&mut s);
                 spawn_splats(&mut commands, &mut meshes, &mut splat_materials, &mut buffers, &s, render)
             });
+            place(&mut commands, &mut errors, set, spec, vis, i);
+            continue;
+        }
+        if let LayerKind::Volume { source, render } = &spec.kind {
+            let set = match (scalar_volume(source), depth.as_deref()) {
+                (Ok(vol), Some(depth)) => Ok(spawn_volume(
+                    &mut commands,
+                    &mut meshes,
+                    &mut images,
+                    &mut volume_materials,
+                    &mut buffers,
+                    depth,
+                    &vol,
+                    render,
+                )),
+                (Err(e), _) => Err(e),
+                (_, None) => Err("the volume plugin has not started".into()),
+            };
             place(&mut commands, &mut errors, set, spec, vis, i);
             continue;
         }
@@ -245,20 +288,17 @@ fn spawn_layer(
         LayerKind::Slice { source, axis, index } => {
             let (vol, channel, fixed_window) = match source {
                 VolumeSource::PhantomFa => (fascicle_core::phantom::ring_cross([48, 48, 24]).fa(), 0, Some((0.0, 1.0))),
-                VolumeSource::Nifti { path, volume } => {
-                    let (v, _) = nifti::read::<f32>(path).map_err(|e| e.to_string())?;
-                    if *volume >= v.n_channels() {
-                        return Err(format!("volume {volume} requested, the image has {}", v.n_channels()));
-                    }
-                    (v, *volume, None)
-                }
+                VolumeSource::Nifti { path, volume } => (read_channel_source(path, *volume)?, *volume, None),
             };
             let (image, corners) = slice_image(&vol, channel, *axis, *index, fixed_window)?;
             let mut m = unlit(spec.opacity);
             m.base_color_texture = Some(images.add(image));
             Ok(vec![(meshes.add(quad(corners)), materials.add(m), Transform::IDENTITY)])
         }
-        LayerKind::ShGlyphs { .. } | LayerKind::TensorGlyphs { .. } | LayerKind::TensorSplats { .. } => Ok(vec![]), // spawned by their plugins
+        LayerKind::ShGlyphs { .. }
+        | LayerKind::TensorGlyphs { .. }
+        | LayerKind::TensorSplats { .. }
+        | LayerKind::Volume { .. } => Ok(vec![]), // spawned by their plugins
         LayerKind::Tractogram { path } => {
             let t = Tractogram::read(path).map_err(|e| e.to_string())?;
             if t.points.is_empty() {
@@ -267,6 +307,38 @@ fn spawn_layer(
             Ok(vec![(meshes.add(lines(&t)), materials.add(unlit(spec.opacity)), Transform::IDENTITY)])
         }
     }
+}
+
+/// A NIfTI image checked to have a 4th-dimension index `volume`.
+fn read_channel_source(path: &std::path::Path, volume: usize) -> Result<Volume<f32>, String> {
+    let (v, _) = nifti::read::<f32>(path).map_err(|e| e.to_string())?;
+    if volume >= v.n_channels() {
+        return Err(format!("volume {volume} requested, the image has {}", v.n_channels()));
+    }
+    Ok(v)
+}
+
+/// One 3D scalar volume of a source (the chosen 4th-dimension index of a NIfTI).
+fn scalar_volume(source: &VolumeSource) -> Result<Volume<f32>, String> {
+    match source {
+        VolumeSource::PhantomFa => Ok(fascicle_core::phantom::ring_cross([48, 48, 24]).fa()),
+        VolumeSource::Nifti { path, volume } => {
+            let v = read_channel_source(path, *volume)?;
+            let d = v.dims3();
+            let n = d[0] * d[1] * d[2];
+            let mut out = Volume::zeros(&d, v.world_from_voxel);
+            out.data.copy_from_slice(&v.data[volume * n..(volume + 1) * n]);
+            Ok(out)
+        }
+    }
+}
+
+/// The volume plugin's asset stores a volume layer needs.
+#[derive(bevy::ecs::system::SystemParam)]
+struct VolumeAssets<'w, 's> {
+    materials: ResMut<'w, Assets<VolumeMaterial>>,
+    sets: Query<'w, 's, (&'static VolumeSet, &'static LayerEntity)>,
+    depth: Option<Res<'w, OpaqueDepth>>,
 }
 
 /// SH coefficients (X,Y,Z,n) and their basis for a glyph layer; for the phantom only the voxels of

@@ -10,6 +10,7 @@ use bevy_egui::egui;
 use fascicle_core::dti::barycentric::BarycentricTf;
 use fascicle_core::dti::metrics::WestinDenominator;
 use fascicle_core::dti::splat::SplatColourMode;
+use fascicle_core::dvr::{TfPoint, TransferFunction};
 
 use fascicle_core::dti::glyph::TensorShape;
 use fascicle_core::sh::glyph::{GlyphPlane, Lobes, Normalise, Sampling};
@@ -33,6 +34,8 @@ pub struct LayerData {
     /// Eigenvalues (largest first) of up to [`SCATTER_SAMPLES`] of the layer's tensor samples, evenly
     /// strided over all of them.
     pub eigenvalues: Arc<Vec<[f64; 3]>>,
+    /// A volume layer's histogram over its transfer function's range.
+    pub histogram: Arc<Vec<u32>>,
 }
 
 /// Per layer index, its [`LayerData`].
@@ -63,6 +66,7 @@ impl Default for LayerPanels {
                 applies: |k| matches!(k, LayerKind::TensorSplats { .. }),
                 show: splat_panel,
             },
+            LayerPanel { name: "volume", applies: |k| matches!(k, LayerKind::Volume { .. }), show: volume_panel },
             LayerPanel {
                 name: "tensor glyphs",
                 applies: |k| matches!(k, LayerKind::TensorGlyphs { .. }),
@@ -191,6 +195,112 @@ fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     if render.colouring.mode == SplatColourMode::Barycentric {
         barycentric_widget(ui, &mut render.colouring.tf, &data.eigenvalues);
     }
+}
+
+/// Volume: method and step (rebuild), transfer function and toggles (buffers and uniform only).
+fn volume_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
+    use fascicle_volume::VolumeMethod;
+    let LayerKind::Volume { render, .. } = kind else { return };
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut render.method, VolumeMethod::Raycast, "ray casting");
+        ui.radio_value(&mut render.method, VolumeMethod::Slicing, "3D-texture slicing");
+    });
+    ui.add(egui::Slider::new(&mut render.step, 0.05..=4.0).logarithmic(true).text("step / slice spacing (mm)"));
+    let mut early = render.termination <= 1.0;
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut early, "early termination");
+        ui.checkbox(&mut render.jitter, "jitter");
+    });
+    render.termination = if early { render.termination.min(0.99) } else { 2.0 };
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut render.shading, "gradient shading");
+        ui.checkbox(&mut render.preintegrated, "pre-integrated");
+    });
+    transfer_function_editor(ui, &mut render.tf, &data.histogram);
+}
+
+/// The 1D transfer-function editor: the volume's histogram (log counts) under the opacity curve; each
+/// control point is a handle to drag (value, opacity), with a colour button and a remove button; a click
+/// on empty space adds a point there.
+pub fn transfer_function_editor(ui: &mut egui::Ui, tf: &mut TransferFunction, histogram: &[u32]) {
+    let (w, h) = (220.0f32, 90.0f32);
+    let (resp, painter) = ui.allocate_painter(egui::vec2(w, h), egui::Sense::click_and_drag());
+    let rect = resp.rect;
+    painter.rect_filled(rect, 2.0, egui::Color32::from_gray(25));
+    let peak = histogram.iter().map(|c| (*c as f32 + 1.0).ln()).fold(0.0, f32::max).max(1.0);
+    for (i, c) in histogram.iter().enumerate() {
+        let x0 = rect.left() + w * i as f32 / histogram.len() as f32;
+        let x1 = rect.left() + w * (i + 1) as f32 / histogram.len() as f32;
+        let y = rect.bottom() - h * (*c as f32 + 1.0).ln() / peak;
+        painter.rect_filled(
+            egui::Rect::from_min_max(egui::pos2(x0, y), egui::pos2(x1, rect.bottom())),
+            0.0,
+            egui::Color32::from_gray(60),
+        );
+    }
+    let max_a = tf.points.iter().map(|p| p.rgba[3]).fold(0.0, f64::max).max(0.05);
+    let to_screen =
+        |p: &TfPoint| egui::pos2(rect.left() + w * p.x as f32, rect.bottom() - h * (p.rgba[3] / max_a) as f32);
+    tf.points.sort_by(|a, b| a.x.total_cmp(&b.x));
+    let line: Vec<egui::Pos2> = tf.points.iter().map(to_screen).collect();
+    painter.add(egui::Shape::line(line, egui::Stroke::new(1.5, egui::Color32::WHITE)));
+    let mut grabbed = None;
+    for (i, p) in tf.points.iter().enumerate() {
+        let c = p.rgba.map(|v| (fascicle_render::reference::srgb8(v.clamp(0.0, 1.0))).round() as u8);
+        let pos = to_screen(p);
+        painter.circle_filled(pos, 4.0, egui::Color32::from_rgb(c[0], c[1], c[2]));
+        painter.circle_stroke(pos, 4.0, egui::Stroke::new(1.0, egui::Color32::WHITE));
+        if let Some(q) = resp.interact_pointer_pos()
+            && resp.drag_started()
+            && q.distance(pos) < 8.0
+        {
+            grabbed = Some(i);
+        }
+    }
+    let id = resp.id.with("grabbed");
+    if let Some(i) = grabbed {
+        ui.data_mut(|d| d.insert_temp(id, i));
+    }
+    if resp.drag_stopped() {
+        ui.data_mut(|d| d.remove::<usize>(id));
+    }
+    let held: Option<usize> = ui.data(|d| d.get_temp(id));
+    if let (Some(i), Some(q)) = (held, resp.interact_pointer_pos())
+        && resp.dragged()
+        && i < tf.points.len()
+    {
+        tf.points[i].x = ((q.x - rect.left()) / w).clamp(0.0, 1.0) as f64;
+        tf.points[i].rgba[3] = (((rect.bottom() - q.y) / h).clamp(0.0, 1.0) as f64) * max_a;
+    } else if resp.clicked()
+        && let Some(q) = resp.interact_pointer_pos()
+    {
+        let x = ((q.x - rect.left()) / w).clamp(0.0, 1.0) as f64;
+        let mut rgba = tf.eval_normalised(x);
+        rgba[3] = (((rect.bottom() - q.y) / h).clamp(0.0, 1.0) as f64) * max_a;
+        tf.points.push(TfPoint { x, rgba });
+    }
+    let mut remove = None;
+    for (i, p) in tf.points.iter_mut().enumerate() {
+        ui.horizontal(|ui| {
+            let mut c = [p.rgba[0] as f32, p.rgba[1] as f32, p.rgba[2] as f32];
+            if ui.color_edit_button_rgb(&mut c).changed() {
+                p.rgba[..3].copy_from_slice(&c.map(f64::from));
+            }
+            ui.add(egui::DragValue::new(&mut p.x).range(0.0..=1.0).speed(0.005).prefix("at "));
+            ui.add(egui::DragValue::new(&mut p.rgba[3]).range(0.0..=1.0).speed(0.005).prefix("opacity/mm "));
+            if ui.small_button("x").clicked() {
+                remove = Some(i);
+            }
+        });
+    }
+    if let Some(i) = remove.filter(|_| tf.points.len() > 2) {
+        tf.points.remove(i);
+    }
+    ui.horizontal(|ui| {
+        ui.label("window");
+        ui.add(egui::DragValue::new(&mut tf.range[0]).speed(0.01));
+        ui.add(egui::DragValue::new(&mut tf.range[1]).speed(0.01));
+    });
 }
 
 /// Triangle corners in widget units (side 1, y down): linear bottom left, planar bottom right, spherical top.
@@ -363,12 +473,14 @@ mod tests {
             LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Y, index: Some(7) },
             LayerKind::Axes { length_mm: 30.0 },
             crate::scene::Scene::default_scene().layers[2].kind.clone(),
+            crate::scene::Scene::default_scene().layers[3].kind.clone(),
         ];
         let before = kinds.clone();
+        let data = LayerData { histogram: Arc::new(vec![5, 100, 30, 0]), ..Default::default() };
         let _ = ctx.run_ui(egui::RawInput::default(), |ui| {
             for k in kinds.iter_mut() {
                 let p = *panels.find(k).expect("panel");
-                (p.show)(ui, k, &LayerData::default());
+                (p.show)(ui, k, &data);
             }
         });
         assert_eq!(kinds, before);
@@ -398,7 +510,7 @@ mod tests {
             .kind
             .clone();
         let before = kind.clone();
-        let data = LayerData { eigenvalues: Arc::new(vec![[1.0, 0.5, 0.1], [1.0, 1.0, 1.0]]) };
+        let data = LayerData { eigenvalues: Arc::new(vec![[1.0, 0.5, 0.1], [1.0, 1.0, 1.0]]), ..Default::default() };
         let _ = ctx.run_ui(egui::RawInput::default(), |ui| splat_panel(ui, &mut kind, &data));
         assert_eq!(kind, before);
     }

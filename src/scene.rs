@@ -10,6 +10,7 @@ use fascicle_core::sh::glyph::{GlyphPlane, GlyphStyle, Sampling};
 use fascicle_sh_glyphs::RayCastSettings;
 use fascicle_tensors::TensorGlyphSettings;
 use fascicle_tensors::splat::SplatSettings;
+use fascicle_volume::VolumeSettings;
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -87,6 +88,13 @@ pub enum LayerKind {
         #[serde(default)]
         render: SplatSettings,
     },
+    /// Direct volume rendering of a scalar volume (ray casting or 3D-texture slicing), composited with the
+    /// opaque layers by depth.
+    Volume {
+        source: VolumeSource,
+        #[serde(default)]
+        render: VolumeSettings,
+    },
     /// Ray-cast tensor glyphs (ellipsoids or superquadrics), one per voxel of a slice.
     TensorGlyphs {
         source: TensorSource,
@@ -155,6 +163,12 @@ impl LayerKind {
                     },
                     ..TensorGlyphSettings::default()
                 },
+            },
+            // Method and step change the mesh (slices) and the pre-integration table: rebuild. The transfer
+            // function and the toggles are uniform and buffer updates.
+            LayerKind::Volume { source, render } => LayerKind::Volume {
+                source: source.clone(),
+                render: VolumeSettings { method: render.method, step: render.step, ..VolumeSettings::default() },
             },
             other => other.clone(),
         }
@@ -255,6 +269,12 @@ impl Scene {
                         style: GlyphStyle { scale: 3.0, ..GlyphStyle::default() },
                         render: RayCastSettings::default(),
                     },
+                },
+                LayerSpec {
+                    name: "FA volume (DVR)".into(),
+                    visible: true,
+                    opacity: 1.0,
+                    kind: LayerKind::Volume { source: VolumeSource::PhantomFa, render: VolumeSettings::default() },
                 },
                 LayerSpec {
                     name: "Axes".into(),

@@ -279,3 +279,47 @@ fn splat_recolouring_rewrites_only_the_styles() {
     let alpha49 = f32::from_le_bytes(styles[49 * 16 + 12..49 * 16 + 16].try_into().unwrap());
     assert!((alpha49 as f64 - splats1[49].opacity).abs() < 1e-6);
 }
+
+/// The default scene's DVR layer: transfer-function edits rewrite its lookup table in place (same entity,
+/// same material); a change of method rebuilds it.
+#[test]
+fn volume_transfer_function_updates_in_place() {
+    use fascicle_volume::{VolumeMaterial, VolumeMethod, VolumeSet};
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let mut app = headless::headless_app();
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(Scene::default_scene()));
+    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    app.update();
+    let i =
+        app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Volume { .. }));
+    let i = i.expect("the default scene has a volume layer");
+    let snapshot = |app: &mut App| {
+        let mut q = app.world_mut().query::<(Entity, &VolumeSet)>();
+        let (e, s) = q.single(app.world()).expect("one volume");
+        (e, s.material.clone(), s.histogram.iter().sum::<u32>())
+    };
+    let (e0, m0, voxels) = snapshot(&mut app);
+    assert_eq!(voxels, 48 * 48 * 24, "the histogram counts every voxel");
+    let lut = app.world().resource::<Assets<VolumeMaterial>>().get(&m0).unwrap().lut.clone();
+    if let LayerKind::Volume { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
+        render.tf.points[2].rgba[3] = 0.5;
+    }
+    app.update();
+    let (e1, m1, _) = snapshot(&mut app);
+    assert_eq!((e1, &m1), (e0, &m0));
+    let bytes = app.world().resource::<Assets<ShaderBuffer>>().get(&lut).unwrap().data.clone().expect("lut");
+    let want = match &app.world().resource::<ActiveScene>().0.layers[i].kind {
+        LayerKind::Volume { render, .. } => render.tf.lut().to_bytes(),
+        _ => unreachable!(),
+    };
+    assert_eq!(bytes, want);
+    if let LayerKind::Volume { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
+        render.method = VolumeMethod::Slicing;
+    }
+    app.update();
+    let (e2, _, _) = snapshot(&mut app);
+    assert_ne!(e2, e0);
+}

@@ -36,16 +36,16 @@ pub struct TransferFunction {
 }
 
 impl Default for TransferFunction {
-    /// For FA: transparent below 0.15, then blue to yellow-white with growing opacity.
+    /// For FA as context: transparent below 0.15, then blue to yellow-white with growing, light opacity.
     fn default() -> Self {
         Self {
             range: [0.0, 1.0],
             points: vec![
                 TfPoint { x: 0.0, rgba: [0.0, 0.0, 0.0, 0.0] },
                 TfPoint { x: 0.15, rgba: [0.05, 0.1, 0.4, 0.0] },
-                TfPoint { x: 0.4, rgba: [0.1, 0.4, 0.8, 0.08] },
-                TfPoint { x: 0.7, rgba: [0.9, 0.7, 0.2, 0.3] },
-                TfPoint { x: 1.0, rgba: [1.0, 1.0, 0.9, 0.6] },
+                TfPoint { x: 0.4, rgba: [0.1, 0.4, 0.8, 0.01] },
+                TfPoint { x: 0.7, rgba: [0.9, 0.7, 0.2, 0.03] },
+                TfPoint { x: 1.0, rgba: [1.0, 1.0, 0.9, 0.08] },
             ],
         }
     }
@@ -194,7 +194,10 @@ fn table_eval(table: &[DVec4], n: usize, uf: f64, ub: f64) -> DVec4 {
 /// stops at the volume's exit or at `t_stop` (an opaque surface's distance), and its first sample is at
 /// `jitter · step` past the entry. `table` is the pre-integrated table (with its size) when
 /// `params.preintegrated`.
-#[allow(clippy::too_many_arguments, reason = "the ray, its stop and the classification are all inputs of one sample loop")]
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the ray, its stop and the classification are all inputs of one sample loop"
+)]
 pub fn march(
     vol: &Volume<f32>,
     voxel_from_world: DMat4,

@@ -155,7 +155,24 @@ pub struct OpaqueDepth(pub Handle<Image>);
 pub struct VolumeSet {
     pub material: Handle<VolumeMaterial>,
     pub dims: [usize; 3],
+    pub world_from_voxel: glam::DMat4,
     pub settings: VolumeSettings,
+    /// Counts of the volume's values in [`HISTOGRAM_BINS`] bins over the transfer function's range.
+    pub histogram: std::sync::Arc<Vec<u32>>,
+}
+
+/// Bins of a volume's histogram (for the transfer-function editor).
+pub const HISTOGRAM_BINS: usize = 64;
+
+/// Counts of finite values in `bins` equal bins over `[lo, hi]` (values outside are clamped in).
+pub fn histogram(values: &[f32], range: [f64; 2], bins: usize) -> Vec<u32> {
+    let mut h = vec![0u32; bins];
+    let span = range[1] - range[0];
+    for v in values.iter().filter(|v| v.is_finite()) {
+        let u = if span > 0.0 { ((*v as f64 - range[0]) / span).clamp(0.0, 1.0) } else { 0.0 };
+        h[((u * bins as f64) as usize).min(bins - 1)] += 1;
+    }
+    h
 }
 
 pub struct VolumePlugin;
@@ -414,7 +431,13 @@ pub fn spawn_volume(
     };
     commands
         .spawn((
-            VolumeSet { material: material.clone(), dims: d, settings: settings.clone() },
+            VolumeSet {
+                material: material.clone(),
+                dims: d,
+                world_from_voxel: vol.world_from_voxel,
+                settings: settings.clone(),
+                histogram: std::sync::Arc::new(histogram(&vol.data[..n], settings.tf.range, HISTOGRAM_BINS)),
+            },
             Mesh3d(meshes.add(mesh)),
             MeshMaterial3d(material),
             Transform::default(),
