@@ -36,6 +36,16 @@ pub enum BenchCommand {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// Volume rendering: ray casting (early termination on/off, pre-integrated) and 3D-texture slicing of
+    /// 128³ and 256³ volumes over the step, frame time and error against the f64 marcher.
+    Volume {
+        /// 128³ at 128x128, two steps (under 2 minutes here).
+        #[arg(long)]
+        quick: bool,
+        /// Also write the rows as CSV (method,n,param,frame_ms,error).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
     /// Tensor splats (10k, 100k, 1M) and ellipsoid/superquadric glyphs: static and orbiting frame time,
     /// CPU sort time, static CPU cost, colour error against the f64 compositor.
     Splats {
@@ -53,6 +63,9 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         BenchCommand::Tracking { phantom, seed_density } => tracking(&phantom, seed_density),
         BenchCommand::Glyphs { quick, csv } => {
             super::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+        }
+        BenchCommand::Volume { quick, csv } => {
+            super::bench_volume::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Splats { quick, csv } => {
             super::bench_splats::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))

@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod bench_glyphs;
 pub mod bench_splats;
+pub mod bench_volume;
 pub mod fit;
 pub mod info;
 pub mod track;
