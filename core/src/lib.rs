@@ -12,6 +12,7 @@ pub mod error;
 pub mod io;
 pub mod linalg;
 pub mod phantom;
+pub mod roi;
 pub mod sh;
 pub mod tracking;
 pub mod volume;

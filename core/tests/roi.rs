@@ -1,0 +1,124 @@
+//! ROI selection against brute force: on `tracks300.trk` and on RK4 tracts of the phantom, random sphere, box
+//! and plane ROIs in include/exclude combinations select exactly the streamlines a grid-free evaluation of
+//! every segment selects; and the segment predicates agree with dense sampling of each segment.
+
+use fascicle_core::io::Tractogram;
+use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
+use glam::Vec3;
+use rand::{Rng, SeedableRng};
+
+fn data(p: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(p)
+}
+
+fn brute(t: &Tractogram, rois: &[Roi]) -> Vec<bool> {
+    (0..t.offsets.len() - 1)
+        .map(|s| {
+            let pts = &t.points[t.offsets[s]..t.offsets[s + 1]];
+            let meets = |r: &Roi| {
+                if pts.len() == 1 {
+                    return r.shape.meets_segment(pts[0], pts[0]);
+                }
+                pts.windows(2).any(|w| r.shape.meets_segment(w[0], w[1]))
+            };
+            rois.iter().filter(|r| r.mode == RoiMode::Include).all(meets)
+                && !rois.iter().filter(|r| r.mode == RoiMode::Exclude).any(meets)
+        })
+        .collect()
+}
+
+fn random_roi(rng: &mut rand_pcg::Pcg64, lo: Vec3, hi: Vec3) -> Roi {
+    let p = lo + (hi - lo) * Vec3::new(rng.random(), rng.random(), rng.random());
+    let size = (hi - lo).length() * (0.03 + 0.12 * rng.random::<f32>());
+    let shape = match rng.random_range(0..3) {
+        0 => RoiShape::Sphere { centre: p.to_array(), radius: size },
+        1 => RoiShape::Box { min: (p - size).to_array(), max: (p + size * Vec3::new(1.0, 0.5, 2.0)).to_array() },
+        _ => RoiShape::Plane {
+            point: p.to_array(),
+            normal: Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5)
+                .to_array(),
+        },
+    };
+    let mode = if rng.random::<f32>() < 0.7 { RoiMode::Include } else { RoiMode::Exclude };
+    Roi { shape, mode }
+}
+
+fn check(t: &Tractogram, seed: u64) -> (usize, usize) {
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for p in &t.points {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let (mut selected, mut cases) = (0, 0);
+    for _ in 0..60 {
+        let rois: Vec<Roi> = (0..rng.random_range(1..4)).map(|_| random_roi(&mut rng, lo, hi)).collect();
+        let got = select(&t.points, &t.offsets, &grid, &rois);
+        assert_eq!(got, brute(t, &rois), "{rois:?}");
+        selected += got.iter().filter(|s| **s).count();
+        cases += 1;
+    }
+    (selected, cases)
+}
+
+#[test]
+fn selection_matches_brute_force_on_tracks300() {
+    let t = Tractogram::read(data("data/tracts/tracks300.trk")).unwrap();
+    let (selected, cases) = check(&t, 1);
+    println!("tracks300: {selected} streamlines selected over {cases} ROI sets");
+    assert!(selected > 100, "the ROIs must select something: {selected}");
+}
+
+#[test]
+fn selection_matches_brute_force_on_phantom_tracts() {
+    use fascicle_core::tracking::{TensorField, TensorInterpolation, TrackParams, Tracker};
+    let ph = fascicle_core::phantom::ring_cross([48, 48, 24]);
+    let voxel = glam::DVec3::new(
+        ph.world_from_voxel.x_axis.length(),
+        ph.world_from_voxel.y_axis.length(),
+        ph.world_from_voxel.z_axis.length(),
+    );
+    let field =
+        TensorField::new(ph.dims, voxel, ph.tensors.iter().map(|t| Some(*t)), TensorInterpolation::Componentwise)
+            .unwrap();
+    let seeds: Vec<glam::DVec3> =
+        (0..400).map(|i| glam::DVec3::new(2.0 + (i % 44) as f64, 2.0 + (i / 44) as f64 * 5.0, 12.0)).collect();
+    let t = Tracker::new(&field, ph.world_from_voxel, TrackParams::default()).unwrap().run(&seeds).tractogram;
+    assert!(t.offsets.len() > 50);
+    let (selected, _) = check(&t, 2);
+    assert!(selected > 50);
+}
+
+#[test]
+fn segment_predicates_agree_with_dense_sampling() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+    let (mut hits, mut misses) = (0, 0);
+    for _ in 0..20_000 {
+        let roi = random_roi(&mut rng, Vec3::splat(-10.0), Vec3::splat(10.0));
+        let a = Vec3::new(rng.random(), rng.random(), rng.random()) * 20.0 - 10.0;
+        let b = a + (Vec3::new(rng.random(), rng.random(), rng.random()) - 0.5) * 8.0;
+        let exact = roi.shape.meets_segment(a, b);
+        let inside = |p: Vec3, grow: f32| match roi.shape {
+            RoiShape::Sphere { centre, radius } => (p - Vec3::from(centre)).length() <= radius + grow,
+            RoiShape::Box { min, max } => {
+                (p - Vec3::from(min)).min_element() >= -grow && (Vec3::from(max) - p).min_element() >= -grow
+            }
+            RoiShape::Plane { .. } => false,
+        };
+        if let RoiShape::Plane { point, normal } = roi.shape {
+            let s = |p: Vec3| (p - Vec3::from(point)).dot(Vec3::from(normal));
+            assert_eq!(exact, s(a) * s(b) <= 0.0);
+            continue;
+        }
+        let n = 512;
+        let grow = (b - a).length() / n as f32;
+        let sampled = (0..=n).any(|k| inside(a.lerp(b, k as f32 / n as f32), 0.0));
+        let near = (0..=n).any(|k| inside(a.lerp(b, k as f32 / n as f32), grow * 1.01));
+        // A sampled hit is a hit; an exact hit is within one sample spacing of a sampled one.
+        assert!(!sampled || exact, "{roi:?} {a} {b}");
+        assert!(!exact || near, "{roi:?} {a} {b}");
+        if exact { hits += 1 } else { misses += 1 }
+    }
+    assert!(hits > 300 && misses > 1000, "{hits} hits, {misses} misses");
+}
