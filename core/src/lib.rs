@@ -15,6 +15,7 @@ pub mod phantom;
 pub mod roi;
 pub mod sh;
 pub mod tracking;
+pub mod tubelet;
 pub mod volume;
 
 pub use error::{Error, Result};

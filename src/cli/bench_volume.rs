@@ -169,7 +169,8 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
             let (ms, img) = render(&vol, n, &s, image)?;
             let err = error(&img, &want, image);
             if let Ok(dir) = std::env::var("FASCICLE_BENCH_OUT") {
-                let _ = std::fs::write(format!("{dir}/volume_{name}_{n}_{param}.png"), img.to_png().unwrap_or_default());
+                let _ =
+                    std::fs::write(format!("{dir}/volume_{name}_{n}_{param}.png"), img.to_png().unwrap_or_default());
             }
             println!("| {name} | {n}^3 | {param} | {ms:.1} | {err:.3} |");
             rows.push(format!("{name},{},{param},{ms:.2},{err:.4}", n * n * n));

@@ -1,0 +1,343 @@
+//! Fibre tracts as a Bevy plugin: hyperstreamlines (ray-cast tubelets with elliptical cross-sections from
+//! the tensors, `shaders/tubelet.wgsl`, reference `fascicle_core::tubelet`), the polygon-tube baseline and
+//! ROI selection.
+//!
+//! A tract set is one entity and one draw: its tubelets live in one storage buffer, its mesh holds 8
+//! vertices per tubelet carrying (slot, corner), and the vertex shader builds each bounding box. ROIs are
+//! entities ([`TractRoi`]); [`apply_rois`] re-evaluates the selection (parallel, over a uniform segment grid)
+//! only when an ROI or a tract set changes, and rewrites a 4-byte-per-streamline flag buffer; nothing else
+//! is re-uploaded.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use bevy::asset::RenderAssetUsages;
+use bevy::camera::visibility::NoFrustumCulling;
+use bevy::mesh::{Indices, MeshVertexBufferLayoutRef, PrimitiveTopology};
+use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
+use bevy::prelude::*;
+use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
+use bevy::render::storage::ShaderBuffer;
+use bevy::shader::ShaderRef;
+use fascicle_core::io::Tractogram;
+use fascicle_core::roi::{Roi, SegmentGrid, select};
+use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
+use fascicle_render::shaders;
+
+/// Drawing options of hyperstreamlines.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TubeSettings {
+    /// Cross-section scale (mm): a semi-axis is `scale · l_k / l1` (at least 5 % of it).
+    pub scale: f64,
+    pub colour: TubeColour,
+    /// Iteration cap of the per-pixel intersection.
+    pub iterations: u32,
+    /// Convergence tolerance, in units of the tubelet's largest radius.
+    pub eps: f32,
+    pub ambient: f32,
+    pub specular: f32,
+    pub shininess: f32,
+}
+
+impl Default for TubeSettings {
+    fn default() -> Self {
+        Self {
+            scale: 2.0,
+            colour: TubeColour::Direction,
+            iterations: 8,
+            eps: 1e-3,
+            ambient: 0.3,
+            specular: 0.25,
+            shininess: 24.0,
+        }
+    }
+}
+
+/// GPU parameters. Keep in sync with `TubeParams` in `shaders/tubelet.wgsl`.
+#[derive(Clone, Copy, Debug, ShaderType)]
+pub struct TubeUniform {
+    pub iterations: u32,
+    pub eps: f32,
+    pub ambient: f32,
+    pub specular: f32,
+    pub shininess: f32,
+    pub use_selection: u32,
+}
+
+impl TubeUniform {
+    pub fn new(s: &TubeSettings, use_selection: bool) -> Self {
+        Self {
+            iterations: s.iterations.max(1),
+            eps: s.eps,
+            ambient: s.ambient,
+            specular: s.specular,
+            shininess: s.shininess,
+            use_selection: u32::from(use_selection),
+        }
+    }
+}
+
+#[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
+pub struct TubeletMaterial {
+    #[uniform(0)]
+    pub params: TubeUniform,
+    #[storage(1, read_only)]
+    pub tubes: Handle<ShaderBuffer>,
+    #[storage(2, read_only)]
+    pub selected: Handle<ShaderBuffer>,
+}
+
+impl Material for TubeletMaterial {
+    fn vertex_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::TUBELET)
+    }
+    fn fragment_shader() -> ShaderRef {
+        ShaderRef::Handle(shaders::TUBELET)
+    }
+    fn enable_prepass() -> bool {
+        false
+    }
+    fn enable_shadows() -> bool {
+        false
+    }
+    fn specialize(
+        _pipeline: &MaterialPipeline,
+        descriptor: &mut RenderPipelineDescriptor,
+        _layout: &MeshVertexBufferLayoutRef,
+        _key: MaterialPipelineKey<Self>,
+    ) -> Result<(), SpecializedMeshPipelineError> {
+        // Back faces of each box: one fragment per pixel and tubelet, also with the camera inside a box.
+        descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Front);
+        Ok(())
+    }
+}
+
+/// A set of tracts drawn as tubelets: one entity, one draw.
+#[derive(Component, Clone)]
+pub struct TractSet {
+    pub material: Handle<TubeletMaterial>,
+    pub tractogram: Arc<Tractogram>,
+    pub grid: Arc<SegmentGrid>,
+    pub n_tubelets: usize,
+    pub settings: TubeSettings,
+}
+
+/// Per streamline of a tract set, whether the ROIs select it.
+#[derive(Component, Clone, Debug, Default)]
+pub struct TractSelection(pub Vec<bool>);
+
+/// A region of interest acting on every tract set.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct TractRoi(pub Roi);
+
+/// The cost of the last ROI re-selection.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct RoiStats {
+    pub evaluations: u64,
+    pub last_ms: f64,
+    pub selected: usize,
+}
+
+pub struct TractPlugin;
+
+impl Plugin for TractPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_plugins(MaterialPlugin::<TubeletMaterial>::default())
+            .init_resource::<RoiStats>()
+            .add_systems(PostUpdate, apply_rois);
+    }
+}
+
+/// Storage bytes: seven `vec4<f32>` per tubelet.
+pub fn pack(tubes: &[Tubelet]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(tubes.len() * 112);
+    for t in tubes {
+        let q = t.rotation;
+        let vals = [
+            t.centre.x as f32,
+            t.centre.y as f32,
+            t.centre.z as f32,
+            t.half_length as f32,
+            q.x as f32,
+            q.y as f32,
+            q.z as f32,
+            q.w as f32,
+            t.radii[0] as f32,
+            t.radii[1] as f32,
+            t.radii[2] as f32,
+            t.radii[3] as f32,
+            t.cuts[0].x as f32,
+            t.cuts[0].y as f32,
+            t.cuts[0].z as f32,
+            t.twist as f32,
+            t.cuts[1].x as f32,
+            t.cuts[1].y as f32,
+            t.cuts[1].z as f32,
+            f32::from_bits(t.streamline),
+            t.colours[0].x as f32,
+            t.colours[0].y as f32,
+            t.colours[0].z as f32,
+            0.0,
+            t.colours[1].x as f32,
+            t.colours[1].y as f32,
+            t.colours[1].z as f32,
+            0.0,
+        ];
+        for v in vals {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    if out.is_empty() {
+        out = vec![0u8; 112];
+    }
+    out
+}
+
+/// 8 vertices (slot, corner, 0) and 12 outward counter-clockwise triangles per tubelet.
+pub fn boxes(n: usize) -> Mesh {
+    const IDX: [u32; 36] =
+        [0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4, 6, 1, 3, 5, 3, 7, 5];
+    let mut pos = Vec::with_capacity(8 * n);
+    let mut idx = Vec::with_capacity(36 * n);
+    for i in 0..n.max(1) {
+        for c in 0..8 {
+            pos.push([i as f32, c as f32, 0.0]);
+        }
+        idx.extend(IDX.iter().map(|k| k + 8 * i as u32));
+    }
+    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
+        .with_inserted_indices(Indices::U32(idx))
+}
+
+/// The tubelets of a tractogram with optional per-point world tensors (lower-triangular, mm²/s).
+pub fn tract_tubelets(t: &Tractogram, tensors: Option<&[[f32; 6]]>, settings: &TubeSettings) -> Vec<Tubelet> {
+    let mut out = Vec::new();
+    for s in 0..t.offsets.len().saturating_sub(1) {
+        let r = t.offsets[s]..t.offsets[s + 1];
+        let pts: Vec<glam::DVec3> = t.points[r.clone()].iter().map(|p| p.as_dvec3()).collect();
+        let tens: Option<Vec<[f64; 6]>> = tensors.map(|ts| ts[r].iter().map(|v| v.map(f64::from)).collect());
+        out.extend(tubelets(&pts, tens.as_deref(), settings.scale, settings.colour, s as u32));
+    }
+    out
+}
+
+/// Spawns a tract set as hyperstreamlines; returns its entity.
+pub fn spawn_tubes(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<TubeletMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    tractogram: Arc<Tractogram>,
+    tensors: Option<&[[f32; 6]]>,
+    settings: &TubeSettings,
+) -> Entity {
+    let tubes = tract_tubelets(&tractogram, tensors, settings);
+    let n_streamlines = tractogram.offsets.len().saturating_sub(1);
+    let flags = [1u8, 0, 0, 0].repeat(n_streamlines.max(1));
+    let material = materials.add(TubeletMaterial {
+        params: TubeUniform::new(settings, false),
+        tubes: buffers.add(ShaderBuffer::new(&pack(&tubes), RenderAssetUsages::RENDER_WORLD)),
+        selected: buffers.add(ShaderBuffer::new(&flags, RenderAssetUsages::default())),
+    });
+    let grid = Arc::new(SegmentGrid::new(&tractogram.points, &tractogram.offsets, 4.0));
+    let mut e = commands.spawn((
+        TractSet { material: material.clone(), tractogram, grid, n_tubelets: tubes.len(), settings: *settings },
+        TractSelection(vec![true; n_streamlines]),
+        Transform::default(),
+        Visibility::default(),
+    ));
+    if !tubes.is_empty() {
+        e.insert((Mesh3d(meshes.add(boxes(tubes.len()))), MeshMaterial3d(material), NoFrustumCulling));
+    }
+    e.id()
+}
+
+/// The polygon-tube baseline mesh (`sides` per profile), coloured by local direction.
+pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f64, sides: usize) -> Mesh {
+    let (mut pos, mut nrm, mut col, mut idx) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for s in 0..t.offsets.len().saturating_sub(1) {
+        let r = t.offsets[s]..t.offsets[s + 1];
+        let pts: Vec<glam::DVec3> = t.points[r.clone()].iter().map(|p| p.as_dvec3()).collect();
+        let tens: Option<Vec<[f64; 6]>> = tensors.map(|ts| ts[r].iter().map(|v| v.map(f64::from)).collect());
+        let rings = polygon_rings(&pts, tens.as_deref(), scale, sides);
+        if rings.is_empty() {
+            continue;
+        }
+        let base = pos.len() as u32;
+        for (i, (p, n)) in rings.iter().enumerate() {
+            let k = (i / sides).min(pts.len() - 2);
+            let d = (pts[k + 1] - pts[k]).normalize_or_zero().abs();
+            pos.push(p.as_vec3().to_array());
+            nrm.push(n.as_vec3().to_array());
+            col.push([d.x as f32, d.y as f32, d.z as f32, 1.0]);
+        }
+        for ring in 0..pts.len() - 1 {
+            for k in 0..sides {
+                let a = base + (ring * sides + k) as u32;
+                let b = base + (ring * sides + (k + 1) % sides) as u32;
+                let (c, d) = (a + sides as u32, b + sides as u32);
+                idx.extend([a, b, c, b, d, c]);
+            }
+        }
+    }
+    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_NORMAL, nrm)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
+        .with_inserted_indices(Indices::U32(idx))
+}
+
+/// Re-evaluates every tract set's selection when an ROI or a set changed (never otherwise), and rewrites
+/// the sets' flag buffers.
+#[allow(clippy::type_complexity, reason = "a Bevy system's change filters")]
+pub fn apply_rois(
+    changed_rois: Query<(), Or<(Added<TractRoi>, Changed<TractRoi>)>>,
+    mut removed: RemovedComponents<TractRoi>,
+    rois: Query<&TractRoi>,
+    mut sets: Query<(Ref<TractSet>, &mut TractSelection)>,
+    mut materials: ResMut<Assets<TubeletMaterial>>,
+    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut stats: ResMut<RoiStats>,
+) {
+    let removed_any = removed.read().count() > 0;
+    if changed_rois.is_empty() && !removed_any && !sets.iter().any(|(s, _)| s.is_added()) {
+        return;
+    }
+    let t0 = Instant::now();
+    let list: Vec<Roi> = rois.iter().map(|r| r.0).collect();
+    let mut selected = 0;
+    for (set, mut selection) in &mut sets {
+        let sel = select(&set.tractogram.points, &set.tractogram.offsets, &set.grid, &list);
+        selected += sel.iter().filter(|s| **s).count();
+        let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();
+        selection.0 = sel;
+        let use_selection = !list.is_empty();
+        if let Some(mut m) = materials.get_mut(&set.material) {
+            if m.params.use_selection != u32::from(use_selection) {
+                m.params.use_selection = u32::from(use_selection);
+            }
+            if !bytes.is_empty()
+                && let Some(mut b) = buffers.get_mut(&m.selected)
+            {
+                b.data = Some(bytes);
+            }
+        }
+    }
+    stats.evaluations += 1;
+    stats.last_ms = t0.elapsed().as_secs_f64() * 1e3;
+    stats.selected = selected;
+}
+
+/// The selected streamlines of a set as a new tractogram (for saving as `.trk`/`.tck`).
+pub fn selected_tractogram(set: &TractSet, selection: &TractSelection) -> Tractogram {
+    let t = &set.tractogram;
+    let mut out = Tractogram::new();
+    for (s, keep) in selection.0.iter().enumerate() {
+        if *keep {
+            out.points.extend_from_slice(&t.points[t.offsets[s]..t.offsets[s + 1]]);
+            out.offsets.push(out.points.len());
+        }
+    }
+    out
+}
