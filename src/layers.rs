@@ -18,10 +18,13 @@ use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
+use fascicle_tracts::{TractPlugin, TractRoi, TractSet, TubeUniform, TubeletMaterial, polygon_tube_mesh, spawn_tubes};
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, VolumeUniform, spawn_volume, tf_buffers};
 
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
-use crate::scene::{LayerKind, LayerSpec, Scene, ShSource, SliceAxis, TensorSource, VolumeSource};
+use crate::scene::{
+    LayerKind, LayerSpec, Scene, ShSource, SliceAxis, TensorSource, TractMode, TractSource, VolumeSource,
+};
 
 /// The scene being shown.
 #[derive(Resource, Clone, Debug)]
@@ -51,6 +54,9 @@ impl Plugin for ScenePlugin {
         }
         if !app.is_plugin_added::<VolumePlugin>() {
             app.add_plugins(VolumePlugin);
+        }
+        if !app.is_plugin_added::<TractPlugin>() {
+            app.add_plugins(TractPlugin);
         }
         app.init_resource::<LayerErrors>()
             .init_resource::<Spawned>()
@@ -86,20 +92,25 @@ fn sync_scene(
     scene: Res<ActiveScene>,
     mut spawned: ResMut<Spawned>,
     mut errors: ResMut<LayerErrors>,
-    existing: Query<(Entity, &LayerEntity, Option<&MeshMaterial3d<StandardMaterial>>)>,
+    existing: Query<LayerParts, Without<TractRoi>>,
     mut meshes: ResMut<Assets<Mesh>>,
     mut images: ResMut<Assets<Image>>,
     mut materials: ResMut<Assets<StandardMaterial>>,
     mut glyph_materials: ResMut<Assets<ShGlyphMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     glyph_sets: Query<(&ShGlyphSet, &LayerEntity)>,
-    mut tensor_materials: ResMut<Assets<TensorGlyphMaterial>>,
-    tensor_sets: Query<(&TensorGlyphSet, &LayerEntity)>,
-    mut splat_materials: ResMut<Assets<SplatMaterial>>,
-    mut splat_sets: Query<(&mut SplatSet, &LayerEntity)>,
+    tensor: TensorAssets,
     volume: VolumeAssets,
+    tracts: TractAssets,
 ) {
+    let TensorAssets {
+        glyph_materials: mut tensor_materials,
+        glyph_sets: tensor_sets,
+        mut splat_materials,
+        mut splat_sets,
+    } = tensor;
     let VolumeAssets { materials: mut volume_materials, sets: volume_sets, depth } = volume;
+    let TractAssets { materials: mut tube_materials, sets: tract_sets, rois: roi_entities } = tracts;
     let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
     let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
     if structure(&kinds) == structure(&spawned.0) {
@@ -122,6 +133,27 @@ fn sync_scene(
                 }
                 if let Some(mut m) = splat_materials.get_mut(&set.material) {
                     m.params = render.into();
+                }
+            }
+        }
+        for (set, le) in &tract_sets {
+            if let Some(LayerKind::Tracts { render, rois, .. }) = kinds.get(le.0)
+                && spawned.0.get(le.0) != kinds.get(le.0)
+            {
+                if let Some(mut m) = tube_materials.get_mut(&set.material) {
+                    m.params = TubeUniform::new(render, m.params.use_selection == 1);
+                }
+                if let Some(LayerKind::Tracts { rois: before, .. }) = spawned.0.get(le.0)
+                    && before != rois
+                {
+                    for (e, rle) in &roi_entities {
+                        if rle.0 == le.0 {
+                            commands.entity(e).despawn();
+                        }
+                    }
+                    for r in rois {
+                        commands.spawn((TractRoi(*r), LayerEntity(le.0)));
+                    }
                 }
             }
         }
@@ -161,6 +193,9 @@ fn sync_scene(
     for (e, _, _) in &existing {
         commands.entity(e).despawn();
     }
+    for (e, _) in &roi_entities {
+        commands.entity(e).despawn();
+    }
     errors.0.clear();
     for (i, spec) in scene.0.layers.iter().enumerate() {
         let vis = if spec.visible { Visibility::Inherited } else { Visibility::Hidden };
@@ -184,6 +219,52 @@ fn sync_scene(
                 spawn_splats(&mut commands, &mut meshes, &mut splat_materials, &mut buffers, &s, render)
             });
             place(&mut commands, &mut errors, set, spec, vis, i);
+            continue;
+        }
+        if let LayerKind::Tracts { source, mode, render, rois } = &spec.kind {
+            match (tract_data(source), mode) {
+                (Err(e), _) => errors.0.push(format!("layer '{}': {e}", spec.name)),
+                (Ok((t, tensors)), TractMode::Tubes) => {
+                    let set = spawn_tubes(
+                        &mut commands,
+                        &mut meshes,
+                        &mut tube_materials,
+                        &mut buffers,
+                        std::sync::Arc::new(t),
+                        tensors.as_deref(),
+                        render,
+                    );
+                    place(&mut commands, &mut errors, Ok(set), spec, vis, i);
+                    for r in rois {
+                        commands.spawn((TractRoi(*r), LayerEntity(i)));
+                    }
+                }
+                (Ok((t, tensors)), TractMode::Polygon) => {
+                    let mesh = polygon_tube_mesh(&t, tensors.as_deref(), render.scale, 16);
+                    let m = materials.add(StandardMaterial {
+                        base_color: Color::WHITE,
+                        perceptual_roughness: 0.6,
+                        ..default()
+                    });
+                    commands.spawn((
+                        Mesh3d(meshes.add(mesh)),
+                        MeshMaterial3d(m),
+                        Transform::IDENTITY,
+                        vis,
+                        LayerEntity(i),
+                    ));
+                }
+                (Ok((t, _)), TractMode::Lines) => {
+                    let m = materials.add(unlit(spec.opacity));
+                    commands.spawn((
+                        Mesh3d(meshes.add(lines(&t))),
+                        MeshMaterial3d(m),
+                        Transform::IDENTITY,
+                        vis,
+                        LayerEntity(i),
+                    ));
+                }
+            }
             continue;
         }
         if let LayerKind::Volume { source, render } = &spec.kind {
@@ -298,7 +379,8 @@ fn spawn_layer(
         LayerKind::ShGlyphs { .. }
         | LayerKind::TensorGlyphs { .. }
         | LayerKind::TensorSplats { .. }
-        | LayerKind::Volume { .. } => Ok(vec![]), // spawned by their plugins
+        | LayerKind::Volume { .. }
+        | LayerKind::Tracts { .. } => Ok(vec![]), // spawned by their plugins
         LayerKind::Tractogram { path } => {
             let t = Tractogram::read(path).map_err(|e| e.to_string())?;
             if t.points.is_empty() {
@@ -333,12 +415,69 @@ fn scalar_volume(source: &VolumeSource) -> Result<Volume<f32>, String> {
     }
 }
 
+/// What tensor glyph and splat layers need.
+#[derive(bevy::ecs::system::SystemParam)]
+struct TensorAssets<'w, 's> {
+    glyph_materials: ResMut<'w, Assets<TensorGlyphMaterial>>,
+    glyph_sets: Query<'w, 's, (&'static TensorGlyphSet, &'static LayerEntity)>,
+    splat_materials: ResMut<'w, Assets<SplatMaterial>>,
+    splat_sets: Query<'w, 's, (&'static mut SplatSet, &'static LayerEntity)>,
+}
+
 /// The volume plugin's asset stores a volume layer needs.
 #[derive(bevy::ecs::system::SystemParam)]
 struct VolumeAssets<'w, 's> {
     materials: ResMut<'w, Assets<VolumeMaterial>>,
     sets: Query<'w, 's, (&'static VolumeSet, &'static LayerEntity)>,
     depth: Option<Res<'w, OpaqueDepth>>,
+}
+
+/// What a tract layer needs: its material store, its sets and its ROI entities.
+#[derive(bevy::ecs::system::SystemParam)]
+struct TractAssets<'w, 's> {
+    materials: ResMut<'w, Assets<TubeletMaterial>>,
+    sets: Query<'w, 's, (&'static TractSet, &'static LayerEntity)>,
+    rois: Query<'w, 's, (Entity, &'static LayerEntity), With<TractRoi>>,
+}
+
+/// A layer's spawned entities (ROIs aside) and their standard material, if any.
+type LayerParts = (Entity, &'static LayerEntity, Option<&'static MeshMaterial3d<StandardMaterial>>);
+
+/// Streamlines and, when the source has them, per-point world tensors.
+pub type TractData = (Tractogram, Option<Vec<[f32; 6]>>);
+
+/// A tract source's streamlines, with per-point world tensors when it has them.
+pub fn tract_data(source: &TractSource) -> Result<TractData, String> {
+    match source {
+        TractSource::PhantomRk4 { seed_spacing } => {
+            use fascicle_core::tracking::{TensorField, TensorInterpolation, TrackParams, Tracker};
+            let spacing = (*seed_spacing).max(1);
+            let ph = fascicle_core::phantom::ring_cross([48, 48, 24]);
+            let a = ph.world_from_voxel;
+            let voxel = glam::DVec3::new(a.x_axis.length(), a.y_axis.length(), a.z_axis.length());
+            let field = TensorField::new(
+                ph.dims,
+                voxel,
+                ph.tensors.iter().map(|t| Some(*t)),
+                TensorInterpolation::Componentwise,
+            )
+            .map_err(|e| e.to_string())?;
+            let z = ph.dims[2] / 2;
+            let seeds: Vec<glam::DVec3> = (0..ph.dims[1])
+                .step_by(spacing)
+                .flat_map(|y| (0..ph.dims[0]).step_by(spacing).map(move |x| [x, y]))
+                .filter(|[x, y]| {
+                    let t = ph.tensors[x + ph.dims[0] * (y + ph.dims[1] * z)];
+                    fascicle_core::dti::eigh(&t).is_some_and(|e| fascicle_core::dti::metrics::fa(&e.values) >= 0.3)
+                })
+                .map(|[x, y]| glam::DVec3::new(x as f64, y as f64, z as f64))
+                .collect();
+            let params = TrackParams { step_mm: 1.0, ..TrackParams::default() };
+            let tracks = Tracker::new(&field, a, params).map_err(|e| e.to_string())?.run(&seeds);
+            Ok((tracks.tractogram, Some(tracks.tensors)))
+        }
+        TractSource::File { path } => Ok((Tractogram::read(path).map_err(|e| e.to_string())?, None)),
+    }
 }
 
 /// SH coefficients (X,Y,Z,n) and their basis for a glyph layer; for the phantom only the voxels of

@@ -67,6 +67,7 @@ impl Default for LayerPanels {
                 show: splat_panel,
             },
             LayerPanel { name: "volume", applies: |k| matches!(k, LayerKind::Volume { .. }), show: volume_panel },
+            LayerPanel { name: "tracts", applies: |k| matches!(k, LayerKind::Tracts { .. }), show: tracts_panel },
             LayerPanel {
                 name: "tensor glyphs",
                 applies: |k| matches!(k, LayerKind::TensorGlyphs { .. }),
@@ -195,6 +196,77 @@ fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     if render.colouring.mode == SplatColourMode::Barycentric {
         barycentric_widget(ui, &mut render.colouring.tf, &data.eigenvalues);
     }
+}
+
+/// Tracts: mode, cross-section scale and colour (rebuild); iterations and tolerance (uniform); ROIs
+/// (re-selection only).
+fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
+    use crate::scene::TractMode;
+    use fascicle_core::roi::{Roi, RoiMode, RoiShape};
+    use fascicle_core::tubelet::TubeColour;
+    let LayerKind::Tracts { mode, render, rois, .. } = kind else { return };
+    ui.horizontal(|ui| {
+        ui.radio_value(mode, TractMode::Tubes, "hyperstreamlines");
+        ui.radio_value(mode, TractMode::Polygon, "polygon tubes");
+        ui.radio_value(mode, TractMode::Lines, "lines");
+    });
+    ui.add(egui::Slider::new(&mut render.scale, 0.2..=6.0).text("cross-section scale (mm)"));
+    ui.add(egui::Slider::new(&mut render.iterations, 1..=32).text("iterations"));
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut render.colour, TubeColour::Direction, "direction");
+        ui.radio_value(&mut render.colour, TubeColour::Westin, "Westin");
+        ui.radio_value(&mut render.colour, TubeColour::Streamline, "per streamline");
+    });
+    ui.label("ROIs (a streamline shows when it meets every include and no exclude)");
+    let mut remove = None;
+    for (i, roi) in rois.iter_mut().enumerate() {
+        ui.push_id(i, |ui| {
+            ui.horizontal(|ui| {
+                ui.radio_value(&mut roi.mode, RoiMode::Include, "include");
+                ui.radio_value(&mut roi.mode, RoiMode::Exclude, "exclude");
+                if ui.small_button("x").clicked() {
+                    remove = Some(i);
+                }
+            });
+            let drag = |ui: &mut egui::Ui, v: &mut [f32; 3], label: &str| {
+                ui.horizontal(|ui| {
+                    ui.label(label);
+                    for c in v.iter_mut() {
+                        ui.add(egui::DragValue::new(c).speed(0.5));
+                    }
+                });
+            };
+            match &mut roi.shape {
+                RoiShape::Sphere { centre, radius } => {
+                    drag(ui, centre, "sphere at");
+                    ui.add(egui::Slider::new(radius, 0.5..=60.0).text("radius (mm)"));
+                }
+                RoiShape::Box { min, max } => {
+                    drag(ui, min, "box from");
+                    drag(ui, max, "to");
+                }
+                RoiShape::Plane { point, normal } => {
+                    drag(ui, point, "plane through");
+                    drag(ui, normal, "normal");
+                }
+            }
+        });
+    }
+    if let Some(i) = remove {
+        rois.remove(i);
+    }
+    ui.horizontal(|ui| {
+        let add = |shape| Roi { shape, mode: RoiMode::Include };
+        if ui.button("+ sphere").clicked() {
+            rois.push(add(RoiShape::Sphere { centre: [0.0; 3], radius: 10.0 }));
+        }
+        if ui.button("+ box").clicked() {
+            rois.push(add(RoiShape::Box { min: [-10.0; 3], max: [10.0; 3] }));
+        }
+        if ui.button("+ plane").clicked() {
+            rois.push(add(RoiShape::Plane { point: [0.0; 3], normal: [1.0, 0.0, 0.0] }));
+        }
+    });
 }
 
 /// Volume: method and step (rebuild), transfer function and toggles (buffers and uniform only).
@@ -474,6 +546,7 @@ mod tests {
             LayerKind::Axes { length_mm: 30.0 },
             crate::scene::Scene::default_scene().layers[2].kind.clone(),
             crate::scene::Scene::default_scene().layers[3].kind.clone(),
+            crate::scene::Scene::default_scene().layers[4].kind.clone(),
         ];
         let before = kinds.clone();
         let data = LayerData { histogram: Arc::new(vec![5, 100, 30, 0]), ..Default::default() };

@@ -5,11 +5,13 @@
 use std::path::{Path, PathBuf};
 
 use fascicle_core::dti::glyph::TensorShape;
+use fascicle_core::roi::{Roi, RoiMode, RoiShape};
 use fascicle_core::sh::ShBasis;
 use fascicle_core::sh::glyph::{GlyphPlane, GlyphStyle, Sampling};
 use fascicle_sh_glyphs::RayCastSettings;
 use fascicle_tensors::TensorGlyphSettings;
 use fascicle_tensors::splat::SplatSettings;
+use fascicle_tracts::TubeSettings;
 use fascicle_volume::VolumeSettings;
 use serde::{Deserialize, Serialize};
 
@@ -88,6 +90,17 @@ pub enum LayerKind {
         #[serde(default)]
         render: SplatSettings,
     },
+    /// Fibre tracts drawn as hyperstreamlines (ray-cast tubelets), polygon tubes or lines, with ROIs.
+    Tracts {
+        source: TractSource,
+        #[serde(default)]
+        mode: TractMode,
+        #[serde(default)]
+        render: TubeSettings,
+        /// Include/exclude regions (AND): editing them re-selects, nothing is rebuilt.
+        #[serde(default)]
+        rois: Vec<Roi>,
+    },
     /// Direct volume rendering of a scalar volume (ray casting or 3D-texture slicing), composited with the
     /// opaque layers by depth.
     Volume {
@@ -164,6 +177,13 @@ impl LayerKind {
                     ..TensorGlyphSettings::default()
                 },
             },
+            // The ROIs and the per-pixel knobs are updated in place; sources, mode, scale and colour rebuild.
+            LayerKind::Tracts { source, mode, render, .. } => LayerKind::Tracts {
+                source: source.clone(),
+                mode: *mode,
+                render: TubeSettings { scale: render.scale, colour: render.colour, ..TubeSettings::default() },
+                rois: vec![],
+            },
             // Method and step change the mesh (slices) and the pre-integration table: rebuild. The transfer
             // function and the toggles are uniform and buffer updates.
             LayerKind::Volume { source, render } => LayerKind::Volume {
@@ -173,6 +193,28 @@ impl LayerKind {
             other => other.clone(),
         }
     }
+}
+
+/// Where tracts come from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum TractSource {
+    /// RK4 tracking (1 mm steps, FA 0.2) of the built-in phantom's tensors from every `seed_spacing`-th
+    /// voxel with FA ≥ 0.3 of its middle axial slice; each point carries its tensor.
+    PhantomRk4 { seed_spacing: usize },
+    /// A `.trk`/`.tck` file (no tensors: circular sections).
+    File { path: PathBuf },
+}
+
+/// How tracts are drawn.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum TractMode {
+    /// Ray-cast tubelets with elliptical sections (hyperstreamlines).
+    #[default]
+    Tubes,
+    /// The polygon-tube baseline, 16 sides per profile.
+    Polygon,
+    /// Lines.
+    Lines,
 }
 
 /// Where tensors come from.
@@ -268,6 +310,21 @@ impl Scene {
                         full_volume: false,
                         style: GlyphStyle { scale: 3.0, ..GlyphStyle::default() },
                         render: RayCastSettings::default(),
+                    },
+                },
+                LayerSpec {
+                    name: "Hyperstreamlines (RK4)".into(),
+                    visible: true,
+                    opacity: 1.0,
+                    kind: LayerKind::Tracts {
+                        source: TractSource::PhantomRk4 { seed_spacing: 4 },
+                        mode: TractMode::Tubes,
+                        render: TubeSettings::default(),
+                        // The ring tracts through the top of the ring (radius 24-32 mm); the crossing bundle is out.
+                        rois: vec![Roi {
+                            shape: RoiShape::Sphere { centre: [0.0, 28.0, 1.0], radius: 4.0 },
+                            mode: RoiMode::Include,
+                        }],
                     },
                 },
                 LayerSpec {

@@ -323,3 +323,53 @@ fn volume_transfer_function_updates_in_place() {
     let (e2, _, _) = snapshot(&mut app);
     assert_ne!(e2, e0);
 }
+
+/// The default scene's hyperstreamlines: editing an ROI re-selects (parallel, over the segment grid) without
+/// rebuilding the tubes; removing it shows every streamline again; a larger cross-section rebuilds.
+#[test]
+fn roi_edits_reselect_without_rebuilding() {
+    use fascicle_core::roi::RoiShape;
+    use fascicle_tracts::{RoiStats, TractSelection, TractSet};
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let mut app = headless::headless_app();
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(Scene::default_scene()));
+    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    app.update();
+    app.update();
+    let i =
+        app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Tracts { .. }));
+    let i = i.expect("the default scene has tracts");
+    let state = |app: &mut App| {
+        let mut q = app.world_mut().query::<(Entity, &TractSet, &TractSelection)>();
+        let (e, set, sel) = q.single(app.world()).expect("one tract set");
+        (e, set.tractogram.n_streamlines(), sel.0.iter().filter(|s| **s).count())
+    };
+    let (e0, n, selected0) = state(&mut app);
+    assert!(n > 20 && selected0 > 0 && selected0 < n, "{selected0} of {n} selected");
+    let evals0 = app.world().resource::<RoiStats>().evaluations;
+    if let LayerKind::Tracts { rois, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind
+        && let RoiShape::Sphere { radius, .. } = &mut rois[0].shape
+    {
+        *radius = 1.5;
+    }
+    app.update();
+    app.update();
+    let (e1, _, selected1) = state(&mut app);
+    assert_eq!(e1, e0, "an ROI edit must not rebuild the tubes");
+    assert!(app.world().resource::<RoiStats>().evaluations > evals0);
+    assert!(selected1 < selected0, "a smaller include sphere selects fewer: {selected1} vs {selected0}");
+    if let LayerKind::Tracts { rois, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
+        rois.clear();
+    }
+    app.update();
+    app.update();
+    assert_eq!(state(&mut app).2, n);
+    if let LayerKind::Tracts { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
+        render.scale *= 2.0;
+    }
+    app.update();
+    assert_ne!(state(&mut app).0, e0);
+}

@@ -42,7 +42,7 @@ pub struct TubeSettings {
 impl Default for TubeSettings {
     fn default() -> Self {
         Self {
-            scale: 2.0,
+            scale: 4.0,
             colour: TubeColour::Direction,
             iterations: 8,
             eps: 1e-3,
