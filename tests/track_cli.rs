@@ -80,3 +80,45 @@ fn track_rejects_bad_input_clearly() {
         assert!(err.contains(msg), "{args:?}: expected '{msg}' in: {err}");
     }
 }
+
+/// `fascicle select`: the streamlines it writes are exactly those the core selection keeps (checked by
+/// brute force over every segment), and bad ROIs are clear errors.
+#[test]
+fn select_writes_the_streamlines_the_rois_keep() {
+    use fascicle_core::io::Tractogram;
+    use fascicle_core::roi::{Roi, RoiMode, RoiShape};
+    let dir = std::env::temp_dir().join(format!("fascicle-select-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let input = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tracts/tracks300.trk");
+    let t = Tractogram::read(&input).unwrap();
+    let c = t.points[t.points.len() / 2];
+    let out = dir.join("sel.tck");
+    let sphere = format!("{},{},{},3", c.x, c.y, c.z);
+    let st = std::process::Command::new(env!("CARGO_BIN_EXE_fascicle"))
+        .args(["select", input.to_str().unwrap(), "--sphere", &sphere, "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let got = Tractogram::read(&out).unwrap();
+    let roi = Roi { shape: RoiShape::Sphere { centre: c.to_array(), radius: 3.0 }, mode: RoiMode::Include };
+    let want: Vec<&[glam::Vec3]> = t
+        .iter()
+        .filter(|s| {
+            s.len() == 1 && roi.shape.meets_segment(s[0], s[0])
+                || s.windows(2).any(|w| roi.shape.meets_segment(w[0], w[1]))
+        })
+        .collect();
+    assert!(!want.is_empty() && want.len() < t.n_streamlines(), "{} of {}", want.len(), t.n_streamlines());
+    assert_eq!(got.n_streamlines(), want.len());
+    for (a, b) in got.iter().zip(&want) {
+        assert_eq!(a.len(), b.len());
+        assert!(a.iter().zip(b.iter()).all(|(p, q)| (*p - *q).length() < 1e-3));
+    }
+    let bad = std::process::Command::new(env!("CARGO_BIN_EXE_fascicle"))
+        .args(["select", input.to_str().unwrap(), "--sphere", "1,2,x,3", "--out", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("'x' is not a number"));
+    std::fs::remove_dir_all(dir).ok();
+}

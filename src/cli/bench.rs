@@ -46,6 +46,17 @@ pub enum BenchCommand {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// Tracts: ray-cast hyperstreamlines (over the iteration cap) vs polygon tubes (over the sides) at the
+    /// seed's sizes and resolutions, error against exact intersection; lines for 100k / 1M streamlines with
+    /// ROI re-selection.
+    Tracts {
+        /// 18,681 segments at 434x673 and 100k lines (under 2 minutes here).
+        #[arg(long)]
+        quick: bool,
+        /// Also write the rows as CSV (method,n,param,frame_ms,error,load_ms).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
     /// Tensor splats (10k, 100k, 1M) and ellipsoid/superquadric glyphs: static and orbiting frame time,
     /// CPU sort time, static CPU cost, colour error against the f64 compositor.
     Splats {
@@ -63,6 +74,9 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         BenchCommand::Tracking { phantom, seed_density } => tracking(&phantom, seed_density),
         BenchCommand::Glyphs { quick, csv } => {
             super::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+        }
+        BenchCommand::Tracts { quick, csv } => {
+            super::bench_tracts::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Volume { quick, csv } => {
             super::bench_volume::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))

@@ -1,12 +1,14 @@
-//! The command line: `view`, `render`, `fit`, `track`, `info`, `bench`. Names and outputs here are an interface that other
+//! The command line: `view`, `render`, `fit`, `track`, `select`, `info`, `bench`. Names and outputs here are an interface that other
 //! tools call; change them only with care.
 
 pub mod bench;
 pub mod bench_glyphs;
 pub mod bench_splats;
+pub mod bench_tracts;
 pub mod bench_volume;
 pub mod fit;
 pub mod info;
+pub mod select;
 pub mod track;
 
 use std::path::PathBuf;
@@ -50,6 +52,8 @@ pub enum Command {
     },
     /// Track streamlines (FA-thresholded, Euler/RK2/RK4) from a DWI or tensor image into .trk/.tck.
     Track(track::TrackArgs),
+    /// Keep the streamlines that meet every include ROI and no exclude ROI; write .trk/.tck.
+    Select(select::SelectArgs),
     /// Print what a NIfTI image or tractogram holds.
     Info { file: PathBuf },
     /// Print measured tables (run time, throughput, run time against error) as Markdown.

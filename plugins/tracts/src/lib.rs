@@ -144,7 +144,8 @@ impl Plugin for TractPlugin {
     fn build(&self, app: &mut App) {
         app.add_plugins(MaterialPlugin::<TubeletMaterial>::default())
             .init_resource::<RoiStats>()
-            .add_systems(PostUpdate, apply_rois);
+            .add_systems(PostUpdate, apply_rois)
+            .add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
     }
 }
 
@@ -327,6 +328,31 @@ pub fn apply_rois(
     stats.evaluations += 1;
     stats.last_ms = t0.elapsed().as_secs_f64() * 1e3;
     stats.selected = selected;
+}
+
+/// Outlines every ROI in the 3D view (where gizmos are available: the viewer): includes green, excludes red.
+pub fn draw_rois(mut gizmos: Gizmos, rois: Query<&TractRoi>) {
+    use fascicle_core::roi::{RoiMode, RoiShape};
+    for r in &rois {
+        let colour = match r.0.mode {
+            RoiMode::Include => Color::linear_rgb(0.2, 1.0, 0.3),
+            RoiMode::Exclude => Color::linear_rgb(1.0, 0.2, 0.2),
+        };
+        match r.0.shape {
+            RoiShape::Sphere { centre, radius } => {
+                gizmos.sphere(Isometry3d::from_translation(Vec3::from(centre)), radius, colour);
+            }
+            RoiShape::Box { min, max } => {
+                let (lo, hi) = (Vec3::from(min), Vec3::from(max));
+                gizmos.cube(Transform::from_translation((lo + hi) / 2.0).with_scale(hi - lo), colour);
+            }
+            RoiShape::Plane { point, normal } => {
+                let n = Vec3::from(normal).normalize_or(Vec3::Z);
+                let rot = Quat::from_rotation_arc(Vec3::Z, n);
+                gizmos.rect(Isometry3d::new(Vec3::from(point), rot), Vec2::splat(60.0), colour);
+            }
+        }
+    }
 }
 
 /// The selected streamlines of a set as a new tractogram (for saving as `.trk`/`.tck`).
