@@ -167,6 +167,14 @@ impl SegmentGrid {
 
     /// Streamlines with a segment meeting `shape` (sorted, unique).
     pub fn streamlines_meeting(&self, points: &[Vec3], shape: &RoiShape) -> Vec<u32> {
+        let n = self.owner.last().map_or(0, |o| *o as usize + 1);
+        self.meeting_mask(points, shape, n).iter().enumerate().filter(|(_, m)| **m).map(|(i, _)| i as u32).collect()
+    }
+
+    /// Per streamline (of `n`), whether a segment meets `shape`. Parallel over the grid's z layers; a
+    /// streamline already found is not tested again.
+    pub fn meeting_mask(&self, points: &[Vec3], shape: &RoiShape, n: usize) -> Vec<bool> {
+        use std::sync::atomic::{AtomicBool, Ordering};
         let (blo, bhi) = match shape.bounds() {
             Some(b) => b,
             None => (
@@ -179,23 +187,22 @@ impl SegmentGrid {
             [0, 1, 2].map(|k| (q[k].max(0.0) as usize).min(self.dims[k] - 1))
         };
         let (a, b) = (index(blo), index(bhi));
-        let mut hits: Vec<u32> = Vec::new();
-        for z in a[2]..=b[2] {
+        let marks: Vec<AtomicBool> = (0..n).map(|_| AtomicBool::new(false)).collect();
+        (a[2]..=b[2]).into_par_iter().for_each(|z| {
             for y in a[1]..=b[1] {
                 for x in a[0]..=b[0] {
                     let c = x + self.dims[0] * (y + self.dims[1] * z);
                     for &i in &self.segments[self.starts[c] as usize..self.starts[c + 1] as usize] {
                         let i = i as usize;
-                        if shape.meets_segment(points[i], points[i + 1]) {
-                            hits.push(self.owner[i]);
+                        let s = self.owner[i] as usize;
+                        if s < n && !marks[s].load(Ordering::Relaxed) && shape.meets_segment(points[i], points[i + 1]) {
+                            marks[s].store(true, Ordering::Relaxed);
                         }
                     }
                 }
             }
-        }
-        hits.par_sort_unstable();
-        hits.dedup();
-        hits
+        });
+        marks.into_iter().map(AtomicBool::into_inner).collect()
     }
 }
 
