@@ -118,6 +118,112 @@ impl Phantom {
     }
 }
 
+/// A larger phantom for benchmarks (issue #9): `dims` voxels of 1.5 mm holding four bundles (each a tube of
+/// radius about 1/10 of the half field of view): a ring in the axial plane, a straight bundle along z
+/// crossing the ring, a half-circle arc in the coronal plane crossing the ring from above, and a straight
+/// bundle along x crossing the ring's far side; isotropic background. Crossing voxels hold two or three
+/// fibres. Use [`Phantom::dwi`] for its signal and [`add_rician_noise`] for SNR.
+pub fn bundles(dims: [usize; 3]) -> Phantom {
+    let half = DVec3::new(dims[0] as f64 - 1.0, dims[1] as f64 - 1.0, dims[2] as f64 - 1.0) / 2.0;
+    let n = dims.iter().product();
+    let (mut tensors, mut fibres) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let r_tube = 0.12;
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                // Normalised coordinates in [-1, 1], z stretched to the x half-width.
+                let p = (DVec3::new(x as f64, y as f64, z as f64) - half) / half;
+                let mut dirs = Vec::new();
+                // 1. Ring of radius 0.55 in the plane z = 0.
+                let rxy = (p.x * p.x + p.y * p.y).sqrt();
+                if ((rxy - 0.55).powi(2) + p.z * p.z).sqrt() <= r_tube {
+                    dirs.push(DVec3::new(-p.y, p.x, 0.0).normalize());
+                }
+                // 2. Straight along z through the ring at (0.55, 0).
+                if ((p.x - 0.55).powi(2) + p.y * p.y).sqrt() <= r_tube {
+                    dirs.push(DVec3::Z);
+                }
+                // 3. Upper half-circle in the plane y = 0, centre (-0.3, 0, -0.2), radius 0.5.
+                let q = DVec3::new(p.x + 0.3, 0.0, p.z + 0.2);
+                let rq = q.length();
+                if q.z >= 0.0 && ((rq - 0.5).powi(2) + p.y * p.y).sqrt() <= r_tube {
+                    dirs.push(DVec3::new(-q.z, 0.0, q.x).normalize());
+                }
+                // 4. Straight along x through the ring's far side at y = -0.55.
+                if ((p.y + 0.55).powi(2) + p.z * p.z).sqrt() <= r_tube && p.x.abs() <= 0.9 {
+                    dirs.push(DVec3::X);
+                }
+                let t = if dirs.is_empty() {
+                    [BACKGROUND_MD, 0.0, BACKGROUND_MD, 0.0, 0.0, BACKGROUND_MD]
+                } else {
+                    let mut acc = [0.0; 6];
+                    for d in &dirs {
+                        for (a, b) in acc.iter_mut().zip(fibre_tensor(*d)) {
+                            *a += b / dirs.len() as f64;
+                        }
+                    }
+                    acc
+                };
+                tensors.push(t);
+                fibres.push(dirs);
+            }
+        }
+    }
+    let v = 1.5;
+    let world_from_voxel = DMat4::from_cols(
+        DVec4::new(v, 0.0, 0.0, 0.0),
+        DVec4::new(0.0, v, 0.0, 0.0),
+        DVec4::new(0.0, 0.0, v, 0.0),
+        DVec4::new(-half.x * v, -half.y * v, -half.z * v, 1.0),
+    );
+    Phantom { dims, world_from_voxel, tensors, fibres }
+}
+
+/// Rician noise for a signal with S0 = 100 at `snr` (sigma = 100 / snr): `sqrt((s + n1)² + n2²)` with n1, n2
+/// normal, from a seeded generator (the same volume every run).
+pub fn add_rician_noise(vol: &mut Volume<f32>, snr: f64, seed: u64) {
+    let sigma = 100.0 / snr.max(1e-6);
+    // splitmix64 uniforms, Box-Muller normals.
+    let mut state = seed ^ 0x9e37_79b9_7f4a_7c15;
+    let mut uniform = move || {
+        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut normal = move || {
+        let (u1, u2) = (uniform().max(1e-300), uniform());
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    };
+    for s in vol.data.iter_mut() {
+        let (a, b) = (*s as f64 + sigma * normal(), sigma * normal());
+        *s = (a * a + b * b).sqrt() as f32;
+    }
+}
+
+#[cfg(test)]
+mod bundle_tests {
+    #[test]
+    fn bundles_have_crossings_and_noise_has_the_asked_snr() {
+        let ph = super::bundles([64, 64, 32]);
+        let counts = ph.fibres.iter().fold([0usize; 4], |mut c, f| {
+            c[f.len().min(3)] += 1;
+            c
+        });
+        assert!(counts[1] > 2000 && counts[2] > 20, "{counts:?}");
+        let (mut dwi, _) = ph.dwi(16, 1000.0).unwrap();
+        let clean = dwi.data.clone();
+        super::add_rician_noise(&mut dwi, 20.0, 1);
+        // In the b0 volume (S = 100), the noise's standard deviation is close to 100 / 20 = 5.
+        let n = ph.tensors.len();
+        let d: Vec<f64> = (0..n).map(|v| (dwi.data[v] - clean[v]) as f64).collect();
+        let mean = d.iter().sum::<f64>() / n as f64;
+        let sd = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n as f64).sqrt();
+        assert!((sd - 5.0).abs() < 0.2, "sd {sd}");
+    }
+}
+
 /// The seed's synthetic spiral (SEEDS.md §1 figures): `n` tensors along a two-turn helix (radius 20 mm,
 /// 15 mm rise per turn, axis z, centred on the origin), each with its major axis along the helix's tangent
 /// and its shape sweeping the barycentric triangle: linear to planar over the first half (l2 from 0.1 to 1

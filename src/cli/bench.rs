@@ -57,6 +57,32 @@ pub enum BenchCommand {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// Every suite, one report: DIR/benchmarks.md (machine, build, adapter, date; each suite's tables; DIPY
+    /// side by side) and a PNG plot per renderer of frame time against error.
+    All {
+        /// Each suite's --quick setting.
+        #[arg(long)]
+        quick: bool,
+        /// Output directory.
+        #[arg(long)]
+        report: PathBuf,
+        /// A Python with DIPY 1.12.1: also runs bench/compare_dipy.py on the same phantom.
+        #[arg(long)]
+        python: Option<PathBuf>,
+    },
+    /// CPU: DTI (WLS, OLS) and CSA fits and Euler/RK4 tracking on a 128x128x64 phantom with four curved and
+    /// crossing bundles at SNR 20 (the inputs `bench/compare_dipy.py` times DIPY on).
+    Fits {
+        /// A 64x64x32 phantom.
+        #[arg(long)]
+        quick: bool,
+        /// Also write the rows as CSV (method,n,param,frame_ms,error).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Write the phantom (phantom_large.nii.gz, .bval, .bvec) into this directory, for DIPY.
+        #[arg(long)]
+        write_phantom: Option<PathBuf>,
+    },
     /// Tensor splats (10k, 100k, 1M) and ellipsoid/superquadric glyphs: static and orbiting frame time,
     /// CPU sort time, static CPU cost, colour error against the f64 compositor.
     Splats {
@@ -74,6 +100,10 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         BenchCommand::Tracking { phantom, seed_density } => tracking(&phantom, seed_density),
         BenchCommand::Glyphs { quick, csv } => {
             super::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+        }
+        BenchCommand::All { quick, report, python } => super::bench_all::run(quick, &report, python.as_deref()),
+        BenchCommand::Fits { quick, csv, write_phantom } => {
+            super::bench_fits::run(quick, csv.as_deref(), write_phantom.as_deref())
         }
         BenchCommand::Tracts { quick, csv } => {
             super::bench_tracts::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))

@@ -2,6 +2,8 @@
 //! tools call; change them only with care.
 
 pub mod bench;
+pub mod bench_all;
+pub mod bench_fits;
 pub mod bench_glyphs;
 pub mod bench_splats;
 pub mod bench_tracts;
