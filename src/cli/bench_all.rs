@@ -34,6 +34,8 @@ struct Row {
     param: String,
     ms: f64,
     error: Option<f64>,
+    /// Other columns that split series (l_max).
+    extra: String,
 }
 
 fn read_csv(path: &Path) -> Vec<Row> {
@@ -42,6 +44,7 @@ fn read_csv(path: &Path) -> Vec<Row> {
     let Some(head) = lines.next() else { return vec![] };
     let cols: Vec<&str> = head.split(',').collect();
     let at = |name: &str| cols.iter().position(|c| *c == name);
+    let l_max = at("l_max");
     let (Some(m), Some(n), Some(p), Some(f), e) = (at("method"), at("n"), at("param"), at("frame_ms"), at("error"))
     else {
         return vec![];
@@ -55,6 +58,7 @@ fn read_csv(path: &Path) -> Vec<Row> {
                 param: v.get(p)?.to_string(),
                 ms: v.get(f)?.parse().ok()?,
                 error: e.and_then(|e| v.get(e)).and_then(|x| x.parse().ok()),
+                extra: l_max.and_then(|k| v.get(k)).map_or(String::new(), |x| format!(" l_max={x}")),
             })
         })
         .collect()
@@ -73,8 +77,8 @@ fn plot(rows: &[Row], title: &str, by_n: bool, out: &Path) -> Result<(), String>
                 .find(|t| t.contains('x') && t.chars().next().is_some_and(|c| c.is_ascii_digit()));
             let series = match (by_n, res) {
                 (true, _) => r.method.clone(),
-                (false, Some(res)) => format!("{} n={} {res}", r.method, r.n),
-                (false, None) => format!("{} n={}", r.method, r.n),
+                (false, Some(res)) => format!("{} n={}{} {res}", r.method, r.n, r.extra),
+                (false, None) => format!("{} n={}{}", r.method, r.n, r.extra),
             };
             (x > 0.0 && r.ms > 0.0).then_some((series, x, r.ms))
         })
@@ -182,7 +186,8 @@ pub fn run(quick: bool, report: &Path, python: Option<&Path>) -> Result<(), Erro
         cmd.args(["bench", suite]);
         if suite != "tracking" {
             cmd.arg("--csv").arg(&csv);
-            if quick {
+            // The CPU suite always runs on the full 128x128x64 phantom (about 20 s here).
+            if quick && suite != "fits" {
                 cmd.arg("--quick");
             }
         }

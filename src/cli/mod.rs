@@ -11,6 +11,7 @@ pub mod bench_volume;
 pub mod fit;
 pub mod info;
 pub mod select;
+pub mod soak;
 pub mod track;
 
 use std::path::PathBuf;
@@ -56,6 +57,17 @@ pub enum Command {
     Track(track::TrackArgs),
     /// Keep the streamlines that meet every include ROI and no exclude ROI; write .trk/.tck.
     Select(select::SelectArgs),
+    /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory
+    /// and asset counts (the soak test).
+    Soak {
+        #[arg(long, default_value_t = 10_000)]
+        frames: u32,
+        #[arg(long, default_value = "320x200")]
+        size: String,
+        /// Write the samples (every 100 frames) as CSV.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+    },
     /// Print what a NIfTI image or tractogram holds.
     Info { file: PathBuf },
     /// Print measured tables (run time, throughput, run time against error) as Markdown.
