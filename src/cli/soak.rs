@@ -2,6 +2,9 @@
 //! and the tract ROI moves, sampling resident memory and the number of GPU-side assets (storage buffers,
 //! meshes, images, materials) and entities. Bounded curves and no layer error are the pass criteria; the
 //! CSV is the curve.
+//!
+//! Diagnostics (environment): `SOAK_NO_TOGGLE`, `SOAK_NO_ROI` switch the edits off; `SOAK_HIDE=k` hides layer
+//! k at frame 50; `SOAK_DROP=k` removes layer k from the scene.
 
 use std::io::Write;
 use std::path::Path;
@@ -25,8 +28,17 @@ fn rss_mib() -> f64 {
 }
 
 pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
+    let toggle = std::env::var("SOAK_NO_TOGGLE").is_err();
+    let roi = std::env::var("SOAK_NO_ROI").is_err();
     let (w, h) = crate::cli::parse_size(size)?;
-    let scene = Scene::default_scene();
+    let mut scene = Scene::default_scene();
+    if let Ok(drop) = std::env::var("SOAK_DROP") {
+        let k: usize = drop.parse().unwrap_or(99);
+        if k < scene.layers.len() {
+            eprintln!("dropping layer {}", scene.layers[k].name);
+            scene.layers.remove(k);
+        }
+    }
     let mut app = headless::headless_app();
     app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene.clone()));
     let target = headless::add_target_image(&mut app, w, h);
@@ -47,11 +59,18 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
         {
             let mut s = app.world_mut().resource_mut::<ActiveScene>();
             // Toggle one layer every 50 frames (cycling), move the ROI every 10.
-            if f % 50 == 0 {
+            if let Ok(k) = std::env::var("SOAK_HIDE")
+                && f == 50
+            {
+                let k: usize = k.parse().unwrap_or(0);
+                s.0.layers[k].visible = false;
+            }
+            if toggle && f % 50 == 0 {
                 let k = (f / 50) as usize % n_layers;
                 s.0.layers[k].visible = !s.0.layers[k].visible;
             }
-            if f % 10 == 0
+            if roi
+                && f % 10 == 0
                 && let Some(i) = tract
                 && let LayerKind::Tracts { rois, .. } = &mut s.0.layers[i].kind
                 && let Some(RoiShape::Sphere { centre, .. }) = rois.first_mut().map(|r| &mut r.shape)

@@ -245,7 +245,16 @@ pub fn headless_app() -> App {
     } else {
         app.add_plugins(plugins.disable::<bevy::log::LogPlugin>());
     }
+    // Without a window nothing presents, and wgpu reclaims the resources of finished submissions only when
+    // the device is polled: without this, a long headless run grows by megabytes a frame (the soak test).
+    if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
+        render_app.add_systems(bevy::render::Render, poll_device.in_set(bevy::render::RenderSystems::Cleanup));
+    }
     app
+}
+
+fn poll_device(device: Res<bevy::render::renderer::RenderDevice>) {
+    let _ = device.poll(bevy::render::render_resource::PollType::Poll);
 }
 
 /// A render-target image of `width x height` that can be read back.
