@@ -60,7 +60,7 @@ def main(d):
 
     sl, ms = timed(track)
     points = sum(len(s) for s in sl)
-    rows.append(("track-euler", points, f"{len(seeds)} seeds, {len(sl)} streamlines, fit+peaks+track", ms))
+    rows.append(("track-euler", points, f"{len(seeds)} seeds; {len(sl)} streamlines; fit+peaks+track", ms))
     with open(os.path.join(d, "dipy.csv"), "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["method", "n", "param", "frame_ms", "error"])

@@ -70,6 +70,16 @@ pub enum BenchCommand {
         #[arg(long)]
         python: Option<PathBuf>,
     },
+    /// Plot a suite's CSV (frame time against error, or against n with --by-n) to PNG.
+    Plot {
+        csv: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value = "frame time against error")]
+        title: String,
+        #[arg(long)]
+        by_n: bool,
+    },
     /// CPU: DTI (WLS, OLS) and CSA fits and Euler/RK4 tracking on a 128x128x64 phantom with four curved and
     /// crossing bundles at SNR 20 (the inputs `bench/compare_dipy.py` times DIPY on).
     Fits {
@@ -101,6 +111,7 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         BenchCommand::Glyphs { quick, csv } => {
             super::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
+        BenchCommand::Plot { csv, out, title, by_n } => super::bench_all::plot_csv(&csv, &out, &title, by_n),
         BenchCommand::All { quick, report, python } => super::bench_all::run(quick, &report, python.as_deref()),
         BenchCommand::Fits { quick, csv, write_phantom } => {
             super::bench_fits::run(quick, csv.as_deref(), write_phantom.as_deref())

@@ -127,6 +127,16 @@ fn plot(rows: &[Row], title: &str, by_n: bool, out: &Path) -> Result<(), String>
     root.present().map_err(|e| e.to_string())
 }
 
+/// Plots one CSV (`fascicle bench plot`).
+pub fn plot_csv(csv: &Path, out: &Path, title: &str, by_n: bool) -> Result<(), Error> {
+    let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, epaint_default_fonts::UBUNTU_LIGHT);
+    let rows = read_csv(csv);
+    if rows.is_empty() {
+        return Err(Error::Param(format!("{}: no rows with method,n,param,frame_ms,error", csv.display())));
+    }
+    plot(&rows, title, by_n, out).map_err(Error::Param)
+}
+
 /// "YYYY-MM-DD" of now (UTC).
 fn today() -> String {
     let days =

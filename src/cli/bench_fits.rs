@@ -99,7 +99,7 @@ pub fn run(quick: bool, csv: Option<&Path>, write_dir: Option<&Path>) -> Result<
         let tracks = Tracker::new(&field, dwi.world_from_voxel, params)?.run(&seeds);
         let ms = t.elapsed().as_secs_f64() * 1e3;
         let name = if integrator == Integrator::Euler { "track-euler" } else { "track-rk4" };
-        let p = format!("{} seeds, {} streamlines, fit+field+track", seeds.len(), tracks.tractogram.n_streamlines());
+        let p = format!("{} seeds; {} streamlines; fit+field+track", seeds.len(), tracks.tractogram.n_streamlines());
         row(name, tracks.n_points(), &p, ms, String::new());
     }
     if let Some(path) = csv {
