@@ -26,6 +26,20 @@ fn fibre_tensor(dir: DVec3) -> LowerTri {
     from_eigen(&Eigen { values: FIBRE_EVALS, vectors: [e1, e2, e1.cross(e2)] })
 }
 
+/// The mean of the fibres' tensors in a voxel; the isotropic background where there is none.
+fn voxel_tensor(dirs: &[DVec3]) -> LowerTri {
+    if dirs.is_empty() {
+        return [BACKGROUND_MD, 0.0, BACKGROUND_MD, 0.0, 0.0, BACKGROUND_MD];
+    }
+    let mut acc = [0.0; 6];
+    for d in dirs {
+        for (a, b) in acc.iter_mut().zip(fibre_tensor(*d)) {
+            *a += b / dirs.len() as f64;
+        }
+    }
+    acc
+}
+
 /// The ring/cross phantom on a `dims` grid of 2 mm voxels (the shared data uses 48x48x24).
 pub fn ring_cross(dims: [usize; 3]) -> Phantom {
     let (cx, cy) = ((dims[0] as f64 - 1.0) / 2.0, (dims[1] as f64 - 1.0) / 2.0);
@@ -48,18 +62,7 @@ pub fn ring_cross(dims: [usize; 3]) -> Phantom {
                 if (dx - 14.0 * scale).abs() <= 3.0 * scale && dy.abs() <= 3.0 * scale {
                     dirs.push(DVec3::Z);
                 }
-                let t = if dirs.is_empty() {
-                    [BACKGROUND_MD, 0.0, BACKGROUND_MD, 0.0, 0.0, BACKGROUND_MD]
-                } else {
-                    let mut acc = [0.0; 6];
-                    for d in &dirs {
-                        for (a, b) in acc.iter_mut().zip(fibre_tensor(*d)) {
-                            *a += b / dirs.len() as f64;
-                        }
-                    }
-                    acc
-                };
-                tensors.push(t);
+                tensors.push(voxel_tensor(&dirs));
                 fibres.push(dirs);
             }
         }
@@ -153,18 +156,7 @@ pub fn bundles(dims: [usize; 3]) -> Phantom {
                 if ((p.y + 0.55).powi(2) + p.z * p.z).sqrt() <= r_tube && p.x.abs() <= 0.9 {
                     dirs.push(DVec3::X);
                 }
-                let t = if dirs.is_empty() {
-                    [BACKGROUND_MD, 0.0, BACKGROUND_MD, 0.0, 0.0, BACKGROUND_MD]
-                } else {
-                    let mut acc = [0.0; 6];
-                    for d in &dirs {
-                        for (a, b) in acc.iter_mut().zip(fibre_tensor(*d)) {
-                            *a += b / dirs.len() as f64;
-                        }
-                    }
-                    acc
-                };
-                tensors.push(t);
+                tensors.push(voxel_tensor(&dirs));
                 fibres.push(dirs);
             }
         }

@@ -11,6 +11,7 @@
 
 pub mod headless;
 pub mod impostor;
+pub mod meshes;
 pub mod reference;
 pub mod shaders;
 

@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::NoFrustumCulling;
-use bevy::mesh::{Indices, MeshVertexBufferLayoutRef, PrimitiveTopology};
+use bevy::mesh::MeshVertexBufferLayoutRef;
 use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
@@ -242,21 +242,6 @@ fn pad(mut bytes: Vec<u8>) -> Vec<u8> {
     bytes
 }
 
-/// N quads; each vertex is (corner x, corner y, slot).
-pub fn quads(n: usize) -> Mesh {
-    let mut pos = Vec::with_capacity(4 * n);
-    let mut idx = Vec::with_capacity(6 * n);
-    for i in 0..n.max(1) {
-        let s = i as f32;
-        pos.extend([[-1.0, -1.0, s], [1.0, -1.0, s], [1.0, 1.0, s], [-1.0, 1.0, s]]);
-        let b = 4 * i as u32;
-        idx.extend([b, b + 1, b + 2, b, b + 2, b + 3]);
-    }
-    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
-        .with_inserted_indices(Indices::U32(idx))
-}
-
 /// Spawns a splat set with the splats' colours and opacities as given (style them first with
 /// `settings.colouring.apply`); returns its entity. The order is filled by [`sort_splats`] before the first
 /// frame is drawn.
@@ -285,7 +270,11 @@ pub fn spawn_splats(
     ));
     if n > 0 {
         // The quads are placed by the shader: no frustum test on the mesh's bounds.
-        e.insert((Mesh3d(meshes.add(quads(n))), MeshMaterial3d(material), NoFrustumCulling));
+        e.insert((
+            Mesh3d(meshes.add(fascicle_render::meshes::slot_quads(n))),
+            MeshMaterial3d(material),
+            NoFrustumCulling,
+        ));
     }
     e.id()
 }

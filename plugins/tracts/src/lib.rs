@@ -196,15 +196,13 @@ pub fn pack(tubes: &[Tubelet]) -> Vec<u8> {
 
 /// 8 vertices (slot, corner, 0) and 12 outward counter-clockwise triangles per tubelet.
 pub fn boxes(n: usize) -> Mesh {
-    const IDX: [u32; 36] =
-        [0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4, 6, 1, 3, 5, 3, 7, 5];
     let mut pos = Vec::with_capacity(8 * n);
     let mut idx = Vec::with_capacity(36 * n);
     for i in 0..n.max(1) {
         for c in 0..8 {
             pos.push([i as f32, c as f32, 0.0]);
         }
-        idx.extend(IDX.iter().map(|k| k + 8 * i as u32));
+        idx.extend(fascicle_render::meshes::BOX_TRIANGLES.iter().map(|k| k + 8 * i as u32));
     }
     Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)

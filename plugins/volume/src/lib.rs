@@ -310,28 +310,11 @@ fn box_mesh(dims: [usize; 3], world_from_voxel: glam::DMat4) -> Mesh {
     let pos: Vec<[f32; 3]> = (0..8).map(corner).collect();
     // Outward counter-clockwise triangles, then reversed so the far faces are the front faces (a mirroring
     // affine reverses them once more).
-    let mut idx: Vec<u32> = vec![
-        0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4, 6, 1, 3, 5, 3, 7, 5,
-    ];
+    let mut idx = fascicle_render::meshes::BOX_TRIANGLES.to_vec();
     if glam::DMat3::from_mat4(world_from_voxel).determinant() > 0.0 {
         for t in idx.chunks_mut(3) {
             t.swap(1, 2);
         }
-    }
-    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
-        .with_inserted_indices(Indices::U32(idx))
-}
-
-/// `n` quads, vertices (corner x, corner y, slice index); the vertex shader faces them to the camera.
-fn slice_mesh(n: u32) -> Mesh {
-    let mut pos = Vec::with_capacity(4 * n as usize);
-    let mut idx = Vec::with_capacity(6 * n as usize);
-    for k in 0..n {
-        let s = k as f32;
-        pos.extend([[-1.0, -1.0, s], [1.0, -1.0, s], [1.0, 1.0, s], [-1.0, 1.0, s]]);
-        let b = 4 * k;
-        idx.extend([b, b + 1, b + 2, b, b + 2, b + 3]);
     }
     Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
@@ -427,7 +410,7 @@ pub fn spawn_volume(
     });
     let mesh = match settings.method {
         VolumeMethod::Raycast => box_mesh(d, vol.world_from_voxel),
-        VolumeMethod::Slicing => slice_mesh(params.n_slices),
+        VolumeMethod::Slicing => fascicle_render::meshes::slot_quads(params.n_slices as usize),
     };
     commands
         .spawn((
