@@ -4,7 +4,8 @@
 //! CSV is the curve.
 //!
 //! Diagnostics (environment): `SOAK_NO_TOGGLE`, `SOAK_NO_ROI` switch the edits off; `SOAK_HIDE=k` hides layer
-//! k at frame 50; `SOAK_DROP=k` removes layer k from the scene.
+//! k at frame 50; `SOAK_DROP=k[,k…]` removes layers from the scene;
+//! `SOAK_SCENE=F.ron` soaks another scene; `SOAK_NO_CAPTURE` skips the first screenshot.
 
 use std::io::Write;
 use std::path::Path;
@@ -31,10 +32,16 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
     let toggle = std::env::var("SOAK_NO_TOGGLE").is_err();
     let roi = std::env::var("SOAK_NO_ROI").is_err();
     let (w, h) = crate::cli::parse_size(size)?;
-    let mut scene = Scene::default_scene();
+    let mut scene = match std::env::var("SOAK_SCENE") {
+        Ok(p) => Scene::load(std::path::Path::new(&p))?,
+        Err(_) => Scene::default_scene(),
+    };
     if let Ok(drop) = std::env::var("SOAK_DROP") {
-        let k: usize = drop.parse().unwrap_or(99);
-        if k < scene.layers.len() {
+        // Comma-separated layer indices, removed from the highest down.
+        let mut ks: Vec<usize> = drop.split(',').filter_map(|k| k.trim().parse().ok()).collect();
+        ks.sort_unstable_by(|a, b| b.cmp(a));
+        let n = scene.layers.len();
+        for k in ks.into_iter().filter(|k| *k < n) {
             eprintln!("dropping layer {}", scene.layers[k].name);
             scene.layers.remove(k);
         }
@@ -49,10 +56,15 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
         tf,
         proj,
     ));
-    headless::capture(&mut app, target).map_err(|e| e.to_string())?;
+    if std::env::var("SOAK_NO_CAPTURE").is_ok() {
+        let _ = target;
+        headless::run_until_ready(&mut app, 600).map_err(|e| e.to_string())?;
+    } else {
+        headless::capture(&mut app, target).map_err(|e| e.to_string())?;
+    }
     let n_layers = scene.layers.len();
     let tract = scene.layers.iter().position(|l| matches!(l.kind, LayerKind::Tracts { .. }));
-    let mut rows = vec!["frame,seconds,rss_mib,shader_buffers,meshes,images,entities".to_string()];
+    let mut rows = vec!["frame,seconds,rss_mib,shader_buffers,meshes,images,entities,pipelines".to_string()];
     let t0 = Instant::now();
     let mut errors = 0usize;
     for f in 1..=frames {
@@ -82,9 +94,10 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
         app.update();
         errors += app.world().resource::<LayerErrors>().0.len();
         if f % 100 == 0 || f == frames {
+            let pipelines = headless::pipeline_count(&app);
             let world = app.world_mut();
             let row = format!(
-                "{f},{:.1},{:.1},{},{},{},{}",
+                "{f},{:.1},{:.1},{},{},{},{},{pipelines}",
                 t0.elapsed().as_secs_f64(),
                 rss_mib(),
                 world.resource::<Assets<ShaderBuffer>>().len(),

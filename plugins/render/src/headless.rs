@@ -323,6 +323,13 @@ pub fn pending_pipelines(app: &App) -> usize {
         .map_or(0, |c| c.waiting_pipelines().count())
 }
 
+/// Pipelines the render world's cache holds (compiled, queued or failed).
+pub fn pipeline_count(app: &App) -> usize {
+    app.get_sub_app(RenderApp)
+        .and_then(|s| s.world().get_resource::<PipelineCache>())
+        .map_or(0, |c| c.pipelines().count())
+}
+
 /// Pipelines that failed to compile, with their errors.
 pub fn failed_pipelines(app: &App) -> Vec<String> {
     app.get_sub_app(RenderApp)
