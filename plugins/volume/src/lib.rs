@@ -66,7 +66,7 @@ impl Default for VolumeSettings {
         Self {
             method: VolumeMethod::Raycast,
             tf: TransferFunction::default(),
-            step: 0.5,
+            step: 1.0,
             termination: 0.99,
             jitter: true,
             shading: false,
