@@ -15,16 +15,22 @@ fn glyph_layer(scene: &mut Scene) -> &mut LayerKind {
     &mut scene.layers[i].kind
 }
 
-#[test]
-fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
+/// A headless app showing `scene`, initialised and updated once; `None` when GPU tests are skipped.
+fn scene_app(scene: Scene) -> Option<App> {
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return;
+        return None;
     }
     let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(Scene::default_scene()));
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene));
     headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
     app.update();
+    Some(app)
+}
+
+#[test]
+fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
+    let Some(mut app) = scene_app(Scene::default_scene()) else { return };
     assert!(app.world().resource::<LayerErrors>().0.is_empty(), "{:?}", app.world().resource::<LayerErrors>().0);
     let set = |app: &mut App| {
         let mut q = app.world_mut().query::<(Entity, &ShGlyphSet)>();
@@ -235,17 +241,10 @@ fn full_volume_glyphs_cover_the_field() {
 fn splat_recolouring_rewrites_only_the_styles() {
     use fascicle_core::dti::splat::SplatColourMode;
     use fascicle_tensors::splat::{SplatMaterial, SplatSet, SplatSortStats};
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return;
-    }
     let scene = Scene::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/spiral50.ron")))
         .expect("spiral scene");
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene));
-    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    let Some(mut app) = scene_app(scene) else { return };
     app.world_mut().spawn((Camera3d::default(), Transform::from_xyz(0.0, -90.0, 40.0).looking_at(Vec3::ZERO, Vec3::Z)));
-    app.update();
     app.update();
     let snapshot = |app: &mut App| {
         let mut q = app.world_mut().query::<(Entity, &SplatSet)>();
@@ -285,14 +284,7 @@ fn splat_recolouring_rewrites_only_the_styles() {
 #[test]
 fn volume_transfer_function_updates_in_place() {
     use fascicle_volume::{VolumeMaterial, VolumeMethod, VolumeSet};
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(Scene::default_scene()));
-    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
-    app.update();
+    let Some(mut app) = scene_app(Scene::default_scene()) else { return };
     let i =
         app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Volume { .. }));
     let i = i.expect("the default scene has a volume layer");
@@ -330,14 +322,7 @@ fn volume_transfer_function_updates_in_place() {
 fn roi_edits_reselect_without_rebuilding() {
     use fascicle_core::roi::RoiShape;
     use fascicle_tracts::{RoiStats, TractSelection, TractSet};
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(Scene::default_scene()));
-    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
-    app.update();
+    let Some(mut app) = scene_app(Scene::default_scene()) else { return };
     app.update();
     let i =
         app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Tracts { .. }));
