@@ -12,6 +12,19 @@ use crate::scene::Scene;
 /// The clear colour of viewer and renderer.
 pub const BACKGROUND: Color = Color::linear_rgb(0.02, 0.02, 0.025);
 
+/// A headless app showing `scene` through its camera into a `width x height` image: (app, target, camera).
+pub fn scene_app(scene: &Scene, width: u32, height: u32) -> (App, Handle<Image>, Entity) {
+    let mut app = headless::headless_app();
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene.clone()));
+    let target = headless::add_target_image(&mut app, width, height);
+    let (tf, proj) = camera_from_spec(&scene.camera);
+    let cam = app
+        .world_mut()
+        .spawn((crate::viewer::view_camera(), bevy::camera::RenderTarget::Image(target.clone().into()), tf, proj))
+        .id();
+    (app, target, cam)
+}
+
 /// Renders `scene` at `width x height`. Layer load errors fail the render (nothing silently missing).
 pub fn render_scene(scene: &Scene, width: u32, height: u32) -> Result<Capture, String> {
     render_scene_with_depth(scene, width, height, false).map(|(c, _)| c)
@@ -26,14 +39,7 @@ pub fn render_scene_with_depth(
     height: u32,
     depth: bool,
 ) -> Result<(Capture, Option<DepthMap>), String> {
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene.clone()));
-    let target = headless::add_target_image(&mut app, width, height);
-    let (tf, proj) = camera_from_spec(&scene.camera);
-    let cam = app
-        .world_mut()
-        .spawn((crate::viewer::view_camera(), bevy::camera::RenderTarget::Image(target.clone().into()), tf, proj))
-        .id();
+    let (mut app, target, cam) = scene_app(scene, width, height);
     let copy = depth.then(|| headless::add_depth_copy(&mut app, width, height));
     if let Some(c) = &copy {
         app.world_mut().entity_mut(cam).insert(headless::depth_copy_camera(c.clone()));

@@ -14,10 +14,9 @@ use std::time::Instant;
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::roi::RoiShape;
-use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
 
-use crate::layers::{ActiveScene, LayerErrors, ScenePlugin, camera_from_spec};
+use crate::layers::{ActiveScene, LayerErrors};
 use crate::scene::{LayerKind, Scene};
 
 /// Resident set size in MiB (Linux), 0 elsewhere.
@@ -46,16 +45,7 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
             scene.layers.remove(k);
         }
     }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene.clone()));
-    let target = headless::add_target_image(&mut app, w, h);
-    let (tf, proj) = camera_from_spec(&scene.camera);
-    app.world_mut().spawn((
-        crate::viewer::view_camera(),
-        bevy::camera::RenderTarget::Image(target.clone().into()),
-        tf,
-        proj,
-    ));
+    let (mut app, target, _) = crate::render::scene_app(&scene, w, h);
     if std::env::var("SOAK_NO_CAPTURE").is_ok() {
         let _ = target;
         headless::run_until_ready(&mut app, 600).map_err(|e| e.to_string())?;

@@ -13,12 +13,10 @@ use std::time::Instant;
 
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::NoFrustumCulling;
-use bevy::mesh::{Indices, MeshVertexBufferLayoutRef, PrimitiveTopology};
-use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
+use bevy::mesh::{Indices, PrimitiveTopology};
 use bevy::prelude::*;
-use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
+use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
-use bevy::shader::ShaderRef;
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, SegmentGrid, select};
 use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
@@ -87,30 +85,9 @@ pub struct TubeletMaterial {
     pub selected: Handle<ShaderBuffer>,
 }
 
-impl Material for TubeletMaterial {
-    fn vertex_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::TUBELET)
-    }
-    fn fragment_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::TUBELET)
-    }
-    fn enable_prepass() -> bool {
-        false
-    }
-    fn enable_shadows() -> bool {
-        false
-    }
-    fn specialize(
-        _pipeline: &MaterialPipeline,
-        descriptor: &mut RenderPipelineDescriptor,
-        _layout: &MeshVertexBufferLayoutRef,
-        _key: MaterialPipelineKey<Self>,
-    ) -> Result<(), SpecializedMeshPipelineError> {
-        // Back faces of each box: one fragment per pixel and tubelet, also with the camera inside a box.
-        descriptor.primitive.cull_mode = Some(bevy::render::render_resource::Face::Front);
-        Ok(())
-    }
-}
+// Back faces of each box: one fragment per pixel and tubelet, also with the camera inside a box; no
+// prepass or shadows (the tubelets write their own depth).
+fascicle_render::proxy_glyph_material!(TubeletMaterial, shaders::TUBELET);
 
 /// A set of tracts drawn as tubelets: one entity, one draw.
 #[derive(Component, Clone)]
