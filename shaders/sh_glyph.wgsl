@@ -36,7 +36,22 @@ struct GlyphParams {
 
 @vertex
 fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
-    return proxy_vertex(v);
+    // Loop counts and modes reach the fragment stage flat (the rule in `fascicle::ray`); `Knobs` unpacks them.
+    let modes = params.l_max | (params.lobes << 8u) | (params.colour_mode << 16u);
+    return proxy_vertex(v, vec4<u32>(modes, params.stride, params.refine, params.max_steps));
+}
+
+struct Knobs {
+    l_max: u32,
+    lobes: u32,
+    colour_mode: u32,
+    stride: u32,
+    refine: u32,
+    max_steps: u32,
+};
+
+fn knobs(k: vec4<u32>) -> Knobs {
+    return Knobs(k.x & 0xffu, (k.x >> 8u) & 0xffu, k.x >> 16u, k.y, k.z, k.w);
 }
 
 struct FragmentOutput {
@@ -44,27 +59,28 @@ struct FragmentOutput {
     @builtin(frag_depth) depth: f32,
 };
 
-fn shape(psi: f32) -> f32 {
-    return select(max(psi, 0.0), abs(psi), params.lobes == 1u);
+fn shape(psi: f32, lobes: u32) -> f32 {
+    return select(max(psi, 0.0), abs(psi), lobes == 1u);
 }
 
 // F(p) < 0 inside the glyph.
-fn implicit(c: ptr<function, array<f32, 153>>, v: vec3<f32>) -> f32 {
+fn implicit(c: ptr<function, array<f32, 153>>, v: vec3<f32>, cfg: Knobs) -> f32 {
     let r = length(v);
     if r <= 0.0 {
         return -1.0;
     }
-    return r - shape(sh_value(c, params.l_max, v / r));
+    return r - shape(sh_value(c, cfg.l_max, v / r), cfg.lobes);
 }
 
 @fragment
 fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
+    let cfg = knobs(in.knobs);
     let g = glyphs[2u * in.tag];
     let centre = g.xyz;
     let rmax = g.w;
     var c: array<f32, 153>;
-    let first = in.tag * params.stride;
-    for (var j = 0u; j < params.stride; j++) {
+    let first = in.tag * cfg.stride;
+    for (var j = 0u; j < cfg.stride; j++) {
         c[j] = coeffs[first + j];
     }
     let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
@@ -80,8 +96,8 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     var lo = t0;
     var t = t0;
     var inside = false;
-    for (var i = 0u; i < params.max_steps; i++) {
-        if implicit(&c, oc + t * ray.dir) < 0.0 {
+    for (var i = 0u; i < cfg.max_steps; i++) {
+        if implicit(&c, oc + t * ray.dir, cfg) < 0.0 {
             inside = true;
             break;
         }
@@ -95,9 +111,9 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
         discard;
     }
     var hi = t;
-    for (var k = 0u; k < params.refine; k++) {
+    for (var k = 0u; k < cfg.refine; k++) {
         let mid = 0.5 * (lo + hi);
-        if implicit(&c, oc + mid * ray.dir) < 0.0 {
+        if implicit(&c, oc + mid * ray.dir, cfg) < 0.0 {
             hi = mid;
         } else {
             lo = mid;
@@ -106,25 +122,25 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     let v = oc + hi * ray.dir;
     let r = max(length(v), 1e-20);
     let u = v / r;
-    let pg = sh_value_grad(&c, params.l_max, u);
-    let sgn = select(1.0, sign(pg.x), params.lobes == 1u);
+    let pg = sh_value_grad(&c, cfg.l_max, u);
+    let sgn = select(1.0, sign(pg.x), cfg.lobes == 1u);
     let tangential = pg.yzw - dot(pg.yzw, u) * u;
     var n = u - sgn * tangential / r;
     n = select(u, normalize(n), dot(n, n) > 0.0);
     var base = abs(u);
-    if params.colour_mode == 1u {
+    if cfg.colour_mode == 1u {
         base = n * 0.5 + 0.5;
-    } else if params.colour_mode == 2u {
+    } else if cfg.colour_mode == 2u {
         base = vec3<f32>(0.8);
-    } else if params.colour_mode == 3u {
+    } else if cfg.colour_mode == 3u {
         base = viridis(glyphs[2u * in.tag + 1u].x);
     }
     var out: FragmentOutput;
-    if params.colour_mode == 1u {
+    if cfg.colour_mode == 1u {
         out.color = vec4<f32>(base, 1.0);
     } else {
         var shaded = headlight(base, n, ray.dir, params.ambient);
-        if params.lobes == 1u && pg.x < 0.0 {
+        if cfg.lobes == 1u && pg.x < 0.0 {
             // Negative lobes: desaturated, as mrview marks them.
             shaded = vec3<f32>(dot(shaded, vec3<f32>(0.3, 0.4, 0.3))) * 0.6;
         }

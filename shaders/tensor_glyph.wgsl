@@ -28,7 +28,8 @@ struct TensorParams {
 
 @vertex
 fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
-    return proxy_vertex(v);
+    // Loop counts and modes reach the fragment stage flat (the rule in `fascicle::ray`).
+    return proxy_vertex(v, vec4<u32>(params.shape, params.colour_mode, params.refine, params.max_steps));
 }
 
 struct FragmentOutput {
@@ -100,12 +101,17 @@ fn superquadric_gradient(q: vec3<f32>, e: vec3<f32>) -> vec3<f32> {
 
 @fragment
 fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
+    // Integer settings, flat from the vertex stage (the rule in `fascicle::ray`).
+    let shape = in.knobs.x;
+    let colour_mode = in.knobs.y;
+    let refine = in.knobs.z;
+    let max_steps = in.knobs.w;
     let g = load_glyph(in.tag);
     let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
     let oc = ray.origin - g.centre;
     var t_hit = -1.0;
     var grad_local = vec3<f32>(0.0);
-    if params.shape == 0u {
+    if shape == 0u {
         let oq = local(g, oc);
         let dq = local(g, ray.dir);
         let a = dot(dq, dq);
@@ -142,7 +148,7 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
         var lo = t0;
         var t = t0;
         var inside = false;
-        for (var i = 0u; i < params.max_steps; i++) {
+        for (var i = 0u; i < max_steps; i++) {
             if superquadric(local(g, oc + t * ray.dir), e) < 0.0 {
                 inside = true;
                 break;
@@ -157,7 +163,7 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
             discard;
         }
         var hi = t;
-        for (var k = 0u; k < params.refine; k++) {
+        for (var k = 0u; k < refine; k++) {
             let mid = 0.5 * (lo + hi);
             if superquadric(local(g, oc + mid * ray.dir), e) < 0.0 {
                 hi = mid;
@@ -172,11 +178,11 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     var n = g.e1 * (grad_local.x / g.radii.x) + g.e2 * (grad_local.y / g.radii.y) + g.e3 * (grad_local.z / g.radii.z);
     n = select(normalize(v), normalize(n), dot(n, n) > 0.0);
     var out: FragmentOutput;
-    if params.colour_mode == 2u {
+    if colour_mode == 2u {
         out.color = vec4<f32>(n * 0.5 + 0.5, 1.0);
     } else {
         var base = abs(g.e1) * clamp(g.fa, 0.2, 1.0);
-        if params.colour_mode == 1u {
+        if colour_mode == 1u {
             base = viridis(g.fa);
         }
         out.color = vec4<f32>(headlight(base, n, ray.dir, params.ambient), 1.0);

@@ -112,18 +112,14 @@ fn vertex(v: SplatVertex) -> SplatVertexOutput {
     );
     out.offset = offset;
     out.conic = vec3<f32>(c / det, -bb / det, a / det);
-    var alpha0 = style.w * params.opacity_scale;
-    if params.attenuation == 1u {
-        alpha0 *= exp(-2.0 * params.k * sqrt(max(vc[2][2] * splats[b + 3u].w, 0.0)));
-    }
-    var colour = style.xyz;
-    if params.lit == 1u {
-        let to_eye = normalize(view.world_position - centre);
-        let a1 = normalize(m * splats[b + 3u].xyz);
-        let a3 = normalize(m * splats[b + 4u].xyz);
-        colour = lit_colour(colour, to_eye, a1, a3, vec3<f32>(s0.w, s2.z, s2.w));
-    }
-    out.colour_alpha = vec4<f32>(colour, alpha0);
+    // Both toggles by `select`, not `if`: no branch on a uniform alone (the rule in `fascicle::ray`).
+    let attenuation = exp(-2.0 * params.k * sqrt(max(vc[2][2] * splats[b + 3u].w, 0.0)));
+    let alpha0 = style.w * params.opacity_scale * select(1.0, attenuation, params.attenuation == 1u);
+    let to_eye = normalize(view.world_position - centre);
+    let a1 = normalize(m * splats[b + 3u].xyz);
+    let a3 = normalize(m * splats[b + 4u].xyz);
+    let lit = lit_colour(style.xyz, to_eye, a1, a3, vec3<f32>(s0.w, s2.z, s2.w));
+    out.colour_alpha = vec4<f32>(select(style.xyz, lit, params.lit == 1u), alpha0);
     return out;
 }
 

@@ -95,6 +95,9 @@ struct TubeVertexOutput {
     @builtin(position) clip_position: vec4<f32>,
     @location(0) world_position: vec3<f32>,
     @location(1) @interpolate(flat) slot: u32,
+    // `params.iterations`, flat: the fragment stage must not bound its loop by a uniform (the rule in
+    // `fascicle::ray`).
+    @location(2) @interpolate(flat) iterations: u32,
 };
 
 @vertex
@@ -108,14 +111,13 @@ fn vertex(v: TubeVertex) -> TubeVertexOutput {
         select(-1.0, 1.0, (corner & 2u) != 0u),
         select(-1.0, 1.0, (corner & 4u) != 0u),
     );
-    var hidden = false;
-    if params.use_selection == 1u {
-        hidden = selected[t.streamline] == 0u;
-    }
+    // `&`, not `if`: no branch on a uniform alone (the rule in `fascicle::ray`).
+    let hidden = (params.use_selection == 1u) & (selected[t.streamline] == 0u);
     let w = t.centre + rotate(t.q, sign * half_extents(t));
     out.world_position = w;
     out.clip_position = select(view.clip_from_world * vec4<f32>(w, 1.0), vec4<f32>(2.0, 2.0, 2.0, 1.0), hidden);
     out.slot = slot;
+    out.iterations = params.iterations;
     return out;
 }
 
@@ -167,7 +169,7 @@ fn fragment(in: TubeVertexOutput) -> FragmentOutput {
     var out_s = vec2<f32>(t0, -1.0);
     var in_s = vec2<f32>(0.0, 1.0);
     var prev = vec2<f32>(0.0, -1.0);
-    for (var k = 0u; k < params.iterations; k++) {
+    for (var k = 0u; k < in.iterations; k++) {
         let p = o + d * tt;
         let v = f(t, p);
         if abs(v) < tol {
@@ -201,7 +203,7 @@ fn fragment(in: TubeVertexOutput) -> FragmentOutput {
                 if prev.y > v {
                     secant = v * (tt - prev.x) / (prev.y - v);
                 }
-                var step = (t1 - t0) / f32(params.iterations);
+                var step = (t1 - t0) / f32(in.iterations);
                 if frozen >= 0.0 && tt + frozen <= t1 {
                     step = frozen;
                 } else if secant > 0.0 && tt + secant <= t1 {

@@ -46,22 +46,25 @@ struct VolumeVertex {
 struct VolumeVertexOutput {
     @builtin(position) clip_position: vec4<f32>,
     @location(0) world_position: vec3<f32>,
+    // (slicing, jitter, shading, pre-integrated), flat: the fragment stage branches on these, never on the
+    // uniform (the rule in `fascicle::ray`).
+    @location(1) @interpolate(flat) modes: vec4<u32>,
 };
 
 @vertex
 fn vertex(v: VolumeVertex) -> VolumeVertexOutput {
     var out: VolumeVertexOutput;
-    var p = v.position;
-    if params.dims.w == 1.0 {
-        // Slice k of n, far to near, facing the camera, covering the bounding sphere.
-        let right = view.world_from_view[0].xyz;
-        let up = view.world_from_view[1].xyz;
-        let forward = -view.world_from_view[2].xyz;
-        let r = params.sphere.w;
-        let spacing = 2.0 * r / f32(params.n_slices);
-        let offset = r - (v.position.z + 0.5) * spacing;
-        p = params.sphere.xyz + r * (v.position.x * right + v.position.y * up) + offset * forward;
-    }
+    // Slicing: slice k of n, far to near, facing the camera, covering the bounding sphere.
+    let right = view.world_from_view[0].xyz;
+    let up = view.world_from_view[1].xyz;
+    let forward = -view.world_from_view[2].xyz;
+    let r = params.sphere.w;
+    let spacing = 2.0 * r / f32(max(params.n_slices, 1u));
+    let offset = r - (v.position.z + 0.5) * spacing;
+    let sliced = params.sphere.xyz + r * (v.position.x * right + v.position.y * up) + offset * forward;
+    let slicing = params.dims.w == 1.0;
+    let p = select(v.position, sliced, slicing);
+    out.modes = vec4<u32>(u32(slicing), params.jitter, params.shading, params.preintegrated);
     out.world_position = p;
     out.clip_position = view.clip_from_world * vec4<f32>(p, 1.0);
     return out;
@@ -116,8 +119,8 @@ fn preintegrated(front: f32, back: f32) -> vec4<f32> {
 }
 
 // Lambert with a headlight on the value gradient (voxel frame), when shading is on.
-fn shade(c: vec4<f32>, q: vec3<f32>, d: vec3<f32>) -> vec4<f32> {
-    if params.shading == 0u {
+fn shade(c: vec4<f32>, q: vec3<f32>, d: vec3<f32>, shading: u32) -> vec4<f32> {
+    if shading == 0u {
         return c;
     }
     let g = vec3<f32>(
@@ -156,7 +159,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     let t_stop = opaque_distance(in.clip_position, r);
     let lo = vec3<f32>(-0.5);
     let hi = params.dims.xyz - vec3<f32>(0.5);
-    if params.dims.w == 1.0 {
+    if in.modes.x == 1u {
         // One slice: the sample where the plane meets this ray.
         let t = dot(in.world_position - r.origin, r.dir);
         let q = o + d * t;
@@ -165,7 +168,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
         }
         let forward = -view.world_from_view[2].xyz;
         let spacing = 2.0 * params.sphere.w / f32(params.n_slices);
-        let c = shade(segment(sample_volume(q), spacing / max(dot(r.dir, forward), 1e-3)), q, d);
+        let c = shade(segment(sample_volume(q), spacing / max(dot(r.dir, forward), 1e-3)), q, d, in.modes.z);
         return c;
     }
     let inv = 1.0 / d;
@@ -180,7 +183,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     }
     let step = max(params.step, 1e-4);
     var t = t0;
-    if params.jitter == 1u {
+    if in.modes.y == 1u {
         t += jitter(in.clip_position.xy) * step;
     }
     var acc = vec4<f32>(0.0);
@@ -188,7 +191,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     for (var k = 0u; k < MAX_STEPS && t < t1; k++) {
         let dt = min(step, t1 - t);
         var c: vec4<f32>;
-        if params.preintegrated == 1u {
+        if in.modes.w == 1u {
             let next = sample_volume(o + d * (t + dt));
             var seg = preintegrated(prev, next);
             prev = next;
@@ -200,7 +203,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
         } else {
             c = segment(sample_volume(o + d * t), dt);
         }
-        acc += (1.0 - acc.a) * shade(c, o + d * t, d);
+        acc += (1.0 - acc.a) * shade(c, o + d * t, d, in.modes.z);
         if acc.a >= params.termination {
             break;
         }

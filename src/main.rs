@@ -9,7 +9,9 @@ fn main() -> std::process::ExitCode {
         Some(cli::Command::Fit { model }) => cli::fit::run(model).map_err(|e| e.to_string()),
         Some(cli::Command::Bench { suite }) => cli::bench::run(suite).map_err(|e| e.to_string()),
         Some(cli::Command::Track(a)) => cli::track::run(a).map_err(|e| e.to_string()),
-        Some(cli::Command::Soak { frames, size, csv }) => cli::soak::run(frames, &size, csv.as_deref()),
+        Some(cli::Command::Soak { frames, size, csv, tolerance_mib }) => {
+            cli::soak::run(frames, &size, csv.as_deref(), tolerance_mib)
+        }
         Some(cli::Command::Select(a)) => cli::select::run(a).map_err(|e| e.to_string()),
         Some(cli::Command::Info { file }) => cli::info::run(&file).map_err(|e| e.to_string()),
         Some(cli::Command::Render { scene, out, size, depth }) => {

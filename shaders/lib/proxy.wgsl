@@ -1,5 +1,8 @@
 // The vertex stage shared by instanced ray-cast glyphs: a proxy mesh per glyph entity, placed by the mesh's
 // transform, with the entity's `MeshTag` passed flat to the fragment stage to index the glyph buffers.
+//
+// `knobs` carries the material's integer settings (loop counts, modes) flat to the fragment stage, which
+// branches on them and never on the uniform (the rule in `fascicle::ray`).
 #define_import_path fascicle::proxy
 
 #import bevy_pbr::mesh_functions
@@ -14,14 +17,16 @@ struct ProxyVertexOutput {
     @builtin(position) clip_position: vec4<f32>,
     @location(0) world_position: vec3<f32>,
     @location(1) @interpolate(flat) tag: u32,
+    @location(2) @interpolate(flat) knobs: vec4<u32>,
 };
 
-fn proxy_vertex(v: ProxyVertex) -> ProxyVertexOutput {
+fn proxy_vertex(v: ProxyVertex, knobs: vec4<u32>) -> ProxyVertexOutput {
     var out: ProxyVertexOutput;
     let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
     let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
     out.clip_position = position_world_to_clip(w.xyz);
     out.world_position = w.xyz;
     out.tag = mesh_functions::get_tag(v.instance_index);
+    out.knobs = knobs;
     return out;
 }

@@ -1,5 +1,10 @@
 // Ray helpers shared by every ray-cast glyph (SH glyphs, ellipsoids, tubelets, volume).
 // Keep in sync with the f64 CPU references in `plugins/render/src/reference.rs`.
+//
+// Rule for every Fascicle shader: no `if` and no loop bound may depend on uniform values alone. Mesa 22.3's
+// lavapipe (Debian 12's software Vulkan) specialises a shader on such values ("uniform inlining"); for
+// our shaders it recompiled them at every pipeline bind and never freed the old ones, leaking 2-3 MB a
+// frame (found by `fascicle soak`). Use `select`, or pass the setting flat from the vertex stage.
 #define_import_path fascicle::ray
 
 struct Ray {
@@ -9,12 +14,11 @@ struct Ray {
 
 // The view ray through a fragment at `world_pos` on a proxy surface. Perspective: from the camera
 // centre; orthographic (clip_from_view[3].w == 1): along the view direction through the fragment.
+// `select`, not `if`: the projection is a uniform (see the rule above).
 fn view_ray(world_pos: vec3<f32>, camera_pos: vec3<f32>, world_from_view: mat4x4<f32>, clip_from_view: mat4x4<f32>) -> Ray {
-    if clip_from_view[3].w == 1.0 {
-        let d = normalize(-world_from_view[2].xyz);
-        return Ray(world_pos - d * 1.0e4, d);
-    }
-    return Ray(camera_pos, normalize(world_pos - camera_pos));
+    let ortho = clip_from_view[3].w == 1.0;
+    let d = normalize(-world_from_view[2].xyz);
+    return Ray(select(camera_pos, world_pos - d * 1.0e4, ortho), select(normalize(world_pos - camera_pos), d, ortho));
 }
 
 // Nearest positive hit of a ray with a sphere, or -1. Uses the numerically stable form of the quadratic.

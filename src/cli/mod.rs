@@ -58,7 +58,9 @@ pub enum Command {
     /// Keep the streamlines that meet every include ROI and no exclude ROI; write .trk/.tck.
     Select(select::SelectArgs),
     /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory
-    /// and asset counts (the soak test).
+    /// and asset counts (the soak test). Fails when a layer reports an error or the second half of the run
+    /// grows: resident memory by more than the tolerance, or any asset or pipeline count beyond the first
+    /// half's largest.
     Soak {
         #[arg(long, default_value_t = 10_000)]
         frames: u32,
@@ -67,6 +69,9 @@ pub enum Command {
         /// Write the samples (every 100 frames) as CSV.
         #[arg(long)]
         csv: Option<PathBuf>,
+        /// Resident-memory growth (MiB) allowed over the second half of the run.
+        #[arg(long, default_value_t = 32.0)]
+        tolerance_mib: f64,
     },
     /// Print what a NIfTI image or tractogram holds.
     Info { file: PathBuf },

@@ -1,7 +1,7 @@
 //! `fascicle soak`: the headless renderer draws the default scene for many frames while layers are toggled
-//! and the tract ROI moves, sampling resident memory and the number of GPU-side assets (storage buffers,
-//! meshes, images, materials) and entities. Bounded curves and no layer error are the pass criteria; the
-//! CSV is the curve.
+//! and the tract ROI moves, sampling resident memory, the number of GPU-side assets (storage buffers,
+//! meshes, images), entities and render pipelines every 100 frames. It passes when no layer reports an
+//! error and the curves are bounded (`verdict`); the CSV is the curve.
 //!
 //! Diagnostics (environment): `SOAK_NO_TOGGLE`, `SOAK_NO_ROI` switch the edits off; `SOAK_HIDE=k` hides layer
 //! k at frame 50; `SOAK_DROP=k[,k…]` removes layers from the scene;
@@ -27,7 +27,66 @@ fn rss_mib() -> f64 {
         .map_or(0.0, |pages| pages * 4096.0 / 1_048_576.0)
 }
 
-pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
+/// One sample of the soak curve.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    pub frame: u32,
+    pub seconds: f64,
+    pub rss_mib: f64,
+    /// Storage buffers, meshes, images, entities, render pipelines.
+    pub counts: [usize; 5],
+}
+
+impl Sample {
+    fn csv_row(&self) -> String {
+        let [b, m, i, e, p] = self.counts;
+        format!("{},{:.1},{:.1},{b},{m},{i},{e},{p}", self.frame, self.seconds, self.rss_mib)
+    }
+}
+
+const COUNT_NAMES: [&str; 5] = ["storage buffers", "meshes", "images", "entities", "pipelines"];
+
+/// Bounded means: over the second half of the samples resident memory grows by at most `tolerance_mib`
+/// (allocator noise), and no count exceeds its largest value in the first half (the layers have all been
+/// shown and hidden by then). The first half absorbs warm-up: pipeline compilation, caches, first uploads.
+/// Returns a one-line summary, or what grew.
+pub fn verdict(samples: &[Sample], tolerance_mib: f64) -> Result<String, String> {
+    if samples.len() < 4 {
+        return Err(format!("{} samples: a soak needs at least 400 frames to judge", samples.len()));
+    }
+    let (first, second) = samples.split_at(samples.len() / 2);
+    let mid = first[first.len() - 1];
+    let last = samples[samples.len() - 1];
+    let growth = second.iter().map(|s| s.rss_mib).fold(f64::NEG_INFINITY, f64::max) - mid.rss_mib;
+    let mut problems = Vec::new();
+    if growth > tolerance_mib {
+        problems.push(format!(
+            "resident memory grew {growth:.1} MiB between frames {} and {} (tolerance {tolerance_mib} MiB)",
+            mid.frame, last.frame
+        ));
+    }
+    for (k, name) in COUNT_NAMES.iter().enumerate() {
+        let before = first.iter().map(|s| s.counts[k]).max().unwrap_or(0);
+        let after = second.iter().map(|s| s.counts[k]).max().unwrap_or(0);
+        if after > before {
+            problems.push(format!("{name}: {after} after frame {}, at most {before} before", mid.frame));
+        }
+    }
+    if problems.is_empty() {
+        Ok(format!(
+            "bounded: resident memory {:+.1} MiB over frames {}-{} ({:.1} MiB at the end); counts {:?}",
+            last.rss_mib - mid.rss_mib,
+            mid.frame,
+            last.frame,
+            last.rss_mib,
+            last.counts
+        ))
+    } else {
+        Err(format!("not bounded: {}", problems.join("; ")))
+    }
+}
+
+pub fn run(frames: u32, size: &str, csv: Option<&Path>, tolerance_mib: f64) -> Result<(), String> {
     let toggle = std::env::var("SOAK_NO_TOGGLE").is_err();
     let roi = std::env::var("SOAK_NO_ROI").is_err();
     let (w, h) = crate::cli::parse_size(size)?;
@@ -54,7 +113,7 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
     }
     let n_layers = scene.layers.len();
     let tract = scene.layers.iter().position(|l| matches!(l.kind, LayerKind::Tracts { .. }));
-    let mut rows = vec!["frame,seconds,rss_mib,shader_buffers,meshes,images,entities,pipelines".to_string()];
+    let mut samples = Vec::new();
     let t0 = Instant::now();
     let mut errors = 0usize;
     for f in 1..=frames {
@@ -86,26 +145,74 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>) -> Result<(), String> {
         if f % 100 == 0 || f == frames {
             let pipelines = headless::pipeline_count(&app);
             let world = app.world_mut();
-            let row = format!(
-                "{f},{:.1},{:.1},{},{},{},{},{pipelines}",
-                t0.elapsed().as_secs_f64(),
-                rss_mib(),
-                world.resource::<Assets<ShaderBuffer>>().len(),
-                world.resource::<Assets<Mesh>>().len(),
-                world.resource::<Assets<Image>>().len(),
-                world.entities().count_spawned(),
-            );
-            eprintln!("{row}");
-            rows.push(row);
+            let sample = Sample {
+                frame: f,
+                seconds: t0.elapsed().as_secs_f64(),
+                rss_mib: rss_mib(),
+                counts: [
+                    world.resource::<Assets<ShaderBuffer>>().len(),
+                    world.resource::<Assets<Mesh>>().len(),
+                    world.resource::<Assets<Image>>().len(),
+                    world.entities().count_spawned() as usize,
+                    pipelines,
+                ],
+            };
+            eprintln!("{}", sample.csv_row());
+            samples.push(sample);
         }
     }
     if let Some(p) = csv {
         let mut file = std::fs::File::create(p).map_err(|e| format!("{}: {e}", p.display()))?;
-        writeln!(file, "{}", rows.join("\n")).map_err(|e| e.to_string())?;
+        let rows: Vec<String> = samples.iter().map(Sample::csv_row).collect();
+        writeln!(file, "{CSV_HEADER}\n{}", rows.join("\n")).map_err(|e| e.to_string())?;
     }
     println!("{frames} frames in {:.0} s; layer errors: {errors}", t0.elapsed().as_secs_f64());
     if errors > 0 {
         return Err(format!("{errors} layer errors during the soak"));
     }
+    println!("{}", verdict(&samples, tolerance_mib)?);
     Ok(())
+}
+
+const CSV_HEADER: &str = "frame,seconds,rss_mib,shader_buffers,meshes,images,entities,pipelines";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn series(rss: impl Fn(u32) -> f64, count: impl Fn(u32) -> usize) -> Vec<Sample> {
+        (1..=10)
+            .map(|k| Sample { frame: 100 * k, seconds: k as f64, rss_mib: rss(k), counts: [5, 9, 11, count(k), 43] })
+            .collect()
+    }
+
+    #[test]
+    fn flat_curves_are_bounded() {
+        // Warm-up growth in the first half and allocator noise in the second are allowed.
+        let s = series(
+            |k| if k < 4 { 200.0 + 30.0 * k as f64 } else { 290.0 + (k % 2) as f64 },
+            |k| 200 + (k % 3) as usize,
+        );
+        assert!(verdict(&s, 32.0).is_ok(), "{:?}", verdict(&s, 32.0));
+    }
+
+    #[test]
+    fn a_leak_of_two_mib_a_frame_is_caught() {
+        // The lavapipe leak this soak found: about 2 MiB a frame.
+        let s = series(|k| 300.0 + 200.0 * k as f64, |_| 200);
+        let e = verdict(&s, 32.0).unwrap_err();
+        assert!(e.contains("resident memory grew 1000.0 MiB"), "{e}");
+    }
+
+    #[test]
+    fn a_growing_count_is_caught() {
+        let s = series(|_| 300.0, |k| 200 + k as usize);
+        let e = verdict(&s, 32.0).unwrap_err();
+        assert!(e.contains("entities: 210 after frame 500, at most 205 before"), "{e}");
+    }
+
+    #[test]
+    fn too_short_a_run_is_refused() {
+        assert!(verdict(&series(|_| 1.0, |_| 1)[..3], 32.0).is_err());
+    }
 }
