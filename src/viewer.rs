@@ -24,11 +24,13 @@ use bevy_egui::{
 };
 use fascicle_render::FascicleRenderPlugin;
 
-use crate::layers::{ActiveScene, LayerErrors, ScenePlugin};
+use crate::layers::{ActiveScene, LayerEntity, LayerErrors, ScenePlugin};
 use crate::panels::LayerPanels;
 use crate::render::BACKGROUND;
 use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene};
+use fascicle_core::roi::{SegmentGrid, select};
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
+use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
 
 /// Camera components shared by viewer and headless renderer, so both produce the same image.
 pub fn view_camera() -> impl Bundle {
@@ -83,6 +85,10 @@ struct UiState {
     message: Option<String>,
     frame_ms: f32,
     screenshots: u32,
+    /// Where "Save selection" writes (.trk or .tck).
+    selection_path: String,
+    /// The tract layer whose selection the panel asked to save.
+    save_selection: Option<usize>,
 }
 
 /// Builds the starting scene from command-line files: scene files replace the scene, data files add layers.
@@ -166,6 +172,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .insert_resource(UiState {
         message: (!errors.is_empty()).then(|| errors.join("\n")),
         scene_path: "scene.ron".into(),
+        selection_path: "selection.trk".into(),
         ..default()
     })
     .add_systems(Startup, |mut commands: Commands, mut egui_settings: ResMut<EguiGlobalSettings>| {
@@ -194,6 +201,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             pick_glyph.run_if(not(egui_wants_any_pointer_input)),
             keys.run_if(not(egui_wants_any_keyboard_input)),
             dropped_files,
+            save_selection,
             apply_orbit.run_if(resource_changed::<Orbit>),
         ),
     )
@@ -312,6 +320,39 @@ fn dropped_files(mut events: MessageReader<FileDragAndDrop>, mut scene: ResMut<A
     }
 }
 
+/// Writes the streamlines that a tract layer's ROIs select to `UiState::selection_path`, when the panel
+/// asked. Hyperstreamline layers keep their selection; other modes select again from the layer's source.
+fn save_selection(
+    mut ui: ResMut<UiState>,
+    scene: Res<ActiveScene>,
+    sets: Query<(&TractSet, &TractSelection, &LayerEntity)>,
+) {
+    let Some(layer) = ui.save_selection.take() else { return };
+    let path = PathBuf::from(ui.selection_path.trim());
+    let selected = match sets.iter().find(|(_, _, le)| le.0 == layer) {
+        Some((set, selection, _)) => Ok((selected_tractogram(set, selection), set.tractogram.n_streamlines())),
+        None => match scene.0.layers.get(layer).map(|l| &l.kind) {
+            Some(LayerKind::Tracts { source, rois, .. }) => crate::layers::tract_data(source).map(|(t, _)| {
+                let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
+                let keep = select(&t.points, &t.offsets, &grid, rois);
+                let mut out = fascicle_core::io::Tractogram::new();
+                for (s, _) in keep.iter().enumerate().filter(|(_, k)| **k) {
+                    out.push(t.streamline(s));
+                }
+                (out, t.n_streamlines())
+            }),
+            _ => Err(format!("layer {layer} is not a tract layer")),
+        },
+    };
+    ui.message = Some(match selected {
+        Ok((t, total)) => match crate::cli::select::write(&path, &t, None) {
+            Ok(()) => format!("saved {} of {total} streamlines to {}", t.n_streamlines(), path.display()),
+            Err(e) => format!("saving the selection: {e}"),
+        },
+        Err(e) => format!("saving the selection: {e}"),
+    });
+}
+
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
 fn panel(
     mut contexts: EguiContexts,
@@ -354,6 +395,16 @@ fn panel(
                 if let Some(p) = panels.find(&layer.kind) {
                     let data = layer_data.0.get(&i).cloned().unwrap_or_default();
                     ui.push_id(i, |ui| (p.show)(ui, &mut layer.kind, &data));
+                }
+                if matches!(layer.kind, LayerKind::Tracts { .. }) {
+                    ui.push_id(("selection", i), |ui| {
+                        ui.horizontal(|ui| {
+                            ui.text_edit_singleline(&mut ui_state.selection_path);
+                            if ui.button("Save selection").clicked() {
+                                ui_state.save_selection = Some(i);
+                            }
+                        });
+                    });
                 }
                 ui.separator();
             }
@@ -451,5 +502,88 @@ mod tests {
         app.update();
         let scene = &app.world().resource::<ActiveScene>().0;
         assert!(matches!(scene.layers.last().map(|l| &l.kind), Some(LayerKind::ShGlyphs { .. })));
+    }
+
+    /// "Save selection" writes what the ROIs select: from a hyperstreamline set's own selection flags, or,
+    /// for a layer without a set (lines, polygon tubes), by selecting again from the source. A bad path is a
+    /// message, not a panic.
+    #[test]
+    fn save_selection_writes_the_selected_streamlines() {
+        use fascicle_core::io::Tractogram;
+        use fascicle_core::roi::{Roi, RoiMode, RoiShape};
+        use std::sync::Arc;
+        let trk = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tracts/tracks300.trk");
+        let t = Tractogram::read(&trk).unwrap();
+        let dir = std::env::temp_dir().join(format!("fascicle-save-selection-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // An include sphere around the middle point of streamline 0.
+        let p = t.streamline(0)[t.streamline(0).len() / 2];
+        let rois = vec![Roi { shape: RoiShape::Sphere { centre: p.to_array(), radius: 5.0 }, mode: RoiMode::Include }];
+        let layer = LayerSpec {
+            name: "tracts".into(),
+            visible: true,
+            opacity: 1.0,
+            kind: LayerKind::Tracts {
+                source: crate::scene::TractSource::File { path: trk.clone() },
+                mode: crate::scene::TractMode::Lines,
+                render: Default::default(),
+                rois: rois.clone(),
+            },
+        };
+        let mut app = App::new();
+        app.add_plugins(MinimalPlugins)
+            .insert_resource(ActiveScene(Scene { layers: vec![layer], camera: CameraSpec::default() }))
+            .insert_resource(UiState::default())
+            .add_systems(Update, save_selection);
+        let save = |app: &mut App, layer: usize, path: &std::path::Path| {
+            let mut ui = app.world_mut().resource_mut::<UiState>();
+            ui.selection_path = path.display().to_string();
+            ui.save_selection = Some(layer);
+            app.update();
+            app.world().resource::<UiState>().message.clone().unwrap_or_default()
+        };
+
+        // Lines mode: no set, selected again from the file.
+        let out = dir.join("lines.tck");
+        let msg = save(&mut app, 0, &out);
+        let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
+        let keep = select(&t.points, &t.offsets, &grid, &rois);
+        let n = keep.iter().filter(|k| **k).count();
+        assert!(n > 0 && n < t.n_streamlines(), "{n}");
+        assert!(msg.starts_with(&format!("saved {n} of {}", t.n_streamlines())), "{msg}");
+        let back = Tractogram::read(&out).unwrap();
+        let kept: Vec<usize> = (0..t.n_streamlines()).filter(|s| keep[*s]).collect();
+        assert_eq!(back.n_streamlines(), n);
+        for (k, s) in kept.iter().enumerate() {
+            assert_eq!(back.streamline(k), t.streamline(*s), "streamline {s}");
+        }
+
+        // A hyperstreamline set: its flags are what is saved (every third streamline here).
+        let flags: Vec<bool> = (0..t.n_streamlines()).map(|s| s % 3 == 0).collect();
+        let set = TractSet {
+            material: Handle::default(),
+            grid: Arc::new(grid),
+            n_tubelets: 0,
+            settings: Default::default(),
+            tractogram: Arc::new(t.clone()),
+        };
+        app.world_mut().spawn((set, TractSelection(flags.clone()), LayerEntity(0)));
+        let out = dir.join("set.trk");
+        let msg = save(&mut app, 0, &out);
+        let back = Tractogram::read(&out).unwrap();
+        assert_eq!(back.n_streamlines(), t.n_streamlines().div_ceil(3), "{msg}");
+        for (k, s) in (0..t.n_streamlines()).step_by(3).enumerate() {
+            for (a, b) in back.streamline(k).iter().zip(t.streamline(s)) {
+                assert!((*a - *b).abs().max_element() < 1e-3, "streamline {s}: {a} vs {b}");
+            }
+        }
+
+        // Bad requests: an unknown extension, a layer that is not a tract layer.
+        let msg = save(&mut app, 0, &dir.join("selection.txt"));
+        assert!(msg.contains("unknown extension 'txt'"), "{msg}");
+        let msg = save(&mut app, 7, &out);
+        assert!(msg.contains("layer 7 is not a tract layer"), "{msg}");
+        app.update(); // still running
+        std::fs::remove_dir_all(dir).ok();
     }
 }

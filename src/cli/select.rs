@@ -84,8 +84,8 @@ pub fn rois(a: &SelectArgs) -> Result<Vec<Roi>, Error> {
 }
 
 /// Writes `t` to `.trk` (with the reference space of `header` when the input was a `.trk`, else a 1 mm grid
-/// covering the points) or `.tck`.
-fn write(path: &Path, t: &Tractogram, header: Option<&trk::TrkHeader>) -> Result<(), Error> {
+/// covering the points) or `.tck`, chosen by the extension.
+pub fn write(path: &Path, t: &Tractogram, header: Option<&trk::TrkHeader>) -> Result<(), Error> {
     match extension(path).as_str() {
         "trk" => {
             let (affine, dims) = match header {
