@@ -136,7 +136,7 @@ fn sync_scene(
                 }
             }
         }
-        for (set, le) in &tract_sets {
+        for (set_entity, set, le) in &tract_sets {
             if let Some(LayerKind::Tracts { render, rois, .. }) = kinds.get(le.0)
                 && spawned.0.get(le.0) != kinds.get(le.0)
             {
@@ -152,7 +152,7 @@ fn sync_scene(
                         }
                     }
                     for r in rois {
-                        commands.spawn((TractRoi(*r), LayerEntity(le.0)));
+                        commands.spawn((TractRoi(*r), LayerEntity(le.0), ChildOf(set_entity)));
                     }
                 }
             }
@@ -194,7 +194,8 @@ fn sync_scene(
         commands.entity(e).despawn();
     }
     for (e, _) in &roi_entities {
-        commands.entity(e).despawn();
+        // ROIs of a tract set were despawned with it.
+        commands.entity(e).try_despawn();
     }
     errors.0.clear();
     for (i, spec) in scene.0.layers.iter().enumerate() {
@@ -235,8 +236,9 @@ fn sync_scene(
                         render,
                     );
                     place(&mut commands, &mut errors, Ok(set), spec, vis, i);
+                    // Children of the set: they act on this layer only and go when it goes.
                     for r in rois {
-                        commands.spawn((TractRoi(*r), LayerEntity(i)));
+                        commands.spawn((TractRoi(*r), LayerEntity(i), ChildOf(set)));
                     }
                 }
                 (Ok((t, tensors)), TractMode::Polygon) => {
@@ -436,7 +438,7 @@ struct VolumeAssets<'w, 's> {
 #[derive(bevy::ecs::system::SystemParam)]
 struct TractAssets<'w, 's> {
     materials: ResMut<'w, Assets<TubeletMaterial>>,
-    sets: Query<'w, 's, (&'static TractSet, &'static LayerEntity)>,
+    sets: Query<'w, 's, (Entity, &'static TractSet, &'static LayerEntity)>,
     rois: Query<'w, 's, (Entity, &'static LayerEntity), With<TractRoi>>,
 }
 

@@ -358,3 +358,49 @@ fn roi_edits_reselect_without_rebuilding() {
     app.update();
     assert_ne!(state(&mut app).0, e0);
 }
+
+/// ROIs belong to their layer: with two tract layers of the same file, an include sphere on the first
+/// selects there only; moved to the second layer, it selects there only.
+#[test]
+fn rois_act_on_their_own_layer() {
+    use fascicle::layers::LayerEntity;
+    use fascicle::scene::{CameraSpec, LayerSpec, TractMode, TractSource};
+    use fascicle_core::roi::{Roi, RoiMode, RoiShape};
+    use fascicle_tracts::{TractSelection, TractSet};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tracts/tracks300.trk");
+    let t = fascicle_core::io::Tractogram::read(&path).unwrap();
+    let p = t.streamline(0)[t.streamline(0).len() / 2];
+    let sphere = Roi { shape: RoiShape::Sphere { centre: p.to_array(), radius: 5.0 }, mode: RoiMode::Include };
+    let layer = |rois: Vec<Roi>| LayerSpec {
+        name: "tracts".into(),
+        visible: true,
+        opacity: 1.0,
+        kind: LayerKind::Tracts {
+            source: TractSource::File { path: path.clone() },
+            mode: TractMode::Tubes,
+            render: Default::default(),
+            rois,
+        },
+    };
+    let scene = Scene { layers: vec![layer(vec![sphere]), layer(vec![])], camera: CameraSpec::default() };
+    let Some(mut app) = scene_app(scene) else { return };
+    app.update();
+    let selected = |app: &mut App| {
+        let mut q = app.world_mut().query::<(&TractSet, &TractSelection, &LayerEntity)>();
+        let mut v: Vec<(usize, usize)> =
+            q.iter(app.world()).map(|(_, s, le)| (le.0, s.0.iter().filter(|x| **x).count())).collect();
+        v.sort_unstable();
+        v.into_iter().map(|(_, n)| n).collect::<Vec<_>>()
+    };
+    let n = t.n_streamlines();
+    let first = selected(&mut app);
+    assert!(first[0] > 0 && first[0] < n && first[1] == n, "{first:?} of {n}");
+    for (i, rois) in [vec![], vec![sphere]].into_iter().enumerate() {
+        if let LayerKind::Tracts { rois: r, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
+            *r = rois;
+        }
+    }
+    app.update();
+    app.update();
+    assert_eq!(selected(&mut app), vec![n, first[0]]);
+}

@@ -4,9 +4,9 @@
 //!
 //! A tract set is one entity and one draw: its tubelets live in one storage buffer, its mesh holds 8
 //! vertices per tubelet carrying (slot, corner), and the vertex shader builds each bounding box. ROIs are
-//! entities ([`TractRoi`]); [`apply_rois`] re-evaluates the selection (parallel, over a uniform segment grid)
-//! only when an ROI or a tract set changes, and rewrites a 4-byte-per-streamline flag buffer; nothing else
-//! is re-uploaded.
+//! entities ([`TractRoi`]): a child of a tract set acts on that set, an ROI without a parent on every set.
+//! [`apply_rois`] re-evaluates the selection (parallel, over a uniform segment grid) only when an ROI or a
+//! tract set changes, and rewrites a 4-byte-per-streamline flag buffer; nothing else is re-uploaded.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -103,7 +103,8 @@ pub struct TractSet {
 #[derive(Component, Clone, Debug, Default)]
 pub struct TractSelection(pub Vec<bool>);
 
-/// A region of interest acting on every tract set.
+/// A region of interest: spawned as a child of a tract set (`ChildOf(set)`) it acts on that set only;
+/// without a parent it acts on every set.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct TractRoi(pub Roi);
 
@@ -270,20 +271,21 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
 pub fn apply_rois(
     changed_rois: Query<(), Or<(Added<TractRoi>, Changed<TractRoi>)>>,
     mut removed: RemovedComponents<TractRoi>,
-    rois: Query<&TractRoi>,
-    mut sets: Query<(Ref<TractSet>, &mut TractSelection)>,
+    rois: Query<(&TractRoi, Option<&ChildOf>)>,
+    mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection)>,
     mut materials: ResMut<Assets<TubeletMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
 ) {
     let removed_any = removed.read().count() > 0;
-    if changed_rois.is_empty() && !removed_any && !sets.iter().any(|(s, _)| s.is_added()) {
+    if changed_rois.is_empty() && !removed_any && !sets.iter().any(|(_, s, _)| s.is_added()) {
         return;
     }
     let t0 = Instant::now();
-    let list: Vec<Roi> = rois.iter().map(|r| r.0).collect();
     let mut selected = 0;
-    for (set, mut selection) in &mut sets {
+    for (entity, set, mut selection) in &mut sets {
+        let list: Vec<Roi> =
+            rois.iter().filter(|(_, parent)| parent.is_none_or(|p| p.parent() == entity)).map(|(r, _)| r.0).collect();
         let sel = select(&set.tractogram.points, &set.tractogram.offsets, &set.grid, &list);
         selected += sel.iter().filter(|s| **s).count();
         let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();
