@@ -16,8 +16,6 @@ struct TubeParams {
     ambient: f32,
     specular: f32,
     shininess: f32,
-    // 1: discard streamlines whose flag is 0.
-    use_selection: u32,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: TubeParams;
@@ -111,8 +109,7 @@ fn vertex(v: TubeVertex) -> TubeVertexOutput {
         select(-1.0, 1.0, (corner & 2u) != 0u),
         select(-1.0, 1.0, (corner & 4u) != 0u),
     );
-    // `&`, not `if`: no branch on a uniform alone (the rule in `fascicle::ray`).
-    let hidden = (params.use_selection == 1u) & (selected[t.streamline] == 0u);
+    let hidden = selected[t.streamline] == 0u;
     let w = t.centre + rotate(t.q, sign * half_extents(t));
     out.world_position = w;
     out.clip_position = select(view.clip_from_world * vec4<f32>(w, 1.0), vec4<f32>(2.0, 2.0, 2.0, 1.0), hidden);

@@ -18,7 +18,10 @@ use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
-use fascicle_tracts::{TractPlugin, TractRoi, TractSet, TubeUniform, TubeletMaterial, polygon_tube_mesh, spawn_tubes};
+use fascicle_tracts::{
+    LineSet, TractLineMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial, line_mesh,
+    polygon_tube_mesh, spawn_lines, spawn_tubes,
+};
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, VolumeUniform, spawn_volume, tf_buffers};
 
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
@@ -110,7 +113,13 @@ fn sync_scene(
         mut splat_sets,
     } = tensor;
     let VolumeAssets { materials: mut volume_materials, sets: volume_sets, depth } = volume;
-    let TractAssets { materials: mut tube_materials, sets: tract_sets, rois: roi_entities } = tracts;
+    let TractAssets {
+        materials: mut tube_materials,
+        sets: tract_sets,
+        rois: roi_entities,
+        line_sets,
+        mut line_materials,
+    } = tracts;
     let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
     let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
     if structure(&kinds) == structure(&spawned.0) {
@@ -136,12 +145,14 @@ fn sync_scene(
                 }
             }
         }
-        for (set_entity, set, le) in &tract_sets {
+        for (set_entity, tubes, le) in &tract_sets {
             if let Some(LayerKind::Tracts { render, rois, .. }) = kinds.get(le.0)
                 && spawned.0.get(le.0) != kinds.get(le.0)
             {
-                if let Some(mut m) = tube_materials.get_mut(&set.material) {
-                    m.params = TubeUniform::new(render, m.params.use_selection == 1);
+                if let Some(tubes) = tubes
+                    && let Some(mut m) = tube_materials.get_mut(&tubes.material)
+                {
+                    m.params = render.into();
                 }
                 if let Some(LayerKind::Tracts { rois: before, .. }) = spawned.0.get(le.0)
                     && before != rois
@@ -181,6 +192,14 @@ fn sync_scene(
             }
         }
         spawned.0 = kinds;
+        for (lines, le) in &line_sets {
+            let opacity = scene.0.layers.get(le.0).map_or(1.0, |l| l.opacity.clamp(0.0, 1.0));
+            if line_materials.get(&lines.material).is_some_and(|m| m.params.opacity != opacity)
+                && let Some(mut m) = line_materials.get_mut(&lines.material)
+            {
+                m.params.opacity = opacity;
+            }
+        }
         for (e, le, mat) in &existing {
             let Some(spec) = scene.0.layers.get(le.0) else { continue };
             commands.entity(e).insert(if spec.visible { Visibility::Inherited } else { Visibility::Hidden });
@@ -257,14 +276,18 @@ fn sync_scene(
                     ));
                 }
                 (Ok((t, _)), TractMode::Lines) => {
-                    let m = materials.add(unlit(spec.opacity));
-                    commands.spawn((
-                        Mesh3d(meshes.add(lines(&t))),
-                        MeshMaterial3d(m),
-                        Transform::IDENTITY,
-                        vis,
-                        LayerEntity(i),
-                    ));
+                    let set = spawn_lines(
+                        &mut commands,
+                        &mut meshes,
+                        &mut line_materials,
+                        &mut buffers,
+                        std::sync::Arc::new(t),
+                        spec.opacity,
+                    );
+                    place(&mut commands, &mut errors, Ok(set), spec, vis, i);
+                    for r in rois {
+                        commands.spawn((TractRoi(*r), LayerEntity(i), ChildOf(set)));
+                    }
                 }
             }
             continue;
@@ -388,7 +411,7 @@ fn spawn_layer(
             if t.points.is_empty() {
                 return Err("the tractogram holds no points".into());
             }
-            Ok(vec![(meshes.add(lines(&t)), materials.add(unlit(spec.opacity)), Transform::IDENTITY)])
+            Ok(vec![(meshes.add(line_mesh(&t)), materials.add(unlit(spec.opacity)), Transform::IDENTITY)])
         }
     }
 }
@@ -438,7 +461,9 @@ struct VolumeAssets<'w, 's> {
 #[derive(bevy::ecs::system::SystemParam)]
 struct TractAssets<'w, 's> {
     materials: ResMut<'w, Assets<TubeletMaterial>>,
-    sets: Query<'w, 's, (Entity, &'static TractSet, &'static LayerEntity)>,
+    sets: Query<'w, 's, (Entity, Option<&'static TubeSet>, &'static LayerEntity), With<TractSet>>,
+    line_sets: Query<'w, 's, (&'static LineSet, &'static LayerEntity)>,
+    line_materials: ResMut<'w, Assets<TractLineMaterial>>,
     rois: Query<'w, 's, (Entity, &'static LayerEntity), With<TractRoi>>,
 }
 
@@ -840,25 +865,6 @@ fn quad(c: [Vec3; 4]) -> Mesh {
         .with_inserted_attribute(Mesh::ATTRIBUTE_NORMAL, vec![n; 4])
         .with_inserted_attribute(Mesh::ATTRIBUTE_UV_0, vec![[0.0f32, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
         .with_inserted_indices(Indices::U32(vec![0, 1, 2, 0, 2, 3]))
-}
-
-/// Line segments of every streamline, coloured by |direction| (the usual RGB = LR, AP, SI encoding).
-fn lines(t: &Tractogram) -> Mesh {
-    let mut pos = Vec::with_capacity(t.points.len() * 2);
-    let mut col = Vec::with_capacity(t.points.len() * 2);
-    for s in t.iter() {
-        for w in s.windows(2) {
-            let d = (w[1] - w[0]).normalize_or_zero().abs();
-            let c = [d.x, d.y, d.z, 1.0];
-            pos.push(w[0]);
-            pos.push(w[1]);
-            col.push(c);
-            col.push(c);
-        }
-    }
-    Mesh::new(PrimitiveTopology::LineList, RenderAssetUsages::RENDER_WORLD)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
 }
 
 /// Camera transform and projection for a scene's camera spec.

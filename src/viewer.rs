@@ -321,7 +321,8 @@ fn dropped_files(mut events: MessageReader<FileDragAndDrop>, mut scene: ResMut<A
 }
 
 /// Writes the streamlines that a tract layer's ROIs select to `UiState::selection_path`, when the panel
-/// asked. Hyperstreamline layers keep their selection; other modes select again from the layer's source.
+/// asked. Hyperstreamline and line layers keep their selection; polygon tubes select again from the
+/// layer's source.
 fn save_selection(
     mut ui: ResMut<UiState>,
     scene: Res<ActiveScene>,
@@ -504,9 +505,9 @@ mod tests {
         assert!(matches!(scene.layers.last().map(|l| &l.kind), Some(LayerKind::ShGlyphs { .. })));
     }
 
-    /// "Save selection" writes what the ROIs select: from a hyperstreamline set's own selection flags, or,
-    /// for a layer without a set (lines, polygon tubes), by selecting again from the source. A bad path is a
-    /// message, not a panic.
+    /// "Save selection" writes what the ROIs select: from a tract set's own selection flags, or, for a layer
+    /// without a set (polygon tubes; here no set is spawned), by selecting again from the source. A bad path
+    /// is a message, not a panic.
     #[test]
     fn save_selection_writes_the_selected_streamlines() {
         use fascicle_core::io::Tractogram;
@@ -543,7 +544,7 @@ mod tests {
             app.world().resource::<UiState>().message.clone().unwrap_or_default()
         };
 
-        // Lines mode: no set, selected again from the file.
+        // No set: selected again from the file.
         let out = dir.join("lines.tck");
         let msg = save(&mut app, 0, &out);
         let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
@@ -558,15 +559,9 @@ mod tests {
             assert_eq!(back.streamline(k), t.streamline(*s), "streamline {s}");
         }
 
-        // A hyperstreamline set: its flags are what is saved (every third streamline here).
+        // A tract set: its flags are what is saved (every third streamline here).
         let flags: Vec<bool> = (0..t.n_streamlines()).map(|s| s % 3 == 0).collect();
-        let set = TractSet {
-            material: Handle::default(),
-            grid: Arc::new(grid),
-            n_tubelets: 0,
-            settings: Default::default(),
-            tractogram: Arc::new(t.clone()),
-        };
+        let set = TractSet { tractogram: Arc::new(t.clone()), grid: Arc::new(grid), selected: Handle::default() };
         app.world_mut().spawn((set, TractSelection(flags.clone()), LayerEntity(0)));
         let out = dir.join("set.trk");
         let msg = save(&mut app, 0, &out);

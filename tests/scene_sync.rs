@@ -359,8 +359,8 @@ fn roi_edits_reselect_without_rebuilding() {
     assert_ne!(state(&mut app).0, e0);
 }
 
-/// ROIs belong to their layer: with two tract layers of the same file, an include sphere on the first
-/// selects there only; moved to the second layer, it selects there only.
+/// ROIs belong to their layer: with two tract layers of the same file (hyperstreamlines, lines), an include
+/// sphere on the first selects there only; moved to the second layer, it selects there only.
 #[test]
 fn rois_act_on_their_own_layer() {
     use fascicle::layers::LayerEntity;
@@ -371,18 +371,19 @@ fn rois_act_on_their_own_layer() {
     let t = fascicle_core::io::Tractogram::read(&path).unwrap();
     let p = t.streamline(0)[t.streamline(0).len() / 2];
     let sphere = Roi { shape: RoiShape::Sphere { centre: p.to_array(), radius: 5.0 }, mode: RoiMode::Include };
-    let layer = |rois: Vec<Roi>| LayerSpec {
+    let layer = |rois: Vec<Roi>, mode: TractMode| LayerSpec {
         name: "tracts".into(),
         visible: true,
         opacity: 1.0,
         kind: LayerKind::Tracts {
             source: TractSource::File { path: path.clone() },
-            mode: TractMode::Tubes,
+            mode,
             render: Default::default(),
             rois,
         },
     };
-    let scene = Scene { layers: vec![layer(vec![sphere]), layer(vec![])], camera: CameraSpec::default() };
+    let layers = vec![layer(vec![sphere], TractMode::Tubes), layer(vec![], TractMode::Lines)];
+    let scene = Scene { layers, camera: CameraSpec::default() };
     let Some(mut app) = scene_app(scene) else { return };
     app.update();
     let selected = |app: &mut App| {

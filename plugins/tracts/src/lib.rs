@@ -2,11 +2,13 @@
 //! the tensors, `shaders/tubelet.wgsl`, reference `fascicle_core::tubelet`), the polygon-tube baseline and
 //! ROI selection.
 //!
-//! A tract set is one entity and one draw: its tubelets live in one storage buffer, its mesh holds 8
-//! vertices per tubelet carrying (slot, corner), and the vertex shader builds each bounding box. ROIs are
+//! A tract set ([`TractSet`]: the streamlines, their segment grid and a selection-flag buffer) is one entity
+//! and one draw, as hyperstreamlines ([`TubeSet`]: tubelets in one storage buffer, 8 vertices per tubelet
+//! carrying (slot, corner), each bounding box built in the vertex shader) or as lines ([`LineSet`]). ROIs are
 //! entities ([`TractRoi`]): a child of a tract set acts on that set, an ROI without a parent on every set.
 //! [`apply_rois`] re-evaluates the selection (parallel, over a uniform segment grid) only when an ROI or a
-//! tract set changes, and rewrites a 4-byte-per-streamline flag buffer; nothing else is re-uploaded.
+//! tract set changes, and rewrites the 4-byte-per-streamline flag buffer that both vertex shaders read;
+//! nothing else is re-uploaded.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -59,18 +61,16 @@ pub struct TubeUniform {
     pub ambient: f32,
     pub specular: f32,
     pub shininess: f32,
-    pub use_selection: u32,
 }
 
-impl TubeUniform {
-    pub fn new(s: &TubeSettings, use_selection: bool) -> Self {
+impl From<&TubeSettings> for TubeUniform {
+    fn from(s: &TubeSettings) -> Self {
         Self {
             iterations: s.iterations.max(1),
             eps: s.eps,
             ambient: s.ambient,
             specular: s.specular,
             shininess: s.shininess,
-            use_selection: u32::from(use_selection),
         }
     }
 }
@@ -89,14 +89,60 @@ pub struct TubeletMaterial {
 // prepass or shadows (the tubelets write their own depth).
 fascicle_render::proxy_glyph_material!(TubeletMaterial, shaders::TUBELET);
 
-/// A set of tracts drawn as tubelets: one entity, one draw.
+/// The streamlines of a tract layer and what the ROIs select of them, however they are drawn.
 #[derive(Component, Clone)]
 pub struct TractSet {
-    pub material: Handle<TubeletMaterial>,
     pub tractogram: Arc<Tractogram>,
     pub grid: Arc<SegmentGrid>,
+    /// One `u32` per streamline, 1 when selected; the vertex shaders hide the others.
+    pub selected: Handle<ShaderBuffer>,
+}
+
+/// A tract set drawn as hyperstreamlines (tubelets): one entity, one draw.
+#[derive(Component, Clone)]
+pub struct TubeSet {
+    pub material: Handle<TubeletMaterial>,
     pub n_tubelets: usize,
     pub settings: TubeSettings,
+}
+
+/// A tract set drawn as lines in direction colours: one entity, one draw.
+#[derive(Component, Clone)]
+pub struct LineSet {
+    pub material: Handle<TractLineMaterial>,
+}
+
+/// GPU parameters of tract lines. Keep in sync with `LineParams` in `shaders/tract_lines.wgsl`.
+#[derive(Clone, Copy, Debug, ShaderType)]
+pub struct LineUniform {
+    pub opacity: f32,
+}
+
+#[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
+pub struct TractLineMaterial {
+    #[uniform(0)]
+    pub params: LineUniform,
+    #[storage(1, read_only)]
+    pub selected: Handle<ShaderBuffer>,
+}
+
+impl Material for TractLineMaterial {
+    fn vertex_shader() -> bevy::shader::ShaderRef {
+        bevy::shader::ShaderRef::Handle(shaders::TRACT_LINES)
+    }
+    fn fragment_shader() -> bevy::shader::ShaderRef {
+        bevy::shader::ShaderRef::Handle(shaders::TRACT_LINES)
+    }
+    fn alpha_mode(&self) -> AlphaMode {
+        if self.params.opacity < 1.0 { AlphaMode::Blend } else { AlphaMode::Opaque }
+    }
+    // The prepass would draw every line with the default vertex shader, hidden ones included.
+    fn enable_prepass() -> bool {
+        false
+    }
+    fn enable_shadows() -> bool {
+        false
+    }
 }
 
 /// Per streamline of a tract set, whether the ROIs select it.
@@ -120,7 +166,7 @@ pub struct TractPlugin;
 
 impl Plugin for TractPlugin {
     fn build(&self, app: &mut App) {
-        app.add_plugins(MaterialPlugin::<TubeletMaterial>::default())
+        app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractLineMaterial>::default()))
             .init_resource::<RoiStats>()
             .add_systems(PostUpdate, apply_rois)
             .add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
@@ -199,7 +245,17 @@ pub fn tract_tubelets(t: &Tractogram, tensors: Option<&[[f32; 6]]>, settings: &T
     out
 }
 
-/// Spawns a tract set as hyperstreamlines; returns its entity.
+/// The selection target of a tractogram: its segment grid and a flag buffer with every streamline selected.
+fn tract_set(buffers: &mut Assets<ShaderBuffer>, tractogram: Arc<Tractogram>) -> (TractSet, TractSelection) {
+    let n_streamlines = tractogram.n_streamlines();
+    let flags = [1u8, 0, 0, 0].repeat(n_streamlines.max(1));
+    let grid = Arc::new(SegmentGrid::new(&tractogram.points, &tractogram.offsets, 4.0));
+    let selected = buffers.add(ShaderBuffer::new(&flags, RenderAssetUsages::default()));
+    (TractSet { tractogram, grid, selected }, TractSelection(vec![true; n_streamlines]))
+}
+
+/// Spawns a tractogram as hyperstreamlines (optional per-point world tensors give the sections); returns
+/// the set's entity (parent of its ROIs).
 pub fn spawn_tubes(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
@@ -210,17 +266,16 @@ pub fn spawn_tubes(
     settings: &TubeSettings,
 ) -> Entity {
     let tubes = tract_tubelets(&tractogram, tensors, settings);
-    let n_streamlines = tractogram.offsets.len().saturating_sub(1);
-    let flags = [1u8, 0, 0, 0].repeat(n_streamlines.max(1));
+    let (set, selection) = tract_set(buffers, tractogram);
     let material = materials.add(TubeletMaterial {
-        params: TubeUniform::new(settings, false),
+        params: settings.into(),
         tubes: buffers.add(ShaderBuffer::new(&pack(&tubes), RenderAssetUsages::RENDER_WORLD)),
-        selected: buffers.add(ShaderBuffer::new(&flags, RenderAssetUsages::default())),
+        selected: set.selected.clone(),
     });
-    let grid = Arc::new(SegmentGrid::new(&tractogram.points, &tractogram.offsets, 4.0));
     let mut e = commands.spawn((
-        TractSet { material: material.clone(), tractogram, grid, n_tubelets: tubes.len(), settings: *settings },
-        TractSelection(vec![true; n_streamlines]),
+        set,
+        selection,
+        TubeSet { material: material.clone(), n_tubelets: tubes.len(), settings: *settings },
         Transform::default(),
         Visibility::default(),
     ));
@@ -228,6 +283,56 @@ pub fn spawn_tubes(
         e.insert((Mesh3d(meshes.add(boxes(tubes.len()))), MeshMaterial3d(material), NoFrustumCulling));
     }
     e.id()
+}
+
+/// Spawns a tractogram as lines coloured by segment direction; returns the set's entity (parent of its
+/// ROIs).
+pub fn spawn_lines(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<TractLineMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    tractogram: Arc<Tractogram>,
+    opacity: f32,
+) -> Entity {
+    let mesh = line_mesh(&tractogram);
+    let (set, selection) = tract_set(buffers, tractogram);
+    let material = materials.add(TractLineMaterial {
+        params: LineUniform { opacity: opacity.clamp(0.0, 1.0) },
+        selected: set.selected.clone(),
+    });
+    commands
+        .spawn((
+            set,
+            selection,
+            LineSet { material: material.clone() },
+            Mesh3d(meshes.add(mesh)),
+            MeshMaterial3d(material),
+            Transform::default(),
+            Visibility::default(),
+        ))
+        .id()
+}
+
+/// Line segments of every streamline: positions, colours |direction| and UV x = the streamline's index
+/// (exact in f32 up to 2^24 streamlines), which the vertex shader looks up in the selection flags.
+pub fn line_mesh(t: &Tractogram) -> Mesh {
+    let n = t.points.len() * 2;
+    let (mut pos, mut col, mut uv) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+    for (i, s) in t.iter().enumerate() {
+        for w in s.windows(2) {
+            let d = (w[1] - w[0]).normalize_or_zero().abs();
+            for p in w {
+                pos.push(*p);
+                col.push([d.x, d.y, d.z, 1.0]);
+                uv.push([i as f32, 0.0]);
+            }
+        }
+    }
+    Mesh::new(PrimitiveTopology::LineList, RenderAssetUsages::RENDER_WORLD)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_UV_0, uv)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
 }
 
 /// The polygon-tube baseline mesh (`sides` per profile), coloured by local direction.
@@ -273,7 +378,6 @@ pub fn apply_rois(
     mut removed: RemovedComponents<TractRoi>,
     rois: Query<(&TractRoi, Option<&ChildOf>)>,
     mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection)>,
-    mut materials: ResMut<Assets<TubeletMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
 ) {
@@ -290,16 +394,10 @@ pub fn apply_rois(
         selected += sel.iter().filter(|s| **s).count();
         let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();
         selection.0 = sel;
-        let use_selection = !list.is_empty();
-        if let Some(mut m) = materials.get_mut(&set.material) {
-            if m.params.use_selection != u32::from(use_selection) {
-                m.params.use_selection = u32::from(use_selection);
-            }
-            if !bytes.is_empty()
-                && let Some(mut b) = buffers.get_mut(&m.selected)
-            {
-                b.data = Some(bytes);
-            }
+        if !bytes.is_empty()
+            && let Some(mut b) = buffers.get_mut(&set.selected)
+        {
+            b.data = Some(bytes);
         }
     }
     stats.evaluations += 1;
