@@ -15,6 +15,9 @@ struct VolumeParams {
     dims: vec4<f32>,
     // World bounding sphere of the volume: centre, radius.
     sphere: vec4<f32>,
+    // The clip box in voxel coordinates (xyz): what is drawn of the volume.
+    clip_lo: vec4<f32>,
+    clip_hi: vec4<f32>,
     range: vec2<f32>,
     step: f32,
     termination: f32,
@@ -157,8 +160,8 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     let o = (params.voxel_from_world * vec4<f32>(r.origin, 1.0)).xyz;
     let d = (params.voxel_from_world * vec4<f32>(r.dir, 0.0)).xyz;
     let t_stop = opaque_distance(in.clip_position, r);
-    let lo = vec3<f32>(-0.5);
-    let hi = params.dims.xyz - vec3<f32>(0.5);
+    let lo = params.clip_lo.xyz;
+    let hi = params.clip_hi.xyz;
     if in.modes.x == 1u {
         // One slice: the sample where the plane meets this ray.
         let t = dot(in.world_position - r.origin, r.dir);

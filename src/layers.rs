@@ -503,7 +503,17 @@ pub fn tract_data(source: &TractSource) -> Result<TractData, String> {
             let tracks = Tracker::new(&field, a, params).map_err(|e| e.to_string())?.run(&seeds);
             Ok((tracks.tractogram, Some(tracks.tensors)))
         }
-        TractSource::File { path } => Ok((Tractogram::read(path).map_err(|e| e.to_string())?, None)),
+        TractSource::File { path, tensors } => {
+            let t = Tractogram::read(path).map_err(|e| e.to_string())?;
+            let Some(source) = tensors else { return Ok((t, None)) };
+            use fascicle_core::tracking::{TensorField, TensorInterpolation, tensors_at};
+            let (dims, affine, grid) = tensor_field(source)?;
+            let voxel = glam::DVec3::new(affine.x_axis.length(), affine.y_axis.length(), affine.z_axis.length());
+            let field = TensorField::new(dims, voxel, grid.into_iter().map(Some), TensorInterpolation::Componentwise)
+                .map_err(|e| e.to_string())?;
+            let sampled = tensors_at(&field, affine, &t.points);
+            Ok((t, Some(sampled)))
+        }
     }
 }
 
@@ -877,4 +887,35 @@ pub fn camera_from_spec(spec: &crate::scene::CameraSpec) -> (Transform, Projecti
         ..default()
     });
     (tf, proj)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Tracts from a file with a tensor field: the phantom's RK4 tracts written to `.tck` and read back with
+    /// the phantom's tensors carry the tensors the tracker recorded (to f32 rounding of the points);
+    /// without, none; a field that is not a voxel grid is a clear error.
+    #[test]
+    fn file_tracts_take_tensors_from_a_field() {
+        let (t, tracked) = tract_data(&TractSource::PhantomRk4 { seed_spacing: 6 }).unwrap();
+        let tracked = tracked.unwrap();
+        let path = std::env::temp_dir().join(format!("fascicle-file-tensors-{}.tck", std::process::id()));
+        fascicle_core::io::tck::write(&path, &t, &[]).unwrap();
+        let file = |tensors| TractSource::File { path: path.clone(), tensors };
+        let (back, sampled) = tract_data(&file(Some(TensorSource::Phantom))).unwrap();
+        let sampled = sampled.unwrap();
+        assert_eq!(back.points.len(), tracked.len());
+        let scale = tracked.iter().flatten().fold(0f32, |m, v| m.max(v.abs()));
+        let worst = sampled
+            .iter()
+            .zip(&tracked)
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
+            .fold(0f32, f32::max);
+        assert!(worst <= 1e-4 * scale, "{worst} vs {scale}");
+        assert!(tract_data(&file(None)).unwrap().1.is_none());
+        let err = tract_data(&file(Some(TensorSource::Spiral { n: 10 }))).unwrap_err();
+        assert!(err.contains("not a voxel grid"), "{err}");
+        std::fs::remove_file(path).ok();
+    }
 }

@@ -288,6 +288,18 @@ fn volume_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
         ui.checkbox(&mut render.shading, "gradient shading");
         ui.checkbox(&mut render.preintegrated, "pre-integrated");
     });
+    ui.collapsing("clip box (fraction of each voxel axis)", |ui| {
+        for (k, axis) in ["i", "j", "k"].into_iter().enumerate() {
+            ui.horizontal(|ui| {
+                ui.label(axis);
+                ui.add(egui::DragValue::new(&mut render.clip.min[k]).range(0.0..=1.0).speed(0.01));
+                ui.add(egui::DragValue::new(&mut render.clip.max[k]).range(0.0..=1.0).speed(0.01));
+            });
+            if render.clip.min[k] > render.clip.max[k] {
+                render.clip.min[k] = render.clip.max[k];
+            }
+        }
+    });
     transfer_function_editor(ui, &mut render.tf, &data.histogram);
 }
 

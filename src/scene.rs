@@ -201,8 +201,13 @@ pub enum TractSource {
     /// RK4 tracking (1 mm steps, FA 0.2) of the built-in phantom's tensors from every `seed_spacing`-th
     /// voxel with FA ≥ 0.3 of its middle axial slice; each point carries its tensor.
     PhantomRk4 { seed_spacing: usize },
-    /// A `.trk`/`.tck` file (no tensors: circular sections).
-    File { path: PathBuf },
+    /// A `.trk`/`.tck` file. With `tensors`, each point carries the tensor of that field where it lies
+    /// (hyperstreamline sections); without, sections are circular.
+    File {
+        path: PathBuf,
+        #[serde(default)]
+        tensors: Option<TensorSource>,
+    },
 }
 
 /// How tracts are drawn.

@@ -4,7 +4,8 @@
 //! own camera on top), so the panel never hides the scene.
 //!
 //! Mouse: left-drag orbits, right-drag pans, wheel zooms, a left click on an SH glyph highlights it and
-//! reports its voxel. Keys: R resets the view, F12 saves a screenshot.
+//! reports its voxel, Shift + left-drag on a tract ROI moves it. Keys: R resets the view, F12 saves a
+//! screenshot.
 //! Files dropped on the window are added as layers; a file that fails to load shows an error and the
 //! viewer keeps running.
 
@@ -28,7 +29,7 @@ use crate::layers::{ActiveScene, LayerEntity, LayerErrors, ScenePlugin};
 use crate::panels::LayerPanels;
 use crate::render::BACKGROUND;
 use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene};
-use fascicle_core::roi::{SegmentGrid, select};
+use fascicle_core::roi::{RoiShape, SegmentGrid, select};
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
 use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
 
@@ -168,6 +169,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .add_plugins((FascicleRenderPlugin, ScenePlugin))
     .insert_resource(ActiveScene(scene))
     .init_resource::<LayerPanels>()
+    .init_resource::<RoiDrag>()
     .insert_resource(orbit)
     .insert_resource(UiState {
         message: (!errors.is_empty()).then(|| errors.join("\n")),
@@ -197,7 +199,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .add_systems(
         Update,
         (
-            orbit_input.run_if(not(egui_wants_any_pointer_input)),
+            (drag_roi, orbit_input).chain().run_if(not(egui_wants_any_pointer_input)),
             pick_glyph.run_if(not(egui_wants_any_pointer_input)),
             keys.run_if(not(egui_wants_any_keyboard_input)),
             dropped_files,
@@ -213,8 +215,12 @@ fn orbit_input(
     buttons: Res<ButtonInput<MouseButton>>,
     motion: Res<AccumulatedMouseMotion>,
     scroll: Res<AccumulatedMouseScroll>,
+    drag: Res<RoiDrag>,
     mut orbit: ResMut<Orbit>,
 ) {
+    if drag.0.is_some() {
+        return;
+    }
     let d = motion.delta;
     if buttons.pressed(MouseButton::Left) && d != Vec2::ZERO {
         orbit.yaw -= d.x * 0.01;
@@ -233,6 +239,93 @@ fn orbit_input(
 }
 
 /// A click (press and release without dragging) on an SH glyph toggles its highlight and reports its voxel.
+/// The world ray under the cursor (the 3D camera's viewport starts beside the panel).
+fn cursor_ray(window: &Window, (cam, tf): (&Camera, &GlobalTransform)) -> Option<Ray3d> {
+    let cursor = window.cursor_position()?;
+    let offset = cam.viewport.as_ref().map_or(Vec2::ZERO, |v| v.physical_position.as_vec2() / window.scale_factor());
+    cam.viewport_to_world(tf, cursor - offset).ok()
+}
+
+/// An ROI held by a Shift + left-drag: which one, where the cursor ray first met it, the view direction
+/// then, and its shape then. The drag moves it in the plane through that point facing the camera.
+#[derive(Clone, Copy, Debug)]
+struct RoiGrab {
+    layer: usize,
+    roi: usize,
+    hit: Vec3,
+    normal: Vec3,
+    shape: RoiShape,
+}
+
+#[derive(Resource, Default)]
+struct RoiDrag(Option<RoiGrab>);
+
+/// The ROI of a visible tract layer that a ray meets first: (layer, ROI index, distance).
+fn pick_roi(scene: &Scene, o: Vec3, d: Vec3) -> Option<(usize, usize, f32)> {
+    scene
+        .layers
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.visible)
+        .filter_map(|(i, l)| match &l.kind {
+            LayerKind::Tracts { rois, .. } => Some((i, rois)),
+            _ => None,
+        })
+        .flat_map(|(i, rois)| {
+            rois.iter().enumerate().filter_map(move |(k, r)| r.shape.ray_hit(o, d).map(|t| (i, k, t)))
+        })
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+}
+
+/// The grabbed ROI moved by where the cursor ray (`o`, `d`) meets the grab plane; None when the ray runs
+/// along the plane or meets it behind the camera.
+fn dragged_shape(g: &RoiGrab, o: Vec3, d: Vec3) -> Option<RoiShape> {
+    let denom = d.dot(g.normal);
+    if denom.abs() < 1e-6 {
+        return None;
+    }
+    let t = (g.hit - o).dot(g.normal) / denom;
+    (t > 0.0).then(|| g.shape.translated(o + d * t - g.hit))
+}
+
+/// Shift + left-drag on an ROI's outline moves it (in the plane facing the camera); the tracts re-select as
+/// it moves. Writes the scene only when the ROI actually moved.
+fn drag_roi(
+    buttons: Res<ButtonInput<MouseButton>>,
+    keys: Res<ButtonInput<KeyCode>>,
+    window: Single<&Window, With<PrimaryWindow>>,
+    camera: Single<(&Camera, &GlobalTransform), With<Camera3d>>,
+    mut drag: ResMut<RoiDrag>,
+    mut scene: ResMut<ActiveScene>,
+) {
+    if !buttons.pressed(MouseButton::Left) {
+        drag.0 = None;
+        return;
+    }
+    let Some(ray) = cursor_ray(&window, *camera) else { return };
+    let (o, d) = (ray.origin, ray.direction.as_vec3());
+    if buttons.just_pressed(MouseButton::Left) && keys.any_pressed([KeyCode::ShiftLeft, KeyCode::ShiftRight]) {
+        drag.0 = pick_roi(&scene.0, o, d).and_then(|(layer, roi, t)| match &scene.0.layers[layer].kind {
+            LayerKind::Tracts { rois, .. } => {
+                let normal = camera.1.forward().as_vec3();
+                Some(RoiGrab { layer, roi, hit: o + d * t, normal, shape: rois[roi].shape })
+            }
+            _ => None,
+        });
+    }
+    let Some(g) = drag.0 else { return };
+    let Some(shape) = dragged_shape(&g, o, d) else { return };
+    let current = match scene.0.layers.get(g.layer).map(|l| &l.kind) {
+        Some(LayerKind::Tracts { rois, .. }) => rois.get(g.roi).map(|r| r.shape),
+        _ => None,
+    };
+    if current.is_some_and(|c| c != shape)
+        && let LayerKind::Tracts { rois, .. } = &mut scene.0.layers[g.layer].kind
+    {
+        rois[g.roi].shape = shape;
+    }
+}
+
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
 fn pick_glyph(
     mut commands: Commands,
@@ -254,10 +347,7 @@ fn pick_glyph(
     if !buttons.just_released(MouseButton::Left) || *dragged > 3.0 {
         return;
     }
-    let Some(cursor) = window.cursor_position() else { return };
-    let (cam, tf) = *camera;
-    let offset = cam.viewport.as_ref().map_or(Vec2::ZERO, |v| v.physical_position.as_vec2() / window.scale_factor());
-    let Ok(ray) = cam.viewport_to_world(tf, cursor - offset) else { return };
+    let Some(ray) = cursor_ray(&window, *camera) else { return };
     let (o, d) = (ray.origin.as_dvec3(), ray.direction.as_vec3().as_dvec3());
     let best = sets
         .iter()
@@ -505,6 +595,47 @@ mod tests {
         assert!(matches!(scene.layers.last().map(|l| &l.kind), Some(LayerKind::ShGlyphs { .. })));
     }
 
+    /// Picking and dragging ROIs: the first ROI along the ray among visible tract layers; a drag moves it by
+    /// the cursor's displacement in the plane facing the camera through the grab point.
+    #[test]
+    fn rois_are_picked_front_first_and_dragged_in_the_view_plane() {
+        use fascicle_core::roi::{Roi, RoiMode};
+        let tracts = |visible: bool, rois: Vec<RoiShape>| LayerSpec {
+            name: "tracts".into(),
+            visible,
+            opacity: 1.0,
+            kind: LayerKind::Tracts {
+                source: crate::scene::TractSource::PhantomRk4 { seed_spacing: 4 },
+                mode: crate::scene::TractMode::Tubes,
+                render: Default::default(),
+                rois: rois.into_iter().map(|shape| Roi { shape, mode: RoiMode::Include }).collect(),
+            },
+        };
+        let near = RoiShape::Sphere { centre: [0.0, 0.0, 10.0], radius: 2.0 };
+        let far = RoiShape::Box { min: [-3.0, -3.0, -3.0], max: [3.0, 3.0, 3.0] };
+        let hidden = RoiShape::Sphere { centre: [0.0, 0.0, 20.0], radius: 2.0 };
+        let scene = Scene {
+            layers: vec![tracts(true, vec![far, near]), tracts(false, vec![hidden])],
+            camera: CameraSpec::default(),
+        };
+        // Looking down -z from z = 40: the hidden layer's sphere is first along the ray but not pickable.
+        let (o, d) = (Vec3::new(0.0, 0.0, 40.0), -Vec3::Z);
+        assert_eq!(pick_roi(&scene, o, d), Some((0, 1, 28.0)));
+        assert_eq!(pick_roi(&scene, Vec3::new(2.5, 2.5, 40.0), d), Some((0, 0, 37.0)));
+        assert_eq!(pick_roi(&scene, Vec3::new(10.0, 0.0, 40.0), d), None);
+
+        // Grab the sphere at its top (z = 12) and drag the cursor: a ray from the eye through a point 3 mm
+        // to the right and 1 mm up in the grab plane moves the centre by exactly that.
+        let g = RoiGrab { layer: 0, roi: 1, hit: o + d * 28.0, normal: d, shape: near };
+        let eye = Vec3::new(0.0, 0.0, 40.0);
+        let target = Vec3::new(3.0, 1.0, 12.0);
+        let moved = dragged_shape(&g, eye, (target - eye).normalize()).unwrap();
+        let RoiShape::Sphere { centre, radius } = moved else { panic!("{moved:?}") };
+        assert!((Vec3::from(centre) - Vec3::new(3.0, 1.0, 10.0)).length() < 1e-5 && radius == 2.0, "{centre:?}");
+        // A ray along the plane does not move it.
+        assert_eq!(dragged_shape(&g, eye, Vec3::X), None);
+    }
+
     /// "Save selection" writes what the ROIs select: from a tract set's own selection flags, or, for a layer
     /// without a set (polygon tubes; here no set is spawned), by selecting again from the source. A bad path
     /// is a message, not a panic.
@@ -525,7 +656,7 @@ mod tests {
             visible: true,
             opacity: 1.0,
             kind: LayerKind::Tracts {
-                source: crate::scene::TractSource::File { path: trk.clone() },
+                source: crate::scene::TractSource::File { path: trk.clone(), tensors: None },
                 mode: crate::scene::TractMode::Lines,
                 render: Default::default(),
                 rois: rois.clone(),

@@ -308,6 +308,15 @@ fn volume_transfer_function_updates_in_place() {
         _ => unreachable!(),
     };
     assert_eq!(bytes, want);
+    // A clip box: the uniform's voxel-space box, same entity (48 voxels along i, half of them kept).
+    if let LayerKind::Volume { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
+        render.clip.max[0] = 0.5;
+    }
+    app.update();
+    let (e3, m3, _) = snapshot(&mut app);
+    assert_eq!((e3, &m3), (e0, &m0));
+    let params = app.world().resource::<Assets<VolumeMaterial>>().get(&m3).unwrap().params;
+    assert_eq!((params.clip_lo.x, params.clip_hi.x, params.clip_hi.y), (-0.5, 23.5, 47.5));
     if let LayerKind::Volume { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
         render.method = VolumeMethod::Slicing;
     }
@@ -376,7 +385,7 @@ fn rois_act_on_their_own_layer() {
         visible: true,
         opacity: 1.0,
         kind: LayerKind::Tracts {
-            source: TractSource::File { path: path.clone() },
+            source: TractSource::File { path: path.clone(), tensors: None },
             mode,
             render: Default::default(),
             rois,

@@ -127,6 +127,32 @@ pub fn sample(vol: &Volume<f32>, p: DVec3) -> f64 {
     v
 }
 
+/// The part of a volume that is drawn: along each voxel axis, the fractions `min..max` of its extent
+/// (`0..1` everything; `0..0.5` along x the first half of the columns).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ClipBox {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+impl Default for ClipBox {
+    fn default() -> Self {
+        Self { min: [0.0; 3], max: [1.0; 3] }
+    }
+}
+
+impl ClipBox {
+    /// The box in voxel coordinates: the volume `[-0.5, dim - 0.5]³` cut to the fractions.
+    pub fn voxel_bounds(&self, dims: [usize; 3]) -> (DVec3, DVec3) {
+        let d = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
+        let (lo, hi) = (
+            DVec3::from(self.min).clamp(DVec3::ZERO, DVec3::ONE),
+            DVec3::from(self.max).clamp(DVec3::ZERO, DVec3::ONE),
+        );
+        (lo * d - 0.5, hi * d - 0.5)
+    }
+}
+
 /// Ray-marching knobs (shared with the shader).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MarchParams {
@@ -136,18 +162,28 @@ pub struct MarchParams {
     pub termination: f64,
     /// Pre-integrated classification instead of post-classification.
     pub preintegrated: bool,
+    /// Only this part of the volume is marched.
+    pub clip: ClipBox,
+    /// Gradient shading: each sample's colour times `ambient + (1 - ambient) |ĝ · d̂|`, ĝ the value gradient by
+    /// central differences one voxel apart and d̂ the ray direction (both in the voxel frame); 1 where the
+    /// gradient vanishes.
+    pub shading: Option<f64>,
 }
 
 impl Default for MarchParams {
     fn default() -> Self {
-        Self { step: 0.5, termination: 0.99, preintegrated: false }
+        Self { step: 0.5, termination: 0.99, preintegrated: false, clip: ClipBox::default(), shading: None }
     }
 }
 
 /// Entry and exit distances of a ray (voxel frame) through the box `[-0.5, dim - 0.5]³`; None on a miss.
 pub fn box_interval(dims: [usize; 3], o: DVec3, d: DVec3) -> Option<(f64, f64)> {
-    let lo = DVec3::splat(-0.5);
-    let hi = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64) - 0.5;
+    clip_interval(dims, &ClipBox::default(), o, d)
+}
+
+/// Entry and exit distances of a ray (voxel frame) through the clipped volume; None on a miss.
+pub fn clip_interval(dims: [usize; 3], clip: &ClipBox, o: DVec3, d: DVec3) -> Option<(f64, f64)> {
+    let (lo, hi) = clip.voxel_bounds(dims);
     let inv = d.recip();
     let (a, b) = ((lo - o) * inv, (hi - o) * inv);
     let (tmin, tmax) = (a.min(b), a.max(b));
@@ -188,6 +224,18 @@ fn table_eval(table: &[DVec4], n: usize, uf: f64, ub: f64) -> DVec4 {
     at(i, j).lerp(at(i, j + 1), fy).lerp(at(i + 1, j).lerp(at(i + 1, j + 1), fy), fx)
 }
 
+/// `|ĝ · d̂|` at voxel position `q` (1 where the gradient vanishes): the headlight Lambert term of gradient
+/// shading, as the shader computes it.
+pub fn lambert(vol: &Volume<f32>, q: DVec3, d: DVec3) -> f64 {
+    let g = DVec3::new(
+        sample(vol, q + DVec3::X) - sample(vol, q - DVec3::X),
+        sample(vol, q + DVec3::Y) - sample(vol, q - DVec3::Y),
+        sample(vol, q + DVec3::Z) - sample(vol, q - DVec3::Z),
+    );
+    let len = g.length();
+    if len > 1e-6 { (g / len).dot(d.normalize()).abs() } else { 1.0 }
+}
+
 /// What a ray marched through a volume accumulates: premultiplied linear RGB and opacity.
 ///
 /// `voxel_from_world` maps world to voxel coordinates; the ray starts at `origin` with unit `dir` (world),
@@ -211,7 +259,7 @@ pub fn march(
 ) -> DVec4 {
     let o = voxel_from_world.transform_point3(origin);
     let d = voxel_from_world.transform_vector3(dir);
-    let Some((t0, t1)) = box_interval(vol.dims3(), o, d) else { return DVec4::ZERO };
+    let Some((t0, t1)) = clip_interval(vol.dims3(), &params.clip, o, d) else { return DVec4::ZERO };
     let t1 = t1.min(t_stop);
     let step = params.step.max(1e-4);
     let mut acc = DVec4::ZERO;
@@ -238,6 +286,13 @@ pub fn march(
                 let a = 1.0 - (1.0 - c.w.clamp(0.0, 1.0)).powf(dt / UNIT_MM);
                 DVec4::new(c.x * a, c.y * a, c.z * a, a)
             }
+        };
+        let c = match params.shading {
+            Some(ambient) => {
+                let k = ambient + (1.0 - ambient) * lambert(vol, o + d * t, d);
+                DVec4::new(c.x * k, c.y * k, c.z * k, c.w)
+            }
+            None => c,
         };
         acc += (1.0 - acc.w) * c;
         if acc.w >= params.termination {
@@ -287,7 +342,7 @@ mod tests {
         let lut = tf.lut();
         let origin = DVec3::new(-5.0, 4.2, 4.7);
         for step in [0.3, 0.77, 2.0] {
-            let p = MarchParams { step, termination: 2.0, preintegrated: false };
+            let p = MarchParams { step, termination: 2.0, ..MarchParams::default() };
             let got = march(&v, DMat4::IDENTITY, &lut, None, origin, DVec3::X, f64::INFINITY, &p, 0.0);
             let a = 1.0 - 0.9f64.powf(10.0);
             assert!((got.w - a).abs() < 1e-12, "step {step}: {} vs {a}", got.w);
@@ -296,6 +351,60 @@ mod tests {
             let got = march(&v, DMat4::IDENTITY, &lut, None, origin, DVec3::X, 7.5, &p, 0.0);
             assert!((got.w - (1.0 - 0.9f64.powf(3.0))).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn clip_box_cuts_the_chord() {
+        // The uniform slab cut to x in 0.2..0.7 of 10 voxels: a 5 mm chord instead of 10; cut away entirely
+        // along y: nothing.
+        let v = volume([10, 10, 10], |_, _, _| 0.5);
+        let tf = TransferFunction {
+            range: [0.0, 1.0],
+            points: vec![
+                TfPoint { x: 0.0, rgba: [1.0, 1.0, 1.0, 0.1] },
+                TfPoint { x: 1.0, rgba: [1.0, 1.0, 1.0, 0.1] },
+            ],
+        };
+        let lut = tf.lut();
+        let clip = ClipBox { min: [0.2, 0.0, 0.0], max: [0.7, 1.0, 1.0] };
+        let p = MarchParams { step: 0.37, termination: 2.0, clip, ..MarchParams::default() };
+        let origin = DVec3::new(-5.0, 4.2, 4.7);
+        let got = march(&v, DMat4::IDENTITY, &lut, None, origin, DVec3::X, f64::INFINITY, &p, 0.0);
+        assert!((got.w - (1.0 - 0.9f64.powf(5.0))).abs() < 1e-12, "{}", got.w);
+        assert_eq!(clip_interval([10; 3], &clip, origin, DVec3::X), Some((6.5, 11.5)));
+        let away = ClipBox { min: [0.0, 0.5, 0.0], max: [1.0, 1.0, 1.0] };
+        assert_eq!(clip_interval([10; 3], &away, origin, DVec3::X), None);
+        let p = MarchParams { clip: away, ..p };
+        assert_eq!(march(&v, DMat4::IDENTITY, &lut, None, origin, DVec3::X, f64::INFINITY, &p, 0.0), DVec4::ZERO);
+    }
+
+    #[test]
+    fn gradient_shading_is_the_headlight_lambert_term() {
+        // A linear ramp along x: the gradient is +x everywhere inside (2 per two voxels), so a ray along x is
+        // lit fully, one at 60 degrees by cos 60 = 0.5, one across the gradient only by the ambient term.
+        let v = volume([12, 12, 12], |x, _, _| x as f32);
+        let inside = DVec3::splat(5.5);
+        assert!((lambert(&v, inside, DVec3::X) - 1.0).abs() < 1e-12);
+        let d60 = DVec3::new(0.5, 0.75f64.sqrt(), 0.0);
+        assert!((lambert(&v, inside, d60 * 3.0) - 0.5).abs() < 1e-12);
+        assert!(lambert(&v, inside, DVec3::Y).abs() < 1e-12);
+        // A constant volume has no gradient: unshaded.
+        assert_eq!(lambert(&volume([4; 3], |_, _, _| 1.0), DVec3::splat(1.5), DVec3::Y), 1.0);
+        // In the marcher: across the ramp, colour is ambient x unshaded colour; opacity is unchanged.
+        let tf = TransferFunction {
+            range: [0.0, 11.0],
+            points: vec![
+                TfPoint { x: 0.0, rgba: [0.8, 0.4, 0.2, 0.05] },
+                TfPoint { x: 11.0, rgba: [0.8, 0.4, 0.2, 0.05] },
+            ],
+        };
+        let lut = tf.lut();
+        let (o, d) = (DVec3::new(5.5, -3.0, 5.5), DVec3::Y);
+        let plain = MarchParams { step: 0.5, termination: 2.0, ..MarchParams::default() };
+        let lit = MarchParams { shading: Some(0.35), ..plain };
+        let a = march(&v, DMat4::IDENTITY, &lut, None, o, d, f64::INFINITY, &plain, 0.0);
+        let b = march(&v, DMat4::IDENTITY, &lut, None, o, d, f64::INFINITY, &lit, 0.0);
+        assert!((b.w - a.w).abs() < 1e-15 && (b.x - 0.35 * a.x).abs() < 1e-12, "{a} {b}");
     }
 
     #[test]
@@ -315,7 +424,7 @@ mod tests {
         };
         let lut = tf.lut();
         let origin = DVec3::new(-3.0, 1.5, 1.5);
-        let fine = MarchParams { step: 0.005, termination: 2.0, preintegrated: false };
+        let fine = MarchParams { step: 0.005, termination: 2.0, ..MarchParams::default() };
         let truth = march(&v, DMat4::IDENTITY, &lut, None, origin, DVec3::X, f64::INFINITY, &fine, 0.0);
         assert!(truth.w > 0.1);
         for step in [1.0, 2.0, 4.0] {
@@ -324,7 +433,7 @@ mod tests {
             for j in 0..8 {
                 let jitter = j as f64 / 8.0;
                 for (k, pre) in [false, true].into_iter().enumerate() {
-                    let p = MarchParams { step, termination: 2.0, preintegrated: pre };
+                    let p = MarchParams { step, termination: 2.0, preintegrated: pre, ..MarchParams::default() };
                     let got = march(
                         &v,
                         DMat4::IDENTITY,

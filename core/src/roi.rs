@@ -42,7 +42,68 @@ pub struct Roi {
     pub mode: RoiMode,
 }
 
+/// Half the side of the square by which a plane ROI is drawn and picked (mm).
+pub const PLANE_HANDLE_HALF: f32 = 30.0;
+
 impl RoiShape {
+    /// Where a ray (`origin`, unit `dir`) first meets the region's drawn outline, as a distance along it (0
+    /// when it starts inside a sphere or box); None on a miss. A plane counts within its drawn square
+    /// ([`PLANE_HANDLE_HALF`] around `point`). For picking an ROI under the cursor.
+    pub fn ray_hit(&self, origin: Vec3, dir: Vec3) -> Option<f32> {
+        match *self {
+            RoiShape::Sphere { centre, radius } => {
+                let oc = origin - Vec3::from(centre);
+                let b = oc.dot(dir);
+                let disc = b * b - (oc.length_squared() - radius * radius);
+                if disc < 0.0 {
+                    return None;
+                }
+                let far = -b + disc.sqrt();
+                (far >= 0.0).then(|| (-b - disc.sqrt()).max(0.0))
+            }
+            RoiShape::Box { min, max } => {
+                let (lo, hi) = (Vec3::from(min).min(Vec3::from(max)), Vec3::from(min).max(Vec3::from(max)));
+                let inv = dir.recip();
+                let (a, b) = ((lo - origin) * inv, (hi - origin) * inv);
+                let t0 = a.min(b).max_element().max(0.0);
+                let t1 = a.max(b).min_element();
+                (t0 <= t1).then_some(t0)
+            }
+            RoiShape::Plane { point, normal } => {
+                let (p, n) = (Vec3::from(point), Vec3::from(normal).normalize_or(Vec3::Z));
+                let denom = dir.dot(n);
+                if denom.abs() < 1e-9 {
+                    return None;
+                }
+                let t = (p - origin).dot(n) / denom;
+                // Within the drawn square: the square's axes are those of the gizmo (Z rotated onto n).
+                let q = origin + dir * t - p;
+                let rot = glam::Quat::from_rotation_arc(Vec3::Z, n).inverse();
+                let local = rot * q;
+                (t >= 0.0 && local.x.abs() <= PLANE_HANDLE_HALF && local.y.abs() <= PLANE_HANDLE_HALF).then_some(t)
+            }
+        }
+    }
+
+    /// The region moved by `delta` (mm).
+    pub fn translated(&self, delta: Vec3) -> RoiShape {
+        let add = |p: [f32; 3]| (Vec3::from(p) + delta).to_array();
+        match *self {
+            RoiShape::Sphere { centre, radius } => RoiShape::Sphere { centre: add(centre), radius },
+            RoiShape::Box { min, max } => RoiShape::Box { min: add(min), max: add(max) },
+            RoiShape::Plane { point, normal } => RoiShape::Plane { point: add(point), normal },
+        }
+    }
+
+    /// The region's reference point: a sphere's centre, a box's centre, a plane's point.
+    pub fn anchor(&self) -> Vec3 {
+        match *self {
+            RoiShape::Sphere { centre, .. } => Vec3::from(centre),
+            RoiShape::Box { min, max } => (Vec3::from(min) + Vec3::from(max)) * 0.5,
+            RoiShape::Plane { point, .. } => Vec3::from(point),
+        }
+    }
+
     /// Whether the segment `a`-`b` meets the region.
     pub fn meets_segment(&self, a: Vec3, b: Vec3) -> bool {
         match *self {

@@ -122,3 +122,67 @@ fn segment_predicates_agree_with_dense_sampling() {
     }
     assert!(hits > 300 && misses > 1000, "{hits} hits, {misses} misses");
 }
+
+/// Picking: `ray_hit` on closed forms, and on random rays where its distance is the first point of the
+/// region along the ray (dense sampling: no inside point before it, one within a sample of it).
+#[test]
+fn ray_hits_pick_the_first_point_of_the_region() {
+    let sphere = RoiShape::Sphere { centre: [0.0; 3], radius: 2.0 };
+    assert_eq!(sphere.ray_hit(Vec3::new(-10.0, 0.0, 0.0), Vec3::X), Some(8.0));
+    assert_eq!(sphere.ray_hit(Vec3::ZERO, Vec3::X), Some(0.0));
+    assert_eq!(sphere.ray_hit(Vec3::new(-10.0, 3.0, 0.0), Vec3::X), None);
+    assert_eq!(sphere.ray_hit(Vec3::new(10.0, 0.0, 0.0), Vec3::X), None, "behind the ray");
+    let cube = RoiShape::Box { min: [-1.0; 3], max: [1.0; 3] };
+    assert_eq!(cube.ray_hit(Vec3::new(-5.0, 0.5, 0.0), Vec3::X), Some(4.0));
+    assert_eq!(cube.ray_hit(Vec3::new(-5.0, 2.0, 0.0), Vec3::X), None);
+    let plane = RoiShape::Plane { point: [0.0; 3], normal: [0.0, 0.0, 1.0] };
+    assert_eq!(plane.ray_hit(Vec3::new(1.0, 2.0, 10.0), -Vec3::Z), Some(10.0));
+    assert_eq!(plane.ray_hit(Vec3::new(40.0, 0.0, 10.0), -Vec3::Z), None, "outside the drawn square");
+    assert_eq!(plane.ray_hit(Vec3::new(1.0, 2.0, 10.0), Vec3::X), None, "parallel");
+
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let mut hits = 0;
+    for _ in 0..5_000 {
+        let roi = random_roi(&mut rng, Vec3::splat(-10.0), Vec3::splat(10.0));
+        if matches!(roi.shape, RoiShape::Plane { .. }) {
+            continue;
+        }
+        let o = Vec3::new(rng.random(), rng.random(), rng.random()) * 40.0 - 20.0;
+        // Aimed near the region, so that about half the rays meet it.
+        let aim = roi.shape.anchor() + (Vec3::new(rng.random(), rng.random(), rng.random()) - 0.5) * 12.0;
+        let d = (aim - o).normalize_or(Vec3::X);
+        let inside = |p: Vec3| match roi.shape {
+            RoiShape::Sphere { centre, radius } => (p - Vec3::from(centre)).length() <= radius,
+            RoiShape::Box { min, max } => {
+                (p - Vec3::from(min)).min_element() >= 0.0 && (Vec3::from(max) - p).min_element() >= 0.0
+            }
+            RoiShape::Plane { .. } => unreachable!(),
+        };
+        let (n, len) = (4000, 60.0);
+        let first = (0..=n).map(|k| len * k as f32 / n as f32).find(|t| inside(o + d * *t));
+        match (roi.shape.ray_hit(o, d), first) {
+            (Some(t), Some(s)) => {
+                hits += 1;
+                assert!(t <= s + 1e-3 && s - t <= len / n as f32 + 1e-3, "{roi:?}: hit {t}, sampled {s}");
+            }
+            (None, None) => {}
+            (Some(t), None) => {
+                // Beyond the sampled length, or a grazing chord shorter than the sample spacing: then finer
+                // samples just past the hit are inside.
+                let fine = (0..=200).any(|k| inside(o + d * (t + k as f32 * 1e-4)));
+                assert!(t > len || fine, "{roi:?}: hit {t}, nothing inside there");
+            }
+            (None, Some(s)) => panic!("{roi:?}: missed, sampled inside at {s}"),
+        }
+    }
+    assert!(hits > 1000, "{hits} hits");
+    // Moving: the translated region meets the translated segment exactly when the original meets the original.
+    let delta = Vec3::new(3.0, -2.0, 0.5);
+    for roi in [sphere, cube, plane] {
+        let moved = roi.translated(delta);
+        assert_eq!(moved.anchor(), roi.anchor() + delta);
+        for (a, b) in [(Vec3::new(-5.0, 0.3, 0.2), Vec3::new(5.0, 0.1, -0.4)), (Vec3::splat(4.0), Vec3::splat(6.0))] {
+            assert_eq!(moved.meets_segment(a + delta, b + delta), roi.meets_segment(a, b));
+        }
+    }
+}

@@ -300,3 +300,24 @@ fn bad_input_gives_errors_or_empty_results_with_reasons() {
     assert!(TensorField::new([4, 4, 4], DVec3::ONE, (0..10).map(|_| None), Default::default()).is_err());
     assert!(TensorField::new([4, 4, 4], DVec3::ZERO, (0..64).map(|_| None), Default::default()).is_err());
 }
+
+/// Tensors for streamlines from a file: sampling the field at the tracker's own output points (world, f32)
+/// gives back the tensors the tracker recorded there, to f32 rounding; outside the grid, the zero tensor.
+#[test]
+fn tensors_at_world_points_match_what_the_tracker_records() {
+    let (field, affine, dims) = phantom_field();
+    let seeds: Vec<DVec3> = (4..dims[0] - 4).step_by(5).map(|x| DVec3::new(x as f64, 24.0, 12.0)).collect();
+    let tracks = Tracker::new(&field, affine, TrackParams::default()).unwrap().run(&seeds);
+    assert!(tracks.tractogram.points.len() > 1000);
+    let got = fascicle_core::tracking::tensors_at(&field, affine, &tracks.tractogram.points);
+    let scale = tracks.tensors.iter().flatten().fold(0f32, |m, v| m.max(v.abs()));
+    let worst = got
+        .iter()
+        .zip(&tracks.tensors)
+        .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
+        .fold(0f32, f32::max);
+    println!("{} points; worst tensor difference {:.2e} of the largest entry", got.len(), worst / scale);
+    assert!(worst <= 1e-4 * scale, "{worst} vs scale {scale}");
+    let outside = affine.transform_point3(DVec3::new(-5.0, 0.0, 0.0)).as_vec3();
+    assert_eq!(fascicle_core::tracking::tensors_at(&field, affine, &[outside]), vec![[0.0; 6]]);
+}

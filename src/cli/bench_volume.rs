@@ -109,7 +109,7 @@ fn reference(vol: &Volume<f32>, n: usize, size: u32) -> Vec<DVec3> {
     let cam = camera(n, size);
     let lut = tf().lut();
     let inv = vol.world_from_voxel.inverse();
-    let p = MarchParams { step: 0.1, termination: 2.0, preintegrated: false };
+    let p = MarchParams { step: 0.1, termination: 2.0, ..MarchParams::default() };
     (0..size * size)
         .into_par_iter()
         .map(|i| {

@@ -13,4 +13,4 @@ mod tracker;
 
 pub use field::{CircleField, DirectionField, FieldSample, TensorField, TensorInterpolation, principal_direction};
 pub use seeds::{read_seeds, seeds_from_mask, to_voxel};
-pub use tracker::{Integrator, Rejection, StopReason, TrackParams, Tracker, Tracks};
+pub use tracker::{Integrator, Rejection, StopReason, TrackParams, Tracker, Tracks, tensors_at};

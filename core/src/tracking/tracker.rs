@@ -361,6 +361,21 @@ impl<'a, F: DirectionField> Tracker<'a, F> {
 }
 
 /// `R T Rᵀ` as f32, lower-triangular.
+/// The world-frame tensors (lower-triangular) of `field` at world points `points` (RAS+ mm): what the
+/// tracker records per point, for streamlines that come from a file. Points outside the grid get the zero
+/// tensor (a hyperstreamline is then circular there).
+pub fn tensors_at<F: DirectionField>(field: &F, world_from_voxel: DMat4, points: &[glam::Vec3]) -> Vec<[f32; 6]> {
+    let voxel_from_world = world_from_voxel.inverse();
+    let rot = crate::linalg::polar_rotation(DMat3::from_mat4(world_from_voxel));
+    points
+        .par_iter()
+        .map(|p| {
+            let v = voxel_from_world.transform_point3(p.as_dvec3());
+            if in_grid(field.dims(), v) { rotate(&field.tensor(v), rot) } else { [0.0; 6] }
+        })
+        .collect()
+}
+
 fn rotate(t: &LowerTri, r: DMat3) -> [f32; 6] {
     let m = DMat3::from_cols_array(&[t[0], t[1], t[3], t[1], t[2], t[4], t[3], t[4], t[5]]);
     let w = r * m * r.transpose();

@@ -28,11 +28,14 @@ use bevy::render::texture::GpuImage;
 use bevy::render::view::ViewDepthTexture;
 use bevy::shader::ShaderRef;
 use fascicle_core::Volume;
-use fascicle_core::dvr::{MarchParams, TransferFunction, preintegrate};
+use fascicle_core::dvr::{ClipBox, MarchParams, TransferFunction, preintegrate};
 use fascicle_render::shaders;
 
 /// Pre-integration table size (entries per axis).
 pub const TABLE_N: usize = 64;
+
+/// Ambient term of gradient shading.
+pub const AMBIENT: f64 = 0.35;
 
 /// How a volume is drawn.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -59,6 +62,9 @@ pub struct VolumeSettings {
     pub shading: bool,
     /// Pre-integrated classification (ray casting).
     pub preintegrated: bool,
+    /// The part of the volume drawn (fractions of its extent per voxel axis).
+    #[serde(default)]
+    pub clip: ClipBox,
 }
 
 impl Default for VolumeSettings {
@@ -71,13 +77,20 @@ impl Default for VolumeSettings {
             jitter: true,
             shading: false,
             preintegrated: false,
+            clip: ClipBox::default(),
         }
     }
 }
 
 impl VolumeSettings {
     pub fn march(&self) -> MarchParams {
-        MarchParams { step: self.step, termination: self.termination, preintegrated: self.preintegrated }
+        MarchParams {
+            step: self.step,
+            termination: self.termination,
+            preintegrated: self.preintegrated,
+            clip: self.clip,
+            shading: self.shading.then_some(AMBIENT),
+        }
     }
 }
 
@@ -87,6 +100,9 @@ pub struct VolumeUniform {
     pub voxel_from_world: Mat4,
     pub dims: Vec4,
     pub sphere: Vec4,
+    /// The clip box in voxel coordinates (xyz; w unused).
+    pub clip_lo: Vec4,
+    pub clip_hi: Vec4,
     pub range: Vec2,
     pub step: f32,
     pub termination: f32,
@@ -341,6 +357,7 @@ fn bounding_sphere(dims: [usize; 3], world_from_voxel: glam::DMat4) -> (glam::DV
 impl VolumeUniform {
     pub fn new(dims: [usize; 3], world_from_voxel: glam::DMat4, s: &VolumeSettings) -> Self {
         let (centre, r) = bounding_sphere(dims, world_from_voxel);
+        let (lo, hi) = s.clip.voxel_bounds(dims);
         let method = match s.method {
             VolumeMethod::Raycast => 0.0,
             VolumeMethod::Slicing => 1.0,
@@ -349,6 +366,8 @@ impl VolumeUniform {
             voxel_from_world: world_from_voxel.inverse().as_mat4(),
             dims: Vec4::new(dims[0] as f32, dims[1] as f32, dims[2] as f32, method),
             sphere: Vec4::new(centre.x as f32, centre.y as f32, centre.z as f32, r as f32),
+            clip_lo: lo.as_vec3().extend(0.0),
+            clip_hi: hi.as_vec3().extend(0.0),
             range: Vec2::new(s.tf.range[0] as f32, s.tf.range[1] as f32),
             step: s.step as f32,
             termination: s.termination as f32,
@@ -357,7 +376,7 @@ impl VolumeUniform {
             preintegrated: u32::from(s.preintegrated),
             n_slices: slices(r, s.step),
             table_n: TABLE_N as u32,
-            ambient: 0.35,
+            ambient: AMBIENT as f32,
         }
     }
 }

@@ -4,12 +4,13 @@
 //! (f16), so the bound is 8-bit output rounding plus f32 sampling positions: 3 levels on 99 % of pixels.
 //! Slicing samples on planes instead of along rays, so it agrees with ray casting only to within the
 //! sampling difference (bounded below). An opaque cube inside the volume: rays stop at its depth (the
-//! copied depth buffer), the cube is tinted by the volume in front of it and hides what lies behind.
+//! copied depth buffer), the cube is tinted by the volume in front of it and hides what lies behind. A clip
+//! box with gradient shading against the marcher with the same box and shading.
 
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::Volume;
-use fascicle_core::dvr::{TfPoint, TransferFunction, march};
+use fascicle_core::dvr::{ClipBox, TfPoint, TransferFunction, march};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture};
 use fascicle_render::reference::{PinholeCamera, ray_box, srgb8};
@@ -59,6 +60,7 @@ fn settings(method: VolumeMethod) -> VolumeSettings {
         jitter: false,
         shading: false,
         preintegrated: false,
+        clip: Default::default(),
     }
 }
 
@@ -220,4 +222,22 @@ fn slicing_agrees_with_raycasting() {
     // Planes through the bounding sphere at spacing 0.5 mm sample each ray at other positions than the
     // ray marcher (offset by up to one step): the difference is the sampling error of a 0.5 mm step.
     assert!(p99 <= 8.0, "99th percentile {p99} levels");
+}
+
+#[test]
+fn clipped_and_shaded_raycast_matches_the_f64_marcher() {
+    let clip = ClipBox { min: [0.15, 0.0, 0.3], max: [0.8, 0.55, 1.0] };
+    let s = VolumeSettings { clip, shading: true, ..settings(VolumeMethod::Raycast) };
+    let Some(img) = render(s.clone(), false) else { return };
+    let want = reference(&s, false);
+    let (p99, lit) = compare(&img, &want, "clipped_shaded");
+    // The clip box removes part of what the whole volume shows; shading darkens the rest.
+    let whole = reference(&settings(VolumeMethod::Raycast), false);
+    let removed = whole.iter().zip(&want).filter(|(a, b)| a.max_element() > 0.02 && b.max_element() <= 0.02).count();
+    let flat = reference(&VolumeSettings { shading: false, ..s.clone() }, false);
+    let shaded =
+        want.iter().zip(&flat).filter(|(a, b)| (0..3).any(|k| (srgb8(a[k]) - srgb8(b[k])).abs() > 5.0)).count();
+    println!("{removed} pixels cut away by the clip box; shading changes {shaded} by more than 5 levels");
+    assert!(lit > 500 && removed > 300 && shaded > 300, "{lit} coloured, {removed} cut away, {shaded} shaded");
+    assert!(p99 <= 3.0, "99th percentile {p99} levels");
 }
