@@ -328,18 +328,16 @@ mod tests {
         assert_eq!(sample(&v, DVec3::new(-3.0, -1.0, -2.0)), 0.0);
     }
 
+    /// The same colour and opacity over the whole range.
+    fn flat(range: [f64; 2], rgba: [f64; 4]) -> TransferFunction {
+        TransferFunction { range, points: vec![TfPoint { x: range[0], rgba }, TfPoint { x: range[1], rgba }] }
+    }
+
     #[test]
     fn constant_volume_matches_the_closed_form() {
         // A uniform slab: A = 1 - (1 - a)^(L / unit) for chord length L, colour c A, for any step.
         let v = volume([10, 10, 10], |_, _, _| 0.5);
-        let tf = TransferFunction {
-            range: [0.0, 1.0],
-            points: vec![
-                TfPoint { x: 0.0, rgba: [0.2, 0.6, 0.4, 0.1] },
-                TfPoint { x: 1.0, rgba: [0.2, 0.6, 0.4, 0.1] },
-            ],
-        };
-        let lut = tf.lut();
+        let lut = flat([0.0, 1.0], [0.2, 0.6, 0.4, 0.1]).lut();
         let origin = DVec3::new(-5.0, 4.2, 4.7);
         for step in [0.3, 0.77, 2.0] {
             let p = MarchParams { step, termination: 2.0, ..MarchParams::default() };
@@ -358,14 +356,7 @@ mod tests {
         // The uniform slab cut to x in 0.2..0.7 of 10 voxels: a 5 mm chord instead of 10; cut away entirely
         // along y: nothing.
         let v = volume([10, 10, 10], |_, _, _| 0.5);
-        let tf = TransferFunction {
-            range: [0.0, 1.0],
-            points: vec![
-                TfPoint { x: 0.0, rgba: [1.0, 1.0, 1.0, 0.1] },
-                TfPoint { x: 1.0, rgba: [1.0, 1.0, 1.0, 0.1] },
-            ],
-        };
-        let lut = tf.lut();
+        let lut = flat([0.0, 1.0], [1.0, 1.0, 1.0, 0.1]).lut();
         let clip = ClipBox { min: [0.2, 0.0, 0.0], max: [0.7, 1.0, 1.0] };
         let p = MarchParams { step: 0.37, termination: 2.0, clip, ..MarchParams::default() };
         let origin = DVec3::new(-5.0, 4.2, 4.7);
@@ -391,14 +382,7 @@ mod tests {
         // A constant volume has no gradient: unshaded.
         assert_eq!(lambert(&volume([4; 3], |_, _, _| 1.0), DVec3::splat(1.5), DVec3::Y), 1.0);
         // In the marcher: across the ramp, colour is ambient x unshaded colour; opacity is unchanged.
-        let tf = TransferFunction {
-            range: [0.0, 11.0],
-            points: vec![
-                TfPoint { x: 0.0, rgba: [0.8, 0.4, 0.2, 0.05] },
-                TfPoint { x: 11.0, rgba: [0.8, 0.4, 0.2, 0.05] },
-            ],
-        };
-        let lut = tf.lut();
+        let lut = flat([0.0, 11.0], [0.8, 0.4, 0.2, 0.05]).lut();
         let (o, d) = (DVec3::new(5.5, -3.0, 5.5), DVec3::Y);
         let plain = MarchParams { step: 0.5, termination: 2.0, ..MarchParams::default() };
         let lit = MarchParams { shading: Some(0.35), ..plain };

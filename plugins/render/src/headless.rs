@@ -269,6 +269,19 @@ pub fn add_target_image(app: &mut App, width: u32, height: u32) -> Handle<Image>
     target_image(&mut app.world_mut().resource_mut::<Assets<Image>>(), width, height)
 }
 
+/// The start of every offscreen GPU test: `None` (saying so) when GPU tests are skipped, else a headless app
+/// with Fascicle's render plugin and an sRGB image target of `width` x `height`. Add the plugin under test.
+pub fn gpu_test_app(width: u32, height: u32) -> Option<(App, Handle<Image>)> {
+    if gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return None;
+    }
+    let mut app = headless_app();
+    app.add_plugins(crate::FascicleRenderPlugin);
+    let target = add_target_image(&mut app, width, height);
+    Some((app, target))
+}
+
 /// Camera components for exact offscreen tests: render into `target`, no tonemapping, no MSAA, so that a
 /// shader's linear output maps to the image by the sRGB transfer function alone.
 pub fn exact_camera(target: Handle<Image>) -> impl Bundle {

@@ -3,7 +3,6 @@
 //! which surface is nearer where they overlap, the shaded colour, and the depth buffer read back.
 
 use bevy::prelude::*;
-use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture, DepthMap};
 use fascicle_render::impostor::SphereImpostorMaterial;
 use fascicle_render::reference::{PinholeCamera, headlight, ray_box, ray_sphere, srgb8};
@@ -26,13 +25,7 @@ enum Hit {
 }
 
 fn render() -> Option<(Capture, DepthMap)> {
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return None;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins(FascicleRenderPlugin);
-    let target = headless::add_target_image(&mut app, W, H);
+    let (mut app, target) = headless::gpu_test_app(W, H)?;
     let world = app.world_mut();
     let cube_mesh = world.resource_mut::<Assets<Mesh>>().add(Cuboid::new(1.0, 1.0, 1.0));
     let unit = world.resource_mut::<Assets<Mesh>>().add(Cuboid::new(1.0, 1.0, 1.0));

@@ -7,7 +7,6 @@ use std::path::PathBuf;
 use bevy::prelude::*;
 use fascicle_core::sh::glyph::{Glyph, GlyphStyle, Lobes, cast_within, make_glyphs};
 use fascicle_core::sh::{self, ShBasis};
-use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture, DepthMap};
 use fascicle_render::reference::{PinholeCamera, decode_normal};
 use fascicle_sh_glyphs::{GlyphColour, RayCastSettings, ShGlyphMaterial, ShGlyphPlugin, spawn_glyph_set};
@@ -65,13 +64,8 @@ fn test_camera() -> PinholeCamera {
 }
 
 fn render(glyphs: &[(Glyph, Lobes)], settings: RayCastSettings) -> Option<(Capture, DepthMap)> {
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return None;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, ShGlyphPlugin));
-    let target = headless::add_target_image(&mut app, W, H);
+    let (mut app, target) = headless::gpu_test_app(W, H)?;
+    app.add_plugins(ShGlyphPlugin);
     let copy = headless::add_depth_copy(&mut app, W, H);
     app.add_systems(Startup, {
         let glyphs = glyphs.to_vec();
@@ -194,14 +188,9 @@ fn ray_cast_glyphs_match_the_f64_reference() {
 #[test]
 fn picking_and_highlighting() {
     use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return;
-    }
+    let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
+    app.add_plugins(ShGlyphPlugin);
     let glyphs: Vec<Glyph> = glyphs().into_iter().map(|(g, _)| g).collect();
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, ShGlyphPlugin));
-    let target = headless::add_target_image(&mut app, W, H);
     {
         let glyphs = glyphs.clone();
         app.add_systems(

@@ -12,7 +12,6 @@ use fascicle_core::dti::eigen::{Eigen, from_eigen};
 use fascicle_core::dti::splat::{
     Splat, SplatCamera, SplatColourMode, SplatColouring, SplatRender, composite, tensor_splat,
 };
-use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture};
 use fascicle_render::reference::srgb8;
 use fascicle_tensors::TensorGlyphPlugin;
@@ -60,13 +59,8 @@ fn render(
     eyes: &[Vec3],
     recolour: Option<SplatColouring>,
 ) -> Option<(Vec<Capture>, SplatSortStats, Vec<Splat>)> {
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return None;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, TensorGlyphPlugin));
-    let target = headless::add_target_image(&mut app, W, H);
+    let (mut app, target) = headless::gpu_test_app(W, H)?;
+    app.add_plugins(TensorGlyphPlugin);
     let splats = splats.to_vec();
     app.add_systems(
         Startup,

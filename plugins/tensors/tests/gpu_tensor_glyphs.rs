@@ -5,7 +5,6 @@
 use bevy::prelude::*;
 use fascicle_core::dti::eigen::{Eigen, from_eigen};
 use fascicle_core::dti::glyph::{TensorGlyph, TensorShape, cast_ellipsoid, cast_marching, tensor_glyph};
-use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture, DepthMap};
 use fascicle_render::reference::{PinholeCamera, decode_normal};
 use fascicle_tensors::{
@@ -43,13 +42,8 @@ fn glyphs() -> Vec<TensorGlyph> {
 }
 
 fn render(glyphs: &[TensorGlyph], settings: TensorGlyphSettings) -> Option<(Capture, DepthMap)> {
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return None;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, TensorGlyphPlugin));
-    let target = headless::add_target_image(&mut app, W, H);
+    let (mut app, target) = headless::gpu_test_app(W, H)?;
+    app.add_plugins(TensorGlyphPlugin);
     let copy = headless::add_depth_copy(&mut app, W, H);
     let glyphs = glyphs.to_vec();
     app.add_systems(

@@ -9,7 +9,6 @@ use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, RoiMode, RoiShape};
-use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
 use fascicle_tracts::{RoiStats, TractLineMaterial, TractPlugin, TractRoi, spawn_lines};
 
@@ -52,13 +51,8 @@ fn lit_per_line(c: &headless::Capture) -> [usize; 3] {
 }
 
 fn render(roi: Option<Roi>, opacity: f32) -> Option<(headless::Capture, usize)> {
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return None;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, TractPlugin));
-    let target = headless::add_target_image(&mut app, W, H);
+    let (mut app, target) = headless::gpu_test_app(W, H)?;
+    app.add_plugins(TractPlugin);
     app.add_systems(
         Startup,
         move |mut commands: Commands,

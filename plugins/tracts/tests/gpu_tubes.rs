@@ -10,7 +10,6 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::dti::eigen::{Eigen, from_eigen};
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, RoiMode, RoiShape};
-use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, DepthMap};
 use fascicle_render::reference::PinholeCamera;
 use fascicle_tracts::{RoiStats, TractPlugin, TractRoi, TubeSettings, TubeletMaterial, spawn_tubes, tract_tubelets};
@@ -50,13 +49,8 @@ fn tracts() -> (Tractogram, Vec<[f32; 6]>) {
 }
 
 fn render(eye: Vec3, roi: Option<Roi>) -> Option<(DepthMap, headless::Capture, f64)> {
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return None;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, TractPlugin));
-    let target = headless::add_target_image(&mut app, W, H);
+    let (mut app, target) = headless::gpu_test_app(W, H)?;
+    app.add_plugins(TractPlugin);
     let copy = headless::add_depth_copy(&mut app, W, H);
     app.add_systems(
         Startup,

@@ -11,7 +11,6 @@ use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::Volume;
 use fascicle_core::dvr::{ClipBox, TfPoint, TransferFunction, march};
-use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture};
 use fascicle_render::reference::{PinholeCamera, ray_box, srgb8};
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumeMethod, VolumePlugin, VolumeSettings, spawn_volume};
@@ -65,13 +64,8 @@ fn settings(method: VolumeMethod) -> VolumeSettings {
 }
 
 fn render(settings: VolumeSettings, cube: bool) -> Option<Capture> {
-    if headless::gpu_tests_skipped() {
-        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
-        return None;
-    }
-    let mut app = headless::headless_app();
-    app.add_plugins((FascicleRenderPlugin, VolumePlugin));
-    let target = headless::add_target_image(&mut app, W, H);
+    let (mut app, target) = headless::gpu_test_app(W, H)?;
+    app.add_plugins(VolumePlugin);
     app.add_systems(
         PostStartup,
         move |mut commands: Commands,
