@@ -63,6 +63,10 @@ pub enum BenchCommand {
         /// Each suite's --quick setting.
         #[arg(long)]
         quick: bool,
+        /// Run this suite with --quick even in a full report (repeatable), e.g. `glyphs`, whose full run
+        /// (65,536 glyphs at 512x512 over 14 settings) takes over an hour on lavapipe with 2 cores.
+        #[arg(long, value_name = "SUITE")]
+        quick_suite: Vec<String>,
         /// Output directory.
         #[arg(long)]
         report: PathBuf,
@@ -112,7 +116,9 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
             super::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Plot { csv, out, title, by_n } => super::bench_all::plot_csv(&csv, &out, &title, by_n),
-        BenchCommand::All { quick, report, python } => super::bench_all::run(quick, &report, python.as_deref()),
+        BenchCommand::All { quick, quick_suite, report, python } => {
+            super::bench_all::run(quick, &quick_suite, &report, python.as_deref())
+        }
         BenchCommand::Fits { quick, csv, write_phantom } => {
             super::bench_fits::run(quick, csv.as_deref(), write_phantom.as_deref())
         }

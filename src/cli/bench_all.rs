@@ -170,7 +170,19 @@ fn machine() -> String {
     format!("{cpu}, {threads} threads{mem}")
 }
 
-pub fn run(quick: bool, report: &Path, python: Option<&Path>) -> Result<(), Error> {
+pub fn run(quick: bool, quick_suites: &[String], report: &Path, python: Option<&Path>) -> Result<(), Error> {
+    if let Some(bad) = quick_suites.iter().find(|q| !SUITES.iter().any(|(s, _)| s == q)) {
+        let names: Vec<&str> = SUITES.iter().map(|(s, _)| *s).collect();
+        return Err(Error::Param(format!("--quick-suite {bad}: no such suite (one of {})", names.join(", "))));
+    }
+    let is_quick = |suite: &str| quick || quick_suites.iter().any(|q| q == suite);
+    let mode = match (quick, quick_suites.is_empty()) {
+        (true, _) => "--quick".to_string(),
+        (false, true) => "full".to_string(),
+        (false, false) => format!("full, except --quick for {}", quick_suites.join(", ")),
+    };
+    let regenerate: String =
+        if quick { " --quick".into() } else { quick_suites.iter().map(|q| format!(" --quick-suite {q}")).collect() };
     std::fs::create_dir_all(report).map_err(io(report))?;
     let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, epaint_default_fonts::UBUNTU_LIGHT);
     let exe = std::env::current_exe().map_err(io(report))?;
@@ -187,9 +199,9 @@ pub fn run(quick: bool, report: &Path, python: Option<&Path>) -> Result<(), Erro
         machine(),
         env!("CARGO_PKG_VERSION"),
         today(),
-        if quick { "--quick" } else { "full" }
+        mode
     );
-    let _ = writeln!(md, "Regenerate with `fascicle bench all{} --report DIR`.\n", if quick { " --quick" } else { "" });
+    let _ = writeln!(md, "Regenerate with `fascicle bench all{regenerate} --report DIR`.\n");
     for (suite, plot_kind) in SUITES {
         let csv = report.join(format!("{suite}.csv"));
         let mut cmd = Command::new(&exe);
@@ -197,7 +209,7 @@ pub fn run(quick: bool, report: &Path, python: Option<&Path>) -> Result<(), Erro
         if suite != "tracking" {
             cmd.arg("--csv").arg(&csv);
             // The CPU suite always runs on the full 128x128x64 phantom (about 20 s here).
-            if quick && suite != "fits" {
+            if is_quick(suite) && suite != "fits" {
                 cmd.arg("--quick");
             }
         }
@@ -258,4 +270,17 @@ pub fn run(quick: bool, report: &Path, python: Option<&Path>) -> Result<(), Erro
     std::fs::write(&path, md).map_err(io(&path))?;
     println!("wrote {}", path.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    /// A misspelt `--quick-suite` is refused before any suite runs, naming the choices.
+    #[test]
+    fn unknown_quick_suite_is_a_clear_error() {
+        let dir = std::env::temp_dir().join(format!("fascicle-bench-all-{}", std::process::id()));
+        let e = super::run(false, &["glyph".into()], &dir, None).unwrap_err().to_string();
+        assert!(e.contains("--quick-suite glyph: no such suite") && e.contains("glyphs"), "{e}");
+        assert!(!dir.join("benchmarks.md").exists());
+        std::fs::remove_dir_all(dir).ok();
+    }
 }
