@@ -19,8 +19,8 @@ use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
 use fascicle_tracts::{
-    LineSet, TractLineMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial, line_mesh,
-    polygon_tube_mesh, spawn_lines, spawn_tubes,
+    MeshSet, TractMeshMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial, line_mesh, spawn_lines,
+    spawn_polygon_tubes, spawn_tubes,
 };
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, VolumeUniform, spawn_volume, tf_buffers};
 
@@ -261,19 +261,20 @@ fn sync_scene(
                     }
                 }
                 (Ok((t, tensors)), TractMode::Polygon) => {
-                    let mesh = polygon_tube_mesh(&t, tensors.as_deref(), render.scale, 16);
-                    let m = materials.add(StandardMaterial {
-                        base_color: Color::WHITE,
-                        perceptual_roughness: 0.6,
-                        ..default()
-                    });
-                    commands.spawn((
-                        Mesh3d(meshes.add(mesh)),
-                        MeshMaterial3d(m),
-                        Transform::IDENTITY,
-                        vis,
-                        LayerEntity(i),
-                    ));
+                    let set = spawn_polygon_tubes(
+                        &mut commands,
+                        &mut meshes,
+                        &mut line_materials,
+                        &mut buffers,
+                        std::sync::Arc::new(t),
+                        tensors.as_deref(),
+                        render.scale,
+                        spec.opacity,
+                    );
+                    place(&mut commands, &mut errors, Ok(set), spec, vis, i);
+                    for r in rois {
+                        commands.spawn((TractRoi(*r), LayerEntity(i), ChildOf(set)));
+                    }
                 }
                 (Ok((t, _)), TractMode::Lines) => {
                     let set = spawn_lines(
@@ -462,8 +463,8 @@ struct VolumeAssets<'w, 's> {
 struct TractAssets<'w, 's> {
     materials: ResMut<'w, Assets<TubeletMaterial>>,
     sets: Query<'w, 's, (Entity, Option<&'static TubeSet>, &'static LayerEntity), With<TractSet>>,
-    line_sets: Query<'w, 's, (&'static LineSet, &'static LayerEntity)>,
-    line_materials: ResMut<'w, Assets<TractLineMaterial>>,
+    line_sets: Query<'w, 's, (&'static MeshSet, &'static LayerEntity)>,
+    line_materials: ResMut<'w, Assets<TractMeshMaterial>>,
     rois: Query<'w, 's, (Entity, &'static LayerEntity), With<TractRoi>>,
 }
 

@@ -217,7 +217,7 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
         ui.radio_value(&mut render.colour, TubeColour::Westin, "Westin");
         ui.radio_value(&mut render.colour, TubeColour::Streamline, "per streamline");
     });
-    ui.label("ROIs (hyperstreamlines and lines show a streamline when it meets every include and no exclude)");
+    ui.label("ROIs (a streamline shows when it meets every include and no exclude)");
     let mut remove = None;
     for (i, roi) in rois.iter_mut().enumerate() {
         ui.push_id(i, |ui| {

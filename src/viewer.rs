@@ -411,7 +411,7 @@ fn dropped_files(mut events: MessageReader<FileDragAndDrop>, mut scene: ResMut<A
 }
 
 /// Writes the streamlines that a tract layer's ROIs select to `UiState::selection_path`, when the panel
-/// asked. Hyperstreamline and line layers keep their selection; polygon tubes select again from the
+/// asked: from the layer's tract set, or, when it has none (its data failed to load), selected again from the
 /// layer's source.
 fn save_selection(
     mut ui: ResMut<UiState>,
@@ -637,8 +637,8 @@ mod tests {
     }
 
     /// "Save selection" writes what the ROIs select: from a tract set's own selection flags, or, for a layer
-    /// without a set (polygon tubes; here no set is spawned), by selecting again from the source. A bad path
-    /// is a message, not a panic.
+    /// without a set (here none is spawned), by selecting again from the source. A bad path is a message, not
+    /// a panic.
     #[test]
     fn save_selection_writes_the_selected_streamlines() {
         use fascicle_core::io::Tractogram;

@@ -16,7 +16,7 @@ pub const PROXY: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a
 pub const TENSOR_SPLAT: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a09");
 pub const VOLUME: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0a");
 pub const TUBELET: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0b");
-pub const TRACT_LINES: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0c");
+pub const TRACT_MESH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0c");
 
 /// (handle, path under `shaders/`, source) of every shader this crate owns.
 pub const SOURCES: [(Handle<Shader>, &str, &str); 12] = [
@@ -31,7 +31,7 @@ pub const SOURCES: [(Handle<Shader>, &str, &str); 12] = [
     (TENSOR_GLYPH, "tensor_glyph.wgsl", include_str!("../../../shaders/tensor_glyph.wgsl")),
     (VOLUME, "volume.wgsl", include_str!("../../../shaders/volume.wgsl")),
     (TUBELET, "tubelet.wgsl", include_str!("../../../shaders/tubelet.wgsl")),
-    (TRACT_LINES, "tract_lines.wgsl", include_str!("../../../shaders/tract_lines.wgsl")),
+    (TRACT_MESH, "tract_mesh.wgsl", include_str!("../../../shaders/tract_mesh.wgsl")),
 ];
 
 pub(crate) fn register(app: &mut App) {

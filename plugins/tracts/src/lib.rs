@@ -4,7 +4,8 @@
 //!
 //! A tract set ([`TractSet`]: the streamlines, their segment grid and a selection-flag buffer) is one entity
 //! and one draw, as hyperstreamlines ([`TubeSet`]: tubelets in one storage buffer, 8 vertices per tubelet
-//! carrying (slot, corner), each bounding box built in the vertex shader) or as lines ([`LineSet`]). ROIs are
+//! carrying (slot, corner), each bounding box built in the vertex shader) or as a mesh ([`MeshSet`]: lines or
+//! polygon tubes). ROIs are
 //! entities ([`TractRoi`]): a child of a tract set acts on that set, an ROI without a parent on every set.
 //! [`apply_rois`] re-evaluates the selection (parallel, over a uniform segment grid) only when an ROI or a
 //! tract set changes, and rewrites the 4-byte-per-streamline flag buffer that both vertex shaders read;
@@ -106,32 +107,34 @@ pub struct TubeSet {
     pub settings: TubeSettings,
 }
 
-/// A tract set drawn as lines in direction colours: one entity, one draw.
+/// A tract set drawn as a mesh in direction colours, lines or polygon tubes: one entity, one draw.
 #[derive(Component, Clone)]
-pub struct LineSet {
-    pub material: Handle<TractLineMaterial>,
+pub struct MeshSet {
+    pub material: Handle<TractMeshMaterial>,
 }
 
-/// GPU parameters of tract lines. Keep in sync with `LineParams` in `shaders/tract_lines.wgsl`.
+/// GPU parameters of tract meshes. Keep in sync with `TractMeshParams` in `shaders/tract_mesh.wgsl`.
 #[derive(Clone, Copy, Debug, ShaderType)]
-pub struct LineUniform {
+pub struct TractMeshUniform {
     pub opacity: f32,
+    /// Ambient term of the tubes' headlight shading (lines are unshaded).
+    pub ambient: f32,
 }
 
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
-pub struct TractLineMaterial {
+pub struct TractMeshMaterial {
     #[uniform(0)]
-    pub params: LineUniform,
+    pub params: TractMeshUniform,
     #[storage(1, read_only)]
     pub selected: Handle<ShaderBuffer>,
 }
 
-impl Material for TractLineMaterial {
+impl Material for TractMeshMaterial {
     fn vertex_shader() -> bevy::shader::ShaderRef {
-        bevy::shader::ShaderRef::Handle(shaders::TRACT_LINES)
+        bevy::shader::ShaderRef::Handle(shaders::TRACT_MESH)
     }
     fn fragment_shader() -> bevy::shader::ShaderRef {
-        bevy::shader::ShaderRef::Handle(shaders::TRACT_LINES)
+        bevy::shader::ShaderRef::Handle(shaders::TRACT_MESH)
     }
     fn alpha_mode(&self) -> AlphaMode {
         if self.params.opacity < 1.0 { AlphaMode::Blend } else { AlphaMode::Opaque }
@@ -166,7 +169,7 @@ pub struct TractPlugin;
 
 impl Plugin for TractPlugin {
     fn build(&self, app: &mut App) {
-        app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractLineMaterial>::default()))
+        app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
             .add_systems(PostUpdate, apply_rois)
             .add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
@@ -290,23 +293,49 @@ pub fn spawn_tubes(
 pub fn spawn_lines(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
-    materials: &mut Assets<TractLineMaterial>,
+    materials: &mut Assets<TractMeshMaterial>,
     buffers: &mut Assets<ShaderBuffer>,
     tractogram: Arc<Tractogram>,
     opacity: f32,
 ) -> Entity {
     let mesh = line_mesh(&tractogram);
+    spawn_mesh_set(commands, meshes.add(mesh), materials, buffers, tractogram, opacity)
+}
+
+/// Spawns a tractogram as polygon tubes (`sides` per ring, sections from the optional per-point world
+/// tensors, as [`polygon_tube_mesh`]) with headlight shading; returns the set's entity (parent of its ROIs).
+#[allow(clippy::too_many_arguments, reason = "the asset stores, the tractogram and its drawing options")]
+pub fn spawn_polygon_tubes(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<TractMeshMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    tractogram: Arc<Tractogram>,
+    tensors: Option<&[[f32; 6]]>,
+    scale: f64,
+    opacity: f32,
+) -> Entity {
+    let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
+    spawn_mesh_set(commands, meshes.add(mesh), materials, buffers, tractogram, opacity)
+}
+
+fn spawn_mesh_set(
+    commands: &mut Commands,
+    mesh: Handle<Mesh>,
+    materials: &mut Assets<TractMeshMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    tractogram: Arc<Tractogram>,
+    opacity: f32,
+) -> Entity {
     let (set, selection) = tract_set(buffers, tractogram);
-    let material = materials.add(TractLineMaterial {
-        params: LineUniform { opacity: opacity.clamp(0.0, 1.0) },
-        selected: set.selected.clone(),
-    });
+    let params = TractMeshUniform { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3 };
+    let material = materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
     commands
         .spawn((
             set,
             selection,
-            LineSet { material: material.clone() },
-            Mesh3d(meshes.add(mesh)),
+            MeshSet { material: material.clone() },
+            Mesh3d(mesh),
             MeshMaterial3d(material),
             Transform::default(),
             Visibility::default(),
@@ -335,9 +364,10 @@ pub fn line_mesh(t: &Tractogram) -> Mesh {
         .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
 }
 
-/// The polygon-tube baseline mesh (`sides` per profile), coloured by local direction.
+/// The polygon-tube baseline mesh (`sides` per profile), coloured by local direction; UV x is the streamline's
+/// index (for the selection flags).
 pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f64, sides: usize) -> Mesh {
-    let (mut pos, mut nrm, mut col, mut idx) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut pos, mut nrm, mut col, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for s in 0..t.offsets.len().saturating_sub(1) {
         let r = t.offsets[s]..t.offsets[s + 1];
         let pts: Vec<glam::DVec3> = t.points[r.clone()].iter().map(|p| p.as_dvec3()).collect();
@@ -353,6 +383,7 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
             pos.push(p.as_vec3().to_array());
             nrm.push(n.as_vec3().to_array());
             col.push([d.x as f32, d.y as f32, d.z as f32, 1.0]);
+            uv.push([s as f32, 0.0]);
         }
         for ring in 0..pts.len() - 1 {
             for k in 0..sides {
@@ -366,6 +397,7 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
     Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
         .with_inserted_attribute(Mesh::ATTRIBUTE_NORMAL, nrm)
+        .with_inserted_attribute(Mesh::ATTRIBUTE_UV_0, uv)
         .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
         .with_inserted_indices(Indices::U32(idx))
 }

@@ -1,7 +1,8 @@
-//! Tract lines on the GPU (lavapipe in CI): three straight streamlines along y at x = -6, 0, 6 mm seen from
-//! above, each where the pinhole projection puts it (closed form) and in its direction colour (|d| = green);
-//! an include sphere around one leaves that one only, by its selection flag, with the same entity and mesh;
-//! half opacity blends it over the background.
+//! Tract meshes on the GPU (lavapipe in CI): three straight streamlines along y at x = -6, 0, 6 mm seen from
+//! above. As lines, each lands where the pinhole projection puts it (closed form) in its direction colour
+//! (|d| = green); an include sphere around one leaves that one only, by its selection flag; half opacity
+//! blends it over the background. As polygon tubes of radius 1 mm, the same selection holds, and the
+//! headlight shading is full where the surface faces the camera and falls off towards the silhouette.
 
 use std::sync::Arc;
 
@@ -10,7 +11,7 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, RoiMode, RoiShape};
 use fascicle_render::headless;
-use fascicle_tracts::{RoiStats, TractLineMaterial, TractPlugin, TractRoi, spawn_lines};
+use fascicle_tracts::{RoiStats, TractMeshMaterial, TractPlugin, TractRoi, spawn_lines, spawn_polygon_tubes};
 
 const W: u32 = 160;
 const H: u32 = 120;
@@ -35,13 +36,13 @@ fn column(x: f32) -> f32 {
     (x / half_width + 1.0) * 0.5 * W as f32
 }
 
-/// Green pixels within 2 columns of each line, over the rows 40..80 (the lines span rows 22-98).
-fn lit_per_line(c: &headless::Capture) -> [usize; 3] {
+/// Green pixels within `half` columns of each streamline, over the rows 40..80 (the lines span rows 22-98).
+fn lit_per_line(c: &headless::Capture, half: i64) -> [usize; 3] {
     XS.map(|x| {
         let cx = column(x).floor() as i64;
         let mut n = 0;
         for y in 40..80 {
-            for px in (cx - 2)..=(cx + 2) {
+            for px in (cx - half)..=(cx + half) {
                 let p = c.pixel(px as u32, y);
                 n += usize::from(p[1] > 40 && p[0] < 10 && p[2] < 10);
             }
@@ -50,17 +51,22 @@ fn lit_per_line(c: &headless::Capture) -> [usize; 3] {
     })
 }
 
-fn render(roi: Option<Roi>, opacity: f32) -> Option<(headless::Capture, usize)> {
+fn render(tubes: bool, roi: Option<Roi>, opacity: f32) -> Option<(headless::Capture, usize)> {
     let (mut app, target) = headless::gpu_test_app(W, H)?;
     app.add_plugins(TractPlugin);
     app.add_systems(
         Startup,
         move |mut commands: Commands,
               mut meshes: ResMut<Assets<Mesh>>,
-              mut materials: ResMut<Assets<TractLineMaterial>>,
+              mut materials: ResMut<Assets<TractMeshMaterial>>,
               mut buffers: ResMut<Assets<ShaderBuffer>>| {
-            let set =
-                spawn_lines(&mut commands, &mut meshes, &mut materials, &mut buffers, Arc::new(streamlines()), opacity);
+            let (m, b, t) = (&mut meshes, &mut materials, Arc::new(streamlines()));
+            let set = if tubes {
+                // No tensors: circular sections of radius scale / 4 = 1 mm.
+                spawn_polygon_tubes(&mut commands, m, b, &mut buffers, t, None, 4.0, opacity)
+            } else {
+                spawn_lines(&mut commands, m, b, &mut buffers, t, opacity)
+            };
             if let Some(r) = roi {
                 commands.spawn((TractRoi(r), ChildOf(set)));
             }
@@ -74,8 +80,8 @@ fn render(roi: Option<Roi>, opacity: f32) -> Option<(headless::Capture, usize)> 
 
 #[test]
 fn lines_are_drawn_where_projected_and_follow_the_selection() {
-    let Some((all, n)) = render(None, 1.0) else { return };
-    let per_line = lit_per_line(&all);
+    let Some((all, n)) = render(false, None, 1.0) else { return };
+    let per_line = lit_per_line(&all, 2);
     println!("lit pixels per line: {per_line:?} (columns {:?})", XS.map(column));
     assert_eq!(n, 3);
     // One pixel wide, 40 rows: each line lights about 40 pixels near its projected column.
@@ -84,16 +90,41 @@ fn lines_are_drawn_where_projected_and_follow_the_selection() {
     assert!(everywhere <= 3 * 90, "lit pixels away from the lines: {everywhere}");
 
     let roi = Roi { shape: RoiShape::Sphere { centre: [6.0, 0.0, 0.0], radius: 1.0 }, mode: RoiMode::Include };
-    let Some((one, n)) = render(Some(roi), 1.0) else { return };
-    let per_line_one = lit_per_line(&one);
+    let Some((one, n)) = render(false, Some(roi), 1.0) else { return };
+    let per_line_one = lit_per_line(&one, 2);
     assert_eq!(n, 1);
     assert_eq!(per_line_one[..2], [0, 0], "unselected lines drawn: {per_line_one:?}");
     // The ROI's gizmo outline (a lighter green) crosses the selected line twice.
     assert!(per_line_one[2] + 4 >= per_line[2], "the selected line changed: {per_line_one:?}");
 
     // Half opacity over black: sRGB(0.5) = 188 instead of 255.
-    let Some((half, _)) = render(None, 0.5) else { return };
+    let Some((half, _)) = render(false, None, 0.5) else { return };
     let cx = column(6.0).floor() as u32;
     let g = (40..80).flat_map(|y| (cx - 2..=cx + 2).map(move |x| (x, y))).map(|(x, y)| half.pixel(x, y)[1]).max();
     assert!(g.is_some_and(|g| (183..=193).contains(&g)), "half-opacity green {g:?}");
+}
+
+#[test]
+fn polygon_tubes_follow_the_selection_and_are_shaded() {
+    let Some((all, n)) = render(true, None, 1.0) else { return };
+    let per_tube = lit_per_line(&all, 7);
+    println!("lit pixels per tube: {per_tube:?}");
+    assert_eq!(n, 3);
+    // About 10 px wide (radius 1 mm at 4.8 px/mm) over 40 rows.
+    assert!(per_tube.iter().all(|&k| (300..=480).contains(&k)), "{per_tube:?}");
+    let roi = Roi { shape: RoiShape::Sphere { centre: [6.0, 0.0, 0.0], radius: 1.5 }, mode: RoiMode::Include };
+    let Some((one, n)) = render(true, Some(roi), 1.0) else { return };
+    let per_tube_one = lit_per_line(&one, 7);
+    assert_eq!(n, 1);
+    assert_eq!(per_tube_one[..2], [0, 0], "unselected tubes drawn: {per_tube_one:?}");
+    // The ROI's gizmo (a lighter green sphere outline, 7 px in radius) is drawn over part of the tube.
+    assert!(per_tube_one[2] as f64 >= 0.85 * per_tube[2] as f64, "the selected tube changed: {per_tube_one:?}");
+    // Headlight: across the middle tube at row 45 (away from the gizmo), green is brightest at the centre
+    // column, where the surface faces the camera, and darker 4 px out (|n.v| about 0.55).
+    let cx = column(0.0).round() as u32;
+    let g = |x: u32| all.pixel(x, 45)[1];
+    let centre = (cx - 1..=cx).map(g).max().unwrap();
+    let edge = g(cx - 4).max(g(cx + 4));
+    println!("tube green: centre {centre}, 4 px out {edge}");
+    assert!(centre >= 235 && edge + 10 < centre && edge > 120, "centre {centre}, edge {edge}");
 }

@@ -1,0 +1,64 @@
+// Tract meshes: lines (`fascicle_tracts::line_mesh`) or polygon tubes (`polygon_tube_mesh`) in direction
+// colours, tubes with headlight shading. The vertex stage looks up the streamline's selection flag (UV x is its
+// index) and moves the vertices of unselected streamlines outside the clip volume, so an ROI edit uploads 4
+// bytes per streamline and nothing else. Keep `TractMeshParams` in sync with `TractMeshUniform` in
+// `plugins/tracts/src/lib.rs`.
+
+#import bevy_pbr::mesh_functions
+#import bevy_pbr::mesh_view_bindings::view
+#import bevy_pbr::view_transformations::position_world_to_clip
+
+struct TractMeshParams {
+    opacity: f32,
+    ambient: f32,
+};
+
+@group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: TractMeshParams;
+// One flag per streamline: 1 selected, 0 hidden.
+@group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> selected: array<u32>;
+
+// Bevy's mesh attribute locations: position 0, normal 1 (tubes only: VERTEX_NORMALS), UV 2, colour 5.
+struct TractVertex {
+    @builtin(instance_index) instance_index: u32,
+    @location(0) position: vec3<f32>,
+#ifdef VERTEX_NORMALS
+    @location(1) normal: vec3<f32>,
+#endif
+    @location(2) uv: vec2<f32>,
+    @location(5) color: vec4<f32>,
+};
+
+struct TractVertexOutput {
+    @builtin(position) clip_position: vec4<f32>,
+    @location(0) color: vec4<f32>,
+    @location(1) world_position: vec3<f32>,
+    @location(2) world_normal: vec3<f32>,
+};
+
+@vertex
+fn vertex(v: TractVertex) -> TractVertexOutput {
+    var out: TractVertexOutput;
+    let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
+    let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
+    let hidden = selected[u32(v.uv.x)] == 0u;
+    out.clip_position = select(position_world_to_clip(w.xyz), vec4<f32>(2.0, 2.0, 2.0, 1.0), hidden);
+    out.color = v.color;
+    out.world_position = w.xyz;
+#ifdef VERTEX_NORMALS
+    out.world_normal = mesh_functions::mesh_normal_local_to_world(v.normal, v.instance_index);
+#else
+    out.world_normal = vec3<f32>(0.0);
+#endif
+    return out;
+}
+
+@fragment
+fn fragment(in: TractVertexOutput) -> @location(0) vec4<f32> {
+#ifdef VERTEX_NORMALS
+    let to_eye = normalize(view.world_position - in.world_position);
+    let k = params.ambient + (1.0 - params.ambient) * abs(dot(normalize(in.world_normal), to_eye));
+#else
+    let k = 1.0;
+#endif
+    return vec4<f32>(in.color.rgb * k, params.opacity);
+}
