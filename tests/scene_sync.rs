@@ -368,8 +368,8 @@ fn roi_edits_reselect_without_rebuilding() {
     assert_ne!(state(&mut app).0, e0);
 }
 
-/// ROIs belong to their layer: with two tract layers of the same file (hyperstreamlines, lines), an include
-/// sphere on the first selects there only; moved to the second layer, it selects there only.
+/// ROIs belong to their layer: with three tract layers of the same file (hyperstreamlines, lines, polygon
+/// tubes), an include sphere on the first selects there only; moved to the other two, it selects there only.
 #[test]
 fn rois_act_on_their_own_layer() {
     use fascicle::layers::LayerEntity;
@@ -391,7 +391,8 @@ fn rois_act_on_their_own_layer() {
             rois,
         },
     };
-    let layers = vec![layer(vec![sphere], TractMode::Tubes), layer(vec![], TractMode::Lines)];
+    let layers =
+        vec![layer(vec![sphere], TractMode::Tubes), layer(vec![], TractMode::Lines), layer(vec![], TractMode::Polygon)];
     let scene = Scene { layers, camera: CameraSpec::default() };
     let Some(mut app) = scene_app(scene) else { return };
     app.update();
@@ -404,13 +405,13 @@ fn rois_act_on_their_own_layer() {
     };
     let n = t.n_streamlines();
     let first = selected(&mut app);
-    assert!(first[0] > 0 && first[0] < n && first[1] == n, "{first:?} of {n}");
-    for (i, rois) in [vec![], vec![sphere]].into_iter().enumerate() {
+    assert!(first[0] > 0 && first[0] < n && first[1] == n && first[2] == n, "{first:?} of {n}");
+    for (i, rois) in [vec![], vec![sphere], vec![sphere]].into_iter().enumerate() {
         if let LayerKind::Tracts { rois: r, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
             *r = rois;
         }
     }
     app.update();
     app.update();
-    assert_eq!(selected(&mut app), vec![n, first[0]]);
+    assert_eq!(selected(&mut app), vec![n, first[0], first[0]]);
 }
