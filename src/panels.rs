@@ -200,16 +200,51 @@ fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
 
 /// Tracts: mode, cross-section scale and colour (rebuild); iterations and tolerance (uniform); ROIs
 /// (re-selection only).
+/// The tensor image that gives a file's streamlines their sections: a path, `phantom`, or empty for none.
+/// Applied when the field loses focus (Enter), not at every keystroke, since a change reloads the layer.
+fn tensor_source_field(ui: &mut egui::Ui, tensors: &mut Option<crate::scene::TensorSource>) {
+    use crate::scene::TensorSource;
+    let shown = |t: &Option<TensorSource>| match t {
+        Some(TensorSource::Nifti { path }) => path.display().to_string(),
+        Some(TensorSource::Phantom) => "phantom".into(),
+        Some(TensorSource::Spiral { n }) => format!("spiral {n}"),
+        None => String::new(),
+    };
+    let id = ui.id().with("tensor-source");
+    let mut text = ui.data_mut(|d| d.get_temp::<String>(id)).unwrap_or_else(|| shown(tensors));
+    ui.horizontal(|ui| {
+        ui.label("sections from tensors");
+        let r = ui.add(egui::TextEdit::singleline(&mut text).hint_text("tensor .nii.gz, phantom, or none"));
+        if r.lost_focus() {
+            *tensors = tensor_source_from_text(&text);
+        }
+    });
+    ui.data_mut(|d| d.insert_temp(id, text));
+}
+
+/// What the tensor field's text means: empty for none, `phantom` for the built-in phantom, else a path.
+fn tensor_source_from_text(text: &str) -> Option<crate::scene::TensorSource> {
+    use crate::scene::TensorSource;
+    match text.trim() {
+        "" => None,
+        "phantom" => Some(TensorSource::Phantom),
+        path => Some(TensorSource::Nifti { path: path.into() }),
+    }
+}
+
 fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     use crate::scene::TractMode;
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
     use fascicle_core::tubelet::TubeColour;
-    let LayerKind::Tracts { mode, render, rois, .. } = kind else { return };
+    let LayerKind::Tracts { source, mode, render, rois } = kind else { return };
     ui.horizontal(|ui| {
         ui.radio_value(mode, TractMode::Tubes, "hyperstreamlines");
         ui.radio_value(mode, TractMode::Polygon, "polygon tubes");
         ui.radio_value(mode, TractMode::Lines, "lines");
     });
+    if let crate::scene::TractSource::File { tensors, .. } = source {
+        tensor_source_field(ui, tensors);
+    }
     ui.add(egui::Slider::new(&mut render.scale, 0.2..=6.0).text("cross-section scale (mm)"));
     ui.add(egui::Slider::new(&mut render.iterations, 1..=32).text("iterations"));
     ui.horizontal(|ui| {
@@ -559,6 +594,15 @@ mod tests {
             crate::scene::Scene::default_scene().layers[2].kind.clone(),
             crate::scene::Scene::default_scene().layers[3].kind.clone(),
             crate::scene::Scene::default_scene().layers[4].kind.clone(),
+            LayerKind::Tracts {
+                source: crate::scene::TractSource::File {
+                    path: "tracts.trk".into(),
+                    tensors: Some(crate::scene::TensorSource::Nifti { path: "dti_tensor.nii.gz".into() }),
+                },
+                mode: crate::scene::TractMode::Lines,
+                render: Default::default(),
+                rois: vec![],
+            },
         ];
         let before = kinds.clone();
         let data = LayerData { histogram: Arc::new(vec![5, 100, 30, 0]), ..Default::default() };
@@ -569,6 +613,17 @@ mod tests {
             }
         });
         assert_eq!(kinds, before);
+    }
+
+    #[test]
+    fn tensor_field_text_maps_to_a_source() {
+        use crate::scene::TensorSource;
+        assert_eq!(tensor_source_from_text("  "), None);
+        assert_eq!(tensor_source_from_text("phantom"), Some(TensorSource::Phantom));
+        assert_eq!(
+            tensor_source_from_text(" out/tensor.nii.gz "),
+            Some(TensorSource::Nifti { path: "out/tensor.nii.gz".into() })
+        );
     }
 
     #[test]
