@@ -130,9 +130,40 @@ fn bench_csa(c: &mut Criterion) {
     }
 }
 
+/// ROI re-selection over 1M streamlines of 10 points (gently bent, in a 100 mm cube, as `fascicle bench
+/// tracts` builds them): two includes and an exclude, the segment grid built once.
+fn bench_roi(c: &mut Criterion) {
+    use fascicle_core::io::Tractogram;
+    use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
+    use glam::{Quat, Vec3};
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    let mut t = Tractogram::new();
+    for _ in 0..1_000_000 {
+        let mut p = Vec3::new(rng.random(), rng.random(), rng.random()) * 100.0 - 50.0;
+        let mut d = (Vec3::new(rng.random(), rng.random(), rng.random()) - 0.5).normalize();
+        let bend = Quat::from_axis_angle(d.any_orthonormal_vector(), 0.05 + 0.05 * rng.random::<f32>());
+        for _ in 0..10 {
+            t.points.push(p);
+            d = (bend * d).normalize();
+            p += d;
+        }
+        t.offsets.push(t.points.len());
+    }
+    let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
+    let rois = [
+        Roi { shape: RoiShape::Sphere { centre: [0.0, 0.0, 0.0], radius: 15.0 }, mode: RoiMode::Include },
+        Roi { shape: RoiShape::Box { min: [-40.0, -40.0, -10.0], max: [40.0, 40.0, 10.0] }, mode: RoiMode::Include },
+        Roi { shape: RoiShape::Sphere { centre: [5.0, 5.0, 0.0], radius: 5.0 }, mode: RoiMode::Exclude },
+    ];
+    c.bench_function("roi select, 1M streamlines, 2 includes + 1 exclude", |b| {
+        b.iter(|| black_box(select(&t.points, &t.offsets, &grid, black_box(&rois))))
+    });
+}
+
 criterion_group! {
     name = benches;
     config = Criterion::default().sample_size(30).measurement_time(std::time::Duration::from_secs(2)).warm_up_time(std::time::Duration::from_millis(500));
-    targets = bench_dti, bench_sh, bench_csa
+    targets = bench_dti, bench_sh, bench_csa, bench_roi
 }
 criterion_main!(benches);

@@ -85,6 +85,25 @@ impl RoiShape {
         }
     }
 
+    /// Whether the region may meet the axis-aligned box `lo..hi` (exact for spheres, boxes and planes).
+    pub fn meets_box(&self, lo: Vec3, hi: Vec3) -> bool {
+        match *self {
+            RoiShape::Sphere { centre, radius } => {
+                let c = Vec3::from(centre);
+                (c.clamp(lo, hi) - c).length_squared() <= radius * radius
+            }
+            RoiShape::Box { min, max } => {
+                let (a, b) = (Vec3::from(min).min(Vec3::from(max)), Vec3::from(min).max(Vec3::from(max)));
+                a.cmple(hi).all() && b.cmpge(lo).all()
+            }
+            RoiShape::Plane { point, normal } => {
+                let (p, n) = (Vec3::from(point), Vec3::from(normal));
+                let (centre, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+                (centre - p).dot(n).abs() <= half.dot(n.abs())
+            }
+        }
+    }
+
     /// The region moved by `delta` (mm).
     pub fn translated(&self, delta: Vec3) -> RoiShape {
         let add = |p: [f32; 3]| (Vec3::from(p) + delta).to_array();
@@ -235,7 +254,11 @@ impl SegmentGrid {
     /// Per streamline (of `n`), whether a segment meets `shape`. Parallel over the grid's z layers; a
     /// streamline already found is not tested again.
     pub fn meeting_mask(&self, points: &[Vec3], shape: &RoiShape, n: usize) -> Vec<bool> {
-        use std::sync::atomic::{AtomicBool, Ordering};
+        self.meeting_mask_among(points, shape, &vec![true; n])
+    }
+
+    /// The cell range (inclusive) under a region's bounds; the whole grid for a plane.
+    fn cells_under(&self, shape: &RoiShape) -> ([usize; 3], [usize; 3]) {
         let (blo, bhi) = match shape.bounds() {
             Some(b) => b,
             None => (
@@ -247,16 +270,63 @@ impl SegmentGrid {
             let q = ((p - self.lo) / self.cell).floor();
             [0, 1, 2].map(|k| (q[k].max(0.0) as usize).min(self.dims[k] - 1))
         };
-        let (a, b) = (index(blo), index(bhi));
+        (index(blo), index(bhi))
+    }
+
+    /// Whether cell `(x, y, z)` may hold a segment meeting `shape` where it meets it. A segment meeting the
+    /// region does so at a point of its bounding box, so in some cell that meets the region: the cells that
+    /// do not can be skipped.
+    fn cell_meets(&self, shape: &RoiShape, x: usize, y: usize, z: usize) -> bool {
+        let k = [x, y, z];
+        let mut lo = self.lo + self.cell * Vec3::new(x as f32, y as f32, z as f32);
+        let mut hi = lo + Vec3::splat(self.cell);
+        for a in 0..3 {
+            // The outermost cells also hold what the index clamp puts there (beyond a grid capped at 1024
+            // cells per axis). Large but finite, so that a plane's test stays finite.
+            if k[a] == 0 {
+                lo[a] = -1e30;
+            }
+            if k[a] + 1 == self.dims[a] {
+                hi[a] = 1e30;
+            }
+        }
+        shape.meets_box(lo, hi)
+    }
+
+    /// How many segment entries the cells that meet a region hold (what [`Self::meeting_mask_among`] scans).
+    pub fn segments_under(&self, shape: &RoiShape) -> usize {
+        let (a, b) = self.cells_under(shape);
+        let mut total = 0usize;
+        for z in a[2]..=b[2] {
+            for y in a[1]..=b[1] {
+                for x in (a[0]..=b[0]).filter(|&x| self.cell_meets(shape, x, y, z)) {
+                    let c = x + self.dims[0] * (y + self.dims[1] * z);
+                    total += (self.starts[c + 1] - self.starts[c]) as usize;
+                }
+            }
+        }
+        total
+    }
+
+    /// Per streamline, whether a segment meets `shape`, testing only streamlines with `candidates[s]` (the
+    /// others are false). Parallel over the grid's z layers; a streamline already found is not tested again.
+    pub fn meeting_mask_among(&self, points: &[Vec3], shape: &RoiShape, candidates: &[bool]) -> Vec<bool> {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        let n = candidates.len();
+        let (a, b) = self.cells_under(shape);
         let marks: Vec<AtomicBool> = (0..n).map(|_| AtomicBool::new(false)).collect();
         (a[2]..=b[2]).into_par_iter().for_each(|z| {
             for y in a[1]..=b[1] {
-                for x in a[0]..=b[0] {
+                for x in (a[0]..=b[0]).filter(|&x| self.cell_meets(shape, x, y, z)) {
                     let c = x + self.dims[0] * (y + self.dims[1] * z);
                     for &i in &self.segments[self.starts[c] as usize..self.starts[c + 1] as usize] {
                         let i = i as usize;
                         let s = self.owner[i] as usize;
-                        if s < n && !marks[s].load(Ordering::Relaxed) && shape.meets_segment(points[i], points[i + 1]) {
+                        if s < n
+                            && candidates[s]
+                            && !marks[s].load(Ordering::Relaxed)
+                            && shape.meets_segment(points[i], points[i + 1])
+                        {
                             marks[s].store(true, Ordering::Relaxed);
                         }
                     }
@@ -269,34 +339,46 @@ impl SegmentGrid {
 
 /// Which streamlines the ROIs select (every include met, no exclude met); with no include, every
 /// streamline not excluded. One-point streamlines meet a region when their point lies in it.
+///
+/// The regions are applied one after the other, includes first, the smallest first, each to the streamlines
+/// still selected: by scanning the grid cells under the region (skipping streamlines already out), or, once
+/// few streamlines remain, by testing those streamlines' own segments, whichever touches fewer segments.
 pub fn select(points: &[Vec3], offsets: &[usize], grid: &SegmentGrid, rois: &[Roi]) -> Vec<bool> {
     let n = offsets.len().saturating_sub(1);
-    let mut includes_met = vec![0u32; n];
-    let mut excluded = vec![false; n];
-    let n_include = rois.iter().filter(|r| r.mode == RoiMode::Include).count() as u32;
-    let hits: Vec<(RoiMode, Vec<u32>)> =
-        rois.par_iter().map(|r| (r.mode, grid.streamlines_meeting(points, &r.shape))).collect();
-    for (mode, ids) in hits {
-        for s in ids {
-            match mode {
-                RoiMode::Include => includes_met[s as usize] += 1,
-                RoiMode::Exclude => excluded[s as usize] = true,
+    let mut alive = vec![true; n];
+    let volume = |r: &Roi| r.shape.bounds().map_or(f32::INFINITY, |(lo, hi)| (hi - lo).abs().element_product());
+    let mut order: Vec<&Roi> = rois.iter().collect();
+    order.sort_by(|a, b| {
+        (a.mode != RoiMode::Include).cmp(&(b.mode != RoiMode::Include)).then(volume(a).total_cmp(&volume(b)))
+    });
+    for r in order {
+        let alive_segments: usize = (0..n).filter(|&s| alive[s]).map(|s| offsets[s + 1] - offsets[s]).sum();
+        let meets: Vec<bool> = if alive_segments < grid.segments_under(&r.shape) {
+            (0..n)
+                .into_par_iter()
+                .map(|s| alive[s] && streamline_meets(&points[offsets[s]..offsets[s + 1]], &r.shape))
+                .collect()
+        } else {
+            let mut m = grid.meeting_mask_among(points, &r.shape, &alive);
+            // Single-point streamlines have no segment in the grid.
+            for s in (0..n).filter(|&s| alive[s] && offsets[s + 1] - offsets[s] == 1) {
+                m[s] = r.shape.meets_segment(points[offsets[s]], points[offsets[s]]);
             }
+            m
+        };
+        let include = r.mode == RoiMode::Include;
+        for (a, m) in alive.iter_mut().zip(meets) {
+            *a &= m == include;
         }
     }
-    // Single-point streamlines have no segment.
-    for s in 0..n {
-        if offsets[s + 1] - offsets[s] == 1 {
-            let p = points[offsets[s]];
-            for r in rois {
-                if r.shape.meets_segment(p, p) {
-                    match r.mode {
-                        RoiMode::Include => includes_met[s] += 1,
-                        RoiMode::Exclude => excluded[s] = true,
-                    }
-                }
-            }
-        }
+    alive
+}
+
+/// Whether a polyline meets a region (a single point: whether it lies in it).
+fn streamline_meets(pts: &[Vec3], shape: &RoiShape) -> bool {
+    match pts {
+        [] => false,
+        [p] => shape.meets_segment(*p, *p),
+        _ => pts.windows(2).any(|w| w[0].is_finite() && w[1].is_finite() && shape.meets_segment(w[0], w[1])),
     }
-    (0..n).map(|s| includes_met[s] == n_include && !excluded[s]).collect()
 }

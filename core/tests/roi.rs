@@ -186,3 +186,52 @@ fn ray_hits_pick_the_first_point_of_the_region() {
         }
     }
 }
+
+/// The grid skips cells whose box does not meet a region: `meets_box` must never say no when part of the box
+/// lies in the region (checked by sampling random boxes), and says so on closed forms.
+#[test]
+fn box_tests_never_miss_a_region() {
+    let sphere = RoiShape::Sphere { centre: [0.0; 3], radius: 1.0 };
+    assert!(!sphere.meets_box(Vec3::splat(1.5), Vec3::splat(2.0)));
+    assert!(sphere.meets_box(Vec3::new(0.5, -1.0, -1.0), Vec3::new(2.0, 1.0, 1.0)));
+    let plane = RoiShape::Plane { point: [0.0; 3], normal: [1.0, 1.0, 0.0] };
+    assert!(!plane.meets_box(Vec3::new(1.0, 1.0, 0.0), Vec3::new(2.0, 2.0, 1.0)));
+    assert!(plane.meets_box(Vec3::new(-1.0, 0.0, 0.0), Vec3::new(0.1, 1.0, 1.0)));
+    let cube = RoiShape::Box { min: [0.0; 3], max: [1.0; 3] };
+    assert!(!cube.meets_box(Vec3::new(1.1, 0.0, 0.0), Vec3::splat(2.0)));
+    assert!(cube.meets_box(Vec3::splat(0.9), Vec3::splat(2.0)));
+
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    let (mut met, mut apart) = (0, 0);
+    for _ in 0..4_000 {
+        let roi = random_roi(&mut rng, Vec3::splat(-10.0), Vec3::splat(10.0));
+        let lo = Vec3::new(rng.random(), rng.random(), rng.random()) * 24.0 - 12.0;
+        let hi = lo + Vec3::new(rng.random(), rng.random(), rng.random()) * 6.0;
+        let inside = |p: Vec3| match roi.shape {
+            RoiShape::Sphere { centre, radius } => (p - Vec3::from(centre)).length() <= radius,
+            RoiShape::Box { min, max } => {
+                (p - Vec3::from(min)).min_element() >= 0.0 && (Vec3::from(max) - p).min_element() >= 0.0
+            }
+            // A plane is "in" the box when the box has points on both sides.
+            RoiShape::Plane { .. } => false,
+        };
+        let k = 12;
+        let samples = (0..=k).flat_map(|i| (0..=k).flat_map(move |j| (0..=k).map(move |l| (i, j, l))));
+        let sampled = match roi.shape {
+            RoiShape::Plane { point, normal } => {
+                let side = |p: Vec3| (p - Vec3::from(point)).dot(Vec3::from(normal));
+                let corners: Vec<f32> = (0..8)
+                    .map(|c| side(Vec3::new([lo.x, hi.x][c & 1], [lo.y, hi.y][(c >> 1) & 1], [lo.z, hi.z][c >> 2])))
+                    .collect();
+                corners.iter().any(|v| *v <= 0.0) && corners.iter().any(|v| *v >= 0.0)
+            }
+            _ => samples
+                .into_iter()
+                .any(|(i, j, l)| inside(lo + (hi - lo) * Vec3::new(i as f32, j as f32, l as f32) / k as f32)),
+        };
+        let says = roi.shape.meets_box(lo, hi);
+        assert!(!sampled || says, "{roi:?} {lo} {hi}");
+        if says { met += 1 } else { apart += 1 }
+    }
+    assert!(met > 300 && apart > 300, "{met} met, {apart} apart");
+}
