@@ -64,7 +64,8 @@ pub enum BenchCommand {
         #[arg(long)]
         quick: bool,
         /// Run this suite with --quick even in a full report (repeatable), e.g. `glyphs`, whose full run
-        /// (65,536 glyphs at 512x512 over 14 settings) takes over an hour on lavapipe with 2 cores.
+        /// (up to 65,536 glyphs at 512x512, 14 settings per size) had not finished after 27 min on lavapipe
+        /// with 2 cores.
         #[arg(long, value_name = "SUITE")]
         quick_suite: Vec<String>,
         /// Output directory.
