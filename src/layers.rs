@@ -117,8 +117,8 @@ fn sync_scene(
         materials: mut tube_materials,
         sets: tract_sets,
         rois: roi_entities,
-        line_sets,
-        mut line_materials,
+        mesh_sets,
+        mut mesh_materials,
     } = tracts;
     let kinds: Vec<LayerKind> = scene.0.layers.iter().map(|l| l.kind.clone()).collect();
     let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
@@ -192,10 +192,10 @@ fn sync_scene(
             }
         }
         spawned.0 = kinds;
-        for (lines, le) in &line_sets {
+        for (mesh, le) in &mesh_sets {
             let opacity = scene.0.layers.get(le.0).map_or(1.0, |l| l.opacity.clamp(0.0, 1.0));
-            if line_materials.get(&lines.material).is_some_and(|m| m.params.opacity != opacity)
-                && let Some(mut m) = line_materials.get_mut(&lines.material)
+            if mesh_materials.get(&mesh.material).is_some_and(|m| m.params.opacity != opacity)
+                && let Some(mut m) = mesh_materials.get_mut(&mesh.material)
             {
                 m.params.opacity = opacity;
             }
@@ -264,7 +264,7 @@ fn sync_scene(
                     let set = spawn_polygon_tubes(
                         &mut commands,
                         &mut meshes,
-                        &mut line_materials,
+                        &mut mesh_materials,
                         &mut buffers,
                         std::sync::Arc::new(t),
                         tensors.as_deref(),
@@ -280,7 +280,7 @@ fn sync_scene(
                     let set = spawn_lines(
                         &mut commands,
                         &mut meshes,
-                        &mut line_materials,
+                        &mut mesh_materials,
                         &mut buffers,
                         std::sync::Arc::new(t),
                         spec.opacity,
@@ -463,8 +463,8 @@ struct VolumeAssets<'w, 's> {
 struct TractAssets<'w, 's> {
     materials: ResMut<'w, Assets<TubeletMaterial>>,
     sets: Query<'w, 's, (Entity, Option<&'static TubeSet>, &'static LayerEntity), With<TractSet>>,
-    line_sets: Query<'w, 's, (&'static MeshSet, &'static LayerEntity)>,
-    line_materials: ResMut<'w, Assets<TractMeshMaterial>>,
+    mesh_sets: Query<'w, 's, (&'static MeshSet, &'static LayerEntity)>,
+    mesh_materials: ResMut<'w, Assets<TractMeshMaterial>>,
     rois: Query<'w, 's, (Entity, &'static LayerEntity), With<TractRoi>>,
 }
 

@@ -425,12 +425,7 @@ fn save_selection(
         None => match scene.0.layers.get(layer).map(|l| &l.kind) {
             Some(LayerKind::Tracts { source, rois, .. }) => crate::layers::tract_data(source).map(|(t, _)| {
                 let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
-                let keep = select(&t.points, &t.offsets, &grid, rois);
-                let mut out = fascicle_core::io::Tractogram::new();
-                for (s, _) in keep.iter().enumerate().filter(|(_, k)| **k) {
-                    out.push(t.streamline(s));
-                }
-                (out, t.n_streamlines())
+                (t.subset(&select(&t.points, &t.offsets, &grid, rois)), t.n_streamlines())
             }),
             _ => Err(format!("layer {layer} is not a tract layer")),
         },

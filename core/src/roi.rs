@@ -245,18 +245,6 @@ impl SegmentGrid {
         Self { lo, cell, dims, starts: count, segments, owner }
     }
 
-    /// Streamlines with a segment meeting `shape` (sorted, unique).
-    pub fn streamlines_meeting(&self, points: &[Vec3], shape: &RoiShape) -> Vec<u32> {
-        let n = self.owner.last().map_or(0, |o| *o as usize + 1);
-        self.meeting_mask(points, shape, n).iter().enumerate().filter(|(_, m)| **m).map(|(i, _)| i as u32).collect()
-    }
-
-    /// Per streamline (of `n`), whether a segment meets `shape`. Parallel over the grid's z layers; a
-    /// streamline already found is not tested again.
-    pub fn meeting_mask(&self, points: &[Vec3], shape: &RoiShape, n: usize) -> Vec<bool> {
-        self.meeting_mask_among(points, shape, &vec![true; n])
-    }
-
     /// The cell range (inclusive) under a region's bounds; the whole grid for a plane.
     fn cells_under(&self, shape: &RoiShape) -> ([usize; 3], [usize; 3]) {
         let (blo, bhi) = match shape.bounds() {

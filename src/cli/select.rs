@@ -127,12 +127,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
     let keep = select(&t.points, &t.offsets, &grid, &rois);
     let ms = t0.elapsed().as_secs_f64() * 1e3;
-    let mut out = Tractogram::new();
-    for (s, k) in keep.iter().enumerate() {
-        if *k {
-            out.push(t.streamline(s));
-        }
-    }
+    let out = t.subset(&keep);
     write(&a.out, &out, header.as_ref())?;
     println!(
         "kept {} of {} streamlines ({} ROIs, {ms:.1} ms) -> {}",

@@ -37,6 +37,16 @@ impl Tractogram {
         (0..self.n_streamlines()).map(|i| self.streamline(i))
     }
 
+    /// The streamlines with `keep[s]` (a selection), in order, points only (no scalars or properties);
+    /// streamlines past `keep`'s end are dropped.
+    pub fn subset(&self, keep: &[bool]) -> Tractogram {
+        let mut out = Tractogram::new();
+        for (s, _) in keep.iter().enumerate().take(self.n_streamlines()).filter(|(_, k)| **k) {
+            out.push(self.streamline(s));
+        }
+        out
+    }
+
     /// Appends a streamline (no scalars or properties: use only on tractograms without them).
     pub fn push(&mut self, pts: &[Vec3]) {
         if self.offsets.is_empty() {

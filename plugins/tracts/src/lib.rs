@@ -5,11 +5,10 @@
 //! A tract set ([`TractSet`]: the streamlines, their segment grid and a selection-flag buffer) is one entity
 //! and one draw, as hyperstreamlines ([`TubeSet`]: tubelets in one storage buffer, 8 vertices per tubelet
 //! carrying (slot, corner), each bounding box built in the vertex shader) or as a mesh ([`MeshSet`]: lines or
-//! polygon tubes). ROIs are
-//! entities ([`TractRoi`]): a child of a tract set acts on that set, an ROI without a parent on every set.
-//! [`apply_rois`] re-evaluates the selection (parallel, over a uniform segment grid) only when an ROI or a
-//! tract set changes, and rewrites the 4-byte-per-streamline flag buffer that both vertex shaders read;
-//! nothing else is re-uploaded.
+//! polygon tubes). ROIs are entities ([`TractRoi`]): a child of a tract set acts on that set, an ROI without a
+//! parent on every set. [`apply_rois`] re-evaluates the selection (parallel, over a uniform segment grid) only
+//! when an ROI or a tract set changes, and rewrites the 4-byte-per-streamline flag buffer that both vertex
+//! shaders (tubelet, tract mesh) read; nothing else is re-uploaded.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -464,13 +463,5 @@ pub fn draw_rois(mut gizmos: Gizmos, rois: Query<&TractRoi>) {
 
 /// The selected streamlines of a set as a new tractogram (for saving as `.trk`/`.tck`).
 pub fn selected_tractogram(set: &TractSet, selection: &TractSelection) -> Tractogram {
-    let t = &set.tractogram;
-    let mut out = Tractogram::new();
-    for (s, keep) in selection.0.iter().enumerate() {
-        if *keep {
-            out.points.extend_from_slice(&t.points[t.offsets[s]..t.offsets[s + 1]]);
-            out.offsets.push(out.points.len());
-        }
-    }
-    out
+    set.tractogram.subset(&selection.0)
 }
