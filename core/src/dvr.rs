@@ -176,12 +176,8 @@ impl Default for MarchParams {
     }
 }
 
-/// Entry and exit distances of a ray (voxel frame) through the box `[-0.5, dim - 0.5]³`; None on a miss.
-pub fn box_interval(dims: [usize; 3], o: DVec3, d: DVec3) -> Option<(f64, f64)> {
-    clip_interval(dims, &ClipBox::default(), o, d)
-}
-
-/// Entry and exit distances of a ray (voxel frame) through the clipped volume; None on a miss.
+/// Entry and exit distances of a ray (voxel frame) through the clipped volume (with the default clip box,
+/// the whole volume `[-0.5, dim - 0.5]³`); None on a miss.
 pub fn clip_interval(dims: [usize; 3], clip: &ClipBox, o: DVec3, d: DVec3) -> Option<(f64, f64)> {
     let (lo, hi) = clip.voxel_bounds(dims);
     let inv = d.recip();
