@@ -162,9 +162,7 @@ fn sync_scene(
                             commands.entity(e).despawn();
                         }
                     }
-                    for r in rois {
-                        commands.spawn((TractRoi(*r), LayerEntity(le.0), ChildOf(set_entity)));
-                    }
+                    spawn_rois(&mut commands, rois, le.0, set_entity);
                 }
             }
         }
@@ -242,55 +240,23 @@ fn sync_scene(
             continue;
         }
         if let LayerKind::Tracts { source, mode, render, rois } = &spec.kind {
-            match (tract_data(source), mode) {
-                (Err(e), _) => errors.0.push(format!("layer '{}': {e}", spec.name)),
-                (Ok((t, tensors)), TractMode::Tubes) => {
-                    let set = spawn_tubes(
-                        &mut commands,
-                        &mut meshes,
-                        &mut tube_materials,
-                        &mut buffers,
-                        std::sync::Arc::new(t),
-                        tensors.as_deref(),
-                        render,
-                    );
-                    place(&mut commands, &mut errors, Ok(set), spec, vis, i);
-                    // Children of the set: they act on this layer only and go when it goes.
-                    for r in rois {
-                        commands.spawn((TractRoi(*r), LayerEntity(i), ChildOf(set)));
-                    }
+            let (t, tensors) = match tract_data(source) {
+                Ok((t, tensors)) => (std::sync::Arc::new(t), tensors),
+                Err(e) => {
+                    errors.0.push(format!("layer '{}': {e}", spec.name));
+                    continue;
                 }
-                (Ok((t, tensors)), TractMode::Polygon) => {
-                    let set = spawn_polygon_tubes(
-                        &mut commands,
-                        &mut meshes,
-                        &mut mesh_materials,
-                        &mut buffers,
-                        std::sync::Arc::new(t),
-                        tensors.as_deref(),
-                        render.scale,
-                        spec.opacity,
-                    );
-                    place(&mut commands, &mut errors, Ok(set), spec, vis, i);
-                    for r in rois {
-                        commands.spawn((TractRoi(*r), LayerEntity(i), ChildOf(set)));
-                    }
+            };
+            let (c, m, b) = (&mut commands, &mut meshes, &mut buffers);
+            let set = match mode {
+                TractMode::Tubes => spawn_tubes(c, m, &mut tube_materials, b, t, tensors.as_deref(), render),
+                TractMode::Polygon => {
+                    spawn_polygon_tubes(c, m, &mut mesh_materials, b, t, tensors.as_deref(), render.scale, spec.opacity)
                 }
-                (Ok((t, _)), TractMode::Lines) => {
-                    let set = spawn_lines(
-                        &mut commands,
-                        &mut meshes,
-                        &mut mesh_materials,
-                        &mut buffers,
-                        std::sync::Arc::new(t),
-                        spec.opacity,
-                    );
-                    place(&mut commands, &mut errors, Ok(set), spec, vis, i);
-                    for r in rois {
-                        commands.spawn((TractRoi(*r), LayerEntity(i), ChildOf(set)));
-                    }
-                }
-            }
+                TractMode::Lines => spawn_lines(c, m, &mut mesh_materials, b, t, spec.opacity),
+            };
+            place(&mut commands, &mut errors, Ok(set), spec, vis, i);
+            spawn_rois(&mut commands, rois, i, set);
             continue;
         }
         if let LayerKind::Volume { source, render } = &spec.kind {
@@ -352,6 +318,13 @@ fn place(
             commands.entity(e).insert((vis, LayerEntity(index)));
         }
         Err(e) => errors.0.push(format!("layer '{}': {e}", spec.name)),
+    }
+}
+
+/// A tract layer's ROIs, as children of its set: they act on this layer only and go when it goes.
+fn spawn_rois(commands: &mut Commands, rois: &[fascicle_core::roi::Roi], layer: usize, set: Entity) {
+    for r in rois {
+        commands.spawn((TractRoi(*r), LayerEntity(layer), ChildOf(set)));
     }
 }
 
