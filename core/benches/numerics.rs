@@ -83,7 +83,7 @@ fn bench_dti(c: &mut Criterion) {
     c.bench_function("tensor field sample (trilinear 7 values + principal direction)", |b| {
         b.iter(|| {
             p.x = (p.x + 0.37) % 6.0;
-            black_box(field.sample(black_box(p)))
+            black_box(field.sample(black_box(p), DVec3::X))
         })
     });
 }

@@ -6,7 +6,7 @@ use common::{data, npy};
 use fascicle_core::dti::{self, FitMethod, eigh};
 use fascicle_core::io::{GradientTable, Tractogram, gradients::DEFAULT_B0_THRESHOLD, nifti};
 use fascicle_core::tracking::{
-    CircleField, DirectionField, Integrator, Rejection, StopReason, TensorField, TensorInterpolation, TrackParams,
+    CircleField, DirectionField, Integrator, PeakField, Rejection, StopReason, TensorField, TensorInterpolation, TrackParams,
     Tracker, principal_direction, seeds_from_mask, to_voxel,
 };
 use glam::{DMat4, DVec3};
@@ -92,7 +92,7 @@ fn phantom_field() -> (TensorField, DMat4, [usize; 3]) {
 }
 
 /// Mean |r - r_seed| (voxels) of ring streamlines seeded on the y side of the ring, away from the crossing.
-fn ring_deviation(field: &TensorField, affine: DMat4, integrator: Integrator) -> (f64, usize) {
+fn ring_deviation(field: &impl DirectionField, affine: DMat4, integrator: Integrator) -> (f64, usize) {
     let c = DVec3::new(23.5, 23.5, 0.0);
     let seeds: Vec<DVec3> =
         (11..=17).flat_map(|r| (8..=15).map(move |z| DVec3::new(c.x, c.y + r as f64, z as f64))).collect();
@@ -121,6 +121,19 @@ fn phantom_ring_streamlines_stay_on_their_circles() {
     );
     assert!(n4 >= 50, "only {n4} streamlines from 56 ring seeds");
     assert!(rk4 <= 0.1, "RK4 mean radial deviation {rk4} voxels");
+    // The same with the fast field: principal eigenvectors per voxel, blended as DIPY's EuDX blends peaks.
+    let (dwi, gtab) = load_dwi(
+        "phantom/phantom_ring_cross.nii.gz",
+        "phantom/phantom_ring_cross.bval",
+        "phantom/phantom_ring_cross.bvec",
+    );
+    let fit = dti::fit_volume(&dwi, &gtab, FitMethod::Wls, None).unwrap();
+    let peaks = PeakField::from_fit(&fit, dwi.voxel_size()).unwrap();
+    let (rk4, n4) = ring_deviation(&peaks, affine, Integrator::Rk4);
+    let (euler, ne) = ring_deviation(&peaks, affine, Integrator::Euler);
+    println!("peak field: RK4 {rk4:.4} vox ({n4} streamlines), Euler {euler:.4} vox ({ne})");
+    assert!(n4 >= 50, "only {n4} streamlines from 56 ring seeds");
+    assert!(rk4 <= 0.1, "RK4 mean radial deviation {rk4} voxels (peak field)");
 }
 
 #[test]
@@ -145,10 +158,13 @@ fn seeds_from_mask_match_dipy_and_bundle_matches_eudx() {
     }
 
     let field = TensorField::from_fit(&fit, dwi.voxel_size(), TensorInterpolation::Componentwise).unwrap();
+    let peaks = PeakField::from_fit(&fit, dwi.voxel_size()).unwrap();
     let params = TrackParams { integrator: Integrator::Euler, step_mm: 0.5, ..Default::default() };
-    let ours =
-        Tracker::new(&field, dwi.world_from_voxel, params).unwrap().run(&to_voxel(dwi.world_from_voxel, &ref_seeds));
+    let seeds = to_voxel(dwi.world_from_voxel, &ref_seeds);
     let dipy = Tractogram::read(data("reference/tracking/small_64D_eudx.trk")).unwrap();
+    let tensor_tracks = Tracker::new(&field, dwi.world_from_voxel, params.clone()).unwrap().run(&seeds);
+    let peak_tracks = Tracker::new(&peaks, dwi.world_from_voxel, params).unwrap().run(&seeds);
+    for (name, ours) in [("tensor field", tensor_tracks), ("peak field", peak_tracks)] {
     let density = |t: &Tractogram| -> Vec<bool> {
         let inv = dwi.world_from_voxel.inverse();
         let d = fit.dims;
@@ -170,15 +186,16 @@ fn seeds_from_mask_match_dipy_and_bundle_matches_eudx() {
     };
     let (lo, ld) = (mean_len(&ours.tractogram), mean_len(&dipy));
     println!(
-        "vs DIPY EuDX: {} vs {} streamlines, {} vs {} points, Dice {dice:.3}, mean length {lo:.2} vs {ld:.2} mm ({:+.1} %)",
+        "{name} vs DIPY EuDX: {} vs {} streamlines, {} vs {} points, Dice {dice:.3}, mean length {lo:.2} vs {ld:.2} mm ({:+.1} %)",
         ours.tractogram.n_streamlines(),
         dipy.n_streamlines(),
         ours.n_points(),
         dipy.points.len(),
         100.0 * (lo / ld - 1.0)
     );
-    assert!(dice >= 0.8, "density-map Dice {dice}");
-    assert!((lo / ld - 1.0).abs() <= 0.15, "mean length {lo} vs DIPY {ld}");
+    assert!(dice >= 0.8, "{name}: density-map Dice {dice}");
+    assert!((lo / ld - 1.0).abs() <= 0.15, "{name}: mean length {lo} vs DIPY {ld}");
+    }
 }
 
 #[test]
@@ -188,7 +205,7 @@ fn output_is_deterministic_across_thread_counts() {
     let fa_mask: Vec<bool> = (0..mask.len())
         .map(|v| {
             let (x, y, z) = (v % dims[0], (v / dims[0]) % dims[1], v / (dims[0] * dims[1]));
-            field.sample(DVec3::new(x as f64, y as f64, z as f64)).is_some_and(|s| s.fa > 0.3)
+            field.sample(DVec3::new(x as f64, y as f64, z as f64), DVec3::ZERO).is_some_and(|s| s.fa > 0.3)
         })
         .collect();
     let seeds = seeds_from_mask(&fa_mask, dims, 1).unwrap();

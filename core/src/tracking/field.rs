@@ -16,6 +16,7 @@
 //! the FA of the interpolated tensor.
 
 use glam::DVec3;
+use rayon::prelude::*;
 
 use crate::dti::eigen::{Eigen, LowerTri, eigh, from_eigen};
 use crate::dti::{TensorVolume, metrics};
@@ -38,8 +39,16 @@ pub trait DirectionField: Sync {
     /// Voxel edge lengths in mm (a step of `h` mm along `d` moves `h d / voxel_size` voxels).
     fn voxel_size(&self) -> DVec3;
     /// Direction and stopping scalar at voxel coordinate `p` (inside the grid); `None` where there is no
-    /// usable direction (no data, a zero or non-finite tensor).
-    fn sample(&self, p: DVec3) -> Option<FieldSample>;
+    /// usable direction (no data, a zero or non-finite tensor). `reference` is the direction the track
+    /// arrives along (unit, or zero where there is none yet): fields with several directions per voxel
+    /// follow the one closest to it, and the returned direction may have either sign.
+    fn sample(&self, p: DVec3, reference: DVec3) -> Option<FieldSample>;
+    /// The directions to start tracks along from a seed at `p`, each with the stopping scalar there
+    /// (one streamline per entry, traced both ways). Default: the field's one direction.
+    fn seed_samples(&self, p: DVec3, out: &mut Vec<FieldSample>) {
+        out.clear();
+        out.extend(self.sample(p, DVec3::ZERO));
+    }
     /// The tensor at `p` in the voxel-aligned frame, recorded at output points.
     fn tensor(&self, p: DVec3) -> LowerTri;
 }
@@ -92,12 +101,7 @@ impl TensorField {
         tensors: impl IntoIterator<Item = Option<LowerTri>>,
         interpolation: TensorInterpolation,
     ) -> Result<Self> {
-        if dims.contains(&0) {
-            return Err(Error::Shape(format!("a tensor field needs a non-empty grid, not {dims:?}")));
-        }
-        if !voxel_size.is_finite() || voxel_size.min_element() <= 0.0 {
-            return Err(Error::Param(format!("voxel size {voxel_size} must be finite and positive")));
-        }
+        check_grid(dims, voxel_size)?;
         let cells: Vec<[f64; 7]> = tensors.into_iter().map(|t| cell(t, interpolation)).collect();
         let n: usize = dims.iter().product();
         if cells.len() != n {
@@ -113,20 +117,9 @@ impl TensorField {
 
     /// From a tensor image as `fascicle fit dti` and DIPY write it: (X,Y,Z,6) or (X,Y,Z,1,6), lower-triangular.
     pub fn from_volume(vol: &Volume<f64>, interpolation: TensorInterpolation) -> Result<Self> {
-        if vol.shape.len() < 4 || vol.n_channels() != 6 || vol.shape[3..].iter().filter(|&&d| d != 1).count() > 1 {
-            return Err(Error::Shape(format!(
-                "a tensor image must be (X,Y,Z,6) or (X,Y,Z,1,6) in lower-triangular order; this one is {:?}",
-                vol.shape
-            )));
-        }
+        check_tensor_image(vol)?;
         let n = vol.n_voxels();
-        let tensors = (0..n).map(|v| {
-            let mut t = [0.0; 6];
-            for (c, x) in t.iter_mut().enumerate() {
-                *x = vol.data[v + n * c];
-            }
-            Some(t)
-        });
+        let tensors = (0..n).map(|v| Some(std::array::from_fn(|c| vol.data[v + n * c])));
         Self::new(vol.dims3(), vol.voxel_size(), tensors, interpolation)
     }
 
@@ -139,43 +132,49 @@ impl TensorField {
     /// replicated outside their centres).
     #[inline]
     fn blend(&self, p: DVec3) -> [f64; 7] {
-        let [nx, ny, nz] = self.dims;
-        // Lower corner index and the stride to the upper one (0 where the upper would leave the grid).
-        let axis = |c: f64, n: usize| -> (usize, usize, f64) {
-            let f = c.floor();
-            let w = c - f;
-            if f < 0.0 {
-                (0, 0, w)
-            } else {
-                let i = f as usize;
-                if i + 1 < n { (i, 1, w) } else { (n - 1, 0, w) }
-            }
-        };
-        let (x0, sx, wx) = axis(p.x, nx);
-        let (y0, sy, wy) = axis(p.y, ny);
-        let (z0, sz, wz) = axis(p.z, nz);
-        let base = x0 + nx * (y0 + ny * z0);
-        let (sy, sz) = (sy * nx, sz * nx * ny);
-        let c = &self.cells;
-        let corners = [
-            (base, (1.0 - wx) * (1.0 - wy) * (1.0 - wz)),
-            (base + sx, wx * (1.0 - wy) * (1.0 - wz)),
-            (base + sy, (1.0 - wx) * wy * (1.0 - wz)),
-            (base + sx + sy, wx * wy * (1.0 - wz)),
-            (base + sz, (1.0 - wx) * (1.0 - wy) * wz),
-            (base + sx + sz, wx * (1.0 - wy) * wz),
-            (base + sy + sz, (1.0 - wx) * wy * wz),
-            (base + sx + sy + sz, wx * wy * wz),
-        ];
         let mut out = [0.0; 7];
-        for (i, w) in corners {
-            let v = &c[i];
+        for (i, w) in trilinear(self.dims, p) {
+            let v = &self.cells[i];
             for k in 0..7 {
                 out[k] += w * v[k];
             }
         }
         out
     }
+}
+
+/// The 8 voxels (flat NIfTI indices) around `p` and their trilinear weights. `p` must be in the grid
+/// (`[-0.5, dim - 0.5)`); outside the outermost centres the edge voxels are replicated (as DIPY).
+#[inline]
+pub fn trilinear(dims: [usize; 3], p: DVec3) -> [(usize, f64); 8] {
+    let [nx, ny, _] = dims;
+    // Lower corner index and the stride to the upper one (0 where the upper would leave the grid).
+    // `c + 1 >= 0.5`, so truncation is the floor (no libm call where the target lacks SSE4.1's round).
+    let axis = |c: f64, n: usize| -> (usize, usize, f64) {
+        let t = (c + 1.0) as usize;
+        let w = c + 1.0 - t as f64;
+        if t == 0 {
+            (0, 0, w)
+        } else {
+            let i = t - 1;
+            if i + 1 < n { (i, 1, w) } else { (n - 1, 0, w) }
+        }
+    };
+    let (x0, sx, wx) = axis(p.x, dims[0]);
+    let (y0, sy, wy) = axis(p.y, dims[1]);
+    let (z0, sz, wz) = axis(p.z, dims[2]);
+    let base = x0 + nx * (y0 + ny * z0);
+    let (sy, sz) = (sy * nx, sz * nx * ny);
+    [
+        (base, (1.0 - wx) * (1.0 - wy) * (1.0 - wz)),
+        (base + sx, wx * (1.0 - wy) * (1.0 - wz)),
+        (base + sy, (1.0 - wx) * wy * (1.0 - wz)),
+        (base + sx + sy, wx * wy * (1.0 - wz)),
+        (base + sz, (1.0 - wx) * (1.0 - wy) * wz),
+        (base + sx + sz, wx * (1.0 - wy) * wz),
+        (base + sy + sz, (1.0 - wx) * wy * wz),
+        (base + sx + sy + sz, wx * wy * wz),
+    ]
 }
 
 fn cell(t: Option<LowerTri>, interpolation: TensorInterpolation) -> [f64; 7] {
@@ -205,7 +204,7 @@ impl DirectionField for TensorField {
         self.voxel_size
     }
     #[inline]
-    fn sample(&self, p: DVec3) -> Option<FieldSample> {
+    fn sample(&self, p: DVec3, _reference: DVec3) -> Option<FieldSample> {
         let c = self.blend(p);
         let t = [c[0], c[1], c[2], c[3], c[4], c[5]];
         principal_direction(&t).map(|direction| FieldSample { direction, fa: c[6] })
@@ -288,6 +287,235 @@ pub fn principal_direction(t: &LowerTri) -> Option<DVec3> {
     null_vector(v.dot(av)).or(Some(v))
 }
 
+/// Up to `npeaks` directions per voxel and a stopping scalar, interpolated as DIPY's EuDX does: at each of
+/// the 8 voxels around a point, the peak closest to the incoming direction (by |cos|), flipped to agree with
+/// it, weighted trilinearly; the sum normalised. The stopping scalar (FA, GFA) is blended trilinearly.
+///
+/// With one peak per voxel from a tensor fit (the principal eigenvector, [`PeakField::from_tensors`]) this
+/// is the fast tensor tracker: the eigen-decompositions happen once per voxel, not at every integration
+/// stage, and a sample is 8 loads of 16 bytes and 8 dot products. Unlike blending the tensors, it does
+/// not let a neighbour's minor axes pull the direction, and at a crossing it keeps following the
+/// peak nearest the incoming direction.
+#[derive(Clone, Debug)]
+pub struct PeakField {
+    dims: [usize; 3],
+    voxel_size: DVec3,
+    npeaks: usize,
+    /// `npeaks` slots per voxel: a unit direction (zero where the voxel has fewer peaks) and, in slot 0's
+    /// fourth lane, the stopping scalar.
+    cells: Vec<[f32; 4]>,
+    /// Per voxel the tensor (lower-triangular), when the peaks come from tensors: recorded at output points.
+    tensors: Option<Vec<[f32; 6]>>,
+}
+
+impl PeakField {
+    /// From per-voxel peaks (`npeaks` per voxel, voxel-major; zero vectors pad voxels with fewer) in the
+    /// voxel-aligned mm frame, and a stopping scalar per voxel. Non-finite values become "no peak" / 0.
+    pub fn new(
+        dims: [usize; 3],
+        voxel_size: DVec3,
+        npeaks: usize,
+        peaks: &[[f32; 3]],
+        scalar: &[f32],
+    ) -> Result<Self> {
+        let n: usize = dims.iter().product();
+        check_grid(dims, voxel_size)?;
+        if npeaks == 0 || peaks.len() != n * npeaks || scalar.len() != n {
+            return Err(Error::Shape(format!(
+                "a peak field on {dims:?} needs {npeaks} > 0 peaks and one scalar per voxel ({} peaks, {} scalars \
+                 given for {n} voxels)",
+                peaks.len(),
+                scalar.len()
+            )));
+        }
+        let mut cells = vec![[0.0f32; 4]; n * npeaks];
+        for (c, p) in cells.iter_mut().zip(peaks) {
+            let v = glam::Vec3::from_array(*p);
+            let len = v.length();
+            if len.is_finite() && len > 0.0 {
+                let u = v / len;
+                *c = [u.x, u.y, u.z, 0.0];
+            }
+        }
+        for (v, s) in scalar.iter().enumerate() {
+            cells[v * npeaks][3] = if s.is_finite() { *s } else { 0.0 };
+        }
+        Ok(Self { dims, voxel_size, npeaks, cells, tensors: None })
+    }
+
+    /// One peak per voxel, the principal eigenvector, with FA as the stopping scalar, from tensors in
+    /// DIPY's lower-triangular order (`None` = no data). The tensors are kept for [`DirectionField::tensor`].
+    pub fn from_tensors(
+        dims: [usize; 3],
+        voxel_size: DVec3,
+        tensors: impl IntoIterator<Item = Option<LowerTri>>,
+    ) -> Result<Self> {
+        check_grid(dims, voxel_size)?;
+        let tensors: Vec<[f32; 6]> = tensors
+            .into_iter()
+            .map(|t| match t.filter(|t| t.iter().all(|v| v.is_finite())) {
+                Some(t) => t.map(|v| v as f32),
+                None => [0.0; 6],
+            })
+            .collect();
+        let n: usize = dims.iter().product();
+        if tensors.len() != n {
+            return Err(Error::Shape(format!("{} tensors for a {dims:?} grid ({n} voxels)", tensors.len())));
+        }
+        let cells = tensors
+            .par_iter()
+            .map(|t| {
+                let t = t.map(f64::from);
+                match eigh(&t) {
+                    Some(e) if e.values[0] > 0.0 => {
+                        let fa = metrics::fa(&e.values);
+                        let d = e.vectors[0];
+                        [d.x as f32, d.y as f32, d.z as f32, if fa.is_finite() { fa as f32 } else { 0.0 }]
+                    }
+                    _ => [0.0; 4],
+                }
+            })
+            .collect();
+        Ok(Self { dims, voxel_size, npeaks: 1, cells, tensors: Some(tensors) })
+    }
+
+    /// From a fit: the principal eigenvector and FA of each fitted voxel (the eigen-systems the fit has
+    /// already computed), and the clipped tensors DIPY stores.
+    pub fn from_fit(fit: &TensorVolume, voxel_size: DVec3) -> Result<Self> {
+        check_grid(fit.dims, voxel_size)?;
+        let n = fit.voxels.len();
+        let (cells, tensors): (Vec<[f32; 4]>, Vec<[f32; 6]>) = (0..n)
+            .into_par_iter()
+            .map(|v| match fit.fit_at(v) {
+                Some(f) if f.eigen.values[0] > 0.0 && f.eigen.values.iter().all(|l| l.is_finite()) => {
+                    let fa = metrics::fa(&f.eigen.values);
+                    let d = f.eigen.vectors[0];
+                    (
+                        [d.x as f32, d.y as f32, d.z as f32, if fa.is_finite() { fa as f32 } else { 0.0 }],
+                        f.tensor().map(|x| x as f32),
+                    )
+                }
+                _ => ([0.0; 4], [0.0; 6]),
+            })
+            .unzip();
+        Ok(Self { dims: fit.dims, voxel_size, npeaks: 1, cells, tensors: Some(tensors) })
+    }
+
+    /// From a tensor image as `fascicle fit dti` and DIPY write it: (X,Y,Z,6) or (X,Y,Z,1,6), lower-triangular.
+    pub fn from_tensor_volume(vol: &Volume<f64>) -> Result<Self> {
+        check_tensor_image(vol)?;
+        let n = vol.n_voxels();
+        let tensors = (0..n).map(|v| Some(std::array::from_fn(|c| vol.data[v + n * c])));
+        Self::from_tensors(vol.dims3(), vol.voxel_size(), tensors)
+    }
+
+    pub fn npeaks(&self) -> usize {
+        self.npeaks
+    }
+
+    /// The stopping scalar at voxel centre `v` (flat NIfTI index).
+    pub fn scalar_at(&self, v: usize) -> f64 {
+        f64::from(self.cells[v * self.npeaks][3])
+    }
+
+    /// The peaks of voxel `v` (zero vectors where it has fewer).
+    pub fn peaks_at(&self, v: usize) -> impl Iterator<Item = DVec3> + '_ {
+        self.cells[v * self.npeaks..(v + 1) * self.npeaks].iter().map(|c| glam::Vec3::new(c[0], c[1], c[2]).as_dvec3())
+    }
+
+    fn nearest_voxel(&self, p: DVec3) -> usize {
+        let [nx, ny, nz] = self.dims;
+        let r = p.round();
+        let (x, y, z) =
+            (r.x.clamp(0.0, nx as f64 - 1.0), r.y.clamp(0.0, ny as f64 - 1.0), r.z.clamp(0.0, nz as f64 - 1.0));
+        x as usize + nx * (y as usize + ny * z as usize)
+    }
+}
+
+fn check_grid(dims: [usize; 3], voxel_size: DVec3) -> Result<()> {
+    if dims.contains(&0) {
+        return Err(Error::Shape(format!("a direction field needs a non-empty grid, not {dims:?}")));
+    }
+    if !voxel_size.is_finite() || voxel_size.min_element() <= 0.0 {
+        return Err(Error::Param(format!("voxel size {voxel_size} must be finite and positive")));
+    }
+    Ok(())
+}
+
+fn check_tensor_image(vol: &Volume<f64>) -> Result<()> {
+    if vol.shape.len() < 4 || vol.n_channels() != 6 || vol.shape[3..].iter().filter(|&&d| d != 1).count() > 1 {
+        return Err(Error::Shape(format!(
+            "a tensor image must be (X,Y,Z,6) or (X,Y,Z,1,6) in lower-triangular order; this one is {:?}",
+            vol.shape
+        )));
+    }
+    Ok(())
+}
+
+impl DirectionField for PeakField {
+    fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+    fn voxel_size(&self) -> DVec3 {
+        self.voxel_size
+    }
+    #[inline]
+    fn sample(&self, p: DVec3, reference: DVec3) -> Option<FieldSample> {
+        let r = reference.as_vec3();
+        let k = self.npeaks;
+        let (mut acc, mut s) = (glam::Vec3::ZERO, 0.0f32);
+        let corners = trilinear(self.dims, p);
+        if k == 1 {
+            // The tensor case: one peak per voxel, no choice to make.
+            for (i, w) in corners {
+                let c = self.cells[i];
+                let (v, w) = (glam::Vec3::new(c[0], c[1], c[2]), w as f32);
+                s += w * c[3];
+                acc += w.copysign(v.dot(r)) * v;
+            }
+        } else {
+            for (i, w) in corners {
+                let w = w as f32;
+                let slots = &self.cells[i * k..(i + 1) * k];
+                s += w * slots[0][3];
+                let mut best = glam::Vec3::new(slots[0][0], slots[0][1], slots[0][2]);
+                let mut cos = best.dot(r);
+                for c in &slots[1..] {
+                    let v = glam::Vec3::new(c[0], c[1], c[2]);
+                    let d = v.dot(r);
+                    if d.abs() > cos.abs() {
+                        (best, cos) = (v, d);
+                    }
+                }
+                acc += w.copysign(cos) * best;
+            }
+        }
+        let n = acc.length();
+        (n > 0.0 && n.is_finite()).then(|| FieldSample { direction: (acc / n).as_dvec3(), fa: f64::from(s) })
+    }
+    /// One start per peak of the voxel nearest the seed, each followed through the interpolation.
+    fn seed_samples(&self, p: DVec3, out: &mut Vec<FieldSample>) {
+        out.clear();
+        let v = self.nearest_voxel(p);
+        for peak in self.peaks_at(v).filter(|d| *d != DVec3::ZERO) {
+            if let Some(s) = self.sample(p, peak) {
+                let direction = if s.direction.dot(peak) < 0.0 { -s.direction } else { s.direction };
+                out.push(FieldSample { direction, ..s });
+            }
+        }
+    }
+    fn tensor(&self, p: DVec3) -> LowerTri {
+        let Some(t) = &self.tensors else { return [0.0; 6] };
+        let mut out = [0.0; 6];
+        for (i, w) in trilinear(self.dims, p) {
+            for (o, x) in out.iter_mut().zip(&t[i]) {
+                *o += w * f64::from(*x);
+            }
+        }
+        out
+    }
+}
+
 /// An analytic field whose integral curves are circles around the z axis through `centre` (voxel
 /// coordinates, 1 mm voxels): the direction is the tangent `(-y, x, 0) / r`. Used to measure the
 /// integrators' convergence orders against exact streamlines.
@@ -326,14 +554,14 @@ impl DirectionField for CircleField {
     fn voxel_size(&self) -> DVec3 {
         DVec3::ONE
     }
-    fn sample(&self, p: DVec3) -> Option<FieldSample> {
+    fn sample(&self, p: DVec3, _reference: DVec3) -> Option<FieldSample> {
         let d = p - self.centre;
         let t = DVec3::new(-d.y, d.x, 0.0);
         let n = t.length();
         (n > 0.0).then(|| FieldSample { direction: t / n, fa: 1.0 })
     }
     fn tensor(&self, p: DVec3) -> LowerTri {
-        let Some(s) = self.sample(p) else { return [0.0; 6] };
+        let Some(s) = self.sample(p, DVec3::ZERO) else { return [0.0; 6] };
         let e1 = s.direction;
         from_eigen(&Eigen { values: [1.7e-3, 0.3e-3, 0.3e-3], vectors: [e1, DVec3::Z.cross(e1), DVec3::Z] })
     }

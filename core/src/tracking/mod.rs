@@ -11,6 +11,8 @@ pub mod field;
 pub mod seeds;
 mod tracker;
 
-pub use field::{CircleField, DirectionField, FieldSample, TensorField, TensorInterpolation, principal_direction};
+pub use field::{
+    CircleField, DirectionField, FieldSample, PeakField, TensorField, TensorInterpolation, principal_direction, trilinear,
+};
 pub use seeds::{read_seeds, seeds_from_mask, to_voxel};
 pub use tracker::{Integrator, Rejection, StopReason, TrackParams, Tracker, Tracks, tensors_at};

@@ -180,9 +180,14 @@ pub struct Tracker<'a, F: DirectionField> {
     /// One entry per voxel (NIfTI order); tracks stop on leaving it (nearest voxel).
     pub mask: Option<&'a [bool]>,
     pub params: TrackParams,
+    /// Record the field's tensor at every output point ([`Tracks::tensors`]; default true). The
+    /// hyperstreamline renderer needs them; a plain tractogram does not, and they cost a blend and a
+    /// rotation per point.
+    pub record_tensors: bool,
 }
 
-/// One half-streamline's integration state and scratch (reused across seeds: no per-point allocation).
+/// One half-streamline's points (reused across seeds: no per-point allocation).
+#[derive(Default)]
 struct Half {
     pts: Vec<DVec3>,
 }
@@ -193,7 +198,7 @@ impl<'a, F: DirectionField> Tracker<'a, F> {
         if !world_from_voxel.is_finite() || world_from_voxel.determinant() == 0.0 {
             return Err(Error::Param("the voxel-to-world affine is singular or not finite".into()));
         }
-        Ok(Self { field, world_from_voxel, mask: None, params })
+        Ok(Self { field, world_from_voxel, mask: None, params, record_tensors: true })
     }
 
     /// Adds a tracking mask (one bool per voxel).
@@ -204,6 +209,12 @@ impl<'a, F: DirectionField> Tracker<'a, F> {
         }
         self.mask = Some(mask);
         Ok(self)
+    }
+
+    /// Whether to record tensors at output points (see [`Tracker::record_tensors`]).
+    pub fn with_tensors(mut self, record: bool) -> Self {
+        self.record_tensors = record;
+        self
     }
 
     fn in_mask(&self, p: DVec3) -> bool {
@@ -221,7 +232,7 @@ impl<'a, F: DirectionField> Tracker<'a, F> {
         if !in_grid(self.field.dims(), p) {
             return Err(StopReason::OutsideVolume);
         }
-        let s = self.field.sample(p).ok_or(StopReason::NoDirection)?;
+        let s = self.field.sample(p, prev).ok_or(StopReason::NoDirection)?;
         Ok(if s.direction.dot(prev) < 0.0 { -s.direction } else { s.direction })
     }
 
@@ -270,54 +281,63 @@ impl<'a, F: DirectionField> Tracker<'a, F> {
             if !self.in_mask(next) {
                 return StopReason::OutsideMask;
             }
-            let s = match self.field.sample(next) {
+            d = dn / len;
+            let s = match self.field.sample(next, d) {
                 Some(s) if s.fa >= self.params.fa_threshold => s,
                 Some(_) => return StopReason::LowFa,
                 None => return StopReason::NoDirection,
             };
             half.pts.push(next);
             p = next;
-            d = dn / len;
             k1 = if s.direction.dot(d) < 0.0 { -s.direction } else { s.direction };
         }
         StopReason::MaxLength
     }
 
-    /// Tracks one seed (voxel coordinates) both ways. Returns the joined points (voxel coordinates) and
-    /// end reasons, or why there is none.
+    /// Tracks one seed (voxel coordinates) both ways along each of its start directions (one for a tensor
+    /// field, one per peak for a peak field): calls `emit` with the joined points (voxel coordinates) and
+    /// end reasons of each streamline, and returns how many there were, or why there is none.
     fn track_seed(
         &self,
         seed: DVec3,
-        fwd: &mut Half,
-        bwd: &mut Half,
-        out: &mut Vec<DVec3>,
-    ) -> std::result::Result<[StopReason; 2], Rejection> {
-        out.clear();
+        scratch: &mut Scratch,
+        emit: &mut impl FnMut(&[DVec3], [StopReason; 2]),
+    ) -> std::result::Result<usize, Rejection> {
         if !seed.is_finite() || !in_grid(self.field.dims(), seed) || !self.in_mask(seed) {
             return Err(Rejection::SeedOutside);
         }
-        let s = match self.field.sample(seed) {
-            Some(s) if s.fa >= self.params.fa_threshold => s,
-            _ => return Err(Rejection::SeedBelowThreshold),
-        };
-        let end_f = self.trace(seed, s.direction, fwd);
-        let end_b = self.trace(seed, -s.direction, bwd);
-        out.extend(bwd.pts.iter().rev());
-        out.push(seed);
-        out.extend(fwd.pts.iter());
-        let length = (out.len() - 1) as f64 * self.params.step_mm;
-        if out.len() < 2 || length < self.params.min_length_mm {
-            return Err(Rejection::TooShort);
+        self.field.seed_samples(seed, &mut scratch.starts);
+        if !scratch.starts.iter().any(|s| s.fa >= self.params.fa_threshold) {
+            return Err(Rejection::SeedBelowThreshold);
         }
-        Ok([end_b, end_f])
+        let mut n = 0;
+        for k in 0..scratch.starts.len() {
+            let d0 = scratch.starts[k].direction;
+            let end_f = self.trace(seed, d0, &mut scratch.fwd);
+            let end_b = self.trace(seed, -d0, &mut scratch.bwd);
+            let line = &mut scratch.line;
+            line.clear();
+            line.extend(scratch.bwd.pts.iter().rev());
+            line.push(seed);
+            line.extend(scratch.fwd.pts.iter());
+            let length = (line.len() - 1) as f64 * self.params.step_mm;
+            if line.len() >= 2 && length >= self.params.min_length_mm {
+                emit(line, [end_b, end_f]);
+                n += 1;
+            }
+        }
+        if n == 0 { Err(Rejection::TooShort) } else { Ok(n) }
     }
 
     /// Tracks one seed (voxel coordinates) both ways, in f64 voxel coordinates: the points from one end to
-    /// the other and why each end stopped, or why the seed gave none.
+    /// the other and why each end stopped (the first streamline where the seed has several directions), or
+    /// why the seed gave none.
     pub fn track_one(&self, seed: DVec3) -> std::result::Result<(Vec<DVec3>, [StopReason; 2]), Rejection> {
-        let (mut fwd, mut bwd, mut line) = (Half { pts: Vec::new() }, Half { pts: Vec::new() }, Vec::new());
-        let ends = self.track_seed(seed, &mut fwd, &mut bwd, &mut line)?;
-        Ok((line, ends))
+        let mut first = None;
+        self.track_seed(seed, &mut Scratch::default(), &mut |line, ends| {
+            first.get_or_insert_with(|| (line.to_vec(), ends));
+        })?;
+        Ok(first.expect("track_seed emitted at least one streamline"))
     }
 
     /// Tracks every seed (voxel coordinates) in parallel. The output order is the seed order whatever the
@@ -332,32 +352,39 @@ impl<'a, F: DirectionField> Tracker<'a, F> {
         let blocks: Vec<Tracks> = seeds_vox
             .par_chunks(SEED_BLOCK)
             .enumerate()
-            .map_init(
-                || (Half { pts: Vec::new() }, Half { pts: Vec::new() }, Vec::new()),
-                |(fwd, bwd, line), (b, chunk)| {
-                    let mut t = Tracks { tractogram: Tractogram::new(), ..Default::default() };
-                    for (k, &seed) in chunk.iter().enumerate() {
-                        let index = (b * SEED_BLOCK + k) as u32;
-                        match self.track_seed(seed, fwd, bwd, line) {
-                            Ok(ends) => {
-                                for &p in line.iter() {
-                                    t.tractogram.points.push(self.world_from_voxel.transform_point3(p).as_vec3());
-                                    t.tensors.push(rotate(&self.field.tensor(p), rot));
-                                }
-                                t.tractogram.offsets.push(t.tractogram.points.len());
-                                t.ends.push(ends);
-                                t.seed_index.push(index);
-                            }
-                            Err(r) => t.rejected.push((index, r)),
+            .map_init(Scratch::default, |scratch, (b, chunk)| {
+                let mut t = Tracks { tractogram: Tractogram::new(), ..Default::default() };
+                for (k, &seed) in chunk.iter().enumerate() {
+                    let index = (b * SEED_BLOCK + k) as u32;
+                    let mut emit = |line: &[DVec3], ends| {
+                        let a = &self.world_from_voxel;
+                        t.tractogram.points.extend(line.iter().map(|&p| a.transform_point3(p).as_vec3()));
+                        if self.record_tensors {
+                            t.tensors.extend(line.iter().map(|&p| rotate(&self.field.tensor(p), rot)));
                         }
+                        t.tractogram.offsets.push(t.tractogram.points.len());
+                        t.ends.push(ends);
+                        t.seed_index.push(index);
+                    };
+                    if let Err(r) = self.track_seed(seed, scratch, &mut emit) {
+                        t.rejected.push((index, r));
                     }
-                    progress(chunk.len());
-                    t
-                },
-            )
+                }
+                progress(chunk.len());
+                t
+            })
             .collect();
         concat(blocks)
     }
+}
+
+/// Per-worker buffers, reused across seeds: no allocation per point.
+#[derive(Default)]
+struct Scratch {
+    fwd: Half,
+    bwd: Half,
+    line: Vec<DVec3>,
+    starts: Vec<super::field::FieldSample>,
 }
 
 /// `R T Rᵀ` as f32, lower-triangular.
