@@ -12,6 +12,7 @@
 use std::path::Path;
 
 use glam::{DMat4, DVec3, DVec4};
+use rayon::prelude::*;
 
 use super::tractogram::{Tractogram, axcodes, io_orientation};
 use crate::error::{Error, Result};
@@ -281,22 +282,50 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, world_from_voxel: DMat4, di
     put(&mut h, 988, &header.n_count.to_le_bytes());
     put(&mut h, 992, &2i32.to_le_bytes());
     put(&mut h, 996, &1000i32.to_le_bytes());
+    // The body is laid out in parallel: every streamline's byte range is known in advance.
+    let (ns, np) = (t.scalars.len(), t.properties.len());
+    let per_point = 4 * (3 + ns);
+    let bytes_of = |i: usize| 4 + per_point * (t.offsets[i + 1] - t.offsets[i]) + 4 * np;
+    let n = t.n_streamlines();
     let mut out = h;
-    for i in 0..t.n_streamlines() {
+    out.resize(HDR + (0..n).map(bytes_of).sum::<usize>(), 0);
+    let write_one = |i: usize, dst: &mut [u8]| {
         let (a, z) = (t.offsets[i], t.offsets[i + 1]);
-        out.extend_from_slice(&((z - a) as i32).to_le_bytes());
+        let mut w = 0;
+        let mut put = |b: [u8; 4]| {
+            dst[w..w + 4].copy_from_slice(&b);
+            w += 4;
+        };
+        put(((z - a) as i32).to_le_bytes());
         for k in a..z {
             let p = voxmm_from_ras.transform_point3(t.points[k].as_dvec3());
             for c in p.to_array() {
-                out.extend_from_slice(&(c as f32).to_le_bytes());
+                put((c as f32).to_le_bytes());
             }
             for (_, s) in &t.scalars {
-                out.extend_from_slice(&s.get(k).copied().unwrap_or(0.0).to_le_bytes());
+                put(s.get(k).copied().unwrap_or(0.0).to_le_bytes());
             }
         }
         for (_, p) in &t.properties {
-            out.extend_from_slice(&p.get(i).copied().unwrap_or(0.0).to_le_bytes());
+            put(p.get(i).copied().unwrap_or(0.0).to_le_bytes());
         }
+    };
+    // Blocks of streamlines, each a contiguous slice of the output.
+    const BLOCK: usize = 256;
+    let mut slices = Vec::with_capacity(n.div_ceil(BLOCK));
+    let mut rest = &mut out[HDR..];
+    for b in (0..n).step_by(BLOCK) {
+        let len: usize = (b..(b + BLOCK).min(n)).map(bytes_of).sum();
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(len);
+        slices.push((b, head));
+        rest = tail;
     }
+    slices.into_par_iter().for_each(|(b, mut dst)| {
+        for i in b..(b + BLOCK).min(n) {
+            let (head, tail) = std::mem::take(&mut dst).split_at_mut(bytes_of(i));
+            write_one(i, head);
+            dst = tail;
+        }
+    });
     std::fs::write(path, out).map_err(|e| Error::io(path, e))
 }

@@ -153,6 +153,27 @@ pub fn fit_odf_volume_with_progress<T: Scalar>(
     mask: Option<&[bool]>,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Volume<f32>> {
+    let nvox = dwi.n_voxels();
+    let n = model.n_coeffs();
+    let d = dwi.dims3();
+    let per_voxel = fit_odf_coefficients(dwi, model, mask, progress)?;
+    let mut vol = Volume::<f32>::zeros(&[d[0], d[1], d[2], n], dwi.world_from_voxel);
+    for v in 0..nvox {
+        for c in 0..n {
+            vol.data[v + nvox * c] = per_voxel[v * n + c] as f32;
+        }
+    }
+    Ok(vol)
+}
+
+/// The fit in f64, voxel-major (`n_coeffs` per voxel, NIfTI voxel order): what peak extraction uses, so that
+/// no f32 rounding moves a near-tie between two sphere vertices.
+pub fn fit_odf_coefficients<T: Scalar>(
+    dwi: &Volume<T>,
+    model: &OdfModel,
+    mask: Option<&[bool]>,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Vec<f64>> {
     if dwi.shape.len() != 4 {
         return Err(Error::Shape(format!("a DWI must be 4D (X,Y,Z,N); this image is {:?}", dwi.shape)));
     }
@@ -167,7 +188,6 @@ pub fn fit_odf_volume_with_progress<T: Scalar>(
         return Err(Error::Shape(format!("the mask has {} voxels, the DWI {nvox}", m.len())));
     }
     let n = model.n_coeffs();
-    let d = dwi.dims3();
     let mut per_voxel = vec![0f64; nvox * n];
     const BLOCK: usize = crate::dti::PROGRESS_BLOCK;
     per_voxel.par_chunks_mut(n * BLOCK).enumerate().for_each_init(
@@ -187,11 +207,5 @@ pub fn fit_odf_volume_with_progress<T: Scalar>(
             progress(outs.len() / n);
         },
     );
-    let mut vol = Volume::<f32>::zeros(&[d[0], d[1], d[2], n], dwi.world_from_voxel);
-    for v in 0..nvox {
-        for c in 0..n {
-            vol.data[v + nvox * c] = per_voxel[v * n + c] as f32;
-        }
-    }
-    Ok(vol)
+    Ok(per_voxel)
 }

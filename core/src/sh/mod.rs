@@ -8,10 +8,12 @@ pub mod basis;
 pub mod fit;
 pub mod glyph;
 pub mod legendre;
+pub mod peaks;
 pub mod sphere;
 
 pub use basis::{ShBasis, bound_rmax, convert, eval, eval_with_gradient, sh_matrix};
-pub use fit::{OdfKind, OdfModel, fit_odf_volume, fit_odf_volume_with_progress};
+pub use fit::{OdfKind, OdfModel, fit_odf_coefficients, fit_odf_volume, fit_odf_volume_with_progress};
+pub use peaks::{PeakParams, PeakVolume, ShGrid, Sphere, peak_directions, peaks_from_sh};
 
 /// Number of coefficients of an even-order basis up to `l_max` (15 at 4, 45 at 8, 153 at 16).
 pub const fn n_coeffs(l_max: usize) -> usize {

@@ -177,6 +177,33 @@ pub fn trilinear(dims: [usize; 3], p: DVec3) -> [(usize, f64); 8] {
     ]
 }
 
+/// [`trilinear`] with f32 weights, for fields stored in f32.
+#[inline]
+fn trilinear_f32(dims: [usize; 3], p: DVec3) -> ([usize; 8], [f32; 8]) {
+    let [nx, ny, _] = dims;
+    let axis = |c: f64, n: usize| -> (usize, usize, f32) {
+        let t = (c + 1.0) as usize;
+        let w = (c + 1.0 - t as f64) as f32;
+        if t == 0 {
+            (0, 0, w)
+        } else {
+            let i = t - 1;
+            if i + 1 < n { (i, 1, w) } else { (n - 1, 0, w) }
+        }
+    };
+    let (x0, sx, wx) = axis(p.x, dims[0]);
+    let (y0, sy, wy) = axis(p.y, dims[1]);
+    let (z0, sz, wz) = axis(p.z, dims[2]);
+    let base = x0 + nx * (y0 + ny * z0);
+    let (sy, sz) = (sy * nx, sz * nx * ny);
+    let (ux, uy, uz) = (1.0 - wx, 1.0 - wy, 1.0 - wz);
+    let (a, b, c, d) = (uy * uz, wy * uz, uy * wz, wy * wz);
+    (
+        [base, base + sx, base + sy, base + sx + sy, base + sz, base + sx + sz, base + sy + sz, base + sx + sy + sz],
+        [ux * a, wx * a, ux * b, wx * b, ux * c, wx * c, ux * d, wx * d],
+    )
+}
+
 fn cell(t: Option<LowerTri>, interpolation: TensorInterpolation) -> [f64; 7] {
     let Some(t) = t.filter(|t| t.iter().all(|v| v.is_finite())) else { return [0.0; 7] };
     let Some(e) = eigh(&t) else { return [0.0; 7] };
@@ -306,7 +333,14 @@ pub struct PeakField {
     cells: Vec<[f32; 4]>,
     /// Per voxel the tensor (lower-triangular), when the peaks come from tensors: recorded at output points.
     tensors: Option<Vec<[f32; 6]>>,
+    /// A voxel whose closest peak is farther than this from the incoming direction (`|cos|` below it) is
+    /// left out of the blend (DIPY's EuDX angle gate; default cos 60°).
+    cos_gate: f32,
 }
+
+/// The blend fails (no direction) when the voxels left in it weigh less than this (DIPY's EuDX).
+const MIN_TOTAL_WEIGHT: f32 = 0.5;
+const DEFAULT_GATE_DEG: f64 = 60.0;
 
 impl PeakField {
     /// From per-voxel peaks (`npeaks` per voxel, voxel-major; zero vectors pad voxels with fewer) in the
@@ -340,7 +374,7 @@ impl PeakField {
         for (v, s) in scalar.iter().enumerate() {
             cells[v * npeaks][3] = if s.is_finite() { *s } else { 0.0 };
         }
-        Ok(Self { dims, voxel_size, npeaks, cells, tensors: None })
+        Ok(Self { dims, voxel_size, npeaks, cells, tensors: None, cos_gate: gate(DEFAULT_GATE_DEG) })
     }
 
     /// One peak per voxel, the principal eigenvector, with FA as the stopping scalar, from tensors in
@@ -376,7 +410,7 @@ impl PeakField {
                 }
             })
             .collect();
-        Ok(Self { dims, voxel_size, npeaks: 1, cells, tensors: Some(tensors) })
+        Ok(Self { dims, voxel_size, npeaks: 1, cells, tensors: Some(tensors), cos_gate: gate(DEFAULT_GATE_DEG) })
     }
 
     /// From a fit: the principal eigenvector and FA of each fitted voxel (the eigen-systems the fit has
@@ -398,7 +432,14 @@ impl PeakField {
                 _ => ([0.0; 4], [0.0; 6]),
             })
             .unzip();
-        Ok(Self { dims: fit.dims, voxel_size, npeaks: 1, cells, tensors: Some(tensors) })
+        Ok(Self {
+            dims: fit.dims,
+            voxel_size,
+            npeaks: 1,
+            cells,
+            tensors: Some(tensors),
+            cos_gate: gate(DEFAULT_GATE_DEG),
+        })
     }
 
     /// From a tensor image as `fascicle fit dti` and DIPY write it: (X,Y,Z,6) or (X,Y,Z,1,6), lower-triangular.
@@ -407,6 +448,30 @@ impl PeakField {
         let n = vol.n_voxels();
         let tensors = (0..n).map(|v| Some(std::array::from_fn(|c| vol.data[v + n * c])));
         Self::from_tensors(vol.dims3(), vol.voxel_size(), tensors)
+    }
+
+    /// From extracted ODF peaks ([`crate::sh::peaks_from_sh`]) with a stopping scalar per voxel (GFA, FA, ...).
+    /// Peaks whose ODF value is at or below `value_threshold` are left out (DIPY's EuDX: 0.0239).
+    pub fn from_peaks(
+        peaks: &crate::sh::PeakVolume,
+        voxel_size: DVec3,
+        scalar: &[f32],
+        value_threshold: f32,
+    ) -> Result<Self> {
+        let dirs: Vec<[f32; 3]> = peaks
+            .dirs
+            .iter()
+            .zip(&peaks.values)
+            .map(|(d, &v)| if v > value_threshold { *d } else { [0.0; 3] })
+            .collect();
+        Self::new(peaks.dims, voxel_size, peaks.npeaks, &dirs, scalar)
+    }
+
+    /// Leave out of the blend any voxel whose closest peak turns more than `deg` from the incoming direction
+    /// (default 60°, DIPY's EuDX; set it to the tracker's maximum angle).
+    pub fn with_max_angle(mut self, deg: f64) -> Self {
+        self.cos_gate = gate(deg);
+        self
     }
 
     pub fn npeaks(&self) -> usize {
@@ -430,6 +495,11 @@ impl PeakField {
             (r.x.clamp(0.0, nx as f64 - 1.0), r.y.clamp(0.0, ny as f64 - 1.0), r.z.clamp(0.0, nz as f64 - 1.0));
         x as usize + nx * (y as usize + ny * z as usize)
     }
+}
+
+fn gate(deg: f64) -> f32 {
+    // A hair below the cosine, so that a peak exactly at the angle stays in (f32 rounding).
+    (deg.clamp(0.0, 90.0).to_radians().cos() - 1e-6).max(0.0) as f32
 }
 
 fn check_grid(dims: [usize; 3], voxel_size: DVec3) -> Result<()> {
@@ -461,20 +531,29 @@ impl DirectionField for PeakField {
     }
     #[inline]
     fn sample(&self, p: DVec3, reference: DVec3) -> Option<FieldSample> {
-        let r = reference.as_vec3();
         let k = self.npeaks;
-        let (mut acc, mut s) = (glam::Vec3::ZERO, 0.0f32);
-        let corners = trilinear(self.dims, p);
+        let mut r = reference.as_vec3();
+        if r == glam::Vec3::ZERO {
+            // No incoming direction yet: the nearest voxel's largest peak.
+            let c = self.cells[self.nearest_voxel(p) * k];
+            r = glam::Vec3::new(c[0], c[1], c[2]);
+        }
+        let gate = self.cos_gate;
+        let (mut acc, mut s, mut total) = (glam::Vec3::ZERO, 0.0f32, 0.0f32);
         if k == 1 {
-            // The tensor case: one peak per voxel, no choice to make.
-            for (i, w) in corners {
+            // The tensor case: one peak per voxel, no choice to make; weights in f32, no branches.
+            let (idx, w) = trilinear_f32(self.dims, p);
+            for (i, w) in idx.into_iter().zip(w) {
                 let c = self.cells[i];
-                let (v, w) = (glam::Vec3::new(c[0], c[1], c[2]), w as f32);
+                let v = glam::Vec3::new(c[0], c[1], c[2]);
                 s += w * c[3];
-                acc += w.copysign(v.dot(r)) * v;
+                let cos = v.dot(r);
+                let w = if cos.abs() >= gate { w } else { 0.0 };
+                total += w;
+                acc += w.copysign(cos) * v;
             }
         } else {
-            for (i, w) in corners {
+            for (i, w) in trilinear(self.dims, p) {
                 let w = w as f32;
                 let slots = &self.cells[i * k..(i + 1) * k];
                 s += w * slots[0][3];
@@ -487,11 +566,15 @@ impl DirectionField for PeakField {
                         (best, cos) = (v, d);
                     }
                 }
-                acc += w.copysign(cos) * best;
+                if cos.abs() >= gate && best != glam::Vec3::ZERO {
+                    total += w;
+                    acc += w.copysign(cos) * best;
+                }
             }
         }
         let n = acc.length();
-        (n > 0.0 && n.is_finite()).then(|| FieldSample { direction: (acc / n).as_dvec3(), fa: f64::from(s) })
+        (total >= MIN_TOTAL_WEIGHT && n > 0.0 && n.is_finite())
+            .then(|| FieldSample { direction: (acc / n).as_dvec3(), fa: f64::from(s) })
     }
     /// One start per peak of the voxel nearest the seed, each followed through the interpolation.
     fn seed_samples(&self, p: DVec3, out: &mut Vec<FieldSample>) {

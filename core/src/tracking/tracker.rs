@@ -283,7 +283,7 @@ impl<'a, F: DirectionField> Tracker<'a, F> {
             }
             d = dn / len;
             let s = match self.field.sample(next, d) {
-                Some(s) if s.fa >= self.params.fa_threshold => s,
+                Some(s) if s.fa > self.params.fa_threshold => s,
                 Some(_) => return StopReason::LowFa,
                 None => return StopReason::NoDirection,
             };
@@ -307,7 +307,7 @@ impl<'a, F: DirectionField> Tracker<'a, F> {
             return Err(Rejection::SeedOutside);
         }
         self.field.seed_samples(seed, &mut scratch.starts);
-        if !scratch.starts.iter().any(|s| s.fa >= self.params.fa_threshold) {
+        if !scratch.starts.iter().any(|s| s.fa > self.params.fa_threshold) {
             return Err(Rejection::SeedBelowThreshold);
         }
         let mut n = 0;
