@@ -217,3 +217,48 @@ fn tensor_peak_field_agrees_with_the_fit() {
         assert!((field.scalar_at(v) - dti::metrics::fa(&f.eigen.values)).abs() < 1e-6);
     }
 }
+
+#[test]
+fn peak_files_round_trip_in_both_layouts_through_an_oblique_frame() {
+    use fascicle_core::io::peaks::{self, PeaksLayout};
+    let (ours, dwi) = phantom_peaks();
+    // An oblique, flipped affine: directions are stored in world coordinates by the MRtrix layout.
+    let rot = glam::DMat4::from_quat(glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.3, -0.5, 1.1));
+    let affine = rot * glam::DMat4::from_scale(DVec3::new(-2.0, 2.0, 2.5));
+    let dir = std::env::temp_dir().join(format!("fascicle-peaks-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mrtrix = dir.join("peaks.nii.gz");
+    peaks::write_mrtrix(&mrtrix, &ours, affine).unwrap();
+    let written = peaks::write_dipy(dir.join("pam"), &ours, affine).unwrap();
+    assert_eq!(written.len(), 4);
+    let a = peaks::read(&mrtrix).unwrap();
+    let b = peaks::read(dir.join("pam_dirs.nii.gz")).unwrap();
+    assert_eq!((a.layout, b.layout), (PeaksLayout::Mrtrix, PeaksLayout::Dipy));
+    let m = peaks::direction_frame(affine);
+    let mut worst = 0f64;
+    for img in [&a, &b] {
+        assert_eq!((img.dims, img.npeaks), (dwi.dims3(), 5));
+        for (s, (d, amp)) in img.dirs.iter().zip(&img.amplitudes).enumerate() {
+            let has = ours.indices[s] >= 0;
+            assert_eq!(*amp != 0.0, has, "slot {s}");
+            if has {
+                let e = DVec3::from(ours.dirs[s].map(f64::from));
+                worst = worst.max((DVec3::from(d.map(f64::from)) - e).length());
+                assert!((f64::from(*amp) - f64::from(ours.values[s])).abs() <= 1e-6 * f64::from(ours.values[s]).abs().max(1.0));
+            }
+        }
+    }
+    // In the MRtrix file itself the first voxel's peak is M d: check one in world coordinates.
+    let (raw, _) = fascicle_core::io::nifti::read::<f32>(&mrtrix).unwrap();
+    let v = (0..ours.gfa.len()).find(|&v| ours.indices[v * 5] >= 0).unwrap();
+    let n = raw.n_voxels();
+    let w = DVec3::new(raw.data[v].into(), raw.data[v + n].into(), raw.data[v + 2 * n].into());
+    let expect = m * DVec3::from(ours.dirs[v * 5].map(f64::from)) * f64::from(ours.values[v * 5]);
+    assert!((w - expect).length() < 1e-6, "{w} vs {expect}");
+    println!("peak files: worst direction error after the round trip {worst:.2e}");
+    assert!(worst < 1e-6);
+    // A file of another shape is refused with the shapes named.
+    let e = peaks::read(dir.join("pam_values.nii.gz")).unwrap_err().to_string();
+    assert!(e.contains("(X,Y,Z,3N)"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,7 +1,8 @@
-//! File formats: NIfTI-1/2 images, FSL gradient tables, TrackVis `.trk` and MRtrix `.tck` tractograms.
+//! File formats: NIfTI-1/2 images, FSL gradient tables, peak images (MRtrix and DIPY layouts), TrackVis `.trk` and MRtrix `.tck` tractograms.
 
 pub mod gradients;
 pub mod nifti;
+pub mod peaks;
 pub mod tck;
 pub mod tractogram;
 pub mod trk;
