@@ -488,7 +488,37 @@ pub fn tract_data(source: &TractSource) -> Result<TractData, String> {
             let sampled = tensors_at(&field, affine, &t.points);
             Ok((t, Some(sampled)))
         }
+        TractSource::Peaks { path, length } => Ok((peak_segments(path, *length)?, None)),
     }
+}
+
+/// One two-point streamline per peak of a peaks image, through its voxel centre in world coordinates, the
+/// voxel's largest peak `length` voxels (of its smallest edge) long and the others in proportion.
+pub fn peak_segments(path: &std::path::Path, length: f32) -> Result<Tractogram, String> {
+    let img = fascicle_core::io::peaks::read(path).map_err(|e| e.to_string())?;
+    let a = img.world_from_voxel;
+    let m = fascicle_core::io::peaks::direction_frame(a);
+    let edge = [a.x_axis, a.y_axis, a.z_axis].iter().map(|c| c.truncate().length()).fold(f64::INFINITY, f64::min);
+    let [nx, ny, _] = img.dims;
+    let k = img.npeaks;
+    let mut t = Tractogram::new();
+    for v in 0..img.amplitudes.len() / k {
+        let amps = &img.amplitudes[v * k..(v + 1) * k];
+        let top = amps.iter().copied().fold(0.0f32, f32::max);
+        if !(top > 0.0) {
+            continue;
+        }
+        let centre =
+            a.transform_point3(glam::DVec3::new((v % nx) as f64, ((v / nx) % ny) as f64, (v / (nx * ny)) as f64));
+        for (d, amp) in img.dirs[v * k..(v + 1) * k].iter().zip(amps) {
+            if *amp > 0.0 {
+                let half = m * glam::Vec3::from(*d).as_dvec3() * (0.5 * edge * f64::from(length * amp / top));
+                t.points.extend([(centre - half).as_vec3(), (centre + half).as_vec3()]);
+                t.offsets.push(t.points.len());
+            }
+        }
+    }
+    Ok(t)
 }
 
 /// SH coefficients (X,Y,Z,n) and their basis for a glyph layer; for the phantom only the voxels of
@@ -891,5 +921,57 @@ mod tests {
         let err = tract_data(&file(Some(TensorSource::Spiral { n: 10 }))).unwrap_err();
         assert!(err.contains("not a voxel grid"), "{err}");
         std::fs::remove_file(path).ok();
+    }
+
+    /// A peaks file opens as a line layer: one segment per peak, centred on its voxel, along the peak's world
+    /// direction, the largest `length` voxels long and the others in proportion to their amplitudes.
+    #[test]
+    fn peak_files_open_as_segments() {
+        use fascicle_core::sh::PeakVolume;
+        let dims = [3, 2, 2];
+        let n = 12;
+        let mut peaks = PeakVolume {
+            dims,
+            npeaks: 2,
+            dirs: vec![[0.0; 3]; n * 2],
+            values: vec![0.0; n * 2],
+            indices: vec![-1; n * 2],
+            gfa: vec![0.0; n],
+        };
+        // Voxel (1,1,0): a peak along x of amplitude 2 and one along y of amplitude 1.
+        let v = 1 + 3;
+        peaks.dirs[v * 2] = [1.0, 0.0, 0.0];
+        peaks.dirs[v * 2 + 1] = [0.0, 1.0, 0.0];
+        peaks.values[v * 2..v * 2 + 2].copy_from_slice(&[2.0, 1.0]);
+        peaks.indices[v * 2..v * 2 + 2].copy_from_slice(&[0, 1]);
+        // A flipped, scaled affine: x runs right to left, 2 mm voxels.
+        let affine = glam::DMat4::from_cols_array(&[
+            -2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 10.0, 0.0, 0.0, 1.0,
+        ]);
+        let dir = std::env::temp_dir().join(format!("fascicle-peak-layer-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("csa_peaks.nii.gz");
+        fascicle_core::io::peaks::write_mrtrix(&path, &peaks, affine).unwrap();
+        let spec = crate::scene::Scene::layer_for_file(&path).unwrap();
+        assert!(
+            matches!(
+                &spec.kind,
+                LayerKind::Tracts { source: TractSource::Peaks { .. }, mode: crate::scene::TractMode::Lines, .. }
+            ),
+            "{:?}",
+            spec.kind
+        );
+        let t = peak_segments(&path, 0.9).unwrap();
+        assert_eq!(t.n_streamlines(), 2);
+        let centre = glam::Vec3::new(10.0 - 2.0, 2.0, 0.0);
+        let (a, b) = (t.streamline(0), t.streamline(1));
+        // The x peak: along world -x (the flip), 0.9 x 2 mm long; the y peak half as long.
+        assert!(
+            ((a[0] + a[1]) * 0.5 - centre).length() < 1e-5
+                && ((a[1] - a[0]).abs() - glam::Vec3::new(1.8, 0.0, 0.0)).length() < 1e-5,
+            "{a:?}"
+        );
+        assert!(((b[1] - b[0]).abs() - glam::Vec3::new(0.0, 0.9, 0.0)).length() < 1e-5, "{b:?}");
+        std::fs::remove_dir_all(dir).ok();
     }
 }

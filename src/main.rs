@@ -9,6 +9,7 @@ fn main() -> std::process::ExitCode {
         Some(cli::Command::Fit { model }) => cli::fit::run(model).map_err(|e| e.to_string()),
         Some(cli::Command::Bench { suite }) => cli::bench::run(suite).map_err(|e| e.to_string()),
         Some(cli::Command::Track(a)) => cli::track::run(a).map_err(|e| e.to_string()),
+        Some(cli::Command::Peaks(a)) => cli::peaks::run(a).map_err(|e| e.to_string()),
         Some(cli::Command::Soak { frames, size, csv, tolerance_mib }) => {
             cli::soak::run(frames, &size, csv.as_deref(), tolerance_mib)
         }

@@ -245,6 +245,9 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     if let crate::scene::TractSource::File { tensors, .. } = source {
         tensor_source_field(ui, tensors);
     }
+    if let crate::scene::TractSource::Peaks { length, .. } = source {
+        ui.add(egui::Slider::new(length, 0.1..=2.0).text("peak length (voxels)"));
+    }
     ui.add(egui::Slider::new(&mut render.scale, 0.2..=6.0).text("cross-section scale (mm)"));
     ui.add(egui::Slider::new(&mut render.iterations, 1..=32).text("iterations"));
     ui.horizontal(|ui| {

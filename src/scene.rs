@@ -208,6 +208,18 @@ pub enum TractSource {
         #[serde(default)]
         tensors: Option<TensorSource>,
     },
+    /// A peaks image (MRtrix (X,Y,Z,3N) or DIPY (X,Y,Z,N,3) layout, `fascicle peaks`): one short segment per
+    /// peak through its voxel centre, the voxel's largest peak `length` voxels long, the others in proportion
+    /// to their amplitudes. Drawn as lines by default.
+    Peaks {
+        path: PathBuf,
+        #[serde(default = "default_peak_length")]
+        length: f32,
+    },
+}
+
+fn default_peak_length() -> f32 {
+    0.9
 }
 
 /// How tracts are drawn.
@@ -383,7 +395,23 @@ impl Scene {
                     && fascicle_core::sh::l_max_for(h.shape[3..].iter().product()).is_some()
             })
         };
-        let kind = if (lower.ends_with(".nii") || lower.ends_with(".nii.gz")) && sh_image() {
+        let nifti = lower.ends_with(".nii") || lower.ends_with(".nii.gz");
+        // Peaks: DIPY's (X,Y,Z,N,3) directions, or MRtrix's 3N volumes in a file named as peaks (a 15-volume
+        // peaks image is otherwise indistinguishable from l_max 4 SH coefficients).
+        let peaks_image = || {
+            fascicle_core::io::nifti::read_header(path).ok().is_some_and(|h| {
+                (h.shape.len() == 5 && h.shape[4] == 3)
+                    || (h.shape.len() == 4 && h.shape[3] % 3 == 0 && lower.contains("peak"))
+            })
+        };
+        let kind = if nifti && peaks_image() {
+            LayerKind::Tracts {
+                source: TractSource::Peaks { path: path.to_path_buf(), length: default_peak_length() },
+                mode: TractMode::Lines,
+                render: Default::default(),
+                rois: Vec::new(),
+            }
+        } else if nifti && sh_image() {
             // 6, 15, 28, 45, ... volumes: SH coefficients (DIPY's default basis; change it in the scene).
             LayerKind::ShGlyphs {
                 source: ShSource::Nifti { path: path.to_path_buf(), basis: ShBasis::default() },

@@ -5,9 +5,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use fascicle_core::io::{GradientTable, Tractogram, nifti};
-use fascicle_core::tracking::{
-    Integrator, TensorField, TensorInterpolation, TrackParams, Tracker, read_seeds, to_voxel,
-};
+use fascicle_core::tracking::{Integrator, PeakField, TrackParams, Tracker, read_seeds, to_voxel};
 
 fn data(rel: &str) -> String {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data").join(rel).to_string_lossy().into_owned()
@@ -47,7 +45,8 @@ fn track_writes_what_the_library_computes() {
     let (dwi, _) = nifti::read::<f32>(data("dwi/small_64D.nii")).unwrap();
     let gtab = GradientTable::from_fsl(data("dwi/small_64D.bval"), data("dwi/small_64D.bvec"), 50.0).unwrap();
     let fit = fascicle_core::dti::fit_volume(&dwi, &gtab, fascicle_core::dti::FitMethod::Wls, None).unwrap();
-    let field = TensorField::from_fit(&fit, dwi.voxel_size(), TensorInterpolation::Componentwise).unwrap();
+    // The default field: principal eigenvectors blended as EuDX does, gated at the max angle (60°).
+    let field = PeakField::from_fit(&fit, dwi.voxel_size()).unwrap().with_max_angle(60.0);
     let params = TrackParams { integrator: Integrator::Euler, ..Default::default() };
     let ours = Tracker::new(&field, dwi.world_from_voxel, params)
         .unwrap()
@@ -120,5 +119,109 @@ fn select_writes_the_streamlines_the_rois_keep() {
         .unwrap();
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("'x' is not a number"));
+    std::fs::remove_dir_all(dir).ok();
+}
+
+fn phantom(ext: &str) -> String {
+    data(&format!("phantom/phantom_ring_cross.{ext}"))
+}
+
+/// `--fit-method ols` fits OLS (not WLS, as before), and `--model csa` tracks CSA peaks: each output equals the
+/// library run with the same model.
+#[test]
+fn track_honours_the_model() {
+    use fascicle_core::sh::{self, OdfKind, OdfModel, PeakParams, ShBasis, ShGrid, Sphere};
+    use fascicle_core::tracking::seeds_from_mask;
+    let dir = std::env::temp_dir().join(format!("fascicle-track-model-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (dwi, _) = nifti::read::<f32>(phantom("nii.gz")).unwrap();
+    let gtab = GradientTable::from_fsl(phantom("bval"), phantom("bvec"), 50.0).unwrap();
+    let dims = dwi.dims3();
+    let base = ["track", "--dwi", &phantom("nii.gz"), "--bval", &phantom("bval"), "--bvec", &phantom("bvec")];
+    let run = |extra: &[&str], out: &std::path::Path| {
+        let o = fascicle(&[&base[..], extra, &["--out", out.to_str().unwrap()]].concat());
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        Tractogram::read(out).unwrap()
+    };
+
+    let ols_out = run(&["--fit-method", "ols", "--integrator", "euler"], &dir.join("ols.tck"));
+    let wls_out = run(&["--integrator", "euler"], &dir.join("wls.tck"));
+    let fit = fascicle_core::dti::fit_volume(&dwi, &gtab, fascicle_core::dti::FitMethod::Ols, None).unwrap();
+    let field = PeakField::from_fit(&fit, dwi.voxel_size()).unwrap();
+    let mask: Vec<bool> = (0..dims.iter().product()).map(|v| field.scalar_at(v) > 0.2).collect();
+    let seeds = seeds_from_mask(&mask, dims, 1).unwrap();
+    let params = TrackParams { integrator: Integrator::Euler, ..Default::default() };
+    let ours = Tracker::new(&field, dwi.world_from_voxel, params).unwrap().with_tensors(false).run(&seeds);
+    assert_eq!(ols_out.offsets, ours.tractogram.offsets, "OLS run differs from the library's OLS tracking");
+    assert_ne!(ols_out.offsets, wls_out.offsets, "OLS and WLS gave the same streamlines: the method was ignored");
+
+    let csa_out = run(&["--model", "csa", "--fa-threshold", "0.25"], &dir.join("csa.tck"));
+    let model = OdfModel::new(&gtab, OdfKind::Csa, 6, 0.006, ShBasis::default()).unwrap();
+    let coeffs = sh::fit_odf_coefficients(&dwi, &model, None, &|_| {}).unwrap();
+    let sh = ShGrid { dims, coeffs: &coeffs, l_max: 6, basis: ShBasis::default() };
+    let peaks = sh::peaks_from_sh(sh, &Sphere::dipy_default(), &PeakParams::default(), None, &|_| {}).unwrap();
+    let field = PeakField::from_peaks(&peaks, dwi.voxel_size(), &peaks.gfa, 0.0239).unwrap();
+    let mask: Vec<bool> = peaks.gfa.iter().map(|&g| g > 0.25).collect();
+    let seeds = seeds_from_mask(&mask, dims, 1).unwrap();
+    let params = TrackParams { fa_threshold: 0.25, ..Default::default() };
+    let ours = Tracker::new(&field, dwi.world_from_voxel, params).unwrap().with_tensors(false).run(&seeds);
+    assert_eq!(csa_out.offsets, ours.tractogram.offsets, "--model csa differs from the library's peak tracking");
+    assert!(csa_out.n_streamlines() > seeds.len(), "crossing voxels start one streamline per peak");
+
+    // `fascicle peaks` in MRtrix's layout, tracked back with --peaks and the GFA as stop map, gives the same
+    // streamlines as --model csa, up to the f32 round trip of the directions through world coordinates.
+    let pk = dir.join("peaks.nii.gz");
+    let o = fascicle(&[
+        "peaks",
+        "--dwi",
+        &phantom("nii.gz"),
+        "--bval",
+        &phantom("bval"),
+        "--bvec",
+        &phantom("bvec"),
+        "--out",
+        pk.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = fascicle(&[
+        "peaks",
+        "--dwi",
+        &phantom("nii.gz"),
+        "--bval",
+        &phantom("bval"),
+        "--bvec",
+        &phantom("bvec"),
+        "--layout",
+        "dipy",
+        "--out",
+        dir.join("pam").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let gfa = dir.join("pam_gfa.nii.gz");
+    let o = fascicle(&[
+        "track",
+        "--peaks",
+        pk.to_str().unwrap(),
+        "--stop-map",
+        gfa.to_str().unwrap(),
+        "--fa-threshold",
+        "0.25",
+        "--out",
+        dir.join("from_peaks.tck").to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let from_peaks = Tractogram::read(dir.join("from_peaks.tck")).unwrap();
+    let (a, b) = (from_peaks.points.len() as f64, csa_out.points.len() as f64);
+    println!(
+        "--peaks: {} streamlines, {a} points; --model csa: {} streamlines, {b} points",
+        from_peaks.n_streamlines(),
+        csa_out.n_streamlines()
+    );
+    assert_eq!(from_peaks.n_streamlines(), csa_out.n_streamlines());
+    assert!((a / b - 1.0).abs() < 0.01, "{a} vs {b} points");
+    // --peaks without a stop map is refused by name.
+    let o = fascicle(&["track", "--peaks", pk.to_str().unwrap(), "--out", "/tmp/x.tck"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--stop-map"));
     std::fs::remove_dir_all(dir).ok();
 }

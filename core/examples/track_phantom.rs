@@ -5,7 +5,9 @@ use std::time::Instant;
 
 use fascicle_core::dti::{self, FitMethod};
 use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD, nifti, trk};
-use fascicle_core::tracking::{Integrator, PeakField, TensorField, TensorInterpolation, TrackParams, Tracker, seeds_from_mask};
+use fascicle_core::tracking::{
+    Integrator, PeakField, TensorField, TensorInterpolation, TrackParams, Tracker, seeds_from_mask,
+};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();

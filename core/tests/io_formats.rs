@@ -235,3 +235,24 @@ fn bvec_orientation_either_way() {
     assert_eq!(t.bvecs, g.bvecs);
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// tckgen pads the first line with spaces ("mrtrix tracks    "): such files read like any other.
+#[test]
+fn tck_with_a_padded_first_line_reads() {
+    let mut head = String::from("mrtrix tracks    \ndatatype: Float32LE\ncount: 1\n");
+    let offset = head.len() + "file: . 000\nEND\n".len();
+    head.push_str(&format!("file: . {offset:03}\nEND\n"));
+    let mut b = head.into_bytes();
+    assert_eq!(b.len(), offset);
+    for v in
+        [1.0f32, 2.0, 3.0, 4.0, 5.0, 6.0, f32::NAN, f32::NAN, f32::NAN, f32::INFINITY, f32::INFINITY, f32::INFINITY]
+    {
+        b.extend_from_slice(&v.to_le_bytes());
+    }
+    let path = std::env::temp_dir().join(format!("fascicle-padded-{}.tck", std::process::id()));
+    std::fs::write(&path, &b).unwrap();
+    let (t, _) = fascicle_core::io::tck::read(&path).unwrap();
+    let _ = std::fs::remove_file(&path);
+    assert_eq!(t.n_streamlines(), 1);
+    assert_eq!(t.points, vec![glam::Vec3::new(1.0, 2.0, 3.0), glam::Vec3::new(4.0, 5.0, 6.0)]);
+}

@@ -154,7 +154,8 @@ fn peak_tracking_matches_dipy_eudx_and_crosses() {
     let (_, density) = npy_gz("reference/peaks/phantom_csa_l6_eudx_density.npy.gz");
     let theirs: Vec<bool> = (0..density.len()).map(|c| density[c] > 0.0).collect();
     for integrator in [Integrator::Euler, Integrator::Rk4] {
-        let params = TrackParams { integrator, step_mm: 0.5, fa_threshold: 0.25, max_angle_deg: 60.0, ..Default::default() };
+        let params =
+            TrackParams { integrator, step_mm: 0.5, fa_threshold: 0.25, max_angle_deg: 60.0, ..Default::default() };
         let t = Tracker::new(&field, dwi.world_from_voxel, params).unwrap().with_tensors(false).run(&seeds);
         let inv = dwi.world_from_voxel.inverse();
         let mut ours = vec![false; density.len()];
@@ -166,8 +167,8 @@ fn peak_tracking_matches_dipy_eudx_and_crosses() {
             }
         }
         let inter = ours.iter().zip(&theirs).filter(|(a, b)| **a && **b).count();
-        let dice = 2.0 * inter as f64
-            / (ours.iter().filter(|x| **x).count() + theirs.iter().filter(|x| **x).count()) as f64;
+        let dice =
+            2.0 * inter as f64 / (ours.iter().filter(|x| **x).count() + theirs.iter().filter(|x| **x).count()) as f64;
         println!(
             "{integrator:?} on CSA peaks: {} streamlines, {} points (DIPY: {json:?}); density Dice {dice:.3}",
             t.tractogram.n_streamlines(),
@@ -179,9 +180,13 @@ fn peak_tracking_matches_dipy_eudx_and_crosses() {
         // ring streamlines seeded before it come out on the ring after it.
         let c = DVec3::new(23.5 + 14.0, 23.5, 0.0);
         let z_seeds: Vec<DVec3> = (-2..=2).map(|d| DVec3::new(c.x + d as f64, c.y, 1.0)).collect();
-        let tz = Tracker::new(&field, dwi.world_from_voxel, TrackParams { integrator, fa_threshold: 0.25, ..Default::default() })
-            .unwrap()
-            .run(&z_seeds);
+        let tz = Tracker::new(
+            &field,
+            dwi.world_from_voxel,
+            TrackParams { integrator, fa_threshold: 0.25, ..Default::default() },
+        )
+        .unwrap()
+        .run(&z_seeds);
         for s in tz.tractogram.iter() {
             let zs: Vec<f64> = s.iter().map(|p| inv.transform_point3(p.as_dvec3()).z).collect();
             let top = zs.iter().copied().fold(f64::MIN, f64::max);
@@ -189,9 +194,13 @@ fn peak_tracking_matches_dipy_eudx_and_crosses() {
         }
         assert_eq!(tz.tractogram.n_streamlines(), 5);
         let ring_seed = DVec3::new(23.5 + 14.0 * 0.866, 23.5 - 14.0 * 0.5, 12.0); // 30° before the crossing
-        let tr = Tracker::new(&field, dwi.world_from_voxel, TrackParams { integrator, fa_threshold: 0.25, ..Default::default() })
-            .unwrap()
-            .run(&[ring_seed]);
+        let tr = Tracker::new(
+            &field,
+            dwi.world_from_voxel,
+            TrackParams { integrator, fa_threshold: 0.25, ..Default::default() },
+        )
+        .unwrap()
+        .run(&[ring_seed]);
         let through = tr.tractogram.iter().any(|s| {
             s.iter().any(|p| {
                 let v = inv.transform_point3(p.as_dvec3()) - DVec3::new(23.5, 23.5, 0.0);
@@ -244,7 +253,10 @@ fn peak_files_round_trip_in_both_layouts_through_an_oblique_frame() {
             if has {
                 let e = DVec3::from(ours.dirs[s].map(f64::from));
                 worst = worst.max((DVec3::from(d.map(f64::from)) - e).length());
-                assert!((f64::from(*amp) - f64::from(ours.values[s])).abs() <= 1e-6 * f64::from(ours.values[s]).abs().max(1.0));
+                assert!(
+                    (f64::from(*amp) - f64::from(ours.values[s])).abs()
+                        <= 1e-6 * f64::from(ours.values[s]).abs().max(1.0)
+                );
             }
         }
     }

@@ -6,8 +6,8 @@ use common::{data, npy};
 use fascicle_core::dti::{self, FitMethod, eigh};
 use fascicle_core::io::{GradientTable, Tractogram, gradients::DEFAULT_B0_THRESHOLD, nifti};
 use fascicle_core::tracking::{
-    CircleField, DirectionField, Integrator, PeakField, Rejection, StopReason, TensorField, TensorInterpolation, TrackParams,
-    Tracker, principal_direction, seeds_from_mask, to_voxel,
+    CircleField, DirectionField, Integrator, PeakField, Rejection, StopReason, TensorField, TensorInterpolation,
+    TrackParams, Tracker, principal_direction, seeds_from_mask, to_voxel,
 };
 use glam::{DMat4, DVec3};
 use rand::{Rng, SeedableRng};
@@ -165,36 +165,36 @@ fn seeds_from_mask_match_dipy_and_bundle_matches_eudx() {
     let tensor_tracks = Tracker::new(&field, dwi.world_from_voxel, params.clone()).unwrap().run(&seeds);
     let peak_tracks = Tracker::new(&peaks, dwi.world_from_voxel, params).unwrap().run(&seeds);
     for (name, ours) in [("tensor field", tensor_tracks), ("peak field", peak_tracks)] {
-    let density = |t: &Tractogram| -> Vec<bool> {
-        let inv = dwi.world_from_voxel.inverse();
-        let d = fit.dims;
-        let mut m = vec![false; n];
-        for p in &t.points {
-            let v = inv.transform_point3(p.as_dvec3()).round();
-            if (0..3).all(|i| v[i] >= 0.0 && v[i] < d[i] as f64) {
-                m[v.x as usize + d[0] * (v.y as usize + d[1] * v.z as usize)] = true;
+        let density = |t: &Tractogram| -> Vec<bool> {
+            let inv = dwi.world_from_voxel.inverse();
+            let d = fit.dims;
+            let mut m = vec![false; n];
+            for p in &t.points {
+                let v = inv.transform_point3(p.as_dvec3()).round();
+                if (0..3).all(|i| v[i] >= 0.0 && v[i] < d[i] as f64) {
+                    m[v.x as usize + d[0] * (v.y as usize + d[1] * v.z as usize)] = true;
+                }
             }
-        }
-        m
-    };
-    let (a, b) = (density(&ours.tractogram), density(&dipy));
-    let inter = a.iter().zip(&b).filter(|(x, y)| **x && **y).count();
-    let dice = 2.0 * inter as f64 / (a.iter().filter(|x| **x).count() + b.iter().filter(|x| **x).count()) as f64;
-    let mean_len = |t: &Tractogram| {
-        t.iter().map(|s| s.windows(2).map(|w| (w[1] - w[0]).length() as f64).sum::<f64>()).sum::<f64>()
-            / t.n_streamlines() as f64
-    };
-    let (lo, ld) = (mean_len(&ours.tractogram), mean_len(&dipy));
-    println!(
-        "{name} vs DIPY EuDX: {} vs {} streamlines, {} vs {} points, Dice {dice:.3}, mean length {lo:.2} vs {ld:.2} mm ({:+.1} %)",
-        ours.tractogram.n_streamlines(),
-        dipy.n_streamlines(),
-        ours.n_points(),
-        dipy.points.len(),
-        100.0 * (lo / ld - 1.0)
-    );
-    assert!(dice >= 0.8, "{name}: density-map Dice {dice}");
-    assert!((lo / ld - 1.0).abs() <= 0.15, "{name}: mean length {lo} vs DIPY {ld}");
+            m
+        };
+        let (a, b) = (density(&ours.tractogram), density(&dipy));
+        let inter = a.iter().zip(&b).filter(|(x, y)| **x && **y).count();
+        let dice = 2.0 * inter as f64 / (a.iter().filter(|x| **x).count() + b.iter().filter(|x| **x).count()) as f64;
+        let mean_len = |t: &Tractogram| {
+            t.iter().map(|s| s.windows(2).map(|w| (w[1] - w[0]).length() as f64).sum::<f64>()).sum::<f64>()
+                / t.n_streamlines() as f64
+        };
+        let (lo, ld) = (mean_len(&ours.tractogram), mean_len(&dipy));
+        println!(
+            "{name} vs DIPY EuDX: {} vs {} streamlines, {} vs {} points, Dice {dice:.3}, mean length {lo:.2} vs {ld:.2} mm ({:+.1} %)",
+            ours.tractogram.n_streamlines(),
+            dipy.n_streamlines(),
+            ours.n_points(),
+            dipy.points.len(),
+            100.0 * (lo / ld - 1.0)
+        );
+        assert!(dice >= 0.8, "{name}: density-map Dice {dice}");
+        assert!((lo / ld - 1.0).abs() <= 0.15, "{name}: mean length {lo} vs DIPY {ld}");
     }
 }
 

@@ -218,6 +218,9 @@ pub fn run(quick: bool, quick_suites: &[String], report: &Path, python: Option<&
         }
         if suite == "tracking" {
             cmd.args(["--phantom", "data/phantom"]);
+            if let Some(py) = python {
+                cmd.arg("--python").arg(py);
+            }
         }
         eprintln!("bench {suite} ...");
         let out = cmd.output().map_err(io(&exe))?;

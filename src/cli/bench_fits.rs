@@ -16,7 +16,7 @@ use fascicle_core::dti::{self, FitMethod, metrics};
 use fascicle_core::io::{GradientTable, nifti};
 use fascicle_core::phantom::{Phantom, add_rician_noise, bundles};
 use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
-use fascicle_core::tracking::{Integrator, TensorField, TensorInterpolation, TrackParams, Tracker, seeds_from_mask};
+use fascicle_core::tracking::{Integrator, PeakField, TrackParams, Tracker, seeds_from_mask};
 use fascicle_core::{Error, Volume};
 
 /// The benchmark phantom's noisy DWI.
@@ -91,12 +91,12 @@ pub fn run(quick: bool, csv: Option<&Path>, write_dir: Option<&Path>) -> Result<
     for integrator in [Integrator::Euler, Integrator::Rk4] {
         let t = Instant::now();
         let fit = dti::fit_volume(&dwi, &gtab, FitMethod::Wls, None)?;
-        let field = TensorField::from_fit(&fit, dwi.voxel_size(), TensorInterpolation::Componentwise)?;
+        let field = PeakField::from_fit(&fit, dwi.voxel_size())?;
         let mask: Vec<bool> =
             (0..nvox).map(|v| fit.fit_at(v).is_some_and(|f| metrics::fa(&f.eigen.values) > 0.3)).collect();
         let seeds = seeds_from_mask(&mask, d, 1)?;
         let params = TrackParams { integrator, ..TrackParams::default() };
-        let tracks = Tracker::new(&field, dwi.world_from_voxel, params)?.run(&seeds);
+        let tracks = Tracker::new(&field, dwi.world_from_voxel, params)?.with_tensors(false).run(&seeds);
         let ms = t.elapsed().as_secs_f64() * 1e3;
         let name = if integrator == Integrator::Euler { "track-euler" } else { "track-rk4" };
         let p = format!("{} seeds; {} streamlines; fit+field+track", seeds.len(), tracks.tractogram.n_streamlines());

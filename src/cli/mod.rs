@@ -6,10 +6,12 @@ pub mod bench_all;
 pub mod bench_fits;
 pub mod bench_glyphs;
 pub mod bench_splats;
+pub mod bench_tracking;
 pub mod bench_tracts;
 pub mod bench_volume;
 pub mod fit;
 pub mod info;
+pub mod peaks;
 pub mod select;
 pub mod soak;
 pub mod track;
@@ -53,8 +55,11 @@ pub enum Command {
         #[command(subcommand)]
         model: fit::FitCommand,
     },
-    /// Track streamlines (FA-thresholded, Euler/RK2/RK4) from a DWI or tensor image into .trk/.tck.
+    /// Track streamlines (Euler/RK2/RK4) along tensors or ODF peaks, from a DWI, tensor, SH or peaks image,
+    /// into .trk/.tck.
     Track(track::TrackArgs),
+    /// ODF peaks of a DWI (CSA/Q-ball) or SH image, as DIPY's peaks_from_model, in MRtrix or DIPY layout.
+    Peaks(peaks::PeaksArgs),
     /// Keep the streamlines that meet every include ROI and no exclude ROI; write .trk/.tck.
     Select(select::SelectArgs),
     /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory

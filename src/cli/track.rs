@@ -1,5 +1,5 @@
-//! `fascicle track`: deterministic FA-thresholded tracking from a DWI (fitted here with WLS) or a tensor
-//! image, writing a tractogram in the input's space.
+//! `fascicle track`: deterministic tracking from a DWI (fitted here: tensors, or CSA/Q-ball ODF peaks), a tensor
+//! image, SH coefficients or a peaks image, writing a tractogram in the input's space.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -7,92 +7,286 @@ use std::time::Instant;
 use clap::Args;
 use fascicle_core::dti::{self, FitMethod};
 use fascicle_core::io::{Tractogram, gradients::DEFAULT_B0_THRESHOLD, nifti, tck, tractogram::extension, trk};
+use fascicle_core::sh::{self, OdfKind, OdfModel, PeakParams, PeakVolume, ShBasis, ShGrid, Sphere};
 use fascicle_core::tracking::{
-    Integrator, TensorField, TensorInterpolation, TrackParams, Tracker, Tracks, read_seeds, seeds_from_mask, to_voxel,
+    DirectionField, Integrator, PeakField, TensorField, TensorInterpolation, TrackParams, Tracker, Tracks, read_seeds,
+    seeds_from_mask, to_voxel,
 };
 use fascicle_core::{Error, Volume};
 use glam::DMat4;
 
 use super::fit::{DwiArgs, load, progress_bar, read_mask};
 
+/// The model a DWI is fitted with before tracking.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TrackModel {
+    /// Diffusion tensor (--fit-method), tracked along its principal eigenvector.
+    Dti,
+    /// Constant-solid-angle ODF (--lmax), tracked along its peaks; stops on GFA.
+    Csa,
+    /// Q-ball ODF (--lmax), tracked along its peaks; stops on GFA.
+    Qball,
+}
+
+/// How the direction between voxel centres is formed from a tensor field.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FieldInterpolation {
+    /// The principal eigenvectors of the 8 voxels around the point, sign-aligned and blended (DIPY's EuDX;
+    /// eigen-decompositions once per voxel: the fast one).
+    Peak,
+    /// The six tensor components blended, then the principal eigenvector of the blend.
+    Componentwise,
+    /// The matrix logarithms blended (no swelling between differently oriented tensors).
+    LogEuclidean,
+}
+
 #[derive(Args, Debug)]
 pub struct TrackArgs {
-    /// 4D DWI to fit (WLS) and track; needs --bval and --bvec.
-    #[arg(long, conflicts_with = "tensor", required_unless_present = "tensor")]
+    /// 4D DWI to fit and track (--model); needs --bval and --bvec.
+    #[arg(long, conflicts_with_all = ["tensor", "sh", "peaks"], required_unless_present_any = ["tensor", "sh", "peaks"])]
     pub dwi: Option<PathBuf>,
+    /// FSL b-values of --dwi.
     #[arg(long, requires = "dwi")]
     pub bval: Option<PathBuf>,
+    /// FSL b-vectors of --dwi (in the image's voxel axes, as DIPY reads them).
     #[arg(long, requires = "dwi")]
     pub bvec: Option<PathBuf>,
-    /// Tensor image (X,Y,Z,6 lower-triangular, as `fascicle fit dti` and DIPY write it).
-    #[arg(long)]
+    /// Model fitted to --dwi.
+    #[arg(long, value_enum, default_value_t = TrackModel::Dti)]
+    pub model: TrackModel,
+    /// Tensor estimator for --model dti.
+    #[arg(long, default_value = "wls")]
+    pub fit_method: FitMethod,
+    /// Maximum SH order for --model csa|qball.
+    #[arg(long, default_value_t = 6)]
+    pub lmax: usize,
+    /// Tensor image (X,Y,Z,6 lower-triangular, as `fascicle fit dti` and DIPY write it): tracked without fitting.
+    #[arg(long, conflicts_with_all = ["sh", "peaks"])]
     pub tensor: Option<PathBuf>,
+    /// SH coefficients (X,Y,Z,n, as `fascicle fit csa` writes them): peaks extracted, then tracked.
+    #[arg(long, conflicts_with = "peaks")]
+    pub sh: Option<PathBuf>,
+    /// Basis of --sh: descoteaux07 or tournier07 (MRtrix; its coefficients are in scanner coordinates).
+    #[arg(long, default_value = "descoteaux07")]
+    pub sh_basis: String,
+    /// --sh is in the legacy variant of its basis (DIPY's default: descoteaux07 legacy).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub sh_legacy: bool,
+    /// Peaks image (MRtrix (X,Y,Z,3N) or DIPY (X,Y,Z,N,3) layout): tracked as is; needs --stop-map.
+    #[arg(long, requires = "stop_map")]
+    pub peaks: Option<PathBuf>,
+    /// Scalar image whose value stops tracks below --fa-threshold (with --peaks; e.g. an FA or GFA map).
+    #[arg(long)]
+    pub stop_map: Option<PathBuf>,
     /// Tracking mask (3D, > 0 inside); with --dwi also the fit mask.
     #[arg(long)]
     pub mask: Option<PathBuf>,
     /// Seeds in world RAS mm: .npy (N x 3) or text (x y z per line).
     #[arg(long, conflicts_with = "seed_mask")]
     pub seeds: Option<PathBuf>,
-    /// Seed in every voxel > 0 of this mask (default: every voxel with FA above the threshold).
+    /// Seed in every voxel > 0 of this mask (default: every voxel whose stopping value is above the threshold).
     #[arg(long)]
     pub seed_mask: Option<PathBuf>,
     /// Seeds per voxel along each axis (N³ per voxel, DIPY's placement).
     #[arg(long, default_value_t = 1)]
     pub seed_density: usize,
+    /// Tracks continue while the interpolated FA (GFA for ODF models, the --stop-map value for --peaks) is above this.
     #[arg(long, default_value_t = 0.2)]
     pub fa_threshold: f64,
+    /// Step length in mm.
     #[arg(long, default_value_t = 0.5)]
     pub step_mm: f64,
-    /// Largest turn per step, degrees.
+    /// Largest turn per step, degrees; also the largest angle between the incoming direction and a voxel's peak
+    /// for that voxel to count in the blend.
     #[arg(long, default_value_t = 60.0)]
     pub max_angle: f64,
+    /// Integration scheme: rk4, rk2 or euler.
     #[arg(long, default_value = "rk4")]
     pub integrator: Integrator,
-    #[arg(long, default_value = "componentwise")]
-    pub interpolation: TensorInterpolation,
+    /// Direction interpolation of a tensor field.
+    #[arg(long, value_enum, default_value_t = FieldInterpolation::Peak)]
+    pub interpolation: FieldInterpolation,
+    /// ODF peaks: drop peaks below this fraction of the largest.
+    #[arg(long, default_value_t = 0.5)]
+    pub relative_peak_threshold: f64,
+    /// ODF peaks: of two peaks closer than this (degrees), keep the larger.
+    #[arg(long, default_value_t = 25.0)]
+    pub min_separation_angle: f64,
+    /// ODF peaks: at most this many per voxel.
+    #[arg(long, default_value_t = 5)]
+    pub npeaks: usize,
+    /// ODF peaks with a value at or below this are not followed (DIPY's EuDX default).
+    #[arg(long, default_value_t = 0.0239)]
+    pub min_peak_value: f32,
+    /// Streamlines shorter than this (mm) are dropped.
     #[arg(long, default_value_t = 0.0)]
     pub min_length_mm: f64,
+    /// Streamlines end at this length (mm; each half at most half of it).
     #[arg(long, default_value_t = 250.0)]
     pub max_length_mm: f64,
     /// Store the world-frame tensor at each point as six .trk scalars (Dxx Dxy Dyy Dxz Dyz Dzz, mm²/s).
     #[arg(long, default_value_t = false)]
     pub with_tensors: bool,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
     /// Output tractogram (.trk or .tck).
     #[arg(long)]
     pub out: PathBuf,
 }
 
-/// A tensor field ready to track, on its voxel grid.
+/// A direction field ready to track, on its voxel grid.
+pub(crate) enum Field {
+    Tensor(TensorField),
+    Peaks(PeakField),
+}
+
+impl Field {
+    /// The stopping value at voxel centre `v`.
+    pub fn scalar_at(&self, v: usize) -> f64 {
+        match self {
+            Field::Tensor(f) => f.fa_at(v),
+            Field::Peaks(f) => f.scalar_at(v),
+        }
+    }
+}
+
 pub(crate) struct Prepared {
-    pub field: TensorField,
+    pub field: Field,
     pub world_from_voxel: DMat4,
     pub dims: [usize; 3],
 }
 
-/// Fits a DWI (WLS) into a field.
+/// A fitted tensor volume as the chosen field.
+fn tensor_field(
+    fit: &dti::TensorVolume,
+    voxel_size: glam::DVec3,
+    interp: FieldInterpolation,
+    max_angle: f64,
+) -> Result<Field, Error> {
+    Ok(match interp {
+        FieldInterpolation::Peak => Field::Peaks(PeakField::from_fit(fit, voxel_size)?.with_max_angle(max_angle)),
+        FieldInterpolation::Componentwise => {
+            Field::Tensor(TensorField::from_fit(fit, voxel_size, TensorInterpolation::Componentwise)?)
+        }
+        FieldInterpolation::LogEuclidean => {
+            Field::Tensor(TensorField::from_fit(fit, voxel_size, TensorInterpolation::LogEuclidean)?)
+        }
+    })
+}
+
+/// Fits a DWI with the tensor model into a field.
 pub(crate) fn field_from_dwi(
     dwi: &Volume<f32>,
     gtab: &fascicle_core::io::GradientTable,
+    method: FitMethod,
     mask: Option<&[bool]>,
-    interpolation: TensorInterpolation,
+    interp: FieldInterpolation,
+    max_angle: f64,
 ) -> Result<Prepared, Error> {
     let pb = progress_bar(dwi.n_voxels(), "DTI", "voxels");
-    let fit = dti::fit_volume_with_progress(dwi, gtab, FitMethod::Wls, mask, &|n| pb.inc(n as u64))?;
+    let fit = dti::fit_volume_with_progress(dwi, gtab, method, mask, &|n| pb.inc(n as u64))?;
     pb.finish_and_clear();
-    let field = TensorField::from_fit(&fit, dwi.voxel_size(), interpolation)?;
+    let field = tensor_field(&fit, dwi.voxel_size(), interp, max_angle)?;
     Ok(Prepared { field, world_from_voxel: dwi.world_from_voxel, dims: fit.dims })
 }
 
+/// ODF peaks of voxel-major SH coefficients, with directions in the voxel frame. MRtrix's tournier07
+/// coefficients are in scanner coordinates, so their peaks are rotated back through the image's frame.
+pub(crate) fn odf_peaks(
+    sh: ShGrid<'_>,
+    world_from_voxel: DMat4,
+    params: &PeakParams,
+    mask: Option<&[bool]>,
+) -> Result<PeakVolume, Error> {
+    let pb = progress_bar(sh.dims.iter().product(), "peaks", "voxels");
+    let mut peaks = sh::peaks_from_sh(sh, &Sphere::dipy_default(), params, mask, &|n| pb.inc(n as u64))?;
+    pb.finish_and_clear();
+    if matches!(sh.basis, ShBasis::Tournier07 { .. }) {
+        let to_voxel = fascicle_core::io::peaks::direction_frame(world_from_voxel).inverse();
+        for d in peaks.dirs.iter_mut().filter(|d| **d != [0.0; 3]) {
+            let v = (to_voxel * glam::Vec3::from(*d).as_dvec3()).normalize();
+            *d = [v.x as f32, v.y as f32, v.z as f32];
+        }
+    }
+    Ok(peaks)
+}
+
+fn peak_params(a: &TrackArgs) -> PeakParams {
+    PeakParams {
+        relative_peak_threshold: a.relative_peak_threshold,
+        min_separation_angle: a.min_separation_angle,
+        npeaks: a.npeaks,
+    }
+}
+
+/// The SH coefficients of an image (X,Y,Z,n), voxel-major in f64.
+pub(crate) fn sh_coefficients(vol: &Volume<f32>) -> Result<(Vec<f64>, usize), Error> {
+    let n = vol.n_channels();
+    let l_max = sh::l_max_for(n).filter(|_| vol.shape.len() == 4).ok_or_else(|| {
+        Error::Shape(format!("an SH image is (X,Y,Z,n) with n = 6, 15, 28, 45, ...; this one is {:?}", vol.shape))
+    })?;
+    let nv = vol.n_voxels();
+    Ok(((0..nv * n).map(|s| f64::from(vol.data[s / n + nv * (s % n)])).collect(), l_max))
+}
+
 fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
+    let params = peak_params(a);
     if let Some(t) = &a.tensor {
         let (vol, _) = nifti::read::<f64>(t)?;
-        let field = TensorField::from_volume(&vol, a.interpolation)?;
+        let field = match a.interpolation {
+            FieldInterpolation::Peak => Field::Peaks(PeakField::from_tensor_volume(&vol)?.with_max_angle(a.max_angle)),
+            FieldInterpolation::Componentwise => {
+                Field::Tensor(TensorField::from_volume(&vol, TensorInterpolation::Componentwise)?)
+            }
+            FieldInterpolation::LogEuclidean => {
+                Field::Tensor(TensorField::from_volume(&vol, TensorInterpolation::LogEuclidean)?)
+            }
+        };
         let dims = vol.dims3();
         let mask = a.mask.as_deref().map(|m| read_mask(m, dims)).transpose()?;
         return Ok((Prepared { field, world_from_voxel: vol.world_from_voxel, dims }, mask));
     }
+    if let Some(path) = &a.sh {
+        let (vol, _) = nifti::read::<f32>(path)?;
+        let (coeffs, l_max) = sh_coefficients(&vol)?;
+        let dims = vol.dims3();
+        let mask = a.mask.as_deref().map(|m| read_mask(m, dims)).transpose()?;
+        let basis = ShBasis::parse(&a.sh_basis, a.sh_legacy)?;
+        let sh = ShGrid { dims, coeffs: &coeffs, l_max, basis };
+        let peaks = odf_peaks(sh, vol.world_from_voxel, &params, mask.as_deref())?;
+        let field =
+            PeakField::from_peaks(&peaks, vol.voxel_size(), &peaks.gfa, a.min_peak_value)?.with_max_angle(a.max_angle);
+        return Ok((Prepared { field: Field::Peaks(field), world_from_voxel: vol.world_from_voxel, dims }, mask));
+    }
+    if let Some(path) = &a.peaks {
+        let img = fascicle_core::io::peaks::read(path)?;
+        let stop = a.stop_map.as_deref().ok_or_else(|| Error::Param("--peaks needs --stop-map".into()))?;
+        let (s, _) = nifti::read::<f32>(stop)?;
+        if s.dims3() != img.dims || s.n_channels() != 1 {
+            return Err(Error::Shape(format!(
+                "stop map {} is {:?}, the peaks' grid is {:?}",
+                stop.display(),
+                s.shape,
+                img.dims
+            )));
+        }
+        let vs = Volume::<f32> { shape: img.dims.to_vec(), data: Vec::new(), world_from_voxel: img.world_from_voxel };
+        let dirs: Vec<[f32; 3]> = img
+            .dirs
+            .iter()
+            .zip(&img.amplitudes)
+            .map(|(d, &amp)| if amp > a.min_peak_value { *d } else { [0.0; 3] })
+            .collect();
+        let field = PeakField::new(img.dims, vs.voxel_size(), img.npeaks, &dirs, &s.data)?.with_max_angle(a.max_angle);
+        let mask = a.mask.as_deref().map(|m| read_mask(m, img.dims)).transpose()?;
+        return Ok((
+            Prepared { field: Field::Peaks(field), world_from_voxel: img.world_from_voxel, dims: img.dims },
+            mask,
+        ));
+    }
     let (Some(dwi), Some(bval), Some(bvec)) = (&a.dwi, &a.bval, &a.bvec) else {
-        return Err(Error::Param("give --tensor FILE, or --dwi FILE with --bval and --bvec".into()));
+        return Err(Error::Param("give --dwi FILE with --bval and --bvec, or --tensor, --sh or --peaks FILE".into()));
     };
     let args = DwiArgs {
         dwi: dwi.clone(),
@@ -102,12 +296,61 @@ fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
         b0_threshold: DEFAULT_B0_THRESHOLD,
     };
     let l = load(&args)?;
-    Ok((field_from_dwi(&l.dwi, &l.gtab, l.mask.as_deref(), a.interpolation)?, l.mask))
+    let prepared = match a.model {
+        TrackModel::Dti => {
+            field_from_dwi(&l.dwi, &l.gtab, a.fit_method, l.mask.as_deref(), a.interpolation, a.max_angle)?
+        }
+        TrackModel::Csa | TrackModel::Qball => {
+            let kind = if a.model == TrackModel::Csa { OdfKind::Csa } else { OdfKind::Qball };
+            let basis = ShBasis::Descoteaux07 { legacy: true };
+            let model = OdfModel::new(&l.gtab, kind, a.lmax, sh::fit::DEFAULT_SMOOTH, basis)?;
+            let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
+            let coeffs = sh::fit_odf_coefficients(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
+            pb.finish_and_clear();
+            let dims = l.dwi.dims3();
+            let sh = ShGrid { dims, coeffs: &coeffs, l_max: a.lmax, basis };
+            let peaks = odf_peaks(sh, l.dwi.world_from_voxel, &params, l.mask.as_deref())?;
+            let field = PeakField::from_peaks(&peaks, l.dwi.voxel_size(), &peaks.gfa, a.min_peak_value)?
+                .with_max_angle(a.max_angle);
+            Prepared { field: Field::Peaks(field), world_from_voxel: l.dwi.world_from_voxel, dims }
+        }
+    };
+    Ok((prepared, l.mask))
 }
 
-/// Every voxel whose FA is above `threshold`.
-pub(crate) fn fa_seed_mask(field: &TensorField, dims: [usize; 3], threshold: f64) -> Vec<bool> {
-    (0..dims.iter().product()).map(|v| field.fa_at(v) > threshold).collect()
+/// Every voxel whose stopping value is above `threshold`.
+pub(crate) fn fa_seed_mask(field: &Field, dims: [usize; 3], threshold: f64) -> Vec<bool> {
+    (0..dims.iter().product()).map(|v| field.scalar_at(v) > threshold).collect()
+}
+
+/// Tracks `seeds` (voxel coordinates) through whichever field was prepared.
+pub(crate) fn track(
+    p: &Prepared,
+    params: TrackParams,
+    mask: Option<&[bool]>,
+    seeds: &[glam::DVec3],
+    with_tensors: bool,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Tracks, Error> {
+    fn go<F: DirectionField>(
+        f: &F,
+        p: &Prepared,
+        params: TrackParams,
+        mask: Option<&[bool]>,
+        seeds: &[glam::DVec3],
+        with_tensors: bool,
+        progress: &(dyn Fn(usize) + Sync),
+    ) -> Result<Tracks, Error> {
+        let mut t = Tracker::new(f, p.world_from_voxel, params)?.with_tensors(with_tensors);
+        if let Some(m) = mask {
+            t = t.with_mask(m)?;
+        }
+        Ok(t.run_with_progress(seeds, progress))
+    }
+    match &p.field {
+        Field::Tensor(f) => go(f, p, params, mask, seeds, with_tensors, progress),
+        Field::Peaks(f) => go(f, p, params, mask, seeds, with_tensors, progress),
+    }
 }
 
 /// Writes `.trk` (optionally with per-point tensors as scalars) or `.tck`.
@@ -138,6 +381,12 @@ pub(crate) fn write_tracks(
 }
 
 pub fn run(a: TrackArgs) -> Result<(), Error> {
+    if let Some(n) = a.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+            .map_err(|e| Error::Param(format!("--threads {n}: {e}")))?;
+    }
     let params = TrackParams {
         step_mm: a.step_mm,
         fa_threshold: a.fa_threshold,
@@ -147,8 +396,12 @@ pub fn run(a: TrackArgs) -> Result<(), Error> {
         max_length_mm: a.max_length_mm,
     };
     params.validate()?;
+    peak_params(&a).validate()?;
     if !matches!(extension(&a.out).as_str(), "trk" | "tck") {
         return Err(Error::Param(format!("output '{}' must end in .trk or .tck", a.out.display())));
+    }
+    if a.with_tensors && (a.sh.is_some() || a.peaks.is_some() || (a.tensor.is_none() && a.model != TrackModel::Dti)) {
+        return Err(Error::Param("--with-tensors needs a tensor model (--model dti or --tensor)".into()));
     }
     let t0 = Instant::now();
     let (p, mask) = prepare(&a)?;
@@ -164,13 +417,9 @@ pub fn run(a: TrackArgs) -> Result<(), Error> {
             a.fa_threshold
         );
     }
-    let mut tracker = Tracker::new(&p.field, p.world_from_voxel, params)?;
-    if let Some(m) = &mask {
-        tracker = tracker.with_mask(m)?;
-    }
     let t1 = Instant::now();
     let pb = progress_bar(seeds.len(), "tracking", "seeds");
-    let tracks = tracker.run_with_progress(&seeds, &|n| pb.inc(n as u64));
+    let tracks = track(&p, params, mask.as_deref(), &seeds, a.with_tensors, &|n| pb.inc(n as u64))?;
     pb.finish_and_clear();
     let t_track = t1.elapsed();
     write_tracks(&a.out, &tracks, p.world_from_voxel, p.dims, a.with_tensors)?;

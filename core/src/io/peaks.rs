@@ -171,7 +171,11 @@ fn dipy_values_beside(dirs: &Path, dims: [usize; 3], k: usize) -> Result<Option<
     }
     let (v, _) = nifti::read::<f32>(&path)?;
     if v.dims3() != dims || v.n_channels() != k {
-        return Err(Error::Shape(format!("{}: {:?} does not fit its directions' {dims:?} x {k}", path.display(), v.shape)));
+        return Err(Error::Shape(format!(
+            "{}: {:?} does not fit its directions' {dims:?} x {k}",
+            path.display(),
+            v.shape
+        )));
     }
     let n = v.n_voxels();
     Ok(Some((0..n * k).map(|s| v.data[s / k + n * (s % k)]).collect()))

@@ -20,11 +20,16 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TckHeader)> {
     let path = path.as_ref();
     let b = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     const MAGIC: &[u8] = b"mrtrix tracks";
-    if !b.starts_with(MAGIC) || !matches!(b.get(MAGIC.len()), Some(b'\n') | Some(b'\r')) {
+    // MRtrix's own writers (tckgen) pad the first line with spaces, so that it can be rewritten in place.
+    let first_eol = b.iter().take(4096).position(|&c| c == b'\n');
+    let first_ok = first_eol.is_some_and(|e| {
+        b[..e].starts_with(MAGIC) && b[MAGIC.len()..e].iter().all(|c| matches!(c, b' ' | b'\t' | b'\r'))
+    });
+    let Some(first_eol) = first_eol.filter(|_| first_ok) else {
         return Err(Error::format(path, "not an MRtrix tracks file: the first line is not 'mrtrix tracks'"));
-    }
+    };
     let mut header: TckHeader = Vec::new();
-    let mut pos = MAGIC.len() + 1;
+    let mut pos = first_eol + 1;
     let mut ended = false;
     while pos < b.len() {
         let eol = b[pos..].iter().position(|&c| c == b'\n').map(|i| pos + i);

@@ -233,8 +233,7 @@ pub fn peaks_from_sh(
                 for (j, g) in gfa.iter_mut().enumerate() {
                     let v = block * BLOCK + j;
                     let c = &coeffs[v * nc..(v + 1) * nc];
-                    if mask.is_some_and(|m| !m[v]) || c.iter().all(|x| *x == 0.0) || c.iter().any(|x| !x.is_finite())
-                    {
+                    if mask.is_some_and(|m| !m[v]) || c.iter().all(|x| *x == 0.0) || c.iter().any(|x| !x.is_finite()) {
                         continue;
                     }
                     for (o, row) in odf.iter_mut().zip(b.chunks_exact(nc)) {

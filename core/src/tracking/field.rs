@@ -345,13 +345,7 @@ const DEFAULT_GATE_DEG: f64 = 60.0;
 impl PeakField {
     /// From per-voxel peaks (`npeaks` per voxel, voxel-major; zero vectors pad voxels with fewer) in the
     /// voxel-aligned mm frame, and a stopping scalar per voxel. Non-finite values become "no peak" / 0.
-    pub fn new(
-        dims: [usize; 3],
-        voxel_size: DVec3,
-        npeaks: usize,
-        peaks: &[[f32; 3]],
-        scalar: &[f32],
-    ) -> Result<Self> {
+    pub fn new(dims: [usize; 3], voxel_size: DVec3, npeaks: usize, peaks: &[[f32; 3]], scalar: &[f32]) -> Result<Self> {
         let n: usize = dims.iter().product();
         check_grid(dims, voxel_size)?;
         if npeaks == 0 || peaks.len() != n * npeaks || scalar.len() != n {

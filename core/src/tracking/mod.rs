@@ -12,7 +12,8 @@ pub mod seeds;
 mod tracker;
 
 pub use field::{
-    CircleField, DirectionField, FieldSample, PeakField, TensorField, TensorInterpolation, principal_direction, trilinear,
+    CircleField, DirectionField, FieldSample, PeakField, TensorField, TensorInterpolation, principal_direction,
+    trilinear,
 };
 pub use seeds::{read_seeds, seeds_from_mask, to_voxel};
 pub use tracker::{Integrator, Rejection, StopReason, TrackParams, Tracker, Tracks, tensors_at};

@@ -1,0 +1,124 @@
+//! `fascicle peaks`: ODF peaks of a DWI (CSA or Q-ball fitted here) or of an SH image, as DIPY's
+//! `peaks_from_model` finds them, written in MRtrix's or DIPY's layout.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use fascicle_core::Error;
+use fascicle_core::io::{nifti, peaks};
+use fascicle_core::sh::{self, OdfKind, OdfModel, PeakParams, ShBasis, ShGrid};
+
+use super::fit::{DwiArgs, load, progress_bar, read_mask};
+use super::track::{odf_peaks, sh_coefficients};
+
+/// The file layout of `fascicle peaks`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Layout {
+    /// One image of 3N volumes, amplitude-scaled vectors in scanner coordinates, NaN where absent (sh2peaks);
+    /// --out is the file.
+    Mrtrix,
+    /// PREFIX_dirs (X,Y,Z,N,3, voxel axes), PREFIX_values, PREFIX_indices, PREFIX_gfa (.nii.gz); --out is PREFIX.
+    Dipy,
+}
+
+#[derive(Args, Debug)]
+pub struct PeaksArgs {
+    /// 4D DWI to fit (needs --bval and --bvec).
+    #[arg(long, conflicts_with = "sh", required_unless_present = "sh")]
+    pub dwi: Option<PathBuf>,
+    /// FSL b-values of --dwi.
+    #[arg(long, requires = "dwi")]
+    pub bval: Option<PathBuf>,
+    /// FSL b-vectors of --dwi.
+    #[arg(long, requires = "dwi")]
+    pub bvec: Option<PathBuf>,
+    /// ODF model fitted to --dwi: csa or qball.
+    #[arg(long, default_value = "csa")]
+    pub model: String,
+    /// Maximum SH order of the fit.
+    #[arg(long, default_value_t = 6)]
+    pub lmax: usize,
+    /// SH coefficients (X,Y,Z,n) instead of a DWI.
+    #[arg(long)]
+    pub sh: Option<PathBuf>,
+    /// Basis of --sh: descoteaux07 or tournier07 (MRtrix).
+    #[arg(long, default_value = "descoteaux07")]
+    pub sh_basis: String,
+    /// --sh is in the legacy variant of its basis (DIPY's default: descoteaux07 legacy).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    pub sh_legacy: bool,
+    /// 3D mask: voxels > 0 get peaks.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Drop peaks below this fraction of the largest.
+    #[arg(long, default_value_t = 0.5)]
+    pub relative_peak_threshold: f64,
+    /// Of two peaks closer than this (degrees), keep the larger.
+    #[arg(long, default_value_t = 25.0)]
+    pub min_separation_angle: f64,
+    /// At most this many peaks per voxel.
+    #[arg(long, default_value_t = 5)]
+    pub npeaks: usize,
+    /// Output layout.
+    #[arg(long, value_enum, default_value_t = Layout::Mrtrix)]
+    pub layout: Layout,
+    /// Output file (mrtrix layout) or prefix (dipy layout).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(a: PeaksArgs) -> Result<(), Error> {
+    let params = PeakParams {
+        relative_peak_threshold: a.relative_peak_threshold,
+        min_separation_angle: a.min_separation_angle,
+        npeaks: a.npeaks,
+    };
+    params.validate()?;
+    let (peaks, affine) = if let Some(path) = &a.sh {
+        let (vol, _) = nifti::read::<f32>(path)?;
+        let (coeffs, l_max) = sh_coefficients(&vol)?;
+        let dims = vol.dims3();
+        let mask = a.mask.as_deref().map(|m| read_mask(m, dims)).transpose()?;
+        let basis = ShBasis::parse(&a.sh_basis, a.sh_legacy)?;
+        let sh = ShGrid { dims, coeffs: &coeffs, l_max, basis };
+        (odf_peaks(sh, vol.world_from_voxel, &params, mask.as_deref())?, vol.world_from_voxel)
+    } else {
+        let (Some(dwi), Some(bval), Some(bvec)) = (&a.dwi, &a.bval, &a.bvec) else {
+            return Err(Error::Param("give --dwi FILE with --bval and --bvec, or --sh FILE".into()));
+        };
+        let kind = match a.model.to_ascii_lowercase().as_str() {
+            "csa" => OdfKind::Csa,
+            "qball" | "q-ball" => OdfKind::Qball,
+            m => return Err(Error::Param(format!("unknown ODF model '{m}' (use csa or qball)"))),
+        };
+        let l = load(&DwiArgs {
+            dwi: dwi.clone(),
+            bval: bval.clone(),
+            bvec: bvec.clone(),
+            mask: a.mask.clone(),
+            b0_threshold: fascicle_core::io::gradients::DEFAULT_B0_THRESHOLD,
+        })?;
+        let basis = ShBasis::Descoteaux07 { legacy: true };
+        let model = OdfModel::new(&l.gtab, kind, a.lmax, sh::fit::DEFAULT_SMOOTH, basis)?;
+        let pb = progress_bar(l.dwi.n_voxels(), "ODF fit", "voxels");
+        let coeffs = sh::fit_odf_coefficients(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
+        pb.finish_and_clear();
+        let sh = ShGrid { dims: l.dwi.dims3(), coeffs: &coeffs, l_max: a.lmax, basis };
+        (odf_peaks(sh, l.dwi.world_from_voxel, &params, l.mask.as_deref())?, l.dwi.world_from_voxel)
+    };
+    let n = peaks.gfa.len();
+    let with = (0..n).filter(|&v| peaks.count(v) > 0).count();
+    let total: usize = (0..n).map(|v| peaks.count(v)).sum();
+    match a.layout {
+        Layout::Mrtrix => {
+            peaks::write_mrtrix(&a.out, &peaks, affine)?;
+            eprintln!("wrote {} ({} peaks in {with} of {n} voxels, MRtrix layout)", a.out.display(), total);
+        }
+        Layout::Dipy => {
+            let files = peaks::write_dipy(&a.out, &peaks, affine)?;
+            let names: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
+            eprintln!("wrote {} ({total} peaks in {with} of {n} voxels, DIPY layout)", names.join(", "));
+        }
+    }
+    Ok(())
+}
