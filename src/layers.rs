@@ -505,7 +505,7 @@ pub fn peak_segments(path: &std::path::Path, length: f32) -> Result<Tractogram, 
     for v in 0..img.amplitudes.len() / k {
         let amps = &img.amplitudes[v * k..(v + 1) * k];
         let top = amps.iter().copied().fold(0.0f32, f32::max);
-        if !(top > 0.0) {
+        if top.is_nan() || top <= 0.0 {
             continue;
         }
         let centre =

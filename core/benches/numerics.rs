@@ -83,7 +83,19 @@ fn bench_dti(c: &mut Criterion) {
     c.bench_function("tensor field sample (trilinear 7 values + principal direction)", |b| {
         b.iter(|| {
             p.x = (p.x + 0.37) % 6.0;
-            black_box(field.sample(black_box(p), DVec3::X))
+            black_box(field.sample(black_box(p), glam::DVec3::X))
+        })
+    });
+    let peaks = fascicle_core::tracking::PeakField::from_tensors(
+        [8, 8, 8],
+        glam::DVec3::ONE,
+        (0..512).map(|v| Some(tensors[v % tensors.len()])),
+    )
+    .expect("field");
+    c.bench_function("peak field sample (8 principal directions, sign-aligned and gated as EuDX)", |b| {
+        b.iter(|| {
+            p.x = (p.x + 0.37) % 6.0;
+            black_box(peaks.sample(black_box(p), glam::DVec3::X))
         })
     });
 }

@@ -148,7 +148,7 @@ pub fn peak_directions(odf: &[f64], sphere: &Sphere, params: &PeakParams) -> Vec
 pub fn gfa_sampled(odf: &[f64]) -> f64 {
     let n = odf.len() as f64;
     let sq: f64 = odf.iter().map(|v| v * v).sum();
-    if !(sq > 0.0) || n < 2.0 {
+    if sq.is_nan() || sq <= 0.0 || n < 2.0 {
         return 0.0;
     }
     let mean = odf.iter().sum::<f64>() / n;
