@@ -155,7 +155,8 @@ pub fn run(phantom: &Path, python: Option<&Path>, tckgen: Option<&Path>, runs: u
                 }
             }
         }
-        None => notes.push("DIPY rows: give --python (a Python with dipy==1.12.1).".into()),
+        None => notes
+            .push("DIPY rows: give --python (a Python with dipy==1.12.1; bench/install_peers.sh prints one).".into()),
     }
     match tckgen.map(Path::to_path_buf).or_else(|| on_path("tckgen")) {
         Some(tck) => {
@@ -237,6 +238,19 @@ pub fn run(phantom: &Path, python: Option<&Path>, tckgen: Option<&Path>, runs: u
             r.tracking.map_or("".into(), |t| format!("{:.2}", pts as f64 / t / 1e6)),
             dice(&density(&r.tracts, affine, dims), &reference)
         );
+    }
+    // Density-map Dice of each pair of tools (their all-thread runs; the output does not depend on threads).
+    let picks: Vec<&Run> = out.iter().filter(|r| r.threads == all).collect();
+    if picks.len() > 1 {
+        let maps: Vec<Vec<bool>> = picks.iter().map(|r| density(&r.tracts, affine, dims)).collect();
+        let label = |r: &Run| format!("{} {}", r.tool, r.integrator);
+        let _ = writeln!(md, "\nDensity-map Dice of each pair (voxels any streamline passes through):\n");
+        let _ = writeln!(md, "| | {} |", picks.iter().map(|r| label(r)).collect::<Vec<_>>().join(" | "));
+        let _ = writeln!(md, "|---|{}", "---|".repeat(picks.len()));
+        for (i, r) in picks.iter().enumerate() {
+            let cells: Vec<String> = maps.iter().map(|m| format!("{:.3}", dice(&maps[i], m))).collect();
+            let _ = writeln!(md, "| {} | {} |", label(r), cells.join(" | "));
+        }
     }
     let rate = |tool: &str, integrator: &str, threads: usize| {
         out.iter()
