@@ -7,12 +7,8 @@ fn main() -> std::process::ExitCode {
     let args = cli::Cli::parse();
     let result: Result<(), String> = match args.command {
         Some(cli::Command::Fit { model }) => cli::fit::run(model).map_err(|e| e.to_string()),
-        Some(cli::Command::Bench { suite }) => cli::bench::run(suite).map_err(|e| e.to_string()),
         Some(cli::Command::Track(a)) => cli::track::run(a).map_err(|e| e.to_string()),
         Some(cli::Command::Peaks(a)) => cli::peaks::run(a).map_err(|e| e.to_string()),
-        Some(cli::Command::Soak { frames, size, csv, tolerance_mib }) => {
-            cli::soak::run(frames, &size, csv.as_deref(), tolerance_mib)
-        }
         Some(cli::Command::Select(a)) => cli::select::run(a).map_err(|e| e.to_string()),
         Some(cli::Command::Info { file }) => cli::info::run(&file).map_err(|e| e.to_string()),
         Some(cli::Command::Render { scene, out, size, depth }) => {

@@ -1,19 +1,11 @@
-//! The command line: `view`, `render`, `fit`, `track`, `select`, `info`, `bench`. Names and outputs here are an interface that other
+//! The command line: `view`, `render`, `fit`, `track`, `peaks`, `select`, `info` (benchmarks and the soak run are
+//! the separate `fascicle-bench` binary). Names and outputs here are an interface that other
 //! tools call; change them only with care.
 
-pub mod bench;
-pub mod bench_all;
-pub mod bench_fits;
-pub mod bench_glyphs;
-pub mod bench_splats;
-pub mod bench_tracking;
-pub mod bench_tracts;
-pub mod bench_volume;
 pub mod fit;
 pub mod info;
 pub mod peaks;
 pub mod select;
-pub mod soak;
 pub mod track;
 
 use std::path::PathBuf;
@@ -62,29 +54,8 @@ pub enum Command {
     Peaks(peaks::PeaksArgs),
     /// Keep the streamlines that meet every include ROI and no exclude ROI; write .trk/.tck.
     Select(select::SelectArgs),
-    /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory
-    /// and asset counts (the soak test). Fails when a layer reports an error or the second half of the run
-    /// grows: resident memory by more than the tolerance, or any asset or pipeline count beyond the first
-    /// half's largest.
-    Soak {
-        #[arg(long, default_value_t = 10_000)]
-        frames: u32,
-        #[arg(long, default_value = "320x200")]
-        size: String,
-        /// Write the samples (every 100 frames) as CSV.
-        #[arg(long)]
-        csv: Option<PathBuf>,
-        /// Resident-memory growth (MiB) allowed over the second half of the run.
-        #[arg(long, default_value_t = 32.0)]
-        tolerance_mib: f64,
-    },
     /// Print what a NIfTI image or tractogram holds.
     Info { file: PathBuf },
-    /// Print measured tables (run time, throughput, run time against error) as Markdown.
-    Bench {
-        #[command(subcommand)]
-        suite: bench::BenchCommand,
-    },
 }
 
 /// Parses "WxH".

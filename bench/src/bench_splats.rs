@@ -1,4 +1,4 @@
-//! `fascicle bench splats`: tensor splats at 10k, 100k and 1M, and the same tensors as ray-cast ellipsoid and
+//! `fascicle-bench splats`: tensor splats at 10k, 100k and 1M, and the same tensors as ray-cast ellipsoid and
 //! superquadric glyphs, rendered offscreen (lavapipe without a GPU).
 //!
 //! Scene: `n` tensors (random orientation and shape, deterministic) on a cubic grid of unit spacing, splat

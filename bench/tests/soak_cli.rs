@@ -1,4 +1,4 @@
-//! `fascicle soak` end to end, short: the default scene (every layer: slice, splats, SH glyphs,
+//! `fascicle-bench soak` end to end, short: the default scene (every layer: slice, splats, SH glyphs,
 //! hyperstreamlines, DVR, axes) drawn 600 frames while each layer is hidden and shown again and the tract
 //! ROI moves. The soak fails when a layer reports an error or the second half of the run grows (resident
 //! memory beyond 32 MiB, or any asset or pipeline count).
@@ -15,10 +15,10 @@ fn default_scene_soak_is_bounded() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
     }
-    let out = Command::new(env!("CARGO_BIN_EXE_fascicle"))
+    let out = Command::new(env!("CARGO_BIN_EXE_fascicle-bench"))
         .args(["soak", "--frames", "600", "--size", "64x48"])
         .output()
-        .expect("run fascicle soak");
+        .expect("run fascicle-bench soak");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     let samples: Vec<&str> =

@@ -1,4 +1,4 @@
-//! `fascicle soak`: the headless renderer draws the default scene for many frames while layers are toggled
+//! `fascicle-bench soak`: the headless renderer draws the default scene for many frames while layers are toggled
 //! and the tract ROI moves, sampling resident memory, the number of GPU-side assets (storage buffers,
 //! meshes, images), entities and render pipelines every 100 frames. It passes when no layer reports an
 //! error and the curves are bounded (`verdict`); the CSV is the curve.
@@ -16,8 +16,8 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::roi::RoiShape;
 use fascicle_render::headless;
 
-use crate::layers::{ActiveScene, LayerErrors};
-use crate::scene::{LayerKind, Scene};
+use fascicle::layers::{ActiveScene, LayerErrors};
+use fascicle::scene::{LayerKind, Scene};
 
 /// Resident set size in MiB (Linux), 0 elsewhere.
 fn rss_mib() -> f64 {
@@ -89,7 +89,7 @@ pub fn verdict(samples: &[Sample], tolerance_mib: f64) -> Result<String, String>
 pub fn run(frames: u32, size: &str, csv: Option<&Path>, tolerance_mib: f64) -> Result<(), String> {
     let toggle = std::env::var("SOAK_NO_TOGGLE").is_err();
     let roi = std::env::var("SOAK_NO_ROI").is_err();
-    let (w, h) = crate::cli::parse_size(size)?;
+    let (w, h) = fascicle::cli::parse_size(size)?;
     let mut scene = match std::env::var("SOAK_SCENE") {
         Ok(p) => Scene::load(std::path::Path::new(&p))?,
         Err(_) => Scene::default_scene(),
@@ -104,7 +104,7 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, tolerance_mib: f64) -> R
             scene.layers.remove(k);
         }
     }
-    let (mut app, target, _) = crate::render::scene_app(&scene, w, h);
+    let (mut app, target, _) = fascicle::render::scene_app(&scene, w, h);
     if std::env::var("SOAK_NO_CAPTURE").is_ok() {
         let _ = target;
         headless::run_until_ready(&mut app, 600).map_err(|e| e.to_string())?;

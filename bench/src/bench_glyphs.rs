@@ -1,4 +1,4 @@
-//! `fascicle bench glyphs`: ray-cast SH glyphs against the deformed-icosphere mesh baseline, frame time
+//! `fascicle-bench glyphs`: ray-cast SH glyphs against the deformed-icosphere mesh baseline, frame time
 //! against depth error, rendered offscreen (lavapipe without a GPU) and compared with the f64 reference
 //! ray caster of `fascicle_core::sh::glyph`.
 //!

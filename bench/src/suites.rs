@@ -1,5 +1,6 @@
-//! `fascicle bench SUITE`: measured tables for the README (run time, throughput, run time against error).
-//! Suites print Markdown tables to stdout; timing lives here and in criterion benches, never in tests.
+//! The suites of `fascicle-bench`: measured tables for `docs/benchmarks.md` (run time, throughput, run time
+//! against error). Suites print Markdown tables to stdout; timing lives here and in criterion benches, never in
+//! tests.
 
 use std::path::PathBuf;
 
@@ -107,31 +108,52 @@ pub enum BenchCommand {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory and
+    /// asset counts (the soak test). Fails when a layer reports an error or the second half of the run grows:
+    /// resident memory by more than the tolerance, or any asset or pipeline count beyond the first half's
+    /// largest.
+    Soak {
+        /// Frames to draw.
+        #[arg(long, default_value_t = 10_000)]
+        frames: u32,
+        /// Image size, WxH.
+        #[arg(long, default_value = "320x200")]
+        size: String,
+        /// Write the samples (every 100 frames) as CSV.
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Resident-memory growth (MiB) allowed over the second half of the run.
+        #[arg(long, default_value_t = 32.0)]
+        tolerance_mib: f64,
+    },
 }
 
 pub fn run(cmd: BenchCommand) -> Result<(), Error> {
     match cmd {
+        BenchCommand::Soak { frames, size, csv, tolerance_mib } => {
+            crate::soak::run(frames, &size, csv.as_deref(), tolerance_mib).map_err(Error::Param)
+        }
         BenchCommand::Tracking { phantom, python, tckgen, runs } => {
-            super::bench_tracking::run(&phantom, python.as_deref(), tckgen.as_deref(), runs)
+            crate::bench_tracking::run(&phantom, python.as_deref(), tckgen.as_deref(), runs)
         }
         BenchCommand::Glyphs { quick, csv } => {
-            super::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+            crate::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
-        BenchCommand::Plot { csv, out, title, by_n } => super::bench_all::plot_csv(&csv, &out, &title, by_n),
+        BenchCommand::Plot { csv, out, title, by_n } => crate::bench_all::plot_csv(&csv, &out, &title, by_n),
         BenchCommand::All { quick, quick_suite, report, python } => {
-            super::bench_all::run(quick, &quick_suite, &report, python.as_deref())
+            crate::bench_all::run(quick, &quick_suite, &report, python.as_deref())
         }
         BenchCommand::Fits { quick, csv, write_phantom } => {
-            super::bench_fits::run(quick, csv.as_deref(), write_phantom.as_deref())
+            crate::bench_fits::run(quick, csv.as_deref(), write_phantom.as_deref())
         }
         BenchCommand::Tracts { quick, csv } => {
-            super::bench_tracts::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+            crate::bench_tracts::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Volume { quick, csv } => {
-            super::bench_volume::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+            crate::bench_volume::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Splats { quick, csv } => {
-            super::bench_splats::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+            crate::bench_splats::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
     }
 }

@@ -1,4 +1,4 @@
-//! `fascicle bench tracking`: Fascicle, DIPY and MRtrix3 tracking the same phantom from the same seeds, each
+//! `fascicle-bench tracking`: Fascicle, DIPY and MRtrix3 tracking the same phantom from the same seeds, each
 //! timed as a whole process (start to exit: read the DWI, fit, track, write the tractogram), with the
 //! density-map Dice between their outputs; and run time against error on an analytic circle field.
 //!
@@ -125,7 +125,15 @@ pub fn run(phantom: &Path, python: Option<&Path>, tckgen: Option<&Path>, runs: u
         .collect();
     std::fs::write(&mrtrix_bvec, rows.join("\n") + "\n").map_err(io(&mrtrix_bvec))?;
 
-    let exe = std::env::current_exe().map_err(io(phantom))?;
+    // The `fascicle` binary the user runs, built beside this one (`./run bench` builds both).
+    let here = std::env::current_exe().map_err(io(phantom))?;
+    let exe = here.with_file_name(format!("fascicle{}", std::env::consts::EXE_SUFFIX));
+    if !exe.is_file() {
+        return Err(Error::Param(format!(
+            "{} not found: build it first (cargo build --release -p fascicle), or run ./run bench tracking",
+            exe.display()
+        )));
+    }
     let mut out: Vec<Run> = Vec::new();
     for (integrator, name) in [(Integrator::Euler, "euler"), (Integrator::Rk4, "rk4")] {
         for threads in [1, all] {

@@ -1,4 +1,4 @@
-//! `fascicle bench fits`: the CPU side on a phantom larger than the shared toy sets, so numbers are not
+//! `fascicle-bench fits`: the CPU side on a phantom larger than the shared toy sets, so numbers are not
 //! dominated by start-up: 128x128x64 voxels of 1.5 mm, four curved and crossing bundles
 //! (`fascicle_core::phantom::bundles`), 64 directions at b = 1000 plus a b0, Rician noise at SNR 20.
 //!

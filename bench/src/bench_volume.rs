@@ -1,4 +1,4 @@
-//! `fascicle bench volume`: ray-cast DVR and view-aligned 3D-texture slicing of 128³ and 256³ volumes, frame
+//! `fascicle-bench volume`: ray-cast DVR and view-aligned 3D-texture slicing of 128³ and 256³ volumes, frame
 //! time against error over the step (slice spacing), with and without early termination, and with
 //! pre-integration, rendered offscreen (lavapipe without a GPU).
 //!

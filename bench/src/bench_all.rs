@@ -1,5 +1,5 @@
-//! `fascicle bench all [--quick] --report DIR`: every suite, one report. Each suite runs as a child process
-//! of this binary (`fascicle bench SUITE --csv DIR/SUITE.csv`); its Markdown table goes into
+//! `fascicle-bench all [--quick] --report DIR`: every suite, one report. Each suite runs as a child process
+//! of this binary (`fascicle-bench SUITE --csv DIR/SUITE.csv`); its Markdown table goes into
 //! `DIR/benchmarks.md` under a header naming the machine, build profile, adapter and date; each renderer's
 //! frame time against error is plotted to `DIR/SUITE.png`. With `--python P` (a Python with DIPY 1.12.1),
 //! `bench/compare_dipy.py` times DIPY on the same phantom and the report shows the ratios.
@@ -127,7 +127,7 @@ fn plot(rows: &[Row], title: &str, by_n: bool, out: &Path) -> Result<(), String>
     root.present().map_err(|e| e.to_string())
 }
 
-/// Plots one CSV (`fascicle bench plot`).
+/// Plots one CSV (`fascicle-bench plot`).
 pub fn plot_csv(csv: &Path, out: &Path, title: &str, by_n: bool) -> Result<(), Error> {
     let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, epaint_default_fonts::UBUNTU_LIGHT);
     let rows = read_csv(csv);
@@ -201,11 +201,11 @@ pub fn run(quick: bool, quick_suites: &[String], report: &Path, python: Option<&
         today(),
         mode
     );
-    let _ = writeln!(md, "Regenerate with `fascicle bench all{regenerate} --report DIR`.\n");
+    let _ = writeln!(md, "Regenerate with `fascicle-bench all{regenerate} --report DIR`.\n");
     for (suite, plot_kind) in SUITES {
         let csv = report.join(format!("{suite}.csv"));
         let mut cmd = Command::new(&exe);
-        cmd.args(["bench", suite]);
+        cmd.arg(suite);
         if suite != "tracking" {
             cmd.arg("--csv").arg(&csv);
             // The CPU suite always runs on the full 128x128x64 phantom (about 20 s here).

@@ -1,4 +1,4 @@
-//! `fascicle bench tracts`: hyperstreamlines (ray-cast tubelets) against the polygon-tube baseline at the
+//! `fascicle-bench tracts`: hyperstreamlines (ray-cast tubelets) against the polygon-tube baseline at the
 //! seed's sizes (18,681 / 34,778 / 226,032 segments) and two resolutions (434x673, 1560x1051), and lines for
 //! 100k / 1M streamlines with ROI re-selection, rendered offscreen (lavapipe without a GPU).
 //!
