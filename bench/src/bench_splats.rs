@@ -30,7 +30,7 @@ use fascicle_render::reference::srgb8;
 use fascicle_tensors::splat::{SplatMaterial, SplatSettings, SplatSortStats, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSettings, spawn_tensor_glyphs};
 use glam::{DMat3, DQuat, DVec3};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;
 
 const FOV_Y: f64 = std::f64::consts::FRAC_PI_4;

@@ -24,7 +24,7 @@ use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
 use fascicle_tracts::{TractPlugin, TubeSettings, TubeletMaterial, polygon_tube_mesh, spawn_tubes, tract_tubelets};
 use glam::{DQuat, DVec3, Vec3};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
 const FRAMES: u32 = 3;
 const POINTS: usize = 40;

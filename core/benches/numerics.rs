@@ -148,7 +148,7 @@ fn bench_roi(c: &mut Criterion) {
     use fascicle_core::io::Tractogram;
     use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
     use glam::{Quat, Vec3};
-    use rand::{Rng, SeedableRng};
+    use rand::{RngExt, SeedableRng};
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
     let mut t = Tractogram::new();
     for _ in 0..1_000_000 {

@@ -6,9 +6,9 @@ mod common;
 use common::data;
 
 use fascicle_core::io::{GradientTable, nifti, tck, trk};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
-fn mutants(seed: &[u8], n: usize, rng: &mut impl Rng) -> Vec<Vec<u8>> {
+fn mutants(seed: &[u8], n: usize, rng: &mut impl RngExt) -> Vec<Vec<u8>> {
     (0..n)
         .map(|i| {
             let mut b = seed.to_vec();

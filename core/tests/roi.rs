@@ -5,7 +5,7 @@
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
 use glam::Vec3;
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
 fn data(p: &str) -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(p)

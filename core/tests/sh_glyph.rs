@@ -8,13 +8,13 @@ use fascicle_core::sh::glyph::{
 };
 use fascicle_core::sh::{self, ShBasis, n_coeffs};
 use glam::DVec3;
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
-fn random_coeffs(rng: &mut impl Rng, l_max: usize) -> Vec<f64> {
+fn random_coeffs(rng: &mut impl RngExt, l_max: usize) -> Vec<f64> {
     (0..n_coeffs(l_max)).map(|_| rng.random::<f64>() - 0.5).collect()
 }
 
-fn random_dir(rng: &mut impl Rng) -> DVec3 {
+fn random_dir(rng: &mut impl RngExt) -> DVec3 {
     loop {
         let v = DVec3::new(rng.random(), rng.random(), rng.random()) * 2.0 - 1.0;
         if v.length_squared() > 1e-4 && v.length_squared() <= 1.0 {

@@ -4,9 +4,9 @@ use fascicle_core::dti::{FitFailure, FitMethod, TensorModel, eigen};
 use fascicle_core::io::GradientTable;
 use fascicle_core::sh::sphere;
 use glam::{DMat3, DVec3};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
-fn random_rotation(rng: &mut impl Rng) -> DMat3 {
+fn random_rotation(rng: &mut impl RngExt) -> DMat3 {
     let q = glam::DQuat::from_xyzw(
         rng.random_range(-1.0..1.0),
         rng.random_range(-1.0..1.0),

@@ -4,9 +4,9 @@
 use fascicle_core::dti::eigen::{Eigen, from_eigen};
 use fascicle_core::dti::glyph::{TensorShape, cast_ellipsoid, cast_marching, tensor_glyph};
 use glam::{DMat3, DQuat, DVec3};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
-fn random_tensor(rng: &mut impl Rng) -> [f64; 6] {
+fn random_tensor(rng: &mut impl RngExt) -> [f64; 6] {
     let q = DQuat::from_xyzw(rng.random(), rng.random(), rng.random(), rng.random::<f64>() - 0.5).normalize();
     let m = DMat3::from_quat(q);
     let l1 = 1e-3;

@@ -10,7 +10,7 @@ use fascicle_core::tracking::{
     TrackParams, Tracker, principal_direction, seeds_from_mask, to_voxel,
 };
 use glam::{DMat4, DVec3};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
 fn load_dwi(path: &str, bval: &str, bvec: &str) -> (fascicle_core::Volume<f32>, GradientTable) {
     let (vol, _) = nifti::read::<f32>(data(path)).unwrap();

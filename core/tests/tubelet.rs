@@ -7,7 +7,7 @@ use fascicle_core::dti::eigen::{Eigen, from_eigen};
 use fascicle_core::tubelet::{TubeColour, Tubelet, tubelets};
 use glam::{DQuat, DVec3};
 
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
 /// A random streamline of five points turning up to 50 degrees per step, with tensors whose major axis
 /// deviates up to 20 degrees from the local direction, whose cross-section turns by up to ±45 degrees per

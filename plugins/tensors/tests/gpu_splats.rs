@@ -17,7 +17,7 @@ use fascicle_render::reference::srgb8;
 use fascicle_tensors::TensorGlyphPlugin;
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, SplatSettings, SplatSortStats, spawn_splats};
 use glam::{DMat3, DMat4, DQuat, DVec3};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
 const W: u32 = 160;
 const H: u32 = 120;

@@ -11,7 +11,7 @@ use fascicle_tensors::{
     TensorColour, TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSettings, spawn_tensor_glyphs,
 };
 use glam::{DMat3, DQuat, DVec3};
-use rand::{Rng, SeedableRng};
+use rand::{RngExt, SeedableRng};
 
 const W: u32 = 200;
 const H: u32 = 160;
