@@ -85,7 +85,7 @@ fn depth_export_matches_the_slice_plane() {
     let (w, h) = (64usize, 48usize);
     for depth_file in ["d.npy", "d.png"] {
         let st = Command::new(env!("CARGO_BIN_EXE_fascicle"))
-            .args(["render", scene_path.to_str().unwrap(), "--size", "64x48"])
+            .args(["render", scene_path.to_str().unwrap(), "--size", "64x48", "--force"])
             .args(["--out", dir.join("c.png").to_str().unwrap(), "--depth", dir.join(depth_file).to_str().unwrap()])
             .status()
             .unwrap();

@@ -77,11 +77,15 @@ pub enum BenchCommand {
     },
     /// Plot a suite's CSV (frame time against error, or against n with --by-n) to PNG.
     Plot {
+        /// A suite's CSV (columns method,n,param,frame_ms,error).
         csv: PathBuf,
+        /// Output PNG.
         #[arg(long)]
         out: PathBuf,
+        /// Plot title.
         #[arg(long, default_value = "frame time against error")]
         title: String,
+        /// Frame time against n (the size) instead of against error.
         #[arg(long)]
         by_n: bool,
     },

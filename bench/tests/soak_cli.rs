@@ -27,3 +27,38 @@ fn default_scene_soak_is_bounded() {
     assert!(stdout.contains("layer errors: 0") && stdout.contains("bounded:"), "{stdout}");
     assert_eq!(samples.len(), 6, "one sample every 100 frames: {samples:?}");
 }
+
+/// Every option of every `fascicle-bench` suite has help text (`--help` of each suite read back).
+#[test]
+fn every_bench_option_has_help() {
+    let top = Command::new(env!("CARGO_BIN_EXE_fascicle-bench")).arg("--help").output().unwrap();
+    let text = String::from_utf8_lossy(&top.stdout);
+    let suites: Vec<String> = text
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.split_whitespace().next().map(str::to_string))
+        .filter(|s| s != "help")
+        .collect();
+    assert!(suites.len() >= 9, "{suites:?}");
+    for s in suites {
+        let o = Command::new(env!("CARGO_BIN_EXE_fascicle-bench")).args([&s, "--help"]).output().unwrap();
+        let help = String::from_utf8_lossy(&o.stdout);
+        let mut lines =
+            help.lines().skip_while(|l| !l.starts_with("Options:") && !l.starts_with("Arguments:")).peekable();
+        while let Some(l) = lines.next() {
+            let t = l.trim_start();
+            if (t.starts_with("--") || t.starts_with('<')) && !t.starts_with("-h") {
+                // The flag and its help on one line, or the help on the next, indented further.
+                let own = t.split("  ").filter(|p| !p.trim().is_empty()).count() >= 2;
+                let next = lines.peek().is_some_and(|n| {
+                    !n.trim_start().is_empty()
+                        && !n.trim_start().starts_with('-')
+                        && n.len() - n.trim_start().len() > l.len() - t.len()
+                });
+                assert!(own || next, "fascicle-bench {s}: '{t}' has no help");
+            }
+        }
+    }
+}

@@ -256,3 +256,40 @@ fn tck_with_a_padded_first_line_reads() {
     assert_eq!(t.n_streamlines(), 1);
     assert_eq!(t.points, vec![glam::Vec3::new(1.0, 2.0, 3.0), glam::Vec3::new(4.0, 5.0, 6.0)]);
 }
+
+/// The writer keeps what it is given of the header (codes, intent, description), and reading the header of
+/// a large `.nii.gz` decompresses only the header.
+#[test]
+fn nifti_writer_keeps_codes_and_intent_and_header_reads_stop_early() {
+    use fascicle_core::io::nifti::{self, WriteMeta, WriteType};
+    let dir = std::env::temp_dir().join(format!("fascicle-nifti-meta-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let vol = fascicle_core::Volume::<f32> {
+        shape: vec![2, 3, 4, 6],
+        data: (0..144).map(|v| v as f32).collect(),
+        world_from_voxel: glam::DMat4::from_scale(glam::DVec3::new(2.0, 2.0, 2.5)),
+    };
+    let meta = WriteMeta {
+        sform_code: 4,
+        qform_code: 2,
+        intent_code: 1005,
+        intent_name: "DTI lower-tri".into(),
+        descrip: "tensor from fascicle".into(),
+    };
+    let path = dir.join("t.nii.gz");
+    nifti::write_with(&path, &vol, WriteType::F32, &meta).unwrap();
+    let h = nifti::read_header(&path).unwrap();
+    assert_eq!((h.sform_code, h.qform_code, h.intent_code), (4, 2, 1005));
+    assert_eq!((h.intent_name.as_str(), h.descrip.as_str()), ("DTI lower-tri", "tensor from fascicle"));
+    assert_eq!(WriteMeta::from_header(&h), meta);
+    let (back, _) = nifti::read::<f32>(&path).unwrap();
+    assert_eq!(back.data, vol.data);
+    // A gzip stream cut right after the header still gives its header (the data are never decompressed).
+    let raw = std::fs::read(data("phantom/phantom_ring_cross.nii.gz")).unwrap();
+    let cut = dir.join("cut.nii.gz");
+    std::fs::write(&cut, &raw[..4096]).unwrap();
+    let h = nifti::read_header(&cut).unwrap();
+    assert_eq!(h.shape, vec![48, 48, 24, 65]);
+    assert!(nifti::read::<f32>(&cut).is_err(), "the full read of a truncated file fails");
+    std::fs::remove_dir_all(dir).ok();
+}

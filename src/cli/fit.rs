@@ -14,8 +14,10 @@ use indicatif::{ProgressBar, ProgressStyle};
 pub struct DwiArgs {
     /// 4D diffusion-weighted image (.nii/.nii.gz).
     pub dwi: PathBuf,
+    /// FSL b-values (one row, or one per line).
     #[arg(long)]
     pub bval: PathBuf,
+    /// FSL b-vectors (3 rows or 3 columns, in the image's voxel axes as DIPY reads them).
     #[arg(long)]
     pub bvec: PathBuf,
     /// 3D mask: voxels > 0 are fitted.
@@ -28,12 +30,15 @@ pub struct DwiArgs {
 
 #[derive(Subcommand, Debug)]
 pub enum FitCommand {
-    /// Diffusion tensor: writes tensor, evals, evecs, fa, md, ad, rd, rgb, cl, cp, cs, mode into --out DIR.
+    /// Diffusion tensor: writes PREFIX_tensor, _evals, _evecs, _fa, _md, _ad, _rd, _rgb, _cl, _cp, _cs, _mode
+    /// (.nii.gz); a PREFIX that is a directory (or ends in /) gets tensor.nii.gz, fa.nii.gz, ... inside it.
     Dti {
         #[command(flatten)]
         input: DwiArgs,
-        #[arg(long, default_value = "wls")]
-        method: FitMethod,
+        /// Estimator.
+        #[arg(long, value_enum, default_value_t = super::FitMethodArg::Wls)]
+        method: super::FitMethodArg,
+        /// Output prefix (or directory).
         #[arg(long)]
         out: PathBuf,
     },
@@ -50,8 +55,9 @@ pub struct OdfArgs {
     /// Maximum (even) SH order.
     #[arg(long)]
     pub lmax: usize,
-    #[arg(long, default_value = "descoteaux07")]
-    pub basis: String,
+    /// SH basis of the written coefficients.
+    #[arg(long, value_enum, default_value_t = super::BasisArg::Descoteaux07)]
+    pub basis: super::BasisArg,
     /// Legacy variant of the basis (DIPY's default is descoteaux07 legacy).
     #[arg(long, default_value_t = false)]
     pub legacy: bool,
@@ -102,6 +108,9 @@ pub(crate) fn read_mask(p: &Path, dims: [usize; 3]) -> Result<Vec<bool>, Error> 
 
 /// A progress bar counting `unit`s (voxels, seeds).
 pub(crate) fn progress_bar(n: usize, what: &str, unit: &str) -> ProgressBar {
+    if super::globals().quiet {
+        return ProgressBar::hidden();
+    }
     let pb = ProgressBar::new(n as u64);
     pb.set_style(
         ProgressStyle::with_template(&format!(
@@ -115,7 +124,7 @@ pub(crate) fn progress_bar(n: usize, what: &str, unit: &str) -> ProgressBar {
 
 pub fn run(cmd: FitCommand) -> Result<(), Error> {
     match cmd {
-        FitCommand::Dti { input, method, out } => fit_dti(&input, method, &out),
+        FitCommand::Dti { input, method, out } => fit_dti(&input, method.into(), &out),
         FitCommand::Csa(a) => fit_odf(&a, OdfKind::Csa),
         FitCommand::Qball(a) => fit_odf(&a, OdfKind::Qball),
     }
@@ -123,7 +132,19 @@ pub fn run(cmd: FitCommand) -> Result<(), Error> {
 
 fn fit_dti(input: &DwiArgs, method: FitMethod, out: &Path) -> Result<(), Error> {
     let l = load(input)?;
-    std::fs::create_dir_all(out).map_err(|e| Error::Io { path: out.to_path_buf(), source: e })?;
+    // A directory (existing, or named with a trailing /) takes plain names; anything else is a prefix.
+    let as_dir = out.is_dir() || out.to_string_lossy().ends_with('/');
+    let file = |name: &str| -> PathBuf {
+        if as_dir { out.join(name) } else { PathBuf::from(format!("{}_{name}", out.display())) }
+    };
+    let names = ["tensor", "evals", "evecs", "fa", "md", "ad", "rd", "mode", "rgb", "cl", "cp", "cs"];
+    for n in names {
+        super::check_output(&file(&format!("{n}.nii.gz")))?;
+    }
+    let parent = if as_dir { out.to_path_buf() } else { out.parent().map(Path::to_path_buf).unwrap_or_default() };
+    if !parent.as_os_str().is_empty() {
+        std::fs::create_dir_all(&parent).map_err(|e| Error::Io { path: parent.clone(), source: e })?;
+    }
     let pb = progress_bar(l.dwi.n_voxels(), "DTI", "voxels");
     let tv = dti::fit_volume_with_progress(&l.dwi, &l.gtab, method, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
     pb.finish_and_clear();
@@ -131,7 +152,7 @@ fn fit_dti(input: &DwiArgs, method: FitMethod, out: &Path) -> Result<(), Error> 
     if nonfinite + singular > 0 {
         eprintln!("warning: {nonfinite} voxels with NaN/Inf signal and {singular} singular fits were written as 0");
     }
-    let write = |name: &str, v: Volume<f32>| nifti::write(out.join(name), &v, nifti::WriteType::F32);
+    let write = |name: &str, v: Volume<f32>| nifti::write(file(name), &v, nifti::WriteType::F32);
     write("tensor.nii.gz", tv.map_n(6, |t, o| o.copy_from_slice(&t.tensor())))?;
     write("evals.nii.gz", tv.map_n(3, |t, o| o.copy_from_slice(&t.eigen.values)))?;
     let mut evecs = tv.map_n(9, |t, o| {
@@ -157,18 +178,38 @@ fn fit_dti(input: &DwiArgs, method: FitMethod, out: &Path) -> Result<(), Error> 
     write("cl.nii.gz", tv.map(westin(0)))?;
     write("cp.nii.gz", tv.map(westin(1)))?;
     write("cs.nii.gz", tv.map(westin(2)))?;
-    eprintln!("wrote 13 maps to {}", out.display());
+    if !super::globals().quiet {
+        eprintln!("wrote {} maps: {}", names.len(), file("{tensor,fa,...}.nii.gz").display());
+    }
     Ok(())
 }
 
 fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
     let l = load(&a.input)?;
-    let basis = ShBasis::parse(&a.basis, a.legacy)?;
+    let basis = a.basis.with_legacy(a.legacy);
+    super::check_output(&a.out)?;
     let model = OdfModel::new(&l.gtab, kind, a.lmax, a.smooth, basis)?;
     let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
     let coeffs = sh::fit_odf_volume_with_progress(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
     pb.finish_and_clear();
-    nifti::write(&a.out, &coeffs, nifti::WriteType::F32)?;
-    eprintln!("wrote {} ({} coefficients, {})", a.out.display(), sh::n_coeffs(a.lmax), basis.name());
+    // The basis goes into the header (descrip), so that readers need not be told it.
+    let meta = nifti::WriteMeta { descrip: sh_descrip(basis, a.lmax), ..Default::default() };
+    nifti::write_with(&a.out, &coeffs, nifti::WriteType::F32, &meta)?;
+    if !super::globals().quiet {
+        eprintln!("wrote {} ({} coefficients, {})", a.out.display(), sh::n_coeffs(a.lmax), basis.name());
+    }
     Ok(())
+}
+
+/// The header description recording an SH image's basis: `fascicle SH descoteaux07 legacy lmax 6`.
+pub fn sh_descrip(basis: ShBasis, l_max: usize) -> String {
+    format!("fascicle SH {} lmax {l_max}", basis.name())
+}
+
+/// The basis an SH image's header records ([`sh_descrip`]), if any.
+pub fn recorded_sh_basis(descrip: &str) -> Option<ShBasis> {
+    let rest = descrip.strip_prefix("fascicle SH ")?;
+    let name = rest.split(" lmax").next()?;
+    let legacy = name.ends_with(" legacy");
+    ShBasis::parse(name.trim_end_matches(" legacy"), legacy).ok()
 }

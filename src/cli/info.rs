@@ -5,7 +5,11 @@ use std::path::Path;
 use fascicle_core::Error;
 use fascicle_core::io::{nifti, tck, tractogram, trk};
 
-pub fn run(path: &Path) -> Result<(), Error> {
+pub fn run(path: &Path, json: bool) -> Result<(), Error> {
+    if json {
+        println!("{}", serde_json::to_string_pretty(&info_json(path)?).unwrap_or_default());
+        return Ok(());
+    }
     let name = path.to_string_lossy().to_ascii_lowercase();
     if name.ends_with(".nii") || name.ends_with(".nii.gz") {
         let h = nifti::read_header(path)?;
@@ -71,4 +75,97 @@ fn print_tracts(t: &tractogram::Tractogram) {
     for (n, _) in &t.properties {
         println!("  property    {n}");
     }
+}
+
+/// What `info --json` prints: `kind` (tractogram, or for images dwi / tensor / sh / peaks / rgb / scalar /
+/// volume as far as the shape and the files beside it tell), `shape`, `voxel_size`, `affine` (rows), and for
+/// tractograms `count` (streamlines), `points` and the header's `space`.
+pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
+    use serde_json::json;
+    let name = path.to_string_lossy().to_ascii_lowercase();
+    if name.ends_with(".nii") || name.ends_with(".nii.gz") {
+        let h = nifti::read_header(path)?;
+        let a = h.world_from_voxel;
+        let rows: Vec<[f64; 4]> = (0..4).map(|r| [a.x_axis[r], a.y_axis[r], a.z_axis[r], a.w_axis[r]]).collect();
+        let stem = name.trim_end_matches(".gz").trim_end_matches(".nii").to_string();
+        let beside = |ext: &str| {
+            let p = path.to_string_lossy();
+            let base = p.trim_end_matches(".gz").trim_end_matches(".nii");
+            Path::new(&format!("{base}.{ext}")).exists()
+        };
+        let vols: usize = h.shape[3..].iter().product();
+        let kind = if h.shape.len() == 5 && h.shape[4] == 3
+            || (h.shape.len() == 4 && vols.is_multiple_of(3) && stem.contains("peak"))
+        {
+            "peaks"
+        } else if h.shape.len() >= 4 && (beside("bval") || beside("bvec")) {
+            "dwi"
+        } else if h.shape.len() == 4 && vols == 6 && (stem.contains("tensor") || stem.ends_with("dt")) {
+            "tensor"
+        } else if h.shape.len() == 4 && vols == 3 && (stem.contains("rgb") || h.intent_code == 2003) {
+            "rgb"
+        } else if h.shape.len() == 4 && vols >= 6 && fascicle_core::sh::l_max_for(vols).is_some() {
+            "sh"
+        } else if h.shape.len() <= 3 || vols == 1 {
+            "scalar"
+        } else {
+            "volume"
+        };
+        let mut v = json!({
+            "file": path.display().to_string(),
+            "format": format!("NIfTI-{}", h.version),
+            "kind": kind,
+            "shape": h.shape,
+            "datatype": nifti::datatype_name(h.datatype),
+            "voxel_size": [h.pixdim[1], h.pixdim[2], h.pixdim[3]],
+            "affine": rows,
+            "axes": tractogram::axcodes(&a),
+            "sform_code": h.sform_code,
+            "qform_code": h.qform_code,
+            "descrip": h.descrip,
+        });
+        if kind == "sh" {
+            // The basis `fascicle fit` recorded in the header; otherwise DIPY's default, which is what Fascicle
+            // reads an unlabelled file as.
+            let recorded = super::fit::recorded_sh_basis(&h.descrip);
+            let (convention, legacy) = match recorded.unwrap_or_default() {
+                fascicle_core::sh::ShBasis::Descoteaux07 { legacy } => ("descoteaux07", legacy),
+                fascicle_core::sh::ShBasis::Tournier07 { legacy } => ("tournier07", legacy),
+            };
+            v["sh_basis"] = json!({"convention": convention, "legacy": legacy, "recorded": recorded.is_some()});
+            v["l_max"] = json!(fascicle_core::sh::l_max_for(vols));
+        }
+        return Ok(v);
+    }
+    let (t, space, extra) = match tractogram::extension(path).as_str() {
+        "trk" => {
+            let (t, h) = trk::read(path)?;
+            let space =
+                json!({"voxel_order": h.voxel_order, "dims": h.dims, "voxel_size": h.voxel_size, "points": "RAS+ mm"});
+            (t, space, json!({"format": format!("TrackVis v{}", h.version)}))
+        }
+        "tck" => {
+            let (t, _) = tck::read(path)?;
+            (t, json!({"points": "RAS+ mm (scanner)"}), json!({"format": "MRtrix tracks"}))
+        }
+        other => {
+            return Err(Error::Param(format!("{}: unknown file type '{other}' (NIfTI, .trk or .tck)", path.display())));
+        }
+    };
+    let bounds =
+        match (t.points.iter().copied().reduce(|a, b| a.min(b)), t.points.iter().copied().reduce(|a, b| a.max(b))) {
+            (Some(lo), Some(hi)) => json!([lo.to_array(), hi.to_array()]),
+            _ => serde_json::Value::Null,
+        };
+    Ok(json!({
+        "file": path.display().to_string(),
+        "format": extra["format"],
+        "kind": "tractogram",
+        "count": t.n_streamlines(),
+        "points": t.points.len(),
+        "space": space,
+        "bounds": bounds,
+        "scalars": t.scalars.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>(),
+        "properties": t.properties.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>(),
+    }))
 }

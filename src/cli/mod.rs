@@ -17,12 +17,112 @@ use clap::{Parser, Subcommand};
 pub struct Cli {
     #[command(subcommand)]
     pub command: Option<Command>,
+    /// Overwrite output files that already exist (refused otherwise).
+    #[arg(long, global = true)]
+    pub force: bool,
+    /// No progress bars or summaries on stderr (errors still print).
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
+    /// Worker threads for fitting and tracking (default: all cores).
+    #[arg(long, global = true)]
+    pub threads: Option<usize>,
+}
+
+/// The options every subcommand shares, set once from the command line.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Globals {
+    pub force: bool,
+    pub quiet: bool,
+}
+
+static GLOBALS: std::sync::OnceLock<Globals> = std::sync::OnceLock::new();
+
+/// Records the shared options and sizes the thread pool.
+pub fn set_globals(cli: &Cli) -> Result<(), String> {
+    let _ = GLOBALS.set(Globals { force: cli.force, quiet: cli.quiet });
+    if let Some(n) = cli.threads {
+        if n == 0 {
+            return Err("--threads must be at least 1".into());
+        }
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().map_err(|e| format!("--threads {n}: {e}"))?;
+    }
+    Ok(())
+}
+
+pub fn globals() -> Globals {
+    GLOBALS.get().copied().unwrap_or_default()
+}
+
+/// Refuses to overwrite an existing output unless `--force` was given.
+pub fn check_output(path: &std::path::Path) -> Result<(), fascicle_core::Error> {
+    if path.exists() && !globals().force {
+        return Err(fascicle_core::Error::Param(format!("{} exists; pass --force to overwrite it", path.display())));
+    }
+    Ok(())
+}
+
+/// A DTI fit's estimator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FitMethodArg {
+    /// Weighted least squares (DIPY's default).
+    Wls,
+    /// Ordinary least squares on the log signal.
+    Ols,
+}
+
+impl From<FitMethodArg> for fascicle_core::dti::FitMethod {
+    fn from(m: FitMethodArg) -> Self {
+        match m {
+            FitMethodArg::Wls => Self::Wls,
+            FitMethodArg::Ols => Self::Ols,
+        }
+    }
+}
+
+/// An integration scheme.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum IntegratorArg {
+    /// Classical fourth-order Runge-Kutta.
+    Rk4,
+    /// Midpoint rule, second order.
+    Rk2,
+    /// Explicit Euler, first order (DIPY's EuDX).
+    Euler,
+}
+
+impl From<IntegratorArg> for fascicle_core::tracking::Integrator {
+    fn from(i: IntegratorArg) -> Self {
+        match i {
+            IntegratorArg::Rk4 => Self::Rk4,
+            IntegratorArg::Rk2 => Self::Rk2,
+            IntegratorArg::Euler => Self::Euler,
+        }
+    }
+}
+
+/// A real SH basis family (with --legacy / --sh-legacy for the variant).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BasisArg {
+    /// DIPY's (Descoteaux 2007).
+    Descoteaux07,
+    /// MRtrix3's (Tournier 2007); coefficients in scanner coordinates.
+    Tournier07,
+}
+
+impl BasisArg {
+    pub fn with_legacy(self, legacy: bool) -> fascicle_core::sh::ShBasis {
+        match self {
+            BasisArg::Descoteaux07 => fascicle_core::sh::ShBasis::Descoteaux07 { legacy },
+            BasisArg::Tournier07 => fascicle_core::sh::ShBasis::Tournier07 { legacy },
+        }
+    }
 }
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Open the viewer with files (NIfTI, .trk/.tck, scene .ron); the default phantom scene without any.
     View {
+        /// NIfTI images, .trk/.tck tractograms, peaks images or a scene .ron to open.
         files: Vec<PathBuf>,
         /// Save a screenshot of the window to this PNG after the scene has drawn, then exit (scripted
         /// screenshots, and a check that the window path works).
@@ -31,7 +131,9 @@ pub enum Command {
     },
     /// Render a scene headless to PNG (the default scene when none is given).
     Render {
+        /// Scene file (.ron); the default phantom scene when absent.
         scene: Option<PathBuf>,
+        /// Output PNG.
         #[arg(long, default_value = "render.png")]
         out: PathBuf,
         /// Image size, WxH.
@@ -55,7 +157,13 @@ pub enum Command {
     /// Keep the streamlines that meet every include ROI and no exclude ROI; write .trk/.tck.
     Select(select::SelectArgs),
     /// Print what a NIfTI image or tractogram holds.
-    Info { file: PathBuf },
+    Info {
+        /// A NIfTI image (.nii, .nii.gz) or a tractogram (.trk, .tck).
+        file: PathBuf,
+        /// Print one JSON object (for scripts) instead of text.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 /// Parses "WxH".

@@ -21,6 +21,15 @@ pub enum Layout {
     Dipy,
 }
 
+/// An ODF model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum OdfArg {
+    /// Constant solid angle (Aganj 2010), DIPY's CsaOdfModel.
+    Csa,
+    /// Q-ball (Descoteaux 2007), DIPY's QballModel.
+    Qball,
+}
+
 #[derive(Args, Debug)]
 pub struct PeaksArgs {
     /// 4D DWI to fit (needs --bval and --bvec).
@@ -32,18 +41,18 @@ pub struct PeaksArgs {
     /// FSL b-vectors of --dwi.
     #[arg(long, requires = "dwi")]
     pub bvec: Option<PathBuf>,
-    /// ODF model fitted to --dwi: csa or qball.
-    #[arg(long, default_value = "csa")]
-    pub model: String,
+    /// ODF model fitted to --dwi.
+    #[arg(long, value_enum, default_value_t = OdfArg::Csa)]
+    pub model: OdfArg,
     /// Maximum SH order of the fit.
     #[arg(long, default_value_t = 6)]
     pub lmax: usize,
     /// SH coefficients (X,Y,Z,n) instead of a DWI.
     #[arg(long)]
     pub sh: Option<PathBuf>,
-    /// Basis of --sh: descoteaux07 or tournier07 (MRtrix).
-    #[arg(long, default_value = "descoteaux07")]
-    pub sh_basis: String,
+    /// Basis of --sh (tournier07: MRtrix's, in scanner coordinates).
+    #[arg(long, value_enum, default_value_t = super::BasisArg::Descoteaux07)]
+    pub sh_basis: super::BasisArg,
     /// --sh is in the legacy variant of its basis (DIPY's default: descoteaux07 legacy).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     pub sh_legacy: bool,
@@ -74,22 +83,29 @@ pub fn run(a: PeaksArgs) -> Result<(), Error> {
         npeaks: a.npeaks,
     };
     params.validate()?;
+    match a.layout {
+        Layout::Mrtrix => super::check_output(&a.out)?,
+        Layout::Dipy => {
+            for n in ["dirs", "values", "indices", "gfa"] {
+                super::check_output(&PathBuf::from(format!("{}_{n}.nii.gz", a.out.display())))?;
+            }
+        }
+    }
     let (peaks, affine) = if let Some(path) = &a.sh {
         let (vol, _) = nifti::read::<f32>(path)?;
         let (coeffs, l_max) = sh_coefficients(&vol)?;
         let dims = vol.dims3();
         let mask = a.mask.as_deref().map(|m| read_mask(m, dims)).transpose()?;
-        let basis = ShBasis::parse(&a.sh_basis, a.sh_legacy)?;
+        let basis = a.sh_basis.with_legacy(a.sh_legacy);
         let sh = ShGrid { dims, coeffs: &coeffs, l_max, basis };
         (odf_peaks(sh, vol.world_from_voxel, &params, mask.as_deref())?, vol.world_from_voxel)
     } else {
         let (Some(dwi), Some(bval), Some(bvec)) = (&a.dwi, &a.bval, &a.bvec) else {
             return Err(Error::Param("give --dwi FILE with --bval and --bvec, or --sh FILE".into()));
         };
-        let kind = match a.model.to_ascii_lowercase().as_str() {
-            "csa" => OdfKind::Csa,
-            "qball" | "q-ball" => OdfKind::Qball,
-            m => return Err(Error::Param(format!("unknown ODF model '{m}' (use csa or qball)"))),
+        let kind = match a.model {
+            OdfArg::Csa => OdfKind::Csa,
+            OdfArg::Qball => OdfKind::Qball,
         };
         let l = load(&DwiArgs {
             dwi: dwi.clone(),
@@ -109,15 +125,20 @@ pub fn run(a: PeaksArgs) -> Result<(), Error> {
     let n = peaks.gfa.len();
     let with = (0..n).filter(|&v| peaks.count(v) > 0).count();
     let total: usize = (0..n).map(|v| peaks.count(v)).sum();
+    let quiet = super::globals().quiet;
     match a.layout {
         Layout::Mrtrix => {
             peaks::write_mrtrix(&a.out, &peaks, affine)?;
-            eprintln!("wrote {} ({} peaks in {with} of {n} voxels, MRtrix layout)", a.out.display(), total);
+            if !quiet {
+                eprintln!("wrote {} ({} peaks in {with} of {n} voxels, MRtrix layout)", a.out.display(), total);
+            }
         }
         Layout::Dipy => {
             let files = peaks::write_dipy(&a.out, &peaks, affine)?;
             let names: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
-            eprintln!("wrote {} ({total} peaks in {with} of {n} voxels, DIPY layout)", names.join(", "));
+            if !quiet {
+                eprintln!("wrote {} ({total} peaks in {with} of {n} voxels, DIPY layout)", names.join(", "));
+            }
         }
     }
     Ok(())

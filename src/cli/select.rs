@@ -116,6 +116,7 @@ pub fn write(path: &Path, t: &Tractogram, header: Option<&trk::TrkHeader>) -> Re
 
 pub fn run(a: SelectArgs) -> Result<(), Error> {
     let rois = rois(&a)?;
+    super::check_output(&a.out)?;
     let (t, header) = match extension(&a.input).as_str() {
         "trk" => {
             let (t, h) = trk::read(&a.input)?;
@@ -129,6 +130,9 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     let out = t.subset(&keep);
     write(&a.out, &out, header.as_ref())?;
+    if super::globals().quiet {
+        return Ok(());
+    }
     println!(
         "kept {} of {} streamlines ({} ROIs, {ms:.1} ms) -> {}",
         out.n_streamlines(),

@@ -9,7 +9,7 @@ use fascicle_core::dti::{self, FitMethod};
 use fascicle_core::io::{Tractogram, gradients::DEFAULT_B0_THRESHOLD, nifti, tck, tractogram::extension, trk};
 use fascicle_core::sh::{self, OdfKind, OdfModel, PeakParams, PeakVolume, ShBasis, ShGrid, Sphere};
 use fascicle_core::tracking::{
-    DirectionField, Integrator, PeakField, TensorField, TensorInterpolation, TrackParams, Tracker, Tracks, read_seeds,
+    DirectionField, PeakField, TensorField, TensorInterpolation, TrackParams, Tracker, Tracks, read_seeds,
     seeds_from_mask, to_voxel,
 };
 use fascicle_core::{Error, Volume};
@@ -55,8 +55,8 @@ pub struct TrackArgs {
     #[arg(long, value_enum, default_value_t = TrackModel::Dti)]
     pub model: TrackModel,
     /// Tensor estimator for --model dti.
-    #[arg(long, default_value = "wls")]
-    pub fit_method: FitMethod,
+    #[arg(long, value_enum, default_value_t = super::FitMethodArg::Wls)]
+    pub fit_method: super::FitMethodArg,
     /// Maximum SH order for --model csa|qball.
     #[arg(long, default_value_t = 6)]
     pub lmax: usize,
@@ -66,9 +66,9 @@ pub struct TrackArgs {
     /// SH coefficients (X,Y,Z,n, as `fascicle fit csa` writes them): peaks extracted, then tracked.
     #[arg(long, conflicts_with = "peaks")]
     pub sh: Option<PathBuf>,
-    /// Basis of --sh: descoteaux07 or tournier07 (MRtrix; its coefficients are in scanner coordinates).
-    #[arg(long, default_value = "descoteaux07")]
-    pub sh_basis: String,
+    /// Basis of --sh (tournier07: MRtrix's, its coefficients in scanner coordinates).
+    #[arg(long, value_enum, default_value_t = super::BasisArg::Descoteaux07)]
+    pub sh_basis: super::BasisArg,
     /// --sh is in the legacy variant of its basis (DIPY's default: descoteaux07 legacy).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     pub sh_legacy: bool,
@@ -100,9 +100,9 @@ pub struct TrackArgs {
     /// for that voxel to count in the blend.
     #[arg(long, default_value_t = 60.0)]
     pub max_angle: f64,
-    /// Integration scheme: rk4, rk2 or euler.
-    #[arg(long, default_value = "rk4")]
-    pub integrator: Integrator,
+    /// Integration scheme.
+    #[arg(long, value_enum, default_value_t = super::IntegratorArg::Rk4)]
+    pub integrator: super::IntegratorArg,
     /// Direction interpolation of a tensor field.
     #[arg(long, value_enum, default_value_t = FieldInterpolation::Peak)]
     pub interpolation: FieldInterpolation,
@@ -127,9 +127,6 @@ pub struct TrackArgs {
     /// Store the world-frame tensor at each point as six .trk scalars (Dxx Dxy Dyy Dxz Dyz Dzz, mm²/s).
     #[arg(long, default_value_t = false)]
     pub with_tensors: bool,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
     /// Output tractogram (.trk or .tck).
     #[arg(long)]
     pub out: PathBuf,
@@ -252,7 +249,7 @@ fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
         let (coeffs, l_max) = sh_coefficients(&vol)?;
         let dims = vol.dims3();
         let mask = a.mask.as_deref().map(|m| read_mask(m, dims)).transpose()?;
-        let basis = ShBasis::parse(&a.sh_basis, a.sh_legacy)?;
+        let basis = a.sh_basis.with_legacy(a.sh_legacy);
         let sh = ShGrid { dims, coeffs: &coeffs, l_max, basis };
         let peaks = odf_peaks(sh, vol.world_from_voxel, &params, mask.as_deref())?;
         let field =
@@ -298,7 +295,7 @@ fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
     let l = load(&args)?;
     let prepared = match a.model {
         TrackModel::Dti => {
-            field_from_dwi(&l.dwi, &l.gtab, a.fit_method, l.mask.as_deref(), a.interpolation, a.max_angle)?
+            field_from_dwi(&l.dwi, &l.gtab, a.fit_method.into(), l.mask.as_deref(), a.interpolation, a.max_angle)?
         }
         TrackModel::Csa | TrackModel::Qball => {
             let kind = if a.model == TrackModel::Csa { OdfKind::Csa } else { OdfKind::Qball };
@@ -381,17 +378,11 @@ pub(crate) fn write_tracks(
 }
 
 pub fn run(a: TrackArgs) -> Result<(), Error> {
-    if let Some(n) = a.threads {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(n)
-            .build_global()
-            .map_err(|e| Error::Param(format!("--threads {n}: {e}")))?;
-    }
     let params = TrackParams {
         step_mm: a.step_mm,
         fa_threshold: a.fa_threshold,
         max_angle_deg: a.max_angle,
-        integrator: a.integrator,
+        integrator: a.integrator.into(),
         min_length_mm: a.min_length_mm,
         max_length_mm: a.max_length_mm,
     };
@@ -400,6 +391,7 @@ pub fn run(a: TrackArgs) -> Result<(), Error> {
     if !matches!(extension(&a.out).as_str(), "trk" | "tck") {
         return Err(Error::Param(format!("output '{}' must end in .trk or .tck", a.out.display())));
     }
+    super::check_output(&a.out)?;
     if a.with_tensors && (a.sh.is_some() || a.peaks.is_some() || (a.tensor.is_none() && a.model != TrackModel::Dti)) {
         return Err(Error::Param("--with-tensors needs a tensor model (--model dti or --tensor)".into()));
     }
@@ -428,6 +420,9 @@ pub fn run(a: TrackArgs) -> Result<(), Error> {
 }
 
 fn print_summary(out: &Path, t: &Tracks, n_seeds: usize, fit_s: f64, track_s: f64, total_s: f64) {
+    if super::globals().quiet {
+        return;
+    }
     eprintln!(
         "wrote {}: {} streamlines, {} points from {n_seeds} seeds",
         out.display(),

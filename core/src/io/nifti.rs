@@ -38,6 +38,9 @@ pub struct NiftiHeader {
     pub world_from_voxel: DMat4,
     pub xyzt_units: i32,
     pub descrip: String,
+    /// NIfTI intent (e.g. 1005 symmetric matrix, 1007 vector, 2003 RGB) and its 16-character name.
+    pub intent_code: i32,
+    pub intent_name: String,
     pub vox_offset: u64,
 }
 
@@ -151,6 +154,7 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> Result<NiftiHeader> {
     let mut dim = [0i64; 8];
     let mut pixdim = [0f64; 8];
     let (datatype, vox_offset, scl_slope, scl_inter, qform_code, sform_code, quat, qoff, srow, xyzt, descrip);
+    let (intent_code, intent_name);
     if version == 1 {
         let magic = &bytes[344..348];
         if magic != b"n+1\0" && magic != b"ni1\0" {
@@ -175,6 +179,8 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> Result<NiftiHeader> {
         scl_inter = f.f32(116);
         xyzt = bytes[123] as i32;
         descrip = f.text(148, 80);
+        intent_code = f.i16(68) as i32;
+        intent_name = f.text(328, 16);
         qform_code = f.i16(252) as i32;
         sform_code = f.i16(254) as i32;
         quat = [f.f32(256), f.f32(260), f.f32(264)];
@@ -196,6 +202,8 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> Result<NiftiHeader> {
         scl_slope = f.f64(176);
         scl_inter = f.f64(184);
         descrip = f.text(240, 80);
+        intent_code = f.i32(504);
+        intent_name = f.text(508, 16);
         qform_code = f.i32(344);
         sform_code = f.i32(348);
         quat = [f.f64(352), f.f64(360), f.f64(368)];
@@ -255,6 +263,8 @@ pub fn parse_header(bytes: &[u8], path: &Path) -> Result<NiftiHeader> {
         world_from_voxel,
         xyzt_units: xyzt,
         descrip,
+        intent_code,
+        intent_name,
         vox_offset,
     })
 }
@@ -283,10 +293,21 @@ fn qform_affine(q: [f64; 3], offset: [f64; 3], pixdim: &[f64; 8]) -> DMat4 {
     )
 }
 
-/// Reads only the header of a NIfTI file.
+/// Reads only the header of a NIfTI file: the first 540 bytes (decompressing no more than that of a `.gz`).
 pub fn read_header(path: impl AsRef<Path>) -> Result<NiftiHeader> {
     let path = path.as_ref();
-    let bytes = read_maybe_gz(path)?;
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut magic = [0u8; 2];
+    let n = file.read(&mut magic).map_err(|e| Error::io(path, e))?;
+    use std::io::Seek;
+    file.seek(std::io::SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
+    let mut bytes = Vec::with_capacity(540);
+    let res = if n == 2 && magic == [0x1f, 0x8b] {
+        flate2::read::MultiGzDecoder::new(file).take(540).read_to_end(&mut bytes)
+    } else {
+        file.take(540).read_to_end(&mut bytes)
+    };
+    res.map_err(|e| Error::format(path, format!("corrupt gzip stream: {e}")))?;
     parse_header(&bytes, path)
 }
 
@@ -362,6 +383,44 @@ pub enum WriteType {
 /// (code 1, scanner anatomical). The qform carries the rotation part of the affine; where the affine has
 /// shear, the qform is the nearest rigid approximation and readers use the sform, as the standard says.
 pub fn write<T: Scalar>(path: impl AsRef<Path>, vol: &Volume<T>, ty: WriteType) -> Result<()> {
+    write_with(path, vol, ty, &WriteMeta::default())
+}
+
+/// What a written header records beyond the data and affine.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WriteMeta {
+    /// 1 scanner, 2 aligned, 3 Talairach, 4 MNI (the codes of the input, to keep them).
+    pub sform_code: i16,
+    pub qform_code: i16,
+    pub intent_code: i16,
+    /// Up to 15 characters.
+    pub intent_name: String,
+    /// Up to 79 characters.
+    pub descrip: String,
+}
+
+impl Default for WriteMeta {
+    fn default() -> Self {
+        Self { sform_code: 1, qform_code: 1, intent_code: 0, intent_name: String::new(), descrip: "fascicle".into() }
+    }
+}
+
+impl WriteMeta {
+    /// The codes, intent and description of a header that was read (to write a derived image in its space).
+    pub fn from_header(h: &NiftiHeader) -> Self {
+        let code = |c: i32| if (1..=4).contains(&c) { c as i16 } else { 1 };
+        Self {
+            sform_code: code(h.sform_code),
+            qform_code: code(h.qform_code),
+            intent_code: i16::try_from(h.intent_code).unwrap_or(0),
+            intent_name: h.intent_name.clone(),
+            descrip: h.descrip.clone(),
+        }
+    }
+}
+
+/// [`write`] with the header's codes, intent and description given.
+pub fn write_with<T: Scalar>(path: impl AsRef<Path>, vol: &Volume<T>, ty: WriteType, meta: &WriteMeta) -> Result<()> {
     let path = path.as_ref();
     if vol.shape.is_empty() || vol.shape.len() > 7 {
         return Err(Error::Shape(format!("cannot write a {}-dimensional NIfTI image", vol.shape.len())));
@@ -412,9 +471,12 @@ pub fn write<T: Scalar>(path: impl AsRef<Path>, vol: &Volume<T>, ty: WriteType) 
     put(&mut h, 108, &352f32.to_le_bytes());
     put(&mut h, 112, &1f32.to_le_bytes());
     h[123] = 2 | 8; // mm, seconds
-    put(&mut h, 148, b"fascicle");
-    put(&mut h, 252, &1i16.to_le_bytes());
-    put(&mut h, 254, &1i16.to_le_bytes());
+    let text = |t: &str, n: usize| t.as_bytes()[..t.len().min(n)].to_vec();
+    put(&mut h, 148, &text(&meta.descrip, 79));
+    put(&mut h, 68, &meta.intent_code.to_le_bytes());
+    put(&mut h, 328, &text(&meta.intent_name, 15));
+    put(&mut h, 252, &meta.qform_code.to_le_bytes());
+    put(&mut h, 254, &meta.sform_code.to_le_bytes());
     for (i, v) in [q.x, q.y, q.z, a.w_axis.x, a.w_axis.y, a.w_axis.z].iter().enumerate() {
         put(&mut h, 256 + 4 * i, &(*v as f32).to_le_bytes());
     }
