@@ -47,7 +47,14 @@ fn one_usize() -> usize {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum LayerKind {
     /// One slice of a scalar volume, drawn in its place in world space.
-    Slice { source: VolumeSource, axis: SliceAxis, index: Option<usize> },
+    Slice {
+        source: VolumeSource,
+        #[serde(default)]
+        axis: SliceAxis,
+        /// The slice; the middle one when absent.
+        #[serde(default)]
+        index: Option<usize>,
+    },
     /// Streamlines as lines coloured by local direction.
     Tractogram { path: PathBuf },
     /// World axes from the origin: R red, A green, S blue.
@@ -55,7 +62,9 @@ pub enum LayerKind {
     /// Ray-cast ODF glyphs, one per voxel of a slice of an SH field.
     ShGlyphs {
         source: ShSource,
+        #[serde(default)]
         axis: SliceAxis,
+        #[serde(default)]
         index: Option<usize>,
         /// Every `spacing`-th voxel along each in-plane axis (1 = every voxel).
         #[serde(default = "one_usize")]
@@ -78,7 +87,9 @@ pub enum LayerKind {
     /// coloured by FA (viridis) with opacity `opacity · FA`.
     TensorSplats {
         source: TensorSource,
+        #[serde(default)]
         axis: SliceAxis,
+        #[serde(default)]
         index: Option<usize>,
         #[serde(default = "one_usize")]
         thickness: usize,
@@ -111,7 +122,9 @@ pub enum LayerKind {
     /// Ray-cast tensor glyphs (ellipsoids or superquadrics), one per voxel of a slice.
     TensorGlyphs {
         source: TensorSource,
+        #[serde(default)]
         axis: SliceAxis,
+        #[serde(default)]
         index: Option<usize>,
         #[serde(default = "one_usize")]
         spacing: usize,
@@ -252,27 +265,39 @@ pub enum ShSource {
     /// CSA ODFs fitted (DIPY's CsaOdfModel, smooth 0.006) to a noiseless multi-tensor DWI of the built-in
     /// phantom (64 directions, b 1000).
     PhantomCsa { l_max: usize },
-    /// A coefficient image (X,Y,Z,n) as `fascicle fit csa`, DIPY or MRtrix write it, in `basis`.
-    Nifti { path: PathBuf, basis: ShBasis },
+    /// A coefficient image (X,Y,Z,n) as `fascicle fit csa`, DIPY or MRtrix write it, in `basis` (DIPY's default,
+    /// descoteaux07 legacy, when absent).
+    Nifti {
+        path: PathBuf,
+        #[serde(default)]
+        basis: ShBasis,
+    },
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum VolumeSource {
     /// FA of the built-in ring/cross phantom.
     PhantomFa,
-    /// A NIfTI file; `volume` picks the 4th-dimension index.
-    Nifti { path: PathBuf, volume: usize },
+    /// A NIfTI file; `volume` picks the 4th-dimension index (0 when absent).
+    Nifti {
+        path: PathBuf,
+        #[serde(default)]
+        volume: usize,
+    },
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum SliceAxis {
     X,
     Y,
+    /// Axial: the default.
+    #[default]
     Z,
 }
 
 /// A perspective camera in world (RAS+ mm) coordinates.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct CameraSpec {
     pub eye: [f32; 3],
     pub target: [f32; 3],
@@ -436,5 +461,34 @@ impl Scene {
             return Err(format!("{}: not a NIfTI image, tractogram or scene file", path.display()));
         };
         Ok(LayerSpec { name, visible: true, opacity: 1.0, kind })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scene sets only what it changes: every settings struct and layer field has a default.
+    #[test]
+    fn minimal_scenes_load_with_defaults() {
+        let text = r#"(layers: [
+            (name: "odf", kind: ShGlyphs(source: PhantomCsa(l_max: 4), style: (scale: 3.0))),
+            (name: "splats", kind: TensorSplats(source: Phantom, render: (opacity: 0.5))),
+            (name: "fa", kind: Slice(source: PhantomFa)),
+            (name: "dvr", kind: Volume(source: PhantomFa, render: (step: 0.5))),
+            (name: "tracts", kind: Tracts(source: PhantomRk4(seed_spacing: 4), render: (scale: 2.0))),
+            (name: "glyphs", kind: TensorGlyphs(source: Phantom)),
+        ])"#;
+        let scene: Scene = ron::from_str(text).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(scene.camera, CameraSpec::default());
+        let LayerKind::ShGlyphs { style, render, axis, index, spacing, .. } = &scene.layers[0].kind else {
+            panic!("{:?}", scene.layers[0].kind)
+        };
+        assert_eq!(style.scale, 3.0);
+        assert_eq!(GlyphStyle { scale: 3.0, ..*style }, GlyphStyle { scale: 3.0, ..GlyphStyle::default() });
+        assert_eq!((*render, *axis, *index, *spacing), (RayCastSettings::default(), SliceAxis::Z, None, 1));
+        let LayerKind::TensorSplats { render, .. } = &scene.layers[1].kind else { panic!() };
+        assert_eq!(*render, SplatSettings { opacity: 0.5, ..SplatSettings::default() });
+        assert!(scene.layers.iter().all(|l| l.visible && l.opacity == 1.0));
     }
 }

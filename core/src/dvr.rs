@@ -30,6 +30,7 @@ pub struct TfPoint {
 
 /// A 1D transfer function over the value range `[lo, hi]`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct TransferFunction {
     pub range: [f64; 2],
     pub points: Vec<TfPoint>,
@@ -130,6 +131,7 @@ pub fn sample(vol: &Volume<f32>, p: DVec3) -> f64 {
 /// The part of a volume that is drawn: along each voxel axis, the fractions `min..max` of its extent
 /// (`0..1` everything; `0..0.5` along x the first half of the columns).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct ClipBox {
     pub min: [f64; 3],
     pub max: [f64; 3],
@@ -155,6 +157,7 @@ impl ClipBox {
 
 /// Ray-marching knobs (shared with the shader).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct MarchParams {
     /// Step length (mm).
     pub step: f64,

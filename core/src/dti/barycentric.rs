@@ -13,6 +13,7 @@ const CORNERS: [DVec2; 3] = [DVec2::new(0.0, 0.0), DVec2::new(1.0, 0.0), DVec2::
 
 /// The transfer function's parameters.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct BarycentricTf {
     pub denominator: WestinDenominator,
     /// Centre of the opacity bump as (cl, cp, cs) (normalised to sum 1).

@@ -104,6 +104,7 @@ pub enum SplatColourMode {
 
 /// A colouring: the mode and the barycentric function it uses.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SplatColouring {
     pub mode: SplatColourMode,
     #[serde(default)]
@@ -143,6 +144,7 @@ impl SplatColouring {
 /// `d = cl·sqrt(1-(l·e1)²) + cp·|l·e3| + cs`, `s = cl·sqrt(1-(l·e1)²)^N + cp·|l·e3|^N`, and
 /// `colour · (ambient + diffuse·d) + specular·s`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct LitTensor {
     pub ambient: f64,
     pub diffuse: f64,

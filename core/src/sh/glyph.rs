@@ -106,6 +106,7 @@ pub enum Normalise {
 
 /// Per-glyph CPU work before upload (SEEDS.md §4).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct GlyphStyle {
     /// Target radius in mm (of each glyph, or of the largest).
     pub scale: f64,

@@ -55,6 +55,7 @@ impl Sphere {
 
 /// Peak-finding parameters; defaults as DIPY's `peak_directions` (0.5, 25°) and `peaks_from_model` (5 peaks).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct PeakParams {
     /// Drop peaks below this fraction of the largest (above the ODF's minimum, floored at 0).
     pub relative_peak_threshold: f64,

@@ -79,6 +79,7 @@ pub enum Rejection {
 
 /// Tracking parameters. Defaults: RK4 at 0.5 mm, FA 0.2, 60 degrees, lengths 0..250 mm.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct TrackParams {
     pub step_mm: f64,
     pub fa_threshold: f64,

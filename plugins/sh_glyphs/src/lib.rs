@@ -43,6 +43,7 @@ pub enum GlyphColour {
 
 /// The ray caster's quality knobs and drawing options.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct RayCastSettings {
     /// Linear-search step, in units of the glyph's rmax.
     pub h: f32,

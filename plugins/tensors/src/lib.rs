@@ -42,6 +42,7 @@ pub enum TensorColour {
 
 /// Shape and ray-caster knobs.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct TensorGlyphSettings {
     pub shape: TensorShape,
     /// Superquadric search step in units of the glyph's bound.

@@ -30,6 +30,7 @@ use fascicle_render::shaders;
 
 /// Splat drawing options.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SplatSettings {
     /// The seed's depth attenuation `exp(-2K sqrt(T'zz))`.
     pub attenuation: bool,

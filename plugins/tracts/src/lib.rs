@@ -26,6 +26,7 @@ use fascicle_render::shaders;
 
 /// Drawing options of hyperstreamlines.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct TubeSettings {
     /// Cross-section scale (mm): a semi-axis is `scale · l_k / l1` (at least 5 % of it).
     pub scale: f64,

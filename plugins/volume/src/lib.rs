@@ -49,6 +49,7 @@ pub enum VolumeMethod {
 
 /// Drawing options of a volume layer.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct VolumeSettings {
     pub method: VolumeMethod,
     pub tf: TransferFunction,
