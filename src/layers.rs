@@ -567,6 +567,7 @@ pub fn free_plane_glyphs(
     let affine = fascicle_core::phantom::ring_cross([48, 48, 24]).world_from_voxel;
     let (vol, basis) = sh_field(source, near_plane(affine))?;
     let items = sample_plane(&vol, plane, sampling).map_err(|e| e.to_string())?;
+    let style = style.resolved(plane.spacing);
     let (glyphs, skipped) =
         make_glyphs(items.iter().map(|(p, c, _)| (*p, &c[..])), basis, style).map_err(|e| e.to_string())?;
     let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
@@ -742,7 +743,8 @@ pub fn volume_glyphs(
         return Err("glyph spacing must be at least 1 voxel".into());
     }
     let (vol, basis) = sh_field(source, |p| p.iter().all(|c| c % spacing == 0))?;
-    voxel_glyphs(&vol, basis, style, |p| p.iter().all(|c| c % spacing == 0))
+    let cell = vol.voxel_size().min_element() * spacing as f64;
+    voxel_glyphs(&vol, basis, style.resolved(cell), |p| p.iter().all(|c| c % spacing == 0))
 }
 
 /// Glyphs at the centres of the voxels `keep` accepts that have signal (`c00 > 0`), with their voxels.
@@ -805,7 +807,9 @@ pub fn plane_glyphs(
     if k >= d[ax] {
         return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", d[ax]));
     }
-    voxel_glyphs(&vol, basis, style, |p| p[ax] == k && (0..3).all(|a| a == ax || p[a] % spacing == 0))
+    let vs = vol.voxel_size();
+    let cell = (0..3).filter(|&a| a != ax).map(|a| vs[a]).fold(f64::INFINITY, f64::min) * spacing as f64;
+    voxel_glyphs(&vol, basis, style.resolved(cell), |p| p[ax] == k && (0..3).all(|a| a == ax || p[a] % spacing == 0))
 }
 
 /// A grey image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world

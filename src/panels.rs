@@ -153,7 +153,15 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
         }
         ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
     }
-    ui.add(egui::Slider::new(&mut style.scale, 0.1..=10.0).text("size (mm)"));
+    match &mut style.cell_fill {
+        Some(fill) => {
+            ui.add(egui::Slider::new(fill, 0.1..=2.0).text("size (fraction of the grid spacing)"));
+        }
+        None => {
+            ui.add(egui::Slider::new(&mut style.scale, 0.1..=10.0).text("size (mm)"));
+        }
+    }
+    ui.checkbox(&mut style.fit_lobes, "size by the largest lobe");
     ui.add(egui::Slider::new(&mut style.sharpen, 1.0..=10.0).text("sharpening"));
     ui.horizontal(|ui| {
         ui.radio_value(&mut style.normalise, Normalise::PerGlyph, "per glyph");

@@ -350,7 +350,14 @@ impl Scene {
                         plane: None,
                         sampling: Sampling::Nearest,
                         full_volume: false,
-                        style: GlyphStyle { scale: 3.0, ..GlyphStyle::default() },
+                        // Sized to the grid, one scale for the layer: fibre lobes stand out from the round
+                        // background.
+                        style: GlyphStyle {
+                            fit_lobes: true,
+                            cell_fill: Some(0.9),
+                            normalise: fascicle_core::sh::glyph::Normalise::Global,
+                            ..GlyphStyle::default()
+                        },
                         render: RayCastSettings::default(),
                     },
                 },
@@ -373,7 +380,7 @@ impl Scene {
                     name: "FA volume (DVR)".into(),
                     visible: true,
                     opacity: 1.0,
-                    kind: LayerKind::Volume { source: VolumeSource::PhantomFa, render: VolumeSettings::default() },
+                    kind: LayerKind::Volume { source: VolumeSource::PhantomFa, render: faint_context() },
                 },
                 LayerSpec {
                     name: "Axes".into(),
@@ -382,7 +389,8 @@ impl Scene {
                     kind: LayerKind::Axes { length_mm: 30.0 },
                 },
             ],
-            camera: CameraSpec::default(),
+            // Closer than the default camera: the phantom fills the view.
+            camera: CameraSpec { eye: [-45.0, -80.0, 55.0], ..CameraSpec::default() },
         }
     }
 
@@ -446,7 +454,8 @@ impl Scene {
                 plane: None,
                 sampling: Sampling::Nearest,
                 full_volume: false,
-                style: GlyphStyle::default(),
+                // Sized to the grid, as mrview and FURY do.
+                style: GlyphStyle { fit_lobes: true, cell_fill: Some(0.9), ..GlyphStyle::default() },
                 render: RayCastSettings::default(),
             }
         } else if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
@@ -491,4 +500,14 @@ mod tests {
         assert_eq!(*render, SplatSettings { opacity: 0.5, ..SplatSettings::default() });
         assert!(scene.layers.iter().all(|l| l.visible && l.opacity == 1.0));
     }
+}
+
+/// The default scene's volume: the default FA transfer function at a fifth of its opacity, a haze that leaves
+/// the glyphs and tubes inside it visible.
+fn faint_context() -> VolumeSettings {
+    let mut v = VolumeSettings::default();
+    for p in &mut v.tf.points {
+        p.rgba[3] *= 0.2;
+    }
+    v
 }

@@ -63,7 +63,7 @@ fn every_convention_gives_the_same_glyph() {
         let (glyphs, _) = make_glyphs(
             [(DVec3::ZERO, &c[..])],
             basis,
-            GlyphStyle { scale: 1.0, sharpen: 1.0, normalise: Normalise::Global },
+            GlyphStyle { scale: 1.0, sharpen: 1.0, normalise: Normalise::Global, ..GlyphStyle::default() },
         )
         .unwrap();
         let g = &glyphs[0];
@@ -189,7 +189,7 @@ fn styles_normalise_and_reject_bad_input() {
     let zero = [0.0; 15];
     let nan = [f64::NAN; 15];
     let items = [(DVec3::ZERO, &big[..]), (DVec3::X, &small[..]), (DVec3::Y, &zero[..]), (DVec3::Z, &nan[..])];
-    let per = GlyphStyle { scale: 2.0, sharpen: 1.0, normalise: Normalise::PerGlyph };
+    let per = GlyphStyle { scale: 2.0, sharpen: 1.0, normalise: Normalise::PerGlyph, ..GlyphStyle::default() };
     let (g, skipped) = make_glyphs(items, ShBasis::default(), per).unwrap();
     assert_eq!(skipped, vec![2, 3]);
     assert!(g.iter().all(|g| (g.rmax - 2.0).abs() < 1e-12));
@@ -205,6 +205,25 @@ fn styles_normalise_and_reject_bad_input() {
     assert!(make_glyphs(items, ShBasis::default(), GlyphStyle { scale: 0.0, ..per }).is_err());
     assert!(make_glyphs(items, ShBasis::default(), GlyphStyle { sharpen: 0.5, ..per }).is_err());
     assert!(make_glyphs([(DVec3::ZERO, &[1.0, 2.0][..])], ShBasis::default(), per).is_err());
+
+    // Sized to the grid: the largest lobe (|ψ| sampled densely) spans 90 % of a 4 mm cell, a radius of 1.8 mm,
+    // where the Cauchy-Schwarz normalisation leaves it well short.
+    let lobe = |g: &fascicle_core::sh::glyph::Glyph| {
+        fascicle_core::sh::sphere::fibonacci(20_000)
+            .iter()
+            .map(|d| sh::eval(GLYPH_BASIS, &g.coeffs, *d).unwrap().abs())
+            .fold(0.0f64, f64::max)
+    };
+    let grid = GlyphStyle::for_grid(4.0);
+    assert!((grid.scale - 1.8).abs() < 1e-12);
+    let (g, _) = make_glyphs(items, ShBasis::default(), grid).unwrap();
+    let (loose, _) = make_glyphs(items, ShBasis::default(), GlyphStyle { scale: 1.8, ..per }).unwrap();
+    for (a, b) in g.iter().zip(&loose) {
+        println!("largest lobe {:.4} mm fitted, {:.4} mm with the Cauchy-Schwarz bound", lobe(a), lobe(b));
+        assert!(lobe(a) <= 1.8 + 1e-9 && lobe(a) >= 0.97 * 1.8, "{}", lobe(a));
+        assert!(lobe(b) < lobe(a));
+    }
+    assert_eq!(GlyphStyle::default().resolved(4.0), GlyphStyle::default(), "no cell_fill: scale kept");
 }
 
 #[test]

@@ -113,11 +113,32 @@ pub struct GlyphStyle {
     /// `a_00` is divided by this (>= 1) to weaken the isotropic part.
     pub sharpen: f64,
     pub normalise: Normalise,
+    /// Normalise by each glyph's largest lobe (the sampled bound [`render_bound`]) instead of the looser
+    /// Cauchy-Schwarz bound `rmax`, so that the largest lobe reaches `scale`.
+    pub fit_lobes: bool,
+    /// When set, the layer derives `scale` from its grid: the largest lobe spans this fraction of the spacing
+    /// between glyphs (as mrview and FURY size them). `scale` is then ignored.
+    pub cell_fill: Option<f64>,
 }
 
 impl Default for GlyphStyle {
     fn default() -> Self {
-        Self { scale: 1.0, sharpen: 1.0, normalise: Normalise::PerGlyph }
+        Self { scale: 1.0, sharpen: 1.0, normalise: Normalise::PerGlyph, fit_lobes: false, cell_fill: None }
+    }
+}
+
+impl GlyphStyle {
+    /// Sized to a grid of `cell_mm` between glyphs: lobes fitted, the largest spanning 90 % of a cell.
+    pub fn for_grid(cell_mm: f64) -> Self {
+        Self { fit_lobes: true, cell_fill: Some(0.9), ..Self::default() }.resolved(cell_mm)
+    }
+
+    /// This style with `scale` set from `cell_fill` for glyphs `cell_mm` apart (unchanged without `cell_fill`).
+    pub fn resolved(self, cell_mm: f64) -> Self {
+        match self.cell_fill {
+            Some(f) if f > 0.0 && cell_mm > 0.0 && cell_mm.is_finite() => Self { scale: 0.5 * f * cell_mm, ..self },
+            _ => self,
+        }
     }
 }
 
@@ -235,12 +256,22 @@ pub fn make_glyphs<'a>(
             _ => skipped.push(i),
         }
     }
-    let global = shapes.iter().map(|s| s.2).fold(0.0f64, f64::max);
     use rayon::prelude::*;
+    // What each glyph is normalised by: its Cauchy-Schwarz bound, or its largest lobe.
+    let size: Vec<f64> = shapes
+        .par_iter()
+        .map(
+            |(_, c, rmax, _)| {
+                if style.fit_lobes { render_bound(c, l_max_for(c.len()).unwrap_or(0), *rmax) } else { *rmax }
+            },
+        )
+        .collect();
+    let global = size.iter().copied().fold(0.0f64, f64::max);
     let glyphs = shapes
         .into_par_iter()
-        .map(|(centre, mut c, rmax, gfa)| {
-            let k = style.scale / if style.normalise == Normalise::PerGlyph { rmax } else { global };
+        .zip(size)
+        .map(|((centre, mut c, rmax, gfa), own)| {
+            let k = style.scale / if style.normalise == Normalise::PerGlyph { own } else { global };
             c.iter_mut().for_each(|v| *v *= k);
             let l_max = l_max_for(c.len()).unwrap_or(0);
             let rbound = render_bound(&c, l_max, rmax * k);
