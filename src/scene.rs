@@ -473,6 +473,16 @@ impl Scene {
     }
 }
 
+/// The default scene's volume: the default FA transfer function at a fifth of its opacity, a haze that leaves
+/// the glyphs and tubes inside it visible.
+fn faint_context() -> VolumeSettings {
+    let mut v = VolumeSettings::default();
+    for p in &mut v.tf.points {
+        p.rgba[3] *= 0.2;
+    }
+    v
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -500,14 +510,4 @@ mod tests {
         assert_eq!(*render, SplatSettings { opacity: 0.5, ..SplatSettings::default() });
         assert!(scene.layers.iter().all(|l| l.visible && l.opacity == 1.0));
     }
-}
-
-/// The default scene's volume: the default FA transfer function at a fifth of its opacity, a haze that leaves
-/// the glyphs and tubes inside it visible.
-fn faint_context() -> VolumeSettings {
-    let mut v = VolumeSettings::default();
-    for p in &mut v.tf.points {
-        p.rgba[3] *= 0.2;
-    }
-    v
 }
