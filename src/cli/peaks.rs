@@ -30,6 +30,30 @@ pub enum OdfArg {
     Qball,
 }
 
+/// How peaks are found on each voxel's ODF (DIPY's `peak_directions` parameters).
+#[derive(Args, Debug, Clone, Copy)]
+pub struct PeakArgs {
+    /// Drop peaks below this fraction of the largest.
+    #[arg(long, default_value_t = 0.5)]
+    pub relative_peak_threshold: f64,
+    /// Of two peaks closer than this (degrees), keep the larger.
+    #[arg(long, default_value_t = 25.0)]
+    pub min_separation_angle: f64,
+    /// At most this many peaks per voxel.
+    #[arg(long, default_value_t = 5)]
+    pub npeaks: usize,
+}
+
+impl PeakArgs {
+    pub fn params(&self) -> PeakParams {
+        PeakParams {
+            relative_peak_threshold: self.relative_peak_threshold,
+            min_separation_angle: self.min_separation_angle,
+            npeaks: self.npeaks,
+        }
+    }
+}
+
 #[derive(Args, Debug)]
 pub struct PeaksArgs {
     /// 4D DWI to fit (needs --bval and --bvec).
@@ -59,15 +83,8 @@ pub struct PeaksArgs {
     /// 3D mask: voxels > 0 get peaks.
     #[arg(long)]
     pub mask: Option<PathBuf>,
-    /// Drop peaks below this fraction of the largest.
-    #[arg(long, default_value_t = 0.5)]
-    pub relative_peak_threshold: f64,
-    /// Of two peaks closer than this (degrees), keep the larger.
-    #[arg(long, default_value_t = 25.0)]
-    pub min_separation_angle: f64,
-    /// At most this many peaks per voxel.
-    #[arg(long, default_value_t = 5)]
-    pub npeaks: usize,
+    #[command(flatten)]
+    pub peak: PeakArgs,
     /// Output layout.
     #[arg(long, value_enum, default_value_t = Layout::Mrtrix)]
     pub layout: Layout,
@@ -77,11 +94,7 @@ pub struct PeaksArgs {
 }
 
 pub fn run(a: PeaksArgs) -> Result<(), Error> {
-    let params = PeakParams {
-        relative_peak_threshold: a.relative_peak_threshold,
-        min_separation_angle: a.min_separation_angle,
-        npeaks: a.npeaks,
-    };
+    let params = a.peak.params();
     params.validate()?;
     match a.layout {
         Layout::Mrtrix => super::check_output(&a.out)?,

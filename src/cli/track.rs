@@ -106,15 +106,9 @@ pub struct TrackArgs {
     /// Direction interpolation of a tensor field.
     #[arg(long, value_enum, default_value_t = FieldInterpolation::Peak)]
     pub interpolation: FieldInterpolation,
-    /// ODF peaks: drop peaks below this fraction of the largest.
-    #[arg(long, default_value_t = 0.5)]
-    pub relative_peak_threshold: f64,
-    /// ODF peaks: of two peaks closer than this (degrees), keep the larger.
-    #[arg(long, default_value_t = 25.0)]
-    pub min_separation_angle: f64,
-    /// ODF peaks: at most this many per voxel.
-    #[arg(long, default_value_t = 5)]
-    pub npeaks: usize,
+    /// ODF peaks (with --model csa|qball or --sh).
+    #[command(flatten)]
+    pub peak: super::peaks::PeakArgs,
     /// ODF peaks with a value at or below this are not followed (DIPY's EuDX default).
     #[arg(long, default_value_t = 0.0239)]
     pub min_peak_value: f32,
@@ -210,11 +204,7 @@ pub(crate) fn odf_peaks(
 }
 
 fn peak_params(a: &TrackArgs) -> PeakParams {
-    PeakParams {
-        relative_peak_threshold: a.relative_peak_threshold,
-        min_separation_angle: a.min_separation_angle,
-        npeaks: a.npeaks,
-    }
+    a.peak.params()
 }
 
 /// The SH coefficients of an image (X,Y,Z,n), voxel-major in f64.

@@ -148,18 +148,6 @@ impl TensorField {
 #[inline]
 pub fn trilinear(dims: [usize; 3], p: DVec3) -> [(usize, f64); 8] {
     let [nx, ny, _] = dims;
-    // Lower corner index and the stride to the upper one (0 where the upper would leave the grid).
-    // `c + 1 >= 0.5`, so truncation is the floor (no libm call where the target lacks SSE4.1's round).
-    let axis = |c: f64, n: usize| -> (usize, usize, f64) {
-        let t = (c + 1.0) as usize;
-        let w = c + 1.0 - t as f64;
-        if t == 0 {
-            (0, 0, w)
-        } else {
-            let i = t - 1;
-            if i + 1 < n { (i, 1, w) } else { (n - 1, 0, w) }
-        }
-    };
     let (x0, sx, wx) = axis(p.x, dims[0]);
     let (y0, sy, wy) = axis(p.y, dims[1]);
     let (z0, sz, wz) = axis(p.z, dims[2]);
@@ -177,19 +165,28 @@ pub fn trilinear(dims: [usize; 3], p: DVec3) -> [(usize, f64); 8] {
     ]
 }
 
+/// Along one axis: the lower voxel index, the stride to the upper one (0 where the upper would leave the
+/// grid) and the upper weight. `c + 1 >= 0.5`, so truncation is the floor (no libm call where the target lacks
+/// SSE4.1's round).
+#[inline]
+fn axis(c: f64, n: usize) -> (usize, usize, f64) {
+    let t = (c + 1.0) as usize;
+    let w = c + 1.0 - t as f64;
+    if t == 0 {
+        (0, 0, w)
+    } else {
+        let i = t - 1;
+        if i + 1 < n { (i, 1, w) } else { (n - 1, 0, w) }
+    }
+}
+
 /// [`trilinear`] with f32 weights, for fields stored in f32.
 #[inline]
 fn trilinear_f32(dims: [usize; 3], p: DVec3) -> ([usize; 8], [f32; 8]) {
     let [nx, ny, _] = dims;
-    let axis = |c: f64, n: usize| -> (usize, usize, f32) {
-        let t = (c + 1.0) as usize;
-        let w = (c + 1.0 - t as f64) as f32;
-        if t == 0 {
-            (0, 0, w)
-        } else {
-            let i = t - 1;
-            if i + 1 < n { (i, 1, w) } else { (n - 1, 0, w) }
-        }
+    let axis = |c: f64, n: usize| {
+        let (i, s, w) = axis(c, n);
+        (i, s, w as f32)
     };
     let (x0, sx, wx) = axis(p.x, dims[0]);
     let (y0, sy, wy) = axis(p.y, dims[1]);
