@@ -498,7 +498,7 @@ pub fn peak_segments(path: &std::path::Path, length: f32) -> Result<Tractogram, 
     let img = fascicle_core::io::peaks::read(path).map_err(|e| e.to_string())?;
     let a = img.world_from_voxel;
     let m = fascicle_core::io::peaks::direction_frame(a);
-    let edge = [a.x_axis, a.y_axis, a.z_axis].iter().map(|c| c.truncate().length()).fold(f64::INFINITY, f64::min);
+    let edge = min_edge(a);
     let [nx, ny, _] = img.dims;
     let k = img.npeaks;
     let mut t = Tractogram::new();

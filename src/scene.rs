@@ -429,13 +429,10 @@ impl Scene {
             })
         };
         let nifti = lower.ends_with(".nii") || lower.ends_with(".nii.gz");
-        // Peaks: DIPY's (X,Y,Z,N,3) directions, or MRtrix's 3N volumes in a file named as peaks (a 15-volume
-        // peaks image is otherwise indistinguishable from l_max 4 SH coefficients).
         let peaks_image = || {
-            fascicle_core::io::nifti::read_header(path).ok().is_some_and(|h| {
-                (h.shape.len() == 5 && h.shape[4] == 3)
-                    || (h.shape.len() == 4 && h.shape[3] % 3 == 0 && lower.contains("peak"))
-            })
+            fascicle_core::io::nifti::read_header(path)
+                .ok()
+                .is_some_and(|h| fascicle_core::io::peaks::is_peaks_image(&h.shape, &lower))
         };
         let kind = if nifti && peaks_image() {
             LayerKind::Tracts {

@@ -135,7 +135,7 @@ pub fn run(phantom: &Path, python: Option<&Path>, tckgen: Option<&Path>, runs: u
         )));
     }
     let mut out: Vec<Run> = Vec::new();
-    for (integrator, name) in [(Integrator::Euler, "euler"), (Integrator::Rk4, "rk4")] {
+    for name in ["euler", "rk4"] {
         for threads in [1, all] {
             let trk = dir.join(format!("fascicle_{name}_{threads}.trk"));
             let mut cmd = Command::new(&exe);
@@ -143,7 +143,6 @@ pub fn run(phantom: &Path, python: Option<&Path>, tckgen: Option<&Path>, runs: u
             cmd.arg("--seed-mask").arg(&seed_mask).args(["--integrator", name, "--threads", &threads.to_string()]);
             cmd.arg("--out").arg(&trk);
             let (wall, tracking, tracts) = time_process(cmd, &trk, runs)?;
-            let _ = integrator;
             out.push(Run { tool: "Fascicle", integrator: name, threads, wall, tracking, tracts });
         }
     }
@@ -260,10 +259,12 @@ pub fn run(phantom: &Path, python: Option<&Path>, tckgen: Option<&Path>, runs: u
             let _ = writeln!(md, "| {} | {} |", label(r), cells.join(" | "));
         }
     }
-    let rate = |tool: &str, integrator: &str, threads: usize| {
-        out.iter()
-            .find(|r| r.tool == tool && r.integrator == integrator && r.threads == threads)
-            .map(|r| r.tracts.points.len() as f64 / r.wall.as_secs_f64())
+    let find = |tool: &str, integrator: &str, threads: usize| {
+        out.iter().find(|r| r.tool == tool && r.integrator == integrator && r.threads == threads)
+    };
+    // Points per second of a run's whole process, and of its tracking alone where the tool reports that.
+    let rate = |tool, integrator, threads| {
+        find(tool, integrator, threads).map(|r| r.tracts.points.len() as f64 / r.wall.as_secs_f64())
     };
     let _ = writeln!(md, "\nRatios of whole-process points/s (Fascicle RK4 on {all} threads against each):\n");
     if let Some(ours) = rate("Fascicle", "rk4", all) {
@@ -278,10 +279,8 @@ pub fn run(phantom: &Path, python: Option<&Path>, tckgen: Option<&Path>, runs: u
             }
         }
     }
-    let alone = |tool: &str, integrator: &str, threads: usize| {
-        out.iter()
-            .find(|r| r.tool == tool && r.integrator == integrator && r.threads == threads)
-            .and_then(|r| r.tracking.map(|t| r.tracts.points.len() as f64 / t))
+    let alone = |tool, integrator, threads| {
+        find(tool, integrator, threads).and_then(|r| r.tracking.map(|t| r.tracts.points.len() as f64 / t))
     };
     if let (Some(ours), Some(theirs)) = (alone("Fascicle", "rk4", all), alone("DIPY EuDX", "euler", 1)) {
         let _ =

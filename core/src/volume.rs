@@ -73,8 +73,7 @@ impl<T: Scalar> Volume<T> {
 
     /// Voxel edge lengths in mm, from the columns of the affine.
     pub fn voxel_size(&self) -> DVec3 {
-        let m = self.world_from_voxel;
-        DVec3::new(m.x_axis.truncate().length(), m.y_axis.truncate().length(), m.z_axis.truncate().length())
+        voxel_size(self.world_from_voxel)
     }
 
     /// Converts the element type.
@@ -85,6 +84,12 @@ impl<T: Scalar> Volume<T> {
             world_from_voxel: self.world_from_voxel,
         }
     }
+}
+
+/// Voxel edge lengths in mm of a voxel-to-world affine: the lengths of its first three columns.
+pub fn voxel_size(world_from_voxel: glam::DMat4) -> DVec3 {
+    let m = world_from_voxel;
+    DVec3::new(m.x_axis.truncate().length(), m.y_axis.truncate().length(), m.z_axis.truncate().length())
 }
 
 /// Flat index of voxel (x, y, z) in a volume of spatial size `dims`.

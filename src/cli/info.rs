@@ -94,9 +94,7 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
             Path::new(&format!("{base}.{ext}")).exists()
         };
         let vols: usize = h.shape[3..].iter().product();
-        let kind = if h.shape.len() == 5 && h.shape[4] == 3
-            || (h.shape.len() == 4 && vols.is_multiple_of(3) && stem.contains("peak"))
-        {
+        let kind = if fascicle_core::io::peaks::is_peaks_image(&h.shape, &stem) {
             "peaks"
         } else if h.shape.len() >= 4 && (beside("bval") || beside("bvec")) {
             "dwi"

@@ -6,10 +6,10 @@ use std::path::PathBuf;
 use clap::Args;
 use fascicle_core::Error;
 use fascicle_core::io::{nifti, peaks};
-use fascicle_core::sh::{self, OdfKind, OdfModel, PeakParams, ShBasis, ShGrid};
+use fascicle_core::sh::{OdfKind, PeakParams, ShGrid};
 
-use super::fit::{DwiArgs, load, progress_bar, read_mask};
-use super::track::{odf_peaks, sh_coefficients};
+use super::fit::{DwiArgs, load, read_mask};
+use super::track::{dwi_odf_peaks, odf_peaks, sh_coefficients};
 
 /// The file layout of `fascicle peaks`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -127,13 +127,7 @@ pub fn run(a: PeaksArgs) -> Result<(), Error> {
             mask: a.mask.clone(),
             b0_threshold: fascicle_core::io::gradients::DEFAULT_B0_THRESHOLD,
         })?;
-        let basis = ShBasis::Descoteaux07 { legacy: true };
-        let model = OdfModel::new(&l.gtab, kind, a.lmax, sh::fit::DEFAULT_SMOOTH, basis)?;
-        let pb = progress_bar(l.dwi.n_voxels(), "ODF fit", "voxels");
-        let coeffs = sh::fit_odf_coefficients(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
-        pb.finish_and_clear();
-        let sh = ShGrid { dims: l.dwi.dims3(), coeffs: &coeffs, l_max: a.lmax, basis };
-        (odf_peaks(sh, l.dwi.world_from_voxel, &params, l.mask.as_deref())?, l.dwi.world_from_voxel)
+        (dwi_odf_peaks(&l, kind, a.lmax, &params)?, l.dwi.world_from_voxel)
     };
     let n = peaks.gfa.len();
     let with = (0..n).filter(|&v| peaks.count(v) > 0).count();

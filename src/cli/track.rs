@@ -12,10 +12,11 @@ use fascicle_core::tracking::{
     DirectionField, PeakField, TensorField, TensorInterpolation, TrackParams, Tracker, Tracks, read_seeds,
     seeds_from_mask, to_voxel,
 };
+use fascicle_core::volume::voxel_size;
 use fascicle_core::{Error, Volume};
 use glam::DMat4;
 
-use super::fit::{DwiArgs, load, progress_bar, read_mask};
+use super::fit::{DwiArgs, Loaded, load, progress_bar, read_mask};
 
 /// The model a DWI is fitted with before tracking.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -148,21 +149,17 @@ pub(crate) struct Prepared {
     pub dims: [usize; 3],
 }
 
-/// A fitted tensor volume as the chosen field.
+/// The chosen field of a tensor source: the peak field, or the tensor field with its interpolation.
 fn tensor_field(
-    fit: &dti::TensorVolume,
-    voxel_size: glam::DVec3,
     interp: FieldInterpolation,
     max_angle: f64,
+    peaks: impl FnOnce() -> fascicle_core::Result<PeakField>,
+    tensors: impl FnOnce(TensorInterpolation) -> fascicle_core::Result<TensorField>,
 ) -> Result<Field, Error> {
     Ok(match interp {
-        FieldInterpolation::Peak => Field::Peaks(PeakField::from_fit(fit, voxel_size)?.with_max_angle(max_angle)),
-        FieldInterpolation::Componentwise => {
-            Field::Tensor(TensorField::from_fit(fit, voxel_size, TensorInterpolation::Componentwise)?)
-        }
-        FieldInterpolation::LogEuclidean => {
-            Field::Tensor(TensorField::from_fit(fit, voxel_size, TensorInterpolation::LogEuclidean)?)
-        }
+        FieldInterpolation::Peak => Field::Peaks(peaks()?.with_max_angle(max_angle)),
+        FieldInterpolation::Componentwise => Field::Tensor(tensors(TensorInterpolation::Componentwise)?),
+        FieldInterpolation::LogEuclidean => Field::Tensor(tensors(TensorInterpolation::LogEuclidean)?),
     })
 }
 
@@ -178,7 +175,9 @@ pub(crate) fn field_from_dwi(
     let pb = progress_bar(dwi.n_voxels(), "DTI", "voxels");
     let fit = dti::fit_volume_with_progress(dwi, gtab, method, mask, &|n| pb.inc(n as u64))?;
     pb.finish_and_clear();
-    let field = tensor_field(&fit, dwi.voxel_size(), interp, max_angle)?;
+    let vs = dwi.voxel_size();
+    let field =
+        tensor_field(interp, max_angle, || PeakField::from_fit(&fit, vs), |i| TensorField::from_fit(&fit, vs, i))?;
     Ok(Prepared { field, world_from_voxel: dwi.world_from_voxel, dims: fit.dims })
 }
 
@@ -203,8 +202,21 @@ pub(crate) fn odf_peaks(
     Ok(peaks)
 }
 
-fn peak_params(a: &TrackArgs) -> PeakParams {
-    a.peak.params()
+/// The CSA or Q-ball peaks of a loaded DWI (fitted in DIPY's default basis, in f64).
+pub(crate) fn dwi_odf_peaks(l: &Loaded, kind: OdfKind, l_max: usize, params: &PeakParams) -> Result<PeakVolume, Error> {
+    let basis = ShBasis::Descoteaux07 { legacy: true };
+    let model = OdfModel::new(&l.gtab, kind, l_max, sh::fit::DEFAULT_SMOOTH, basis)?;
+    let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
+    let coeffs = sh::fit_odf_coefficients(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
+    pb.finish_and_clear();
+    let sh = ShGrid { dims: l.dwi.dims3(), coeffs: &coeffs, l_max, basis };
+    odf_peaks(sh, l.dwi.world_from_voxel, params, l.mask.as_deref())
+}
+
+/// ODF peaks as a field: GFA stops, peaks at or below --min-peak-value left out, gated at --max-angle.
+fn odf_peak_field(peaks: &PeakVolume, voxel_size: glam::DVec3, a: &TrackArgs) -> Result<Field, Error> {
+    let field = PeakField::from_peaks(peaks, voxel_size, &peaks.gfa, a.min_peak_value)?;
+    Ok(Field::Peaks(field.with_max_angle(a.max_angle)))
 }
 
 /// The SH coefficients of an image (X,Y,Z,n), voxel-major in f64.
@@ -218,18 +230,15 @@ pub(crate) fn sh_coefficients(vol: &Volume<f32>) -> Result<(Vec<f64>, usize), Er
 }
 
 fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
-    let params = peak_params(a);
+    let params = a.peak.params();
     if let Some(t) = &a.tensor {
         let (vol, _) = nifti::read::<f64>(t)?;
-        let field = match a.interpolation {
-            FieldInterpolation::Peak => Field::Peaks(PeakField::from_tensor_volume(&vol)?.with_max_angle(a.max_angle)),
-            FieldInterpolation::Componentwise => {
-                Field::Tensor(TensorField::from_volume(&vol, TensorInterpolation::Componentwise)?)
-            }
-            FieldInterpolation::LogEuclidean => {
-                Field::Tensor(TensorField::from_volume(&vol, TensorInterpolation::LogEuclidean)?)
-            }
-        };
+        let field = tensor_field(
+            a.interpolation,
+            a.max_angle,
+            || PeakField::from_tensor_volume(&vol),
+            |i| TensorField::from_volume(&vol, i),
+        )?;
         let dims = vol.dims3();
         let mask = a.mask.as_deref().map(|m| read_mask(m, dims)).transpose()?;
         return Ok((Prepared { field, world_from_voxel: vol.world_from_voxel, dims }, mask));
@@ -242,9 +251,8 @@ fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
         let basis = a.sh_basis.with_legacy(a.sh_legacy);
         let sh = ShGrid { dims, coeffs: &coeffs, l_max, basis };
         let peaks = odf_peaks(sh, vol.world_from_voxel, &params, mask.as_deref())?;
-        let field =
-            PeakField::from_peaks(&peaks, vol.voxel_size(), &peaks.gfa, a.min_peak_value)?.with_max_angle(a.max_angle);
-        return Ok((Prepared { field: Field::Peaks(field), world_from_voxel: vol.world_from_voxel, dims }, mask));
+        let field = odf_peak_field(&peaks, vol.voxel_size(), a)?;
+        return Ok((Prepared { field, world_from_voxel: vol.world_from_voxel, dims }, mask));
     }
     if let Some(path) = &a.peaks {
         let img = fascicle_core::io::peaks::read(path)?;
@@ -258,14 +266,14 @@ fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
                 img.dims
             )));
         }
-        let vs = Volume::<f32> { shape: img.dims.to_vec(), data: Vec::new(), world_from_voxel: img.world_from_voxel };
         let dirs: Vec<[f32; 3]> = img
             .dirs
             .iter()
             .zip(&img.amplitudes)
             .map(|(d, &amp)| if amp > a.min_peak_value { *d } else { [0.0; 3] })
             .collect();
-        let field = PeakField::new(img.dims, vs.voxel_size(), img.npeaks, &dirs, &s.data)?.with_max_angle(a.max_angle);
+        let field = PeakField::new(img.dims, voxel_size(img.world_from_voxel), img.npeaks, &dirs, &s.data)?
+            .with_max_angle(a.max_angle);
         let mask = a.mask.as_deref().map(|m| read_mask(m, img.dims)).transpose()?;
         return Ok((
             Prepared { field: Field::Peaks(field), world_from_voxel: img.world_from_voxel, dims: img.dims },
@@ -289,17 +297,9 @@ fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
         }
         TrackModel::Csa | TrackModel::Qball => {
             let kind = if a.model == TrackModel::Csa { OdfKind::Csa } else { OdfKind::Qball };
-            let basis = ShBasis::Descoteaux07 { legacy: true };
-            let model = OdfModel::new(&l.gtab, kind, a.lmax, sh::fit::DEFAULT_SMOOTH, basis)?;
-            let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
-            let coeffs = sh::fit_odf_coefficients(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
-            pb.finish_and_clear();
-            let dims = l.dwi.dims3();
-            let sh = ShGrid { dims, coeffs: &coeffs, l_max: a.lmax, basis };
-            let peaks = odf_peaks(sh, l.dwi.world_from_voxel, &params, l.mask.as_deref())?;
-            let field = PeakField::from_peaks(&peaks, l.dwi.voxel_size(), &peaks.gfa, a.min_peak_value)?
-                .with_max_angle(a.max_angle);
-            Prepared { field: Field::Peaks(field), world_from_voxel: l.dwi.world_from_voxel, dims }
+            let peaks = dwi_odf_peaks(&l, kind, a.lmax, &params)?;
+            let field = odf_peak_field(&peaks, l.dwi.voxel_size(), a)?;
+            Prepared { field, world_from_voxel: l.dwi.world_from_voxel, dims: l.dwi.dims3() }
         }
     };
     Ok((prepared, l.mask))
@@ -377,7 +377,7 @@ pub fn run(a: TrackArgs) -> Result<(), Error> {
         max_length_mm: a.max_length_mm,
     };
     params.validate()?;
-    peak_params(&a).validate()?;
+    a.peak.params().validate()?;
     if !matches!(extension(&a.out).as_str(), "trk" | "tck") {
         return Err(Error::Param(format!("output '{}' must end in .trk or .tck", a.out.display())));
     }

@@ -95,6 +95,17 @@ pub fn write_dipy(prefix: impl AsRef<Path>, peaks: &PeakVolume, world_from_voxel
     Ok(out)
 }
 
+/// Whether an image of this shape and file name holds peaks: DIPY's (X,Y,Z,N,3) directions, or MRtrix's 3N
+/// volumes in a file whose name says peaks (a 15-volume peaks image is otherwise indistinguishable from l_max 4
+/// SH coefficients).
+pub fn is_peaks_image(shape: &[usize], file_name: &str) -> bool {
+    (shape.len() == 5 && shape[4] == 3)
+        || (shape.len() == 4
+            && shape[3] > 0
+            && shape[3].is_multiple_of(3)
+            && file_name.to_ascii_lowercase().contains("peak"))
+}
+
 /// Reads a peaks image, telling the layout by its shape: (X,Y,Z,3N) is MRtrix's, (X,Y,Z,N,3) DIPY's `_dirs`
 /// (whose `_values` beside it, when present, give the amplitudes; else 1).
 pub fn read(path: impl AsRef<Path>) -> Result<PeakImage> {

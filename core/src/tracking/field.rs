@@ -387,21 +387,9 @@ impl PeakField {
         if tensors.len() != n {
             return Err(Error::Shape(format!("{} tensors for a {dims:?} grid ({n} voxels)", tensors.len())));
         }
-        let cells = tensors
-            .par_iter()
-            .map(|t| {
-                let t = t.map(f64::from);
-                match eigh(&t) {
-                    Some(e) if e.values[0] > 0.0 => {
-                        let fa = metrics::fa(&e.values);
-                        let d = e.vectors[0];
-                        [d.x as f32, d.y as f32, d.z as f32, if fa.is_finite() { fa as f32 } else { 0.0 }]
-                    }
-                    _ => [0.0; 4],
-                }
-            })
-            .collect();
-        Ok(Self { dims, voxel_size, npeaks: 1, cells, tensors: Some(tensors), cos_gate: gate(DEFAULT_GATE_DEG) })
+        let cells =
+            tensors.par_iter().map(|t| eigh(&t.map(f64::from)).map_or([0.0; 4], |e| principal_cell(&e))).collect();
+        Ok(Self::of_tensors(dims, voxel_size, cells, tensors))
     }
 
     /// From a fit: the principal eigenvector and FA of each fitted voxel (the eigen-systems the fit has
@@ -411,26 +399,17 @@ impl PeakField {
         let n = fit.voxels.len();
         let (cells, tensors): (Vec<[f32; 4]>, Vec<[f32; 6]>) = (0..n)
             .into_par_iter()
-            .map(|v| match fit.fit_at(v) {
-                Some(f) if f.eigen.values[0] > 0.0 && f.eigen.values.iter().all(|l| l.is_finite()) => {
-                    let fa = metrics::fa(&f.eigen.values);
-                    let d = f.eigen.vectors[0];
-                    (
-                        [d.x as f32, d.y as f32, d.z as f32, if fa.is_finite() { fa as f32 } else { 0.0 }],
-                        f.tensor().map(|x| x as f32),
-                    )
-                }
+            .map(|v| match fit.fit_at(v).map(|f| (principal_cell(&f.eigen), f)) {
+                Some((cell, f)) if cell != [0.0; 4] => (cell, f.tensor().map(|x| x as f32)),
                 _ => ([0.0; 4], [0.0; 6]),
             })
             .unzip();
-        Ok(Self {
-            dims: fit.dims,
-            voxel_size,
-            npeaks: 1,
-            cells,
-            tensors: Some(tensors),
-            cos_gate: gate(DEFAULT_GATE_DEG),
-        })
+        Ok(Self::of_tensors(fit.dims, voxel_size, cells, tensors))
+    }
+
+    /// One peak per voxel (`cells` from [`principal_cell`]) with the tensors kept, gated at the default angle.
+    fn of_tensors(dims: [usize; 3], voxel_size: DVec3, cells: Vec<[f32; 4]>, tensors: Vec<[f32; 6]>) -> Self {
+        Self { dims, voxel_size, npeaks: 1, cells, tensors: Some(tensors), cos_gate: gate(DEFAULT_GATE_DEG) }
     }
 
     /// From a tensor image as `fascicle fit dti` and DIPY write it: (X,Y,Z,6) or (X,Y,Z,1,6), lower-triangular.
@@ -486,6 +465,16 @@ impl PeakField {
             (r.x.clamp(0.0, nx as f64 - 1.0), r.y.clamp(0.0, ny as f64 - 1.0), r.z.clamp(0.0, nz as f64 - 1.0));
         x as usize + nx * (y as usize + ny * z as usize)
     }
+}
+
+/// A tensor's cell: its principal eigenvector and FA, or zeros where it has no positive, finite eigenvalues.
+fn principal_cell(e: &Eigen) -> [f32; 4] {
+    if !(e.values[0] > 0.0 && e.values.iter().all(|l| l.is_finite())) {
+        return [0.0; 4];
+    }
+    let fa = metrics::fa(&e.values);
+    let d = e.vectors[0];
+    [d.x as f32, d.y as f32, d.z as f32, if fa.is_finite() { fa as f32 } else { 0.0 }]
 }
 
 fn gate(deg: f64) -> f32 {
