@@ -15,7 +15,9 @@ use fascicle_core::io::{Tractogram, nifti};
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::sh::glyph::{Glyph, GlyphPlane, GlyphStyle, Sampling, make_glyphs, sample_plane};
 use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
-use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
+use fascicle_sh_glyphs::{
+    Selection, ShField, ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, field_glyphs, spawn_glyph_set, update_settings,
+};
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
 use fascicle_tracts::{
@@ -101,7 +103,7 @@ fn sync_scene(
     mut materials: ResMut<Assets<StandardMaterial>>,
     mut glyph_materials: ResMut<Assets<ShGlyphMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
-    glyph_sets: Query<(&ShGlyphSet, &LayerEntity)>,
+    mut glyph_sets: Query<(&mut ShGlyphSet, &LayerEntity)>,
     tensor: TensorAssets,
     volume: VolumeAssets,
     tracts: TractAssets,
@@ -124,11 +126,11 @@ fn sync_scene(
     let structure = |k: &[LayerKind]| k.iter().map(LayerKind::structure).collect::<Vec<_>>();
     if structure(&kinds) == structure(&spawned.0) {
         // Draw settings of glyph layers: a uniform update, nothing re-uploaded.
-        for (set, le) in &glyph_sets {
+        for (mut set, le) in &mut glyph_sets {
             if let Some(LayerKind::ShGlyphs { render, .. }) = kinds.get(le.0)
                 && spawned.0.get(le.0) != kinds.get(le.0)
             {
-                update_settings(&mut glyph_materials, set, render);
+                update_settings(&mut glyph_materials, &mut set, render);
             }
         }
         for (mut set, le) in &mut splat_sets {
@@ -367,7 +369,7 @@ fn spawn_layer(
         }
         LayerKind::Slice { source, axis, index } => {
             let (vol, channel, fixed_window) = match source {
-                VolumeSource::PhantomFa => (fascicle_core::phantom::ring_cross([48, 48, 24]).fa(), 0, Some((0.0, 1.0))),
+                VolumeSource::PhantomFa => (fascicle_core::phantom::ring_cross(PHANTOM_DIMS).fa(), 0, Some((0.0, 1.0))),
                 VolumeSource::Nifti { path, volume } => (read_channel_source(path, *volume)?, *volume, None),
             };
             let (image, corners) = slice_image(&vol, channel, *axis, *index, fixed_window)?;
@@ -402,7 +404,7 @@ fn read_channel_source(path: &std::path::Path, volume: usize) -> Result<Volume<f
 /// One 3D scalar volume of a source (the chosen 4th-dimension index of a NIfTI).
 fn scalar_volume(source: &VolumeSource) -> Result<Volume<f32>, String> {
     match source {
-        VolumeSource::PhantomFa => Ok(fascicle_core::phantom::ring_cross([48, 48, 24]).fa()),
+        VolumeSource::PhantomFa => Ok(fascicle_core::phantom::ring_cross(PHANTOM_DIMS).fa()),
         VolumeSource::Nifti { path, volume } => {
             let v = read_channel_source(path, *volume)?;
             let d = v.dims3();
@@ -453,7 +455,7 @@ pub fn tract_data(source: &TractSource) -> Result<TractData, String> {
         TractSource::PhantomRk4 { seed_spacing } => {
             use fascicle_core::tracking::{TensorField, TensorInterpolation, TrackParams, Tracker};
             let spacing = (*seed_spacing).max(1);
-            let ph = fascicle_core::phantom::ring_cross([48, 48, 24]);
+            let ph = fascicle_core::phantom::ring_cross(PHANTOM_DIMS);
             let a = ph.world_from_voxel;
             let voxel = glam::DVec3::new(a.x_axis.length(), a.y_axis.length(), a.z_axis.length());
             let field = TensorField::new(
@@ -521,12 +523,15 @@ pub fn peak_segments(path: &std::path::Path, length: f32) -> Result<Tractogram, 
     Ok(t)
 }
 
+/// The grid of the scenes' built-in ring/cross phantom.
+const PHANTOM_DIMS: [usize; 3] = [48, 48, 24];
+
 /// SH coefficients (X,Y,Z,n) and their basis for a glyph layer; for the phantom only the voxels of
 /// `mask` are fitted.
 fn sh_field(source: &ShSource, mask: impl Fn([usize; 3]) -> bool) -> Result<(Volume<f32>, ShBasis), String> {
     match source {
         ShSource::PhantomCsa { l_max } => {
-            let ph = fascicle_core::phantom::ring_cross([48, 48, 24]);
+            let ph = fascicle_core::phantom::ring_cross(PHANTOM_DIMS);
             let (dwi, gtab) = ph.dwi(64, 1000.0).map_err(|e| e.to_string())?;
             let basis = ShBasis::default();
             let model = OdfModel::new(&gtab, OdfKind::Csa, *l_max, 0.006, basis).map_err(|e| e.to_string())?;
@@ -564,7 +569,7 @@ pub fn free_plane_glyphs(
             (w - c).dot(n).abs() <= 2.0 * affine.x_axis.truncate().length().max(affine.z_axis.truncate().length())
         }
     };
-    let affine = fascicle_core::phantom::ring_cross([48, 48, 24]).world_from_voxel;
+    let affine = fascicle_core::phantom::ring_cross(PHANTOM_DIMS).world_from_voxel;
     let (vol, basis) = sh_field(source, near_plane(affine))?;
     let items = sample_plane(&vol, plane, sampling).map_err(|e| e.to_string())?;
     let style = style.resolved(plane.spacing);
@@ -717,7 +722,7 @@ type TensorGrid = ([usize; 3], glam::DMat4, Vec<[f64; 6]>);
 fn tensor_field(source: &TensorSource) -> Result<TensorGrid, String> {
     Ok(match source {
         TensorSource::Phantom => {
-            let p = fascicle_core::phantom::ring_cross([48, 48, 24]);
+            let p = fascicle_core::phantom::ring_cross(PHANTOM_DIMS);
             (p.dims, p.world_from_voxel, p.tensors)
         }
         TensorSource::Spiral { .. } => return Err("the spiral is not a voxel grid".into()),
@@ -739,43 +744,10 @@ pub fn volume_glyphs(
     spacing: usize,
     style: GlyphStyle,
 ) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
-    if spacing == 0 {
-        return Err("glyph spacing must be at least 1 voxel".into());
-    }
-    let (vol, basis) = sh_field(source, |p| p.iter().all(|c| c % spacing == 0))?;
-    let cell = vol.voxel_size().min_element() * spacing as f64;
-    voxel_glyphs(&vol, basis, style.resolved(cell), |p| p.iter().all(|c| c % spacing == 0))
-}
-
-/// Glyphs at the centres of the voxels `keep` accepts that have signal (`c00 > 0`), with their voxels.
-fn voxel_glyphs(
-    vol: &Volume<f32>,
-    basis: ShBasis,
-    style: GlyphStyle,
-    keep: impl Fn([usize; 3]) -> bool,
-) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
-    let d = vol.dims3();
-    let (n, nc) = (vol.n_voxels(), vol.n_channels());
-    let mut items = Vec::new();
-    for z in 0..d[2] {
-        for y in 0..d[1] {
-            for x in 0..d[0] {
-                if !keep([x, y, z]) {
-                    continue;
-                }
-                let v = x + d[0] * (y + d[1] * z);
-                let c: Vec<f64> = (0..nc).map(|j| vol.data[v + n * j] as f64).collect();
-                if c[0] > 0.0 {
-                    let centre = vol.world_from_voxel.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64));
-                    items.push((centre, c, [x as u32, y as u32, z as u32]));
-                }
-            }
-        }
-    }
-    let (glyphs, skipped) =
-        make_glyphs(items.iter().map(|(c, co, _)| (*c, &co[..])), basis, style).map_err(|e| e.to_string())?;
-    let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
-    Ok((glyphs, voxels))
+    let selection = Selection::Volume { spacing };
+    selection.voxels([0; 3])?;
+    let (vol, basis) = sh_field(source, |p| p.iter().all(|c| c.is_multiple_of(spacing.max(1))))?;
+    field_glyphs(&ShField::new(vol, basis)?, &selection, style)
 }
 
 /// One glyph per `spacing`-th voxel of a slice (voxel centres, nearest sampling), skipping voxels with no
@@ -787,29 +759,15 @@ pub fn plane_glyphs(
     spacing: usize,
     style: GlyphStyle,
 ) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
-    if spacing == 0 {
-        return Err("glyph spacing must be at least 1 voxel".into());
-    }
-    let ax = match axis {
-        SliceAxis::X => 0,
-        SliceAxis::Y => 1,
-        SliceAxis::Z => 2,
+    Selection::Volume { spacing }.voxels([0; 3])?;
+    let ax = axis.index();
+    // The phantom's grid is known before fitting (only its slice is fitted); a file's is checked after reading.
+    let k = match source {
+        ShSource::PhantomCsa { .. } => Some(index.unwrap_or(PHANTOM_DIMS[ax] / 2)),
+        ShSource::Nifti { .. } => index,
     };
-    // The phantom's grid is known before fitting; a file's is checked after reading.
-    let probe = match source {
-        ShSource::PhantomCsa { .. } => [48usize, 48, 24],
-        ShSource::Nifti { .. } => [usize::MAX; 3],
-    };
-    let k = index.unwrap_or(if probe[ax] == usize::MAX { usize::MAX } else { probe[ax] / 2 });
-    let (vol, basis) = sh_field(source, |p| p[ax] == k)?;
-    let d = vol.dims3();
-    let k = if k == usize::MAX { d[ax] / 2 } else { k };
-    if k >= d[ax] {
-        return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", d[ax]));
-    }
-    let vs = vol.voxel_size();
-    let cell = (0..3).filter(|&a| a != ax).map(|a| vs[a]).fold(f64::INFINITY, f64::min) * spacing as f64;
-    voxel_glyphs(&vol, basis, style.resolved(cell), |p| p[ax] == k && (0..3).all(|a| a == ax || p[a] % spacing == 0))
+    let (vol, basis) = sh_field(source, |p| k.is_none_or(|k| p[ax] == k))?;
+    field_glyphs(&ShField::new(vol, basis)?, &Selection::Slice { axis, index: k, spacing }, style)
 }
 
 /// A grey image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world

@@ -286,14 +286,7 @@ pub enum VolumeSource {
     },
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub enum SliceAxis {
-    X,
-    Y,
-    /// Axial: the default.
-    #[default]
-    Z,
-}
+pub use fascicle_render::layer::SliceAxis;
 
 /// A perspective camera in world (RAS+ mm) coordinates.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

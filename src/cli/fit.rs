@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use clap::{Args, Subcommand};
 use fascicle_core::dti::{self, FitMethod, metrics};
 use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD, nifti};
-use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
+use fascicle_core::sh::{self, OdfKind, OdfModel};
 use fascicle_core::{Error, Volume};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -201,15 +201,4 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
     Ok(())
 }
 
-/// The header description recording an SH image's basis: `fascicle SH descoteaux07 legacy lmax 6`.
-pub fn sh_descrip(basis: ShBasis, l_max: usize) -> String {
-    format!("fascicle SH {} lmax {l_max}", basis.name())
-}
-
-/// The basis an SH image's header records ([`sh_descrip`]), if any.
-pub fn recorded_sh_basis(descrip: &str) -> Option<ShBasis> {
-    let rest = descrip.strip_prefix("fascicle SH ")?;
-    let name = rest.split(" lmax").next()?;
-    let legacy = name.ends_with(" legacy");
-    ShBasis::parse(name.trim_end_matches(" legacy"), legacy).ok()
-}
+pub use fascicle_core::sh::{recorded_basis as recorded_sh_basis, sh_descrip};

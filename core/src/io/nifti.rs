@@ -81,6 +81,11 @@ pub fn datatype_name(code: i16) -> &'static str {
 /// Reads a whole file, gunzipping it when it starts with the gzip magic (whatever its name says).
 pub(crate) fn read_maybe_gz(path: &Path) -> Result<Vec<u8>> {
     let raw = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    gunzip_if_gz(raw, path)
+}
+
+/// `raw` itself, or its decompressed content when it starts with the gzip magic (`name` for errors).
+fn gunzip_if_gz(raw: Vec<u8>, path: &Path) -> Result<Vec<u8>> {
     if raw.len() >= 2 && raw[0] == 0x1f && raw[1] == 0x8b {
         let mut out = Vec::with_capacity(raw.len() * 4);
         flate2::read::MultiGzDecoder::new(&raw[..])
@@ -314,8 +319,18 @@ pub fn read_header(path: impl AsRef<Path>) -> Result<NiftiHeader> {
 /// Reads a NIfTI-1/2 file into a volume of `T`, decoding any real datatype and applying scl_slope/inter.
 pub fn read<T: Scalar>(path: impl AsRef<Path>) -> Result<(Volume<T>, NiftiHeader)> {
     let path = path.as_ref();
-    let bytes = read_maybe_gz(path)?;
-    let h = parse_header(&bytes, path)?;
+    decode(&read_maybe_gz(path)?, path)
+}
+
+/// [`read`] from the bytes of a `.nii` or `.nii.gz` file already in memory (an asset loader's reader);
+/// `name` is the path errors name.
+pub fn read_bytes<T: Scalar>(bytes: Vec<u8>, name: impl AsRef<Path>) -> Result<(Volume<T>, NiftiHeader)> {
+    let name = name.as_ref();
+    decode(&gunzip_if_gz(bytes, name)?, name)
+}
+
+fn decode<T: Scalar>(bytes: &[u8], path: &Path) -> Result<(Volume<T>, NiftiHeader)> {
+    let h = parse_header(bytes, path)?;
     let elem = datatype_size(h.datatype).unwrap_or(1);
     let n: usize = h
         .shape

@@ -18,7 +18,11 @@ pub type TckHeader = Vec<(String, String)>;
 /// Reads a `.tck` file.
 pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TckHeader)> {
     let path = path.as_ref();
-    let b = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    read_bytes(&std::fs::read(path).map_err(|e| Error::io(path, e))?, path)
+}
+
+/// [`read`] from the file's bytes in memory; `path` is the name errors use.
+pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
     const MAGIC: &[u8] = b"mrtrix tracks";
     // MRtrix's own writers (tckgen) pad the first line with spaces, so that it can be rewritten in place.
     let first_eol = b.iter().take(4096).position(|&c| c == b'\n');

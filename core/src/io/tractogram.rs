@@ -67,6 +67,18 @@ impl Tractogram {
             }
         }
     }
+
+    /// [`Tractogram::read`] from a file's bytes in memory; `path` (its extension) picks the format.
+    pub fn read_bytes(bytes: &[u8], path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        match extension(path).as_str() {
+            "trk" => Ok(super::trk::read_bytes(bytes, path)?.0),
+            "tck" => Ok(super::tck::read_bytes(bytes, path)?.0),
+            other => {
+                Err(Error::format(path, format!("unknown tractogram extension '{other}' (expected .trk or .tck)")))
+            }
+        }
+    }
 }
 
 /// Lower-case file extension (empty when there is none).

@@ -134,7 +134,11 @@ impl Rd<'_> {
 /// Reads a `.trk` file into RAS+ mm.
 pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TrkHeader)> {
     let path = path.as_ref();
-    let b = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    read_bytes(&std::fs::read(path).map_err(|e| Error::io(path, e))?, path)
+}
+
+/// [`read`] from the file's bytes in memory; `path` is the name errors use.
+pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TrkHeader)> {
     if b.len() < HDR {
         return Err(Error::format(path, format!("truncated TrackVis header: {} of 1000 bytes", b.len())));
     }
@@ -148,7 +152,7 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TrkHeader)> {
         (_, 1000) => true,
         _ => return Err(Error::format(path, format!("hdr_size is {le}, not 1000: corrupt TrackVis header"))),
     };
-    let r = Rd { b: &b, be: big_endian };
+    let r = Rd { b, be: big_endian };
     let dims = [r.i16(6), r.i16(8), r.i16(10)];
     let voxel_size = [r.f32(12), r.f32(16), r.f32(20)];
     if voxel_size.iter().any(|v| !v.is_finite() || *v <= 0.0) {

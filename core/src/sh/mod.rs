@@ -20,6 +20,19 @@ pub const fn n_coeffs(l_max: usize) -> usize {
     (l_max + 1) * (l_max + 2) / 2
 }
 
+/// The header description recording an SH image's basis: `fascicle SH descoteaux07 legacy lmax 6`.
+pub fn sh_descrip(basis: ShBasis, l_max: usize) -> String {
+    format!("fascicle SH {} lmax {l_max}", basis.name())
+}
+
+/// The basis an SH image's header records ([`sh_descrip`]), if any.
+pub fn recorded_basis(descrip: &str) -> Option<ShBasis> {
+    let rest = descrip.strip_prefix("fascicle SH ")?;
+    let name = rest.split(" lmax").next()?;
+    let legacy = name.ends_with(" legacy");
+    ShBasis::parse(name.trim_end_matches(" legacy"), legacy).ok()
+}
+
 /// The even `l_max` whose basis has exactly `n` coefficients, if any.
 pub fn l_max_for(n: usize) -> Option<usize> {
     (0..=64).step_by(2).find(|&l| n_coeffs(l) == n)

@@ -220,6 +220,11 @@ impl std::error::Error for HeadlessError {}
 
 /// An App with Bevy's rendering and no window. Add plugins and entities, then call [`capture`].
 pub fn headless_app() -> App {
+    headless_app_with_assets(None)
+}
+
+/// [`headless_app`] whose asset server reads from `asset_root` (default: Bevy's `assets`).
+pub fn headless_app_with_assets(asset_root: Option<&str>) -> App {
     // The global logger can be set once per process; later apps (benchmarks render many) go without.
     static LOGGER_SET: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
     let first = !LOGGER_SET.swap(true, std::sync::atomic::Ordering::SeqCst);
@@ -232,14 +237,22 @@ pub fn headless_app() -> App {
             ..default()
         })
         .set(RenderPlugin { synchronous_pipeline_compilation: true, ..default() })
-        .disable::<bevy::winit::WinitPlugin>()
         .disable::<PipelinedRenderingPlugin>()
+        .set(bevy::asset::AssetPlugin {
+            // Relative to the crate (or executable) directory; an absolute path is taken as it is.
+            file_path: asset_root.unwrap_or("assets").into(),
+            ..default()
+        })
         // Warnings and errors only (shader compile errors must be seen); B0006 on software adapters is expected.
         .set(bevy::log::LogPlugin {
             level: bevy::log::Level::WARN,
             filter: "wgpu=error,naga=warn".into(),
             ..default()
         });
+    // Bevy's winit plugin opens an event loop when built (it needs a display): an app that enables
+    // `bevy_winit` enables this crate's `winit` feature, and the plugin is left out here.
+    #[cfg(feature = "winit")]
+    let plugins = plugins.disable::<bevy::winit::WinitPlugin>();
     if first {
         app.add_plugins(plugins);
     } else {

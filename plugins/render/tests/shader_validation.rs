@@ -1,4 +1,4 @@
-//! Every `.wgsl` under the top-level `shaders/` parses and validates with naga, imports resolved, with no
+//! Every `.wgsl` under `plugins/*/shaders/` parses and validates with naga, imports resolved, with no
 //! GPU. Libraries (files with `#define_import_path`) are validated on their own and as imports; entry
 //! shaders are composed against small stubs of the Bevy modules they import (only the fields they use).
 
@@ -64,14 +64,20 @@ fn validate(module: &naga::Module, name: &str) {
 
 #[test]
 fn every_shader_validates_with_imports_resolved() {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
-    let mut files = Vec::new();
-    wgsl_files(&root, &mut files);
-    files.sort();
-    let sources: Vec<(String, String)> = files
-        .iter()
-        .map(|p| (p.strip_prefix(&root).unwrap().display().to_string(), std::fs::read_to_string(p).unwrap()))
-        .collect();
+    // Each plugin crate owns a `shaders/` folder; a name is `<crate folder>/<path under shaders/>`.
+    let plugins = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let mut sources: Vec<(String, String)> = Vec::new();
+    for krate in ["render", "sh_glyphs", "tensors", "volume", "tracts"] {
+        let root = plugins.join(krate).join("shaders");
+        let mut files = Vec::new();
+        wgsl_files(&root, &mut files);
+        files.sort();
+        assert!(!files.is_empty(), "{krate}: no shaders");
+        for p in files {
+            let rel = p.strip_prefix(&root).unwrap().display().to_string();
+            sources.push((format!("{krate}/{rel}"), std::fs::read_to_string(&p).unwrap()));
+        }
+    }
     let defs: HashMap<String, ShaderDefValue> = [("MATERIAL_BIND_GROUP".to_string(), ShaderDefValue::UInt(3))].into();
     let mut composer = Composer::default();
     let mut libs: Vec<&(String, String)> = sources.iter().filter(|(_, s)| s.contains("#define_import_path")).collect();
@@ -115,11 +121,14 @@ fn every_shader_validates_with_imports_resolved() {
         }
         validate(&m, path);
     }
-    // Every shader file is compiled into the render crate (so none is forgotten at run time).
-    for (path, _) in &sources {
+    // Every shader file is compiled into its crate and registered (`src/shaders.rs` lists it), so none is
+    // forgotten at run time.
+    for (name, _) in &sources {
+        let (krate, rel) = name.split_once('/').unwrap();
+        let listing = std::fs::read_to_string(plugins.join(krate).join("src/shaders.rs")).unwrap();
         assert!(
-            fascicle_render::shaders::SOURCES.iter().any(|(_, p, _)| p == path),
-            "{path} is not in shaders::SOURCES"
+            listing.contains(&format!("include_str!(\"../shaders/{rel}\")")),
+            "{name} is not in {krate}'s shaders::SOURCES"
         );
     }
 }

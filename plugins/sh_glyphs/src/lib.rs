@@ -16,14 +16,24 @@ use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::sh::glyph::{Glyph, Lobes};
-use fascicle_render::shaders;
+
+pub mod layer;
+pub mod shaders;
+
+pub use fascicle_render::layer::{LayerStatus, Selection, SliceAxis};
+pub use layer::{
+    GlyphShape, ShField, ShFieldLoader, ShFieldSettings, ShGlyphCounts, ShGlyphSystems, ShGlyphs, field_glyphs,
+};
 
 /// Registers the glyph material. Needs `fascicle_render::FascicleRenderPlugin` (the shaders).
 pub struct ShGlyphPlugin;
 
 impl Plugin for ShGlyphPlugin {
     fn build(&self, app: &mut App) {
-        app.add_plugins(MaterialPlugin::<ShGlyphMaterial>::default()).add_systems(PostUpdate, apply_highlights);
+        shaders::register(app);
+        app.add_plugins(MaterialPlugin::<ShGlyphMaterial>::default());
+        layer::build(app);
+        app.add_systems(PostUpdate, apply_highlights.in_set(ShGlyphSystems::Highlight));
     }
 }
 
@@ -41,8 +51,9 @@ pub enum GlyphColour {
     Gfa,
 }
 
-/// The ray caster's quality knobs and drawing options.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// The ray caster's quality knobs and drawing options: one component of a [`ShGlyphs`] layer, all of it one
+/// uniform.
+#[derive(Component, Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct RayCastSettings {
     /// Linear-search step, in units of the glyph's rmax.
@@ -53,11 +64,13 @@ pub struct RayCastSettings {
     pub colour: GlyphColour,
     /// Ambient fraction of the headlight shading.
     pub ambient: f32,
+    /// Size factor on every glyph of the layer (1: as packed). A uniform: changing it re-sends nothing else.
+    pub size: f32,
 }
 
 impl Default for RayCastSettings {
     fn default() -> Self {
-        Self { h: 0.02, refine: 4, lobes: Lobes::Clamp, colour: GlyphColour::Direction, ambient: 0.25 }
+        Self { h: 0.02, refine: 4, lobes: Lobes::Clamp, colour: GlyphColour::Direction, ambient: 0.25, size: 1.0 }
     }
 }
 
@@ -72,9 +85,13 @@ pub struct ShGlyphUniform {
     pub ambient: f32,
     pub colour_mode: u32,
     pub max_steps: u32,
+    pub size: f32,
+    pub pad0: f32,
+    pub pad1: f32,
+    pub pad2: f32,
 }
 
-const _: () = assert!(std::mem::size_of::<ShGlyphUniform>() == 32);
+const _: () = assert!(std::mem::size_of::<ShGlyphUniform>() == 48);
 
 impl ShGlyphUniform {
     pub fn new(l_max: usize, s: &RayCastSettings) -> Self {
@@ -97,6 +114,10 @@ impl ShGlyphUniform {
             },
             // The chord is at most 2 rmax: 2 / h steps, plus the last clamped one.
             max_steps: (2.0 / h).ceil() as u32 + 2,
+            size: if s.size.is_finite() && s.size > 0.0 { s.size } else { 1.0 },
+            pad0: 0.0,
+            pad1: 0.0,
+            pad2: 0.0,
         }
     }
 }
@@ -133,6 +154,8 @@ pub struct ShGlyphSet {
     pub len: usize,
     pub glyphs: std::sync::Arc<Vec<Glyph>>,
     pub lobes: Lobes,
+    /// The layer-wide size factor the uniform holds ([`RayCastSettings::size`]).
+    pub size: f64,
 }
 
 /// Marks a glyph entity drawn highlighted (the shader tints it).
@@ -142,8 +165,24 @@ pub struct Highlighted;
 impl ShGlyphSet {
     /// The first glyph of this set the world-space ray hits: its index and the hit.
     pub fn pick(&self, origin: glam::DVec3, dir: glam::DVec3) -> Option<(u32, fascicle_core::sh::glyph::Hit)> {
-        fascicle_core::sh::glyph::pick(&self.glyphs, origin, dir.normalize(), 0.01, 8, self.lobes)
-            .map(|(i, h)| (i as u32, h))
+        let scaled;
+        let glyphs = if self.size == 1.0 {
+            &self.glyphs[..]
+        } else {
+            let k = self.size;
+            scaled = self
+                .glyphs
+                .iter()
+                .map(|g| Glyph {
+                    coeffs: g.coeffs.iter().map(|c| c * k).collect(),
+                    rmax: g.rmax * k,
+                    rbound: g.rbound * k,
+                    ..g.clone()
+                })
+                .collect::<Vec<_>>();
+            &scaled[..]
+        };
+        fascicle_core::sh::glyph::pick(glyphs, origin, dir.normalize(), 0.01, 8, self.lobes).map(|(i, h)| (i as u32, h))
     }
 }
 
@@ -201,6 +240,7 @@ fn pack_with(glyphs: &[Glyph], l_max: usize, highlighted: &[u32], with_coeffs: b
 
 /// Spawns a glyph set (all glyphs must share `l_max`, as from one field). Returns the parent entity;
 /// `voxels[i]`, if given, is recorded on glyph i's entity. An empty set spawns only the parent.
+/// (A layer driven by components, [`ShGlyphs`], needs none of this: its plugin calls [`fill_glyph_set`].)
 pub fn spawn_glyph_set(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
@@ -210,6 +250,26 @@ pub fn spawn_glyph_set(
     voxels: Option<&[[u32; 3]]>,
     settings: &RayCastSettings,
 ) -> Entity {
+    let parent = commands.spawn((Transform::default(), Visibility::default())).id();
+    let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
+    let set = fill_glyph_set(commands, parent, cube, materials, buffers, glyphs, voxels, settings);
+    commands.entity(parent).insert(set);
+    parent
+}
+
+/// Spawns one [`ShVoxel`] child of `parent` per glyph (proxy `cube`, a 2-unit cuboid, shared) and uploads the
+/// glyph buffers into a new material; returns the [`ShGlyphSet`] for the parent.
+#[allow(clippy::too_many_arguments)]
+pub fn fill_glyph_set(
+    commands: &mut Commands,
+    parent: Entity,
+    cube: Handle<Mesh>,
+    materials: &mut Assets<ShGlyphMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    glyphs: &[Glyph],
+    voxels: Option<&[[u32; 3]]>,
+    settings: &RayCastSettings,
+) -> ShGlyphSet {
     let l_max = glyphs.iter().map(|g| g.l_max).max().unwrap_or(0);
     let (head, coeffs) = pack(glyphs, l_max);
     // Storage buffers must not be empty.
@@ -224,38 +284,39 @@ pub fn spawn_glyph_set(
         glyphs: buffers.add(buffer(head, RenderAssetUsages::default())),
         coeffs: buffers.add(buffer(coeffs, RenderAssetUsages::RENDER_WORLD)),
     });
-    let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
-    let parent = commands
-        .spawn((
-            ShGlyphSet {
-                material: material.clone(),
-                l_max,
-                len: glyphs.len(),
-                glyphs: std::sync::Arc::new(glyphs.to_vec()),
-                lobes: settings.lobes,
-            },
-            Transform::default(),
-            Visibility::default(),
-        ))
-        .id();
-    for (i, g) in glyphs.iter().enumerate() {
-        commands.spawn((
-            ShVoxel { index: i as u32, voxel: voxels.and_then(|v| v.get(i).copied()) },
-            Mesh3d(cube.clone()),
-            MeshMaterial3d(material.clone()),
-            MeshTag(i as u32),
-            Transform::from_translation(g.centre.as_vec3()).with_scale(Vec3::splat(g.rbound as f32)),
-            ChildOf(parent),
-        ));
+    commands.spawn_batch(
+        glyphs
+            .iter()
+            .enumerate()
+            .map(|(i, g)| {
+                (
+                    ShVoxel { index: i as u32, voxel: voxels.and_then(|v| v.get(i).copied()) },
+                    Mesh3d(cube.clone()),
+                    MeshMaterial3d(material.clone()),
+                    MeshTag(i as u32),
+                    Transform::from_translation(g.centre.as_vec3()).with_scale(Vec3::splat(g.rbound as f32)),
+                    ChildOf(parent),
+                )
+            })
+            .collect::<Vec<_>>(),
+    );
+    ShGlyphSet {
+        material,
+        l_max,
+        len: glyphs.len(),
+        glyphs: std::sync::Arc::new(glyphs.to_vec()),
+        lobes: settings.lobes,
+        size: settings.size as f64,
     }
-    parent
 }
 
 /// Changes a set's ray-cast settings in place (one small uniform upload; no buffer is re-sent).
-pub fn update_settings(materials: &mut Assets<ShGlyphMaterial>, set: &ShGlyphSet, settings: &RayCastSettings) {
+pub fn update_settings(materials: &mut Assets<ShGlyphMaterial>, set: &mut ShGlyphSet, settings: &RayCastSettings) {
     if let Some(mut m) = materials.get_mut(&set.material) {
         m.params = ShGlyphUniform::new(set.l_max, settings);
     }
+    set.lobes = settings.lobes;
+    set.size = ShGlyphUniform::new(set.l_max, settings).size as f64;
 }
 
 /// The mesh baseline: all glyphs as one merged mesh of deformed icospheres of `order` (colour |direction|),

@@ -10,8 +10,8 @@ use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::dti::glyph::{MIN_EXPONENT, TensorGlyph, TensorShape};
-use fascicle_render::shaders;
 
+pub mod shaders;
 pub mod splat;
 
 /// Registers the tensor glyph material. Needs `fascicle_render::FascicleRenderPlugin` (the shaders).
@@ -19,6 +19,7 @@ pub struct TensorGlyphPlugin;
 
 impl Plugin for TensorGlyphPlugin {
     fn build(&self, app: &mut App) {
+        shaders::register(app);
         app.add_plugins((
             MaterialPlugin::<TensorGlyphMaterial>::default(),
             MaterialPlugin::<splat::SplatMaterial>::default(),

@@ -15,6 +15,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use crate::shaders;
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::NoFrustumCulling;
 use bevy::mesh::MeshVertexBufferLayoutRef;
@@ -26,7 +27,6 @@ use bevy::shader::ShaderRef;
 use fascicle_core::dti::splat::{
     ATTENUATION_K, DILATION_PX2, LitTensor, Splat, SplatColouring, SplatRender, argsort_desc, depth_keys,
 };
-use fascicle_render::shaders;
 
 /// Splat drawing options.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -22,7 +22,8 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, SegmentGrid, select};
 use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
-use fascicle_render::shaders;
+
+pub mod shaders;
 
 /// Drawing options of hyperstreamlines.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -169,6 +170,7 @@ pub struct TractPlugin;
 
 impl Plugin for TractPlugin {
     fn build(&self, app: &mut App) {
+        shaders::register(app);
         app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
             .add_systems(PostUpdate, apply_rois)

@@ -29,7 +29,8 @@ use bevy::render::view::ViewDepthTexture;
 use bevy::shader::ShaderRef;
 use fascicle_core::Volume;
 use fascicle_core::dvr::{ClipBox, MarchParams, TransferFunction, preintegrate};
-use fascicle_render::shaders;
+
+pub mod shaders;
 
 /// Pre-integration table size (entries per axis).
 pub const TABLE_N: usize = 64;
@@ -196,6 +197,7 @@ pub struct VolumePlugin;
 
 impl Plugin for VolumePlugin {
     fn build(&self, app: &mut App) {
+        shaders::register(app);
         app.add_plugins((MaterialPlugin::<VolumeMaterial>::default(), ExtractResourcePlugin::<OpaqueDepth>::default()))
             .add_systems(Startup, create_opaque_depth)
             .add_systems(PostUpdate, (prepare_cameras, fit_opaque_depth));

@@ -21,9 +21,15 @@ struct ProxyVertexOutput {
 };
 
 fn proxy_vertex(v: ProxyVertex, knobs: vec4<u32>) -> ProxyVertexOutput {
+    return proxy_vertex_scaled(v, knobs, 1.0);
+}
+
+// `proxy_vertex` with the proxy scaled by `scale` about its mesh's origin (the glyph centre): a layer-wide
+// size set by a uniform, no instance rewritten.
+fn proxy_vertex_scaled(v: ProxyVertex, knobs: vec4<u32>, scale: f32) -> ProxyVertexOutput {
     var out: ProxyVertexOutput;
     let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
-    let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
+    let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position * scale, 1.0));
     out.clip_position = position_world_to_clip(w.xyz);
     out.world_position = w.xyz;
     out.tag = mesh_functions::get_tag(v.instance_index);

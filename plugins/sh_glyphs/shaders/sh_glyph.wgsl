@@ -8,7 +8,7 @@
 // The f64 twin of this algorithm is `fascicle_core::sh::glyph::cast`. Keep `GlyphParams` in sync with
 // `ShGlyphUniform` in `plugins/sh_glyphs/src/lib.rs`.
 
-#import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex}
+#import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex_scaled}
 #import bevy_pbr::mesh_view_bindings::view
 #import fascicle::ray::{Ray, view_ray, depth_of, sphere_interval}
 #import fascicle::lighting::headlight
@@ -26,6 +26,11 @@ struct GlyphParams {
     // 0: direction RGB, 1: normal as colour (tests), 2: flat grey, 3: GFA through viridis
     colour_mode: u32,
     max_steps: u32,
+    // Layer-wide size factor: psi and the render bound are multiplied by it (a style edit, no re-upload).
+    size: f32,
+    _pad0: f32,
+    _pad1: f32,
+    _pad2: f32,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: GlyphParams;
@@ -38,7 +43,7 @@ struct GlyphParams {
 fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
     // Loop counts and modes reach the fragment stage flat (the rule in `fascicle::ray`); `Knobs` unpacks them.
     let modes = params.l_max | (params.lobes << 8u) | (params.colour_mode << 16u);
-    return proxy_vertex(v, vec4<u32>(modes, params.stride, params.refine, params.max_steps));
+    return proxy_vertex_scaled(v, vec4<u32>(modes, params.stride, params.refine, params.max_steps), params.size);
 }
 
 struct Knobs {
@@ -77,11 +82,11 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     let cfg = knobs(in.knobs);
     let g = glyphs[2u * in.tag];
     let centre = g.xyz;
-    let rmax = g.w;
+    let rmax = g.w * params.size;
     var c: array<f32, 153>;
     let first = in.tag * cfg.stride;
     for (var j = 0u; j < cfg.stride; j++) {
-        c[j] = coeffs[first + j];
+        c[j] = coeffs[first + j] * params.size;
     }
     let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
     // Work relative to the centre: the glyph is small next to its distance from the camera.

@@ -1,0 +1,149 @@
+//! What every data layer shares: its [`LayerStatus`] (loading, ready, failed: a load or build error is a
+//! state of the entity, never a panic), which voxels of a grid it draws ([`Selection`]), and counters of the
+//! work each stage did ([`StageCounts`]), which tests read to check that an edit costs what it changes.
+
+use bevy::prelude::*;
+use glam::DVec3;
+
+/// The state of a layer entity, kept by its plugin.
+#[derive(Component, Clone, Debug, Default, PartialEq)]
+pub enum LayerStatus {
+    /// The data asset is still loading.
+    #[default]
+    Loading,
+    /// Drawn: `items` glyphs (or streamlines, or voxels).
+    Ready { items: usize },
+    /// The data could not be loaded or turned into glyphs; the message names the file and the problem.
+    Failed(String),
+}
+
+impl LayerStatus {
+    /// The status of a layer whose data asset is `handle`, while it is not (yet) in its `Assets`.
+    pub fn of_pending<A: Asset>(server: &AssetServer, handle: &Handle<A>) -> Self {
+        match server.load_state(handle.id()) {
+            bevy::asset::LoadState::Failed(e) => LayerStatus::Failed(e.to_string()),
+            _ if handle.path().is_none() && !server.is_managed(handle.id()) => {
+                LayerStatus::Failed("the layer's data handle points at no asset".into())
+            }
+            _ => LayerStatus::Loading,
+        }
+    }
+}
+
+/// A voxel axis.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub enum SliceAxis {
+    X,
+    Y,
+    /// Axial: the default.
+    #[default]
+    Z,
+}
+
+impl SliceAxis {
+    pub fn index(self) -> usize {
+        match self {
+            SliceAxis::X => 0,
+            SliceAxis::Y => 1,
+            SliceAxis::Z => 2,
+        }
+    }
+}
+
+/// Which voxels of a grid a glyph layer draws.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Selection {
+    /// One slice (`index` `None`: the middle one), every `spacing`-th voxel along the two in-plane axes.
+    Slice { axis: SliceAxis, index: Option<usize>, spacing: usize },
+    /// Every `spacing`-th voxel along each axis.
+    Volume { spacing: usize },
+}
+
+impl Default for Selection {
+    fn default() -> Self {
+        Selection::Slice { axis: SliceAxis::Z, index: None, spacing: 1 }
+    }
+}
+
+impl Selection {
+    /// The selected voxels of a `dims` grid, x fastest; an error names a slice outside the grid or a zero
+    /// spacing.
+    pub fn voxels(&self, dims: [usize; 3]) -> Result<Vec<[usize; 3]>, String> {
+        let spacing = match *self {
+            Selection::Slice { spacing, .. } | Selection::Volume { spacing } => spacing,
+        };
+        if spacing == 0 {
+            return Err("glyph spacing must be at least 1 voxel".into());
+        }
+        let slice = match *self {
+            Selection::Slice { axis, index, .. } => {
+                let a = axis.index();
+                let k = index.unwrap_or(dims[a] / 2);
+                if k >= dims[a] {
+                    return Err(format!("slice {k} is outside the grid's {} slices along {axis:?}", dims[a]));
+                }
+                Some((a, k))
+            }
+            Selection::Volume { .. } => None,
+        };
+        let keep = |p: [usize; 3]| match slice {
+            Some((a, k)) => p[a] == k && (0..3).all(|b| b == a || p[b].is_multiple_of(spacing)),
+            None => p.iter().all(|c| c.is_multiple_of(spacing)),
+        };
+        let mut out = Vec::new();
+        for z in 0..dims[2] {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    if keep([x, y, z]) {
+                        out.push([x, y, z]);
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// The distance between neighbouring glyphs in mm, for a grid of `voxel_size`: the smallest in-plane
+    /// (or any) voxel edge times the spacing.
+    pub fn cell_mm(&self, voxel_size: DVec3) -> f64 {
+        let vs = voxel_size.to_array();
+        match *self {
+            Selection::Slice { axis, spacing, .. } => {
+                (0..3).filter(|&a| a != axis.index()).map(|a| vs[a]).fold(f64::INFINITY, f64::min) * spacing as f64
+            }
+            Selection::Volume { spacing } => voxel_size.min_element() * spacing as f64,
+        }
+    }
+}
+
+/// Work done by a plugin's stages since start-up, summed over its layers: what tests read to check that an
+/// edit touched only what it must.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StageCounts {
+    /// Layer data read and uploaded anew (a data asset changed or was swapped).
+    pub uploads: u32,
+    /// A layer's instances repacked from data already held (its selection or shape changed).
+    pub repacks: u32,
+    /// A layer's uniform rewritten alone (a style change).
+    pub uniform_writes: u32,
+}
+
+/// An asset loader's error: the message names the file and the problem (it reaches the layer's
+/// [`LayerStatus::Failed`]).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LoadError(pub String);
+
+impl std::fmt::Display for LoadError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for LoadError {}
+
+/// Reads an asset's bytes to the end (`path` names it in the error).
+pub async fn read_all(reader: &mut dyn bevy::asset::io::Reader, path: &std::path::Path) -> Result<Vec<u8>, LoadError> {
+    let mut bytes = Vec::new();
+    reader.read_to_end(&mut bytes).await.map_err(|e| LoadError(format!("{}: {e}", path.display())))?;
+    Ok(bytes)
+}

@@ -1,0 +1,247 @@
+//! SH glyph layers driven by components: spawn an entity with [`ShGlyphs`] (the data: an [`ShField`] asset)
+//! and, optionally, its settings components ([`Selection`], [`GlyphShape`], [`RayCastSettings`]); the
+//! plugin builds and updates everything on the GPU.
+//!
+//! Each stage reacts to its own component, for that layer only:
+//! - the data (`ShGlyphs::field` swapped, or its asset modified): the glyphs are rebuilt and uploaded;
+//! - the selection or the shape: the instances are repacked from the field already in memory;
+//! - the [`RayCastSettings`] (quality, colouring, size): one uniform write, nothing else.
+//!
+//! [`ShGlyphCounts`] counts each stage's work; [`LayerStatus`] on the entity tells loading, ready (with the
+//! glyph count) or the error (a file that is not an SH image, a slice outside the grid).
+
+use std::collections::HashSet;
+use std::path::Path;
+use std::sync::Arc;
+
+use bevy::asset::io::Reader;
+use bevy::asset::{AssetLoader, LoadContext};
+use bevy::prelude::*;
+use bevy::render::storage::ShaderBuffer;
+use fascicle_core::Volume;
+use fascicle_core::sh::glyph::{Glyph, GlyphStyle, make_glyphs};
+use fascicle_core::sh::{self, ShBasis};
+use fascicle_render::layer::{LayerStatus, Selection, StageCounts};
+
+use crate::{RayCastSettings, ShGlyphMaterial, ShGlyphSet, fill_glyph_set, update_settings};
+
+/// An SH coefficient field: `X x Y x Z x n` coefficients (`n` = 1, 6, 15, 28, 45, ...), their basis and the
+/// voxel-to-world affine (RAS+ mm).
+#[derive(Asset, TypePath, Clone, Debug)]
+pub struct ShField {
+    pub coeffs: Arc<Volume<f32>>,
+    pub basis: ShBasis,
+}
+
+impl ShField {
+    /// Checks that `coeffs` is a 4D image with an even-order SH coefficient count.
+    pub fn new(coeffs: Volume<f32>, basis: ShBasis) -> Result<Self, String> {
+        if coeffs.shape.len() < 4 || sh::l_max_for(coeffs.n_channels()).is_none() {
+            return Err(format!(
+                "{:?} is not an SH coefficient image (X,Y,Z,n with n = 1, 6, 15, 28, 45, ...)",
+                coeffs.shape
+            ));
+        }
+        Ok(Self { coeffs: Arc::new(coeffs), basis })
+    }
+
+    pub fn l_max(&self) -> usize {
+        sh::l_max_for(self.coeffs.n_channels()).unwrap_or(0)
+    }
+}
+
+/// The data component of an SH glyph layer. Its settings components are added with their defaults when
+/// absent: a middle axial slice, glyphs sized to fill 90 % of their cell, default ray casting.
+#[derive(Component, Clone, Debug, Default)]
+#[require(Selection, GlyphShape, RayCastSettings, LayerStatus, Transform, Visibility)]
+pub struct ShGlyphs {
+    pub field: Handle<ShField>,
+}
+
+/// How coefficients become glyph shapes on the CPU (sharpening, normalisation, size in mm). Changing it
+/// repacks the layer's instances; for a size change that re-sends nothing use [`RayCastSettings::size`].
+#[derive(Component, Clone, Copy, Debug, PartialEq, Deref, DerefMut, serde::Serialize, serde::Deserialize)]
+pub struct GlyphShape(pub GlyphStyle);
+
+impl Default for GlyphShape {
+    fn default() -> Self {
+        Self(GlyphStyle { fit_lobes: true, cell_fill: Some(0.9), ..GlyphStyle::default() })
+    }
+}
+
+/// The work this plugin's stages did (see [`StageCounts`]).
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq, Deref)]
+pub struct ShGlyphCounts(pub StageCounts);
+
+/// The plugin's systems, all in `PostUpdate`, after the asset events and before transform propagation, so
+/// edits made in `Update` (or ordered before [`ShGlyphSystems::Prepare`]) show in the same frame.
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ShGlyphSystems {
+    /// Builds, repacks and restyles the [`ShGlyphs`] layers that changed.
+    Prepare,
+    /// Rewrites glyph headers whose `Highlighted` marker changed.
+    Highlight,
+}
+
+/// Settings of the `.nii`/`.nii.gz` loader: the basis when the file does not record one (a file written by
+/// `fascicle fit csa` records it in its header description).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct ShFieldSettings {
+    pub basis: Option<ShBasis>,
+}
+
+/// Loads `.nii` / `.nii.gz` SH coefficient images as [`ShField`]s, off the main thread.
+#[derive(Default, TypePath)]
+pub struct ShFieldLoader;
+
+impl AssetLoader for ShFieldLoader {
+    type Asset = ShField;
+    type Settings = ShFieldSettings;
+    type Error = fascicle_render::layer::LoadError;
+
+    async fn load(
+        &self,
+        reader: &mut dyn Reader,
+        settings: &ShFieldSettings,
+        ctx: &mut LoadContext<'_>,
+    ) -> Result<ShField, Self::Error> {
+        let path = ctx.path().path().to_path_buf();
+        let bytes = fascicle_render::layer::read_all(reader, &path).await?;
+        read_field(bytes, &path, settings).map_err(fascicle_render::layer::LoadError)
+    }
+
+    fn extensions(&self) -> &[&str] {
+        &["nii", "nii.gz"]
+    }
+}
+
+/// An [`ShField`] from a NIfTI file's bytes: the basis the header records, else `settings.basis`, else
+/// DIPY's default (descoteaux07).
+pub fn read_field(bytes: Vec<u8>, path: &Path, settings: &ShFieldSettings) -> Result<ShField, String> {
+    let (vol, header) = fascicle_core::io::nifti::read_bytes::<f32>(bytes, path).map_err(|e| e.to_string())?;
+    let basis = sh::recorded_basis(&header.descrip).or(settings.basis).unwrap_or_default();
+    ShField::new(vol, basis).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// The glyphs of `selection` (voxels with signal, `c00 > 0`), shaped by `shape` (sized from the selection's
+/// cell when `cell_fill` is set), and their voxels.
+pub fn field_glyphs(
+    field: &ShField,
+    selection: &Selection,
+    shape: GlyphStyle,
+) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
+    let vol = &field.coeffs;
+    let d = vol.dims3();
+    let (n, nc) = (vol.n_voxels(), vol.n_channels());
+    let mut items = Vec::new();
+    for [x, y, z] in selection.voxels(d)? {
+        let v = x + d[0] * (y + d[1] * z);
+        let c: Vec<f64> = (0..nc).map(|j| vol.data[v + n * j] as f64).collect();
+        if c[0] > 0.0 {
+            let centre = vol.world_from_voxel.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64));
+            items.push((centre, c, [x as u32, y as u32, z as u32]));
+        }
+    }
+    let style = shape.resolved(selection.cell_mm(vol.voxel_size()));
+    let (glyphs, skipped) =
+        make_glyphs(items.iter().map(|(c, co, _)| (*c, &co[..])), field.basis, style).map_err(|e| e.to_string())?;
+    let skipped: HashSet<usize> = skipped.into_iter().collect();
+    let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
+    Ok((glyphs, voxels))
+}
+
+pub(crate) fn build(app: &mut App) {
+    app.init_asset::<ShField>()
+        .register_asset_loader(ShFieldLoader)
+        .init_resource::<ShGlyphCounts>()
+        .configure_sets(
+            PostUpdate,
+            (ShGlyphSystems::Prepare, ShGlyphSystems::Highlight)
+                .chain()
+                .after(bevy::asset::AssetEventSystems)
+                .before(bevy::transform::TransformSystems::Propagate),
+        )
+        .add_systems(PostUpdate, sync_layers.in_set(ShGlyphSystems::Prepare));
+}
+
+/// The field the set on a layer was built from.
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
+struct BuiltFrom(AssetId<ShField>);
+
+type Layer<'a> = (
+    Entity,
+    Ref<'a, ShGlyphs>,
+    Ref<'a, Selection>,
+    Ref<'a, GlyphShape>,
+    Ref<'a, RayCastSettings>,
+    &'a mut LayerStatus,
+    Option<&'a mut ShGlyphSet>,
+    Option<&'a BuiltFrom>,
+);
+
+#[allow(clippy::too_many_arguments)]
+fn sync_layers(
+    mut commands: Commands,
+    mut layers: Query<Layer>,
+    fields: Res<Assets<ShField>>,
+    mut events: MessageReader<AssetEvent<ShField>>,
+    server: Res<AssetServer>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut materials: ResMut<Assets<ShGlyphMaterial>>,
+    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut counts: ResMut<ShGlyphCounts>,
+    mut cube: Local<Option<Handle<Mesh>>>,
+) {
+    let modified: HashSet<AssetId<ShField>> = events
+        .read()
+        .filter_map(|e| match e {
+            AssetEvent::Modified { id } | AssetEvent::LoadedWithDependencies { id } => Some(*id),
+            _ => None,
+        })
+        .collect();
+    for (entity, layer, selection, shape, settings, mut status, mut set, built) in &mut layers {
+        let id = layer.field.id();
+        let Some(field) = fields.get(id) else {
+            let pending = LayerStatus::of_pending(&server, &layer.field);
+            if *status != pending {
+                *status = pending;
+            }
+            continue;
+        };
+        let new_data = built != Some(&BuiltFrom(id)) || modified.contains(&id);
+        if new_data || selection.is_changed() || shape.is_changed() {
+            commands.entity(entity).despawn_related::<Children>();
+            match field_glyphs(field, &selection, shape.0) {
+                Ok((glyphs, voxels)) => {
+                    let cube = cube.get_or_insert_with(|| meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
+                    let filled = fill_glyph_set(
+                        &mut commands,
+                        entity,
+                        cube,
+                        &mut materials,
+                        &mut buffers,
+                        &glyphs,
+                        Some(&voxels),
+                        &settings,
+                    );
+                    if let Some(old) = set.as_deref() {
+                        materials.remove(&old.material);
+                    }
+                    commands.entity(entity).insert((filled, BuiltFrom(id)));
+                    *status = LayerStatus::Ready { items: glyphs.len() };
+                }
+                Err(e) => {
+                    commands.entity(entity).remove::<(ShGlyphSet, BuiltFrom)>();
+                    *status = LayerStatus::Failed(e);
+                }
+            }
+            let c = &mut counts.0;
+            if new_data { c.uploads += 1 } else { c.repacks += 1 }
+        } else if settings.is_changed()
+            && let Some(set) = set.as_deref_mut()
+        {
+            update_settings(&mut materials, set, &settings);
+            counts.0.uniform_writes += 1;
+        }
+    }
+}

@@ -1,0 +1,15 @@
+//! The WGSL this crate owns (its `shaders/` folder), compiled in and registered under fixed handles by
+//! the plugin (see `fascicle_render::shaders`).
+
+use bevy::asset::uuid_handle;
+use bevy::prelude::*;
+use fascicle_render::shaders::ShaderSource;
+
+pub const VOLUME: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0a");
+
+pub const SOURCES: [ShaderSource; 1] = [(VOLUME, "volume.wgsl", include_str!("../shaders/volume.wgsl"))];
+
+pub(crate) fn register(app: &mut App) {
+    app.add_plugins(fascicle_render::FascicleRenderPlugin);
+    fascicle_render::shaders::register(app, "fascicle-volume", &SOURCES);
+}
