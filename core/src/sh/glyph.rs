@@ -30,7 +30,7 @@ pub const GLYPH_BASIS: ShBasis = ShBasis::Tournier07 { legacy: false };
 pub const MAX_GLYPH_L: usize = 16;
 
 /// ψ at unit `u` and the Cartesian gradient of its polynomial extension; `c` in [`GLYPH_BASIS`].
-/// Mirrors `sh_eval` in `shaders/lib/sh.wgsl` term by term.
+/// Mirrors `sh_eval` in `plugins/sh_glyphs/shaders/lib/sh.wgsl` term by term.
 pub fn eval_cartesian(c: &[f64], l_max: usize, u: DVec3) -> (f64, DVec3) {
     let (x, y, z) = (u.x, u.y, u.z);
     let inv4pi = 1.0 / (4.0 * std::f64::consts::PI);

@@ -1,11 +1,38 @@
 //! Ray-cast spherical-harmonic glyphs (SEEDS.md §4) as a Bevy plugin.
 //!
-//! A glyph set is one [`ShGlyphMaterial`] holding every glyph's centre, rmax and coefficients in GPU
-//! storage buffers, and one entity per glyph ([`ShVoxel`]): a unit-cube proxy mesh scaled to the glyph's
-//! bounding cube, with a `MeshTag` that indexes the buffers. Bevy batches the entities into instanced
-//! draws of the same mesh and material. The fragment shader (`shaders/sh_glyph.wgsl`) casts the view ray
-//! against `r = ψ(u)` and writes true depth, so glyphs intersect meshes, tubes and each other in the
-//! opaque pass. Hiding a glyph is hiding its entity; nothing is re-uploaded for that.
+//! # Use
+//! Add [`ShGlyphPlugin`] and spawn an entity with [`ShGlyphs`]; nothing else is needed:
+//!
+//! ```no_run
+//! use bevy::prelude::*;
+//! use fascicle_sh_glyphs::{Selection, ShGlyphPlugin, ShGlyphs, SliceAxis};
+//!
+//! fn main() {
+//!     App::new().add_plugins((DefaultPlugins, ShGlyphPlugin)).add_systems(Startup, setup).run();
+//! }
+//!
+//! fn setup(mut commands: Commands, assets: Res<AssetServer>) {
+//!     // A file written by `fascicle fit csa` (its basis is in the header), loaded off the main thread.
+//!     commands.spawn((
+//!         ShGlyphs { field: assets.load("csa_l8.nii.gz") },
+//!         Selection::Slice { axis: SliceAxis::Z, index: None, spacing: 1 },
+//!     ));
+//!     commands.spawn((Camera3d::default(), Transform::from_xyz(0.0, 0.0, 120.0).looking_at(Vec3::ZERO, Vec3::Y)));
+//! }
+//! ```
+//!
+//! The layer's settings are components on the same entity ([`Selection`], [`GlyphShape`],
+//! [`RayCastSettings`]); [`layer`] says what each change costs. [`LayerStatus`] reports loading, ready or
+//! the error.
+//!
+//! # Render integration
+//! Bevy's `Material` pipeline serves here: the glyphs are opaque and depth-tested like any mesh. A layer is
+//! one [`ShGlyphMaterial`] holding every glyph's centre, bound and coefficients in GPU storage buffers, and one
+//! child entity per glyph ([`ShVoxel`]): a unit-cube proxy mesh scaled to the glyph's bound, with a `MeshTag`
+//! that indexes the buffers. Bevy batches them into instanced draws in the main opaque pass (`Opaque3d`
+//! phase). The fragment shader (`shaders/sh_glyph.wgsl`) casts the view ray against `r = ψ(u)` and writes true
+//! depth (`@builtin(frag_depth)`), so glyphs intersect meshes, tubes and each other; the material disables the
+//! prepass, which would write the proxy's depth. The main-world systems run in [`ShGlyphSystems`].
 //!
 //! The math (basis conversion, sharpening, normalisation, rmax, the ray caster in f64) lives in
 //! `fascicle_core::sh::glyph`, which is also the test reference.

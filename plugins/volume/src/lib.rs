@@ -7,7 +7,7 @@
 //! shader and one more mesh here.
 
 use bevy::asset::RenderAssetUsages;
-use bevy::camera::visibility::NoFrustumCulling;
+use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
 use bevy::core_pipeline::core_3d::{main_opaque_pass_3d, main_transparent_pass_3d};
 use bevy::core_pipeline::schedule::Core3d;
 use bevy::image::{ImageSampler, ImageSamplerDescriptor};
@@ -229,21 +229,30 @@ fn create_opaque_depth(mut commands: Commands, mut images: ResMut<Assets<Image>>
     commands.insert_resource(OpaqueDepth(images.add(depth_image(1, 1))));
 }
 
-/// With a volume in the scene, 3D cameras keep a copyable, single-sampled depth buffer.
+/// Cameras that see a volume (their render layers meet a volume set's) keep a copyable, single-sampled
+/// depth buffer: the volume reads the opaque depth, and a multisampled depth buffer cannot be copied.
+/// Other cameras (another view, a UI camera, a minimap on other render layers) keep their MSAA and depth
+/// usage. A camera changed here is logged once.
 fn prepare_cameras(
-    volumes: Query<(), With<VolumeSet>>,
-    mut cameras: Query<(Entity, &mut Camera3d, Option<&Msaa>)>,
+    volumes: Query<Option<&RenderLayers>, With<VolumeSet>>,
+    mut cameras: Query<(Entity, &mut Camera3d, Option<&Msaa>, Option<&RenderLayers>)>,
     mut commands: Commands,
 ) {
     if volumes.is_empty() {
         return;
     }
-    for (e, mut cam, msaa) in &mut cameras {
+    let default_layers = RenderLayers::default();
+    for (e, mut cam, msaa, layers) in &mut cameras {
+        let layers = layers.unwrap_or(&default_layers);
+        if !volumes.iter().any(|v| v.unwrap_or(&default_layers).intersects(layers)) {
+            continue;
+        }
         let usage = TextureUsages::from(cam.depth_texture_usages);
         if !usage.contains(TextureUsages::COPY_SRC) {
             cam.depth_texture_usages = (usage | TextureUsages::COPY_SRC).into();
         }
         if msaa != Some(&Msaa::Off) {
+            info!("fascicle-volume: camera {e} sees a volume; its MSAA is turned off (the volume reads its depth)");
             commands.entity(e).insert(Msaa::Off);
         }
     }

@@ -235,3 +235,38 @@ fn clipped_and_shaded_raycast_matches_the_f64_marcher() {
     assert!(lit > 500 && removed > 300 && shaded > 300, "{lit} coloured, {removed} cut away, {shaded} shaded");
     assert!(p99 <= 3.0, "99th percentile {p99} levels");
 }
+
+#[test]
+fn only_cameras_that_see_the_volume_lose_msaa() {
+    let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
+    app.add_plugins(VolumePlugin);
+    app.add_systems(
+        PostStartup,
+        |mut commands: Commands,
+         mut meshes: ResMut<Assets<Mesh>>,
+         mut images: ResMut<Assets<Image>>,
+         mut materials: ResMut<Assets<VolumeMaterial>>,
+         mut buffers: ResMut<Assets<ShaderBuffer>>,
+         depth: Res<OpaqueDepth>| {
+            let vol = phantom();
+            let s = settings(VolumeMethod::Raycast);
+            spawn_volume(&mut commands, &mut meshes, &mut images, &mut materials, &mut buffers, &depth, &vol, &s);
+        },
+    );
+    let sees = headless::spawn_test_camera(&mut app, target.clone(), EYE, Vec3::ZERO);
+    // A second view on another render layer (an overlay, a minimap): its MSAA is its own.
+    let other = app
+        .world_mut()
+        .spawn((
+            Camera3d::default(),
+            Camera { order: 1, ..default() },
+            bevy::camera::RenderTarget::Image(target.clone().into()),
+            Msaa::Sample4,
+            bevy::camera::visibility::RenderLayers::layer(1),
+        ))
+        .id();
+    app.world_mut().entity_mut(sees).insert(Msaa::Sample4);
+    headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(app.world().get::<Msaa>(sees), Some(&Msaa::Off));
+    assert_eq!(app.world().get::<Msaa>(other), Some(&Msaa::Sample4));
+}
