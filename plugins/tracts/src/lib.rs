@@ -23,7 +23,11 @@ use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, SegmentGrid, select};
 use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
 
+pub mod layer;
 pub mod shaders;
+
+pub use fascicle_render::layer::LayerStatus;
+pub use layer::{TractCounts, TractStyle, TractSystems, TractogramAsset, TractogramLoader, Tracts};
 
 /// Drawing options of hyperstreamlines.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -173,8 +177,9 @@ impl Plugin for TractPlugin {
         shaders::register(app);
         app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
-            .add_systems(PostUpdate, apply_rois)
-            .add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
+            .add_systems(PostUpdate, apply_rois.in_set(TractSystems::Select));
+        layer::build(app);
+        app.add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
     }
 }
 
