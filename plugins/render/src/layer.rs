@@ -30,6 +30,18 @@ impl LayerStatus {
     }
 }
 
+/// The assets of type `A` loaded or modified since the reader last read: a layer built from one of them is
+/// rebuilt.
+pub fn changed_assets<A: Asset>(events: &mut MessageReader<AssetEvent<A>>) -> std::collections::HashSet<AssetId<A>> {
+    events
+        .read()
+        .filter_map(|e| match e {
+            AssetEvent::Modified { id } | AssetEvent::LoadedWithDependencies { id } => Some(*id),
+            _ => None,
+        })
+        .collect()
+}
+
 /// A voxel axis.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum SliceAxis {

@@ -21,7 +21,7 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::Volume;
 use fascicle_core::sh::glyph::{Glyph, GlyphStyle, make_glyphs};
 use fascicle_core::sh::{self, ShBasis};
-use fascicle_render::layer::{LayerStatus, Selection, StageCounts};
+use fascicle_render::layer::{LayerStatus, Selection, StageCounts, changed_assets};
 
 use crate::{RayCastSettings, ShGlyphMaterial, ShGlyphSet, fill_glyph_set, update_settings};
 
@@ -192,13 +192,7 @@ fn sync_layers(
     mut counts: ResMut<ShGlyphCounts>,
     mut cube: Local<Option<Handle<Mesh>>>,
 ) {
-    let modified: HashSet<AssetId<ShField>> = events
-        .read()
-        .filter_map(|e| match e {
-            AssetEvent::Modified { id } | AssetEvent::LoadedWithDependencies { id } => Some(*id),
-            _ => None,
-        })
-        .collect();
+    let modified = changed_assets(&mut events);
     for (entity, layer, selection, shape, settings, mut status, mut set, built) in &mut layers {
         let id = layer.field.id();
         let Some(field) = fields.get(id) else {

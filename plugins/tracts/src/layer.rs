@@ -4,7 +4,6 @@
 //! loading, ready (with the streamline count) or why the file could not be read. ROIs without a parent act
 //! on every set (see [`crate::TractRoi`]).
 
-use std::collections::HashSet;
 use std::sync::Arc;
 
 use bevy::asset::io::Reader;
@@ -12,7 +11,7 @@ use bevy::asset::{AssetLoader, LoadContext};
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::io::Tractogram;
-use fascicle_render::layer::{LayerStatus, LoadError, StageCounts, read_all};
+use fascicle_render::layer::{LayerStatus, LoadError, StageCounts, changed_assets, read_all};
 
 use crate::{TractMeshMaterial, TubeSettings, TubeletMaterial, spawn_lines, spawn_polygon_tubes, spawn_tubes};
 
@@ -115,13 +114,7 @@ fn sync_layers(
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut counts: ResMut<TractCounts>,
 ) {
-    let modified: HashSet<_> = events
-        .read()
-        .filter_map(|e| match e {
-            AssetEvent::Modified { id } | AssetEvent::LoadedWithDependencies { id } => Some(*id),
-            _ => None,
-        })
-        .collect();
+    let modified = changed_assets(&mut events);
     for (entity, layer, style, mut status, built) in &mut layers {
         let id = layer.tractogram.id();
         let Some(t) = assets.get(id) else {
