@@ -526,9 +526,9 @@ pub fn peak_segments(path: &std::path::Path, length: f32) -> Result<Tractogram, 
 /// The grid of the scenes' built-in ring/cross phantom.
 const PHANTOM_DIMS: [usize; 3] = [48, 48, 24];
 
-/// SH coefficients (X,Y,Z,n) and their basis for a glyph layer; for the phantom only the voxels of
+/// The SH field (coefficients X,Y,Z,n and their basis, checked by `ShField::new`) of a glyph layer; for the phantom only the voxels of
 /// `mask` are fitted.
-fn sh_field(source: &ShSource, mask: impl Fn([usize; 3]) -> bool) -> Result<(Volume<f32>, ShBasis), String> {
+fn sh_field(source: &ShSource, mask: impl Fn([usize; 3]) -> bool) -> Result<ShField, String> {
     match source {
         ShSource::PhantomCsa { l_max } => {
             let ph = fascicle_core::phantom::ring_cross(PHANTOM_DIMS);
@@ -538,18 +538,11 @@ fn sh_field(source: &ShSource, mask: impl Fn([usize; 3]) -> bool) -> Result<(Vol
             let d = ph.dims;
             let m: Vec<bool> =
                 (0..d.iter().product()).map(|v| mask([v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1])])).collect();
-            Ok((sh::fit_odf_volume(&dwi, &model, Some(&m)).map_err(|e| e.to_string())?, basis))
+            ShField::new(sh::fit_odf_volume(&dwi, &model, Some(&m)).map_err(|e| e.to_string())?, basis)
         }
         ShSource::Nifti { path, basis } => {
             let (v, _) = nifti::read::<f32>(path).map_err(|e| e.to_string())?;
-            if v.shape.len() < 4 || sh::l_max_for(v.n_channels()).is_none() {
-                return Err(format!(
-                    "{}: {:?} is not an SH coefficient image (X,Y,Z,n with n = 1, 6, 15, 28, 45, ...)",
-                    path.display(),
-                    v.shape
-                ));
-            }
-            Ok((v, *basis))
+            ShField::new(v, *basis).map_err(|e| format!("{}: {e}", path.display()))
         }
     }
 }
@@ -570,11 +563,11 @@ pub fn free_plane_glyphs(
         }
     };
     let affine = fascicle_core::phantom::ring_cross(PHANTOM_DIMS).world_from_voxel;
-    let (vol, basis) = sh_field(source, near_plane(affine))?;
-    let items = sample_plane(&vol, plane, sampling).map_err(|e| e.to_string())?;
+    let field = sh_field(source, near_plane(affine))?;
+    let items = sample_plane(&field.coeffs, plane, sampling).map_err(|e| e.to_string())?;
     let style = style.resolved(plane.spacing);
     let (glyphs, skipped) =
-        make_glyphs(items.iter().map(|(p, c, _)| (*p, &c[..])), basis, style).map_err(|e| e.to_string())?;
+        make_glyphs(items.iter().map(|(p, c, _)| (*p, &c[..])), field.basis, style).map_err(|e| e.to_string())?;
     let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
     Ok((glyphs, voxels))
 }
@@ -746,8 +739,8 @@ pub fn volume_glyphs(
 ) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
     let selection = Selection::Volume { spacing };
     selection.voxels([0; 3])?;
-    let (vol, basis) = sh_field(source, |p| p.iter().all(|c| c.is_multiple_of(spacing.max(1))))?;
-    field_glyphs(&ShField::new(vol, basis)?, &selection, style)
+    let field = sh_field(source, |p| p.iter().all(|c| c.is_multiple_of(spacing.max(1))))?;
+    field_glyphs(&field, &selection, style)
 }
 
 /// One glyph per `spacing`-th voxel of a slice (voxel centres, nearest sampling), skipping voxels with no
@@ -766,8 +759,8 @@ pub fn plane_glyphs(
         ShSource::PhantomCsa { .. } => Some(index.unwrap_or(PHANTOM_DIMS[ax] / 2)),
         ShSource::Nifti { .. } => index,
     };
-    let (vol, basis) = sh_field(source, |p| k.is_none_or(|k| p[ax] == k))?;
-    field_glyphs(&ShField::new(vol, basis)?, &Selection::Slice { axis, index: k, spacing }, style)
+    let field = sh_field(source, |p| k.is_none_or(|k| p[ax] == k))?;
+    field_glyphs(&field, &Selection::Slice { axis, index: k, spacing }, style)
 }
 
 /// A grey image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world
