@@ -18,8 +18,12 @@ use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
 use fascicle_sh_glyphs::{
     Selection, ShField, ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, field_glyphs, spawn_glyph_set, update_settings,
 };
+use fascicle_tensors::layer::{field_splats, field_tensor_glyphs};
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
-use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
+use fascicle_tensors::{
+    SplatShape, TensorField, TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, TensorGlyphShape,
+    spawn_tensor_glyphs,
+};
 use fascicle_tracts::{
     MeshSet, TractMeshMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial, line_mesh, spawn_lines,
     spawn_polygon_tubes, spawn_tubes,
@@ -483,7 +487,9 @@ pub fn tract_data(source: &TractSource) -> Result<TractData, String> {
             let t = Tractogram::read(path).map_err(|e| e.to_string())?;
             let Some(source) = tensors else { return Ok((t, None)) };
             use fascicle_core::tracking::{TensorField, TensorInterpolation, tensors_at};
-            let (dims, affine, grid) = tensor_field(source)?;
+            let f = tensor_field(source)?.tensors;
+            let (dims, affine, n) = (f.dims3(), f.world_from_voxel, f.n_voxels());
+            let grid: Vec<[f64; 6]> = (0..n).map(|i| std::array::from_fn(|c| f.data[i + n * c] as f64)).collect();
             let voxel = glam::DVec3::new(affine.x_axis.length(), affine.y_axis.length(), affine.z_axis.length());
             let field = TensorField::new(dims, voxel, grid.into_iter().map(Some), TensorInterpolation::Componentwise)
                 .map_err(|e| e.to_string())?;
@@ -573,7 +579,7 @@ pub fn free_plane_glyphs(
 }
 
 /// Tensor glyphs on a slice: one per `spacing`-th voxel with FA >= `min_fa`, tensors rotated into the world
-/// frame, largest radius `size` times the smallest voxel edge.
+/// frame, largest diameter `size` times the glyph spacing (the plugin's `field_tensor_glyphs`).
 pub fn slice_tensor_glyphs(
     source: &TensorSource,
     axis: SliceAxis,
@@ -582,11 +588,11 @@ pub fn slice_tensor_glyphs(
     size: f64,
     min_fa: f64,
 ) -> Result<(Vec<fascicle_core::dti::glyph::TensorGlyph>, Vec<[u32; 3]>), String> {
-    if spacing == 0 {
-        return Err("glyph spacing must be at least 1 voxel".into());
-    }
-    let (mut glyphs, mut voxels) = (Vec::new(), Vec::new());
     if let TensorSource::Spiral { n } = source {
+        if spacing == 0 {
+            return Err("glyph spacing must be at least 1 voxel".into());
+        }
+        let (mut glyphs, mut voxels) = (Vec::new(), Vec::new());
         for (i, (centre, t)) in fascicle_core::phantom::spiral(*n).into_iter().enumerate() {
             if let Some(g) = fascicle_core::dti::glyph::tensor_glyph(centre, &t, size * SPIRAL_EDGE / 2.0, 0.1)
                 && g.fa >= min_fa
@@ -597,32 +603,12 @@ pub fn slice_tensor_glyphs(
         }
         return Ok((glyphs, voxels));
     }
-    let (dims, affine, tensors) = tensor_field(source)?;
-    let ax = axis_index(axis);
-    let k = index.unwrap_or(dims[ax] / 2);
-    if k >= dims[ax] {
-        return Err(format!("slice {k} is outside the field's {} slices along {axis:?}", dims[ax]));
-    }
-    let edge = min_edge(affine);
-    for_world_tensors(
-        dims,
-        affine,
-        &tensors,
-        |p| p[ax] == k && (0..3).all(|a| a == ax || p[a] % spacing == 0),
-        |p, centre, tw| {
-            if let Some(g) = fascicle_core::dti::glyph::tensor_glyph(centre, &tw, size * edge / 2.0, 0.1)
-                && g.fa >= min_fa
-            {
-                glyphs.push(g);
-                voxels.push(p.map(|x| x as u32));
-            }
-        },
-    );
-    Ok((glyphs, voxels))
+    let selection = Selection::Slice { axis, index, spacing };
+    field_tensor_glyphs(&tensor_field(source)?, &selection, &TensorGlyphShape { size, min_fa, ..default() })
 }
 
 /// Splats of a slab of `thickness` slices centred on a slice: covariance largest standard deviation `size`
-/// voxels (colour and opacity unset: apply a `SplatColouring`).
+/// voxels (colour and opacity unset: apply a `SplatColouring`); the plugin's `field_splats`.
 pub fn slab_splats(
     source: &TensorSource,
     axis: SliceAxis,
@@ -640,95 +626,32 @@ pub fn slab_splats(
             .filter(|s| s.fa() >= min_fa)
             .collect());
     }
-    let (dims, affine, tensors) = tensor_field(source)?;
-    let ax = axis_index(axis);
-    let k = index.unwrap_or(dims[ax] / 2);
-    if k >= dims[ax] || thickness == 0 {
-        return Err(format!(
-            "slab {k} (thickness {thickness}) is outside the field's {} slices along {axis:?}",
-            dims[ax]
-        ));
-    }
-    let (lo, hi) = (k.saturating_sub((thickness - 1) / 2), (k + thickness / 2).min(dims[ax] - 1));
-    let edge = min_edge(affine);
-    let mut out = Vec::new();
-    for_world_tensors(
-        dims,
-        affine,
-        &tensors,
-        |p| p[ax] >= lo && p[ax] <= hi,
-        |_, centre, tw| {
-            if let Some(s) = fascicle_core::dti::splat::tensor_splat(centre, &tw, size * edge, glam::DVec3::ONE, 1.0)
-                && s.fa() >= min_fa
-            {
-                out.push(s);
-            }
-        },
-    );
-    Ok(out)
+    let selection = Selection::Slab { axis, index, thickness };
+    field_splats(&tensor_field(source)?, &selection, &SplatShape { size, min_fa })
 }
 
 /// The length sizes of spiral glyphs and splats are fractions of (mm): about the spacing of its tensors.
 const SPIRAL_EDGE: f64 = 8.0;
 
-fn axis_index(axis: SliceAxis) -> usize {
-    match axis {
-        SliceAxis::X => 0,
-        SliceAxis::Y => 1,
-        SliceAxis::Z => 2,
-    }
-}
-
 fn min_edge(affine: glam::DMat4) -> f64 {
     [affine.x_axis, affine.y_axis, affine.z_axis].iter().map(|c| c.truncate().length()).fold(f64::MAX, f64::min)
 }
 
-/// Calls `f(voxel, world centre, world-frame tensor)` for every voxel `keep` accepts.
-fn for_world_tensors(
-    dims: [usize; 3],
-    affine: glam::DMat4,
-    tensors: &[[f64; 6]],
-    keep: impl Fn([usize; 3]) -> bool,
-    mut f: impl FnMut([usize; 3], glam::DVec3, [f64; 6]),
-) {
-    let rot = fascicle_core::linalg::polar_rotation(glam::DMat3::from_mat4(affine));
-    for z in 0..dims[2] {
-        for y in 0..dims[1] {
-            for x in 0..dims[0] {
-                if !keep([x, y, z]) {
-                    continue;
-                }
-                let t = tensors[x + dims[0] * (y + dims[1] * z)];
-                let m = glam::DMat3::from_cols_array(&[t[0], t[1], t[3], t[1], t[2], t[4], t[3], t[4], t[5]]);
-                let w = rot * m * rot.transpose();
-                let tw = [w.x_axis.x, w.x_axis.y, w.y_axis.y, w.x_axis.z, w.y_axis.z, w.z_axis.z];
-                f([x, y, z], affine.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64)), tw);
-            }
-        }
-    }
-}
-
-/// A tensor grid: dimensions, voxel-to-world affine, lower-triangular tensors per voxel (NIfTI order).
-type TensorGrid = ([usize; 3], glam::DMat4, Vec<[f64; 6]>);
-
-/// The tensors of a source.
-fn tensor_field(source: &TensorSource) -> Result<TensorGrid, String> {
-    Ok(match source {
+/// The tensors of a source, as the tensor plugin's asset.
+fn tensor_field(source: &TensorSource) -> Result<TensorField, String> {
+    match source {
         TensorSource::Phantom => {
             let p = fascicle_core::phantom::ring_cross(PHANTOM_DIMS);
-            (p.dims, p.world_from_voxel, p.tensors)
+            let data = (0..6).flat_map(|c| p.tensors.iter().map(move |t| t[c] as f32)).collect();
+            let shape = vec![p.dims[0], p.dims[1], p.dims[2], 6];
+            TensorField::new(Volume { shape, data, world_from_voxel: p.world_from_voxel })
         }
-        TensorSource::Spiral { .. } => return Err("the spiral is not a voxel grid".into()),
+        TensorSource::Spiral { .. } => Err("the spiral is not a voxel grid".into()),
         TensorSource::Nifti { path } => {
-            let (v, _) = nifti::read::<f64>(path).map_err(|e| e.to_string())?;
-            if v.shape.len() < 4 || v.n_channels() != 6 {
-                return Err(format!("{}: {:?} is not a tensor image (X,Y,Z,6)", path.display(), v.shape));
-            }
-            let n = v.n_voxels();
-            let t = (0..n).map(|i| std::array::from_fn(|c| v.data[i + n * c])).collect();
-            (v.dims3(), v.world_from_voxel, t)
+            let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+            fascicle_tensors::layer::read_field(bytes, path)
         }
-    })
+    }
 }
 
 /// One glyph per `spacing`-th voxel (along each axis) of the whole field with signal (`c00 > 0`).

@@ -69,6 +69,9 @@ pub enum Selection {
     Slice { axis: SliceAxis, index: Option<usize>, spacing: usize },
     /// Every `spacing`-th voxel along each axis.
     Volume { spacing: usize },
+    /// Every voxel of `thickness` neighbouring slices centred on one (`index` `None`: the middle one), as
+    /// splats are drawn.
+    Slab { axis: SliceAxis, index: Option<usize>, thickness: usize },
 }
 
 impl Default for Selection {
@@ -83,23 +86,32 @@ impl Selection {
     pub fn voxels(&self, dims: [usize; 3]) -> Result<Vec<[usize; 3]>, String> {
         let spacing = match *self {
             Selection::Slice { spacing, .. } | Selection::Volume { spacing } => spacing,
+            Selection::Slab { thickness: 0, .. } => {
+                return Err("a slab must be at least 1 slice thick".into());
+            }
+            Selection::Slab { .. } => 1,
         };
         if spacing == 0 {
             return Err("glyph spacing must be at least 1 voxel".into());
         }
-        let slice = match *self {
-            Selection::Slice { axis, index, .. } => {
+        // The range of slices kept along one axis, if any.
+        let slab = match *self {
+            Selection::Slice { axis, index, .. } | Selection::Slab { axis, index, .. } => {
                 let a = axis.index();
                 let k = index.unwrap_or(dims[a] / 2);
                 if k >= dims[a] {
                     return Err(format!("slice {k} is outside the grid's {} slices along {axis:?}", dims[a]));
                 }
-                Some((a, k))
+                let t = match *self {
+                    Selection::Slab { thickness, .. } => thickness,
+                    _ => 1,
+                };
+                Some((a, k.saturating_sub((t - 1) / 2), (k + t / 2).min(dims[a] - 1)))
             }
             Selection::Volume { .. } => None,
         };
-        let keep = |p: [usize; 3]| match slice {
-            Some((a, k)) => p[a] == k && (0..3).all(|b| b == a || p[b].is_multiple_of(spacing)),
+        let keep = |p: [usize; 3]| match slab {
+            Some((a, lo, hi)) => (lo..=hi).contains(&p[a]) && (0..3).all(|b| b == a || p[b].is_multiple_of(spacing)),
             None => p.iter().all(|c| c.is_multiple_of(spacing)),
         };
         let mut out = Vec::new();
@@ -123,6 +135,9 @@ impl Selection {
             Selection::Slice { axis, spacing, .. } => {
                 (0..3).filter(|&a| a != axis.index()).map(|a| vs[a]).fold(f64::INFINITY, f64::min) * spacing as f64
             }
+            Selection::Slab { axis, .. } => {
+                (0..3).filter(|&a| a != axis.index()).map(|a| vs[a]).fold(f64::INFINITY, f64::min)
+            }
             Selection::Volume { spacing } => voxel_size.min_element() * spacing as f64,
         }
     }
@@ -138,6 +153,8 @@ pub struct StageCounts {
     pub repacks: u32,
     /// A layer's uniform rewritten alone (a style change).
     pub uniform_writes: u32,
+    /// A layer's per-item colours and opacities rewritten, its geometry untouched (a colouring change).
+    pub restyles: u32,
 }
 
 /// An asset loader's error: the message names the file and the problem (it reaches the layer's
@@ -158,4 +175,32 @@ pub async fn read_all(reader: &mut dyn bevy::asset::io::Reader, path: &std::path
     let mut bytes = Vec::new();
     reader.read_to_end(&mut bytes).await.map_err(|e| LoadError(format!("{}: {e}", path.display())))?;
     Ok(bytes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn selections_keep_the_voxels_they_name() {
+        let dims = [4, 5, 6];
+        let slice = Selection::Slice { axis: SliceAxis::Y, index: Some(2), spacing: 2 }.voxels(dims).unwrap();
+        assert_eq!(slice.len(), 2 * 3);
+        assert!(slice.iter().all(|p| p[1] == 2 && p[0] % 2 == 0 && p[2] % 2 == 0));
+        // A slab of 3 around the middle z (3): slices 2..=4, every voxel.
+        let slab = Selection::Slab { axis: SliceAxis::Z, index: None, thickness: 3 }.voxels(dims).unwrap();
+        assert_eq!(slab.len(), 4 * 5 * 3);
+        assert!(slab.iter().all(|p| (2..=4).contains(&p[2])));
+        // Even thickness: one more slice above; clipped at the grid's edge.
+        let top = Selection::Slab { axis: SliceAxis::Z, index: Some(5), thickness: 4 }.voxels(dims).unwrap();
+        assert!(top.iter().all(|p| (4..=5).contains(&p[2])) && top.len() == 2 * 20);
+        assert_eq!(Selection::Volume { spacing: 3 }.voxels(dims).unwrap().len(), 2 * 2 * 2);
+        let err = Selection::Slab { axis: SliceAxis::X, index: Some(4), thickness: 1 }.voxels(dims).unwrap_err();
+        assert!(err.contains("slice 4") && err.contains("4 slices along X"), "{err}");
+        assert!(Selection::Slab { axis: SliceAxis::X, index: None, thickness: 0 }.voxels(dims).is_err());
+        assert!(Selection::Volume { spacing: 0 }.voxels(dims).is_err());
+        let mm = DVec3::new(1.0, 2.0, 3.0);
+        assert_eq!(Selection::Slab { axis: SliceAxis::X, index: None, thickness: 3 }.cell_mm(mm), 2.0);
+        assert_eq!(Selection::Slice { axis: SliceAxis::Z, index: None, spacing: 2 }.cell_mm(mm), 2.0);
+    }
 }

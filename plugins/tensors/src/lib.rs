@@ -1,4 +1,4 @@
-//! Tensor glyphs and tensor splats ([`splat`]) as a Bevy plugin. Glyphs: ray-cast ellipsoids and Kindlmann superquadrics, one entity per tensor
+//! Tensor glyphs and tensor splats ([`splat`]) as a Bevy plugin; layers driven by components in [`layer`]. Glyphs: ray-cast ellipsoids and Kindlmann superquadrics, one entity per tensor
 //! sample ([`TensorSample`]), instanced on a shared cube proxy with a `MeshTag` into one storage buffer.
 //! The fragment shader (`shaders/tensor_glyph.wgsl`) intersects the view ray with the glyph (closed form
 //! for ellipsoids, search and bisection for superquadrics) and writes true depth. The math and the test
@@ -11,10 +11,19 @@ use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::dti::glyph::{MIN_EXPONENT, TensorGlyph, TensorShape};
 
+pub mod layer;
 pub mod shaders;
 pub mod splat;
 
-/// Registers the tensor glyph material. Needs `fascicle_render::FascicleRenderPlugin` (the shaders).
+pub use fascicle_render::layer::{LayerStatus, Selection, SliceAxis};
+pub use layer::{
+    SplatCounts, SplatShape, TensorField, TensorFieldLoader, TensorGlyphCounts, TensorGlyphShape, TensorGlyphs,
+    TensorSplats, TensorSystems,
+};
+pub use splat::SplatSettings;
+
+/// Tensor glyphs and splats: their materials, the [`TensorField`] asset and its loader, the
+/// [`TensorGlyphs`] and [`TensorSplats`] layers and the splat sort (see [`TensorSystems`]).
 pub struct TensorGlyphPlugin;
 
 impl Plugin for TensorGlyphPlugin {
@@ -24,8 +33,9 @@ impl Plugin for TensorGlyphPlugin {
             MaterialPlugin::<TensorGlyphMaterial>::default(),
             MaterialPlugin::<splat::SplatMaterial>::default(),
         ))
-        .init_resource::<splat::SplatSortStats>()
-        .add_systems(PostUpdate, splat::sort_splats.after(bevy::transform::TransformSystems::Propagate));
+        .init_resource::<splat::SplatSortStats>();
+        layer::build(app);
+        app.add_systems(PostUpdate, splat::sort_splats.in_set(TensorSystems::Sort));
     }
 }
 
@@ -41,8 +51,9 @@ pub enum TensorColour {
     Normal,
 }
 
-/// Shape and ray-caster knobs.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// Shape and ray-caster knobs; on a [`TensorGlyphs`] layer, a change is one uniform write (a new `shape`
+/// repacks: the glyphs' bounds change).
+#[derive(Component, Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct TensorGlyphSettings {
     pub shape: TensorShape,
@@ -173,6 +184,26 @@ pub fn spawn_tensor_glyphs(
     voxels: Option<&[[u32; 3]]>,
     settings: &TensorGlyphSettings,
 ) -> Entity {
+    let parent = commands.spawn((Transform::default(), Visibility::default())).id();
+    let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
+    let set = fill_tensor_glyphs(commands, parent, cube, materials, buffers, glyphs, voxels, settings);
+    commands.entity(parent).insert(set);
+    parent
+}
+
+/// Spawns the glyph entities of a set as children of `parent` on the shared proxy `cube` (a 2 x 2 x 2
+/// cuboid) and returns the set's component for `parent`.
+#[allow(clippy::too_many_arguments, reason = "the asset stores a glyph set writes to")]
+pub fn fill_tensor_glyphs(
+    commands: &mut Commands,
+    parent: Entity,
+    cube: Handle<Mesh>,
+    materials: &mut Assets<TensorGlyphMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    glyphs: &[TensorGlyph],
+    voxels: Option<&[[u32; 3]]>,
+    settings: &TensorGlyphSettings,
+) -> TensorGlyphSet {
     let mut bytes = pack(glyphs, settings.shape);
     if bytes.is_empty() {
         bytes = vec![0u8; 80]; // storage buffers must not be empty
@@ -181,29 +212,28 @@ pub fn spawn_tensor_glyphs(
         params: settings.into(),
         glyphs: buffers.add(ShaderBuffer::new(&bytes, RenderAssetUsages::RENDER_WORLD)),
     });
-    let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
-    let parent = commands
-        .spawn((
-            TensorGlyphSet { material: material.clone(), shape: settings.shape, len: glyphs.len() },
-            Transform::default(),
-            Visibility::default(),
-        ))
-        .id();
-    for (i, g) in glyphs.iter().enumerate() {
-        commands.spawn((
-            TensorSample {
-                index: i as u32,
-                voxel: voxels.and_then(|v| v.get(i).copied()),
-                fa: g.fa as f32,
-                cl: g.cl as f32,
-                cp: g.cp as f32,
-            },
-            Mesh3d(cube.clone()),
-            MeshMaterial3d(material.clone()),
-            MeshTag(i as u32),
-            Transform::from_translation(g.centre.as_vec3()).with_scale(Vec3::splat(g.bound(settings.shape) as f32)),
-            ChildOf(parent),
-        ));
-    }
-    parent
+    commands.spawn_batch(
+        glyphs
+            .iter()
+            .enumerate()
+            .map(|(i, g)| {
+                (
+                    TensorSample {
+                        index: i as u32,
+                        voxel: voxels.and_then(|v| v.get(i).copied()),
+                        fa: g.fa as f32,
+                        cl: g.cl as f32,
+                        cp: g.cp as f32,
+                    },
+                    Mesh3d(cube.clone()),
+                    MeshMaterial3d(material.clone()),
+                    MeshTag(i as u32),
+                    Transform::from_translation(g.centre.as_vec3())
+                        .with_scale(Vec3::splat(g.bound(settings.shape) as f32)),
+                    ChildOf(parent),
+                )
+            })
+            .collect::<Vec<_>>(),
+    );
+    TensorGlyphSet { material, shape: settings.shape, len: glyphs.len() }
 }

@@ -28,8 +28,9 @@ use fascicle_core::dti::splat::{
     ATTENUATION_K, DILATION_PX2, LitTensor, Splat, SplatColouring, SplatRender, argsort_desc, depth_keys,
 };
 
-/// Splat drawing options.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// Splat drawing options; on a [`crate::TensorSplats`] layer, a change is one uniform write, and a new
+/// `colouring` rewrites the colour buffer alone.
+#[derive(Component, Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct SplatSettings {
     /// The seed's depth attenuation `exp(-2K sqrt(T'zz))`.

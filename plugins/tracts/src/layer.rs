@@ -1,8 +1,9 @@
 //! Tract layers driven by components: spawn an entity with [`Tracts`] (a [`TractogramAsset`], loaded from
 //! `.trk` / `.tck` off the main thread) and a [`TractStyle`]; the plugin spawns the drawn set as a child and
 //! rebuilds it, for that layer only, when the asset or the style changes. [`LayerStatus`] on the entity says
-//! loading, ready (with the streamline count) or why the file could not be read. ROIs without a parent act
-//! on every set (see [`crate::TractRoi`]).
+//! loading, ready (with the streamline count) or why the file could not be read. ROIs spawned as children of
+//! the layer (`ChildOf(layer)`) act on that layer and survive its rebuilds; ROIs without a parent act on
+//! every set (see [`crate::TractRoi`]).
 
 use std::sync::Arc;
 
@@ -95,11 +96,15 @@ pub(crate) fn build(app: &mut App) {
         .add_systems(PostUpdate, sync_layers.in_set(TractSystems::Prepare));
 }
 
-/// The asset a layer's drawn set was built from.
+/// A layer's drawn set (its child) and the asset it was built from. The layer's other children (its ROIs)
+/// survive a rebuild.
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
-struct BuiltFrom(AssetId<TractogramAsset>);
+struct Drawn {
+    set: Entity,
+    tractogram: AssetId<TractogramAsset>,
+}
 
-type Layer<'a> = (Entity, Ref<'a, Tracts>, Ref<'a, TractStyle>, &'a mut LayerStatus, Option<&'a BuiltFrom>);
+type Layer<'a> = (Entity, Ref<'a, Tracts>, Ref<'a, TractStyle>, &'a mut LayerStatus, Option<&'a Drawn>);
 
 #[allow(clippy::too_many_arguments)]
 fn sync_layers(
@@ -115,7 +120,7 @@ fn sync_layers(
     mut counts: ResMut<TractCounts>,
 ) {
     let modified = changed_assets(&mut events);
-    for (entity, layer, style, mut status, built) in &mut layers {
+    for (entity, layer, style, mut status, drawn) in &mut layers {
         let id = layer.tractogram.id();
         let Some(t) = assets.get(id) else {
             let pending = LayerStatus::of_pending(&server, &layer.tractogram);
@@ -124,11 +129,13 @@ fn sync_layers(
             }
             continue;
         };
-        let new_data = built != Some(&BuiltFrom(id)) || modified.contains(&id);
+        let new_data = drawn.is_none_or(|d| d.tractogram != id) || modified.contains(&id);
         if !(new_data || style.is_changed()) {
             continue;
         }
-        commands.entity(entity).despawn_related::<Children>();
+        if let Some(d) = drawn {
+            commands.entity(d.set).despawn();
+        }
         let t = t.0.clone();
         let n = t.n_streamlines();
         let set = match *style {
@@ -150,7 +157,7 @@ fn sync_layers(
             ),
         };
         commands.entity(set).insert(ChildOf(entity));
-        commands.entity(entity).insert(BuiltFrom(id));
+        commands.entity(entity).insert(Drawn { set, tractogram: id });
         *status = LayerStatus::Ready { items: n };
         if new_data {
             counts.0.uploads += 1;

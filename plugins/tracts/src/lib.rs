@@ -157,8 +157,8 @@ impl Material for TractMeshMaterial {
 #[derive(Component, Clone, Debug, Default)]
 pub struct TractSelection(pub Vec<bool>);
 
-/// A region of interest: spawned as a child of a tract set (`ChildOf(set)`) it acts on that set only;
-/// without a parent it acts on every set.
+/// A region of interest: spawned as a child of a [`Tracts`] layer (or of a tract set) it acts on that
+/// layer's set only; without a parent it acts on every set. Moving it (a component write) re-selects.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct TractRoi(pub Roi);
 
@@ -416,19 +416,20 @@ pub fn apply_rois(
     changed_rois: Query<(), Or<(Added<TractRoi>, Changed<TractRoi>)>>,
     mut removed: RemovedComponents<TractRoi>,
     rois: Query<(&TractRoi, Option<&ChildOf>)>,
-    mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection)>,
+    mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection, Option<&ChildOf>)>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
 ) {
     let removed_any = removed.read().count() > 0;
-    if changed_rois.is_empty() && !removed_any && !sets.iter().any(|(_, s, _)| s.is_added()) {
+    if changed_rois.is_empty() && !removed_any && !sets.iter().any(|(_, s, _, _)| s.is_added()) {
         return;
     }
     let t0 = Instant::now();
     let mut selected = 0;
-    for (entity, set, mut selection) in &mut sets {
-        let list: Vec<Roi> =
-            rois.iter().filter(|(_, parent)| parent.is_none_or(|p| p.parent() == entity)).map(|(r, _)| r.0).collect();
+    for (entity, set, mut selection, layer) in &mut sets {
+        // An ROI acts on its parent set, on the sets of its parent layer, or (without a parent) on all.
+        let owner = |p: &ChildOf| p.parent() == entity || layer.is_some_and(|l| l.parent() == p.parent());
+        let list: Vec<Roi> = rois.iter().filter(|(_, parent)| parent.is_none_or(owner)).map(|(r, _)| r.0).collect();
         let sel = select(&set.tractogram.points, &set.tractogram.offsets, &set.grid, &list);
         selected += sel.iter().filter(|s| **s).count();
         let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();

@@ -1,14 +1,21 @@
-//! Tract layers driven by components: the example draws its streamlines where they are, a style change
-//! rebuilds that layer only, and a file that is not a tractogram leaves the layer failed with a message.
+//! Tract layers driven by components: the example shows exactly the streamlines through its ROI (checked
+//! against a brute-force segment-sphere test), and after the ROI is dragged, those through its new place,
+//! with nothing rebuilt; a style change rebuilds that layer only and keeps its ROIs; a file that is not a
+//! tractogram leaves the layer failed with a message.
 
 #[allow(dead_code)]
 #[path = "../examples/tracts.rs"]
 mod example;
 
 use bevy::prelude::*;
+use fascicle_core::io::Tractogram;
+use fascicle_core::roi::RoiShape;
 use fascicle_render::example::ExampleApp;
 use fascicle_render::headless;
-use fascicle_tracts::{LayerStatus, TractCounts, TractPlugin, TractSet, TractStyle, Tracts};
+use fascicle_render::headless::Capture;
+use fascicle_tracts::{
+    LayerStatus, RoiStats, TractCounts, TractPlugin, TractRoi, TractSelection, TractSet, TractStyle, Tracts,
+};
 
 fn gpu_skipped() -> bool {
     let skipped = headless::gpu_tests_skipped();
@@ -18,37 +25,108 @@ fn gpu_skipped() -> bool {
     skipped
 }
 
+/// Per streamline, whether one of its segments meets the sphere (brute force, f64).
+fn through_sphere(t: &Tractogram, c: Vec3, r: f32) -> Vec<bool> {
+    (0..t.n_streamlines())
+        .map(|s| {
+            let p = &t.points[t.offsets[s]..t.offsets[s + 1]];
+            let dist = |a: Vec3, b: Vec3| {
+                let (a, b, c) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
+                let ab = b - a;
+                let u = if ab.length_squared() > 0.0 {
+                    ((c - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                (a + u * ab - c).length()
+            };
+            p.windows(2).any(|w| dist(w[0], w[1]) <= r as f64) || (p.len() == 1 && dist(p[0], p[0]) <= r as f64)
+        })
+        .collect()
+}
+
+/// The frame shows the selected streamlines (their points covered) and hides the others (their points
+/// away from every selected segment are background).
+fn check_selection(frame: &Capture, camera: &Camera, at: &GlobalTransform, t: &Tractogram, selected: &[bool]) {
+    let background = frame.pixel(0, 0);
+    let project = |p: Vec3| camera.world_to_viewport(at, p).ok();
+    let drawn = |v: Vec2| frame.pixel(v.x.round() as u32, v.y.round() as u32) != background;
+    let mut segments = Vec::new();
+    let (mut shown, mut total) = (0, 0);
+    for s in (0..t.n_streamlines()).filter(|&s| selected[s]) {
+        let pts: Vec<Vec2> = t.points[t.offsets[s]..t.offsets[s + 1]].iter().filter_map(|p| project(*p)).collect();
+        for v in pts.iter().step_by(5) {
+            total += 1;
+            shown += usize::from(drawn(*v));
+        }
+        segments.extend(pts.windows(2).map(|w| (w[0], w[1])));
+    }
+    assert!(shown * 100 >= total * 95, "{shown} of {total} points of selected streamlines drawn");
+    let near = |v: Vec2| {
+        segments.iter().any(|(a, b)| {
+            let ab = *b - *a;
+            let u =
+                if ab.length_squared() > 0.0 { ((v - *a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+            (*a + u * ab).distance(v) < 12.0
+        })
+    };
+    let (mut hidden, mut far) = (0, 0);
+    for s in (0..t.n_streamlines()).filter(|&s| !selected[s]) {
+        for p in t.points[t.offsets[s]..t.offsets[s + 1]].iter().step_by(5) {
+            if let Some(v) = project(*p).filter(|v| !near(*v)) {
+                far += 1;
+                hidden += usize::from(!drawn(v));
+            }
+        }
+    }
+    assert!(far > 100, "{far} points of unselected streamlines away from the selected ones");
+    assert!(hidden * 100 >= far * 98, "{hidden} of {far} points of unselected streamlines hidden");
+}
+
 #[test]
-fn the_example_draws_the_streamlines_where_they_are() {
+fn the_example_shows_the_streamlines_through_the_roi_as_it_moves() {
     if gpu_skipped() {
         return;
     }
     let mut ex = example::app(ExampleApp::offscreen(example::DATA, None));
     let frame = ex.render().expect("offscreen render");
     // The streamlines as the core reads them (independently of the plugin's loader).
-    let t = fascicle_core::io::Tractogram::read(format!("{}/tracts/tracks300.trk", example::DATA)).unwrap();
+    let t = Tractogram::read(format!("{}/tracts/tracks300.trk", example::DATA)).unwrap();
     let world = ex.app.world_mut();
-    assert_eq!(world.query::<&LayerStatus>().single(world).unwrap(), &LayerStatus::Ready { items: 300 });
+    let layer = world.query_filtered::<Entity, With<Tracts>>().single(world).unwrap();
+    assert_eq!(world.get::<LayerStatus>(layer).unwrap(), &LayerStatus::Ready { items: 300 });
     let (camera, at) = world.query::<(&Camera, &GlobalTransform)>().single(world).unwrap();
-    let background = frame.pixel(0, 0);
-    let mut drawn = 0;
-    let mut total = 0;
-    // Every 10th point: a pixel there shows a tube (this streamline's, or one above it).
-    for p in t.points.iter().step_by(10) {
-        let v = camera.world_to_viewport(at, *p).unwrap();
-        total += 1;
-        if frame.pixel(v.x.round() as u32, v.y.round() as u32) != background {
-            drawn += 1;
-        }
-    }
-    assert!(drawn * 100 >= total * 95, "{drawn} of {total} streamline points covered");
-    // Away from the bundle the frame is background.
-    assert_eq!(frame.pixel(frame.width - 1, frame.height - 1), background);
-    let covered = (0..frame.height)
-        .flat_map(|y| (0..frame.width).map(move |x| (x, y)))
-        .filter(|&(x, y)| frame.pixel(x, y) != background)
-        .count();
-    assert!(covered < (frame.width * frame.height) as usize / 2, "{covered} pixels covered");
+    let (camera, at) = (camera.clone(), *at);
+    let want = through_sphere(&t, example::ROI_START, example::ROI_RADIUS);
+    let n = want.iter().filter(|s| **s).count();
+    assert!(n > 10 && n < 250, "{n} streamlines through the ROI");
+    assert_eq!(world.resource::<RoiStats>().selected, n);
+    assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, want);
+    check_selection(&frame, &camera, &at, &t, &want);
+
+    // Drag the ROI (what the example's mouse handler writes): only the selection changes.
+    let set = world.get::<Children>(layer).unwrap().iter().find(|c| world.get::<TractSet>(*c).is_some()).unwrap();
+    let counts = *world.resource::<TractCounts>();
+    let moved = example::ROI_START + Vec3::new(-12.0, 18.0, -8.0);
+    let roi = world.query_filtered::<Entity, With<TractRoi>>().single(world).unwrap();
+    world.get_mut::<TractRoi>(roi).unwrap().0.shape =
+        RoiShape::Sphere { centre: moved.to_array(), radius: example::ROI_RADIUS };
+    let frame = ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
+    let want = through_sphere(&t, moved, example::ROI_RADIUS);
+    let m = want.iter().filter(|s| **s).count();
+    assert!(m > 5 && want != through_sphere(&t, example::ROI_START, example::ROI_RADIUS), "{m} streamlines");
+    assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, want);
+    check_selection(&frame, &camera, &at, &t, &want);
+    assert_eq!(*world.resource::<TractCounts>(), counts, "moving an ROI rebuilds nothing");
+    assert!(world.get::<Children>(layer).unwrap().contains(&set));
+
+    // A style change rebuilds the set; the ROI (a child of the layer) survives and still selects.
+    *world.get_mut::<TractStyle>(layer).unwrap() = TractStyle::Lines { opacity: 1.0 };
+    ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
+    assert!(world.get_entity(roi).is_ok() && !world.get::<Children>(layer).unwrap().contains(&set));
+    assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, want);
 }
 
 #[test]

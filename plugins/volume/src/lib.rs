@@ -30,7 +30,11 @@ use bevy::shader::ShaderRef;
 use fascicle_core::Volume;
 use fascicle_core::dvr::{ClipBox, MarchParams, TransferFunction, preintegrate};
 
+pub mod layer;
 pub mod shaders;
+
+pub use fascicle_render::layer::LayerStatus;
+pub use layer::{ScalarVolume, ScalarVolumeLoader, ScalarVolumeSettings, VolumeCounts, VolumeLayer, VolumeSystems};
 
 /// Pre-integration table size (entries per axis).
 pub const TABLE_N: usize = 64;
@@ -48,8 +52,8 @@ pub enum VolumeMethod {
     Slicing,
 }
 
-/// Drawing options of a volume layer.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// Drawing options of a volume layer (a component of [`VolumeLayer`]; see [`layer`] for what each edit costs).
+#[derive(Component, Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct VolumeSettings {
     pub method: VolumeMethod,
@@ -201,6 +205,7 @@ impl Plugin for VolumePlugin {
         app.add_plugins((MaterialPlugin::<VolumeMaterial>::default(), ExtractResourcePlugin::<OpaqueDepth>::default()))
             .add_systems(Startup, create_opaque_depth)
             .add_systems(PostUpdate, (prepare_cameras, fit_opaque_depth));
+        layer::build(app);
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
             render_app
                 .add_systems(Core3d, copy_opaque_depth.after(main_opaque_pass_3d).before(main_transparent_pass_3d));
@@ -406,6 +411,17 @@ pub fn tf_buffers(s: &VolumeSettings) -> (Vec<u8>, Vec<u8>) {
     (lut.to_bytes(), tb)
 }
 
+/// The proxy geometry of a method: the volume's box (ray casting) or the view-aligned slices (slicing).
+pub fn proxy_mesh(dims: [usize; 3], world_from_voxel: glam::DMat4, settings: &VolumeSettings) -> Mesh {
+    match settings.method {
+        VolumeMethod::Raycast => box_mesh(dims, world_from_voxel),
+        VolumeMethod::Slicing => {
+            let (_, r) = bounding_sphere(dims, world_from_voxel);
+            fascicle_render::meshes::slot_quads(slices(r, settings.step) as usize)
+        }
+    }
+}
+
 /// Spawns a volume layer (a 3D scalar image) drawn with `settings`; returns its entity.
 #[allow(clippy::too_many_arguments, reason = "the asset stores a volume layer writes to")]
 pub fn spawn_volume(
@@ -439,10 +455,7 @@ pub fn spawn_volume(
         table: buffers.add(ShaderBuffer::new(&table, RenderAssetUsages::default())),
         opaque_depth: depth.0.clone(),
     });
-    let mesh = match settings.method {
-        VolumeMethod::Raycast => box_mesh(d, vol.world_from_voxel),
-        VolumeMethod::Slicing => fascicle_render::meshes::slot_quads(params.n_slices as usize),
-    };
+    let mesh = proxy_mesh(d, vol.world_from_voxel, settings);
     commands
         .spawn((
             VolumeSet {

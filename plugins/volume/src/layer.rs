@@ -1,0 +1,218 @@
+//! Volume layers driven by components: spawn an entity with [`VolumeLayer`] (the data: a [`ScalarVolume`]
+//! asset, loaded from a `.nii`/`.nii.gz` image off the main thread) and, optionally, [`VolumeSettings`]; the
+//! plugin uploads the 3D texture once and reacts to each edit for that layer only:
+//!
+//! | change | cost |
+//! |---|---|
+//! | the data (handle swapped, asset modified) | texture rebuilt and uploaded |
+//! | `VolumeSettings::method` | the proxy mesh swapped (box or slices); the texture stays |
+//! | the transfer function (window/level is its `range`) | its two small tables and the uniform rewritten |
+//! | step, termination, jitter, shading, clip | one uniform write |
+//!
+//! The drawn [`VolumeSet`] is a child of the layer entity and carries the layer's `RenderLayers`, so only
+//! cameras that see it lose their MSAA (see the crate doc).
+
+use std::collections::HashSet;
+use std::sync::Arc;
+
+use bevy::asset::io::Reader;
+use bevy::asset::{AssetLoader, LoadContext};
+use bevy::camera::visibility::RenderLayers;
+use bevy::prelude::*;
+use bevy::render::storage::ShaderBuffer;
+use fascicle_core::Volume;
+use fascicle_render::layer::{LayerStatus, LoadError, StageCounts, changed_assets, read_all};
+
+use crate::{
+    HISTOGRAM_BINS, OpaqueDepth, VolumeMaterial, VolumeMethod, VolumeSet, VolumeSettings, VolumeUniform, histogram,
+    proxy_mesh, spawn_volume, tf_buffers,
+};
+
+/// A 3D scalar image (T1, FA, MD, a b0) with its voxel-to-world affine (RAS+ mm).
+#[derive(Asset, TypePath, Clone, Debug, Deref)]
+pub struct ScalarVolume(pub Arc<Volume<f32>>);
+
+/// Settings of the `.nii`/`.nii.gz` loader: which 3D volume of a 4D image to take (0: the first, e.g. a
+/// DWI's b0).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct ScalarVolumeSettings {
+    pub volume: usize,
+}
+
+/// Loads `.nii` / `.nii.gz` images as [`ScalarVolume`]s, off the main thread.
+#[derive(Default, TypePath)]
+pub struct ScalarVolumeLoader;
+
+impl AssetLoader for ScalarVolumeLoader {
+    type Asset = ScalarVolume;
+    type Settings = ScalarVolumeSettings;
+    type Error = LoadError;
+
+    async fn load(
+        &self,
+        reader: &mut dyn Reader,
+        settings: &ScalarVolumeSettings,
+        ctx: &mut LoadContext<'_>,
+    ) -> Result<ScalarVolume, LoadError> {
+        let path = ctx.path().path().to_path_buf();
+        let bytes = read_all(reader, &path).await?;
+        let (vol, _) =
+            fascicle_core::io::nifti::read_bytes::<f32>(bytes, &path).map_err(|e| LoadError(e.to_string()))?;
+        let vol = volume_of(vol, settings.volume).map_err(|e| LoadError(format!("{}: {e}", path.display())))?;
+        Ok(ScalarVolume(Arc::new(vol)))
+    }
+
+    fn extensions(&self) -> &[&str] {
+        &["nii", "nii.gz"]
+    }
+}
+
+/// The `k`-th 3D volume of an image (a 3D image is its own volume 0).
+pub fn volume_of(vol: Volume<f32>, k: usize) -> Result<Volume<f32>, String> {
+    let (n, count) = (vol.n_voxels(), vol.n_channels().max(1));
+    if k >= count {
+        return Err(format!("volume {k} requested of an image with {count} ({:?})", vol.shape));
+    }
+    if count == 1 {
+        return Ok(Volume { shape: vol.dims3().to_vec(), ..vol });
+    }
+    Ok(Volume {
+        shape: vol.dims3().to_vec(),
+        data: vol.data[k * n..(k + 1) * n].to_vec(),
+        world_from_voxel: vol.world_from_voxel,
+    })
+}
+
+/// The data component of a volume layer. Without [`VolumeSettings`] it gets the defaults: ray casting with
+/// a transfer function for FA as context.
+#[derive(Component, Clone, Debug, Default)]
+#[require(VolumeSettings, LayerStatus, Transform, Visibility)]
+pub struct VolumeLayer {
+    pub volume: Handle<ScalarVolume>,
+}
+
+/// The work of the volume layers' stages (see [`StageCounts`]; a method change counts as a repack).
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq, Deref)]
+pub struct VolumeCounts(pub StageCounts);
+
+/// The plugin's systems (`PostUpdate`, after the asset events, before transform propagation).
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum VolumeSystems {
+    /// Builds and restyles the [`VolumeLayer`]s that changed.
+    Prepare,
+}
+
+pub(crate) fn build(app: &mut App) {
+    app.init_asset::<ScalarVolume>()
+        .register_asset_loader(ScalarVolumeLoader)
+        .init_resource::<VolumeCounts>()
+        .configure_sets(
+            PostUpdate,
+            VolumeSystems::Prepare
+                .after(bevy::asset::AssetEventSystems)
+                .before(bevy::transform::TransformSystems::Propagate),
+        )
+        .add_systems(PostUpdate, sync_layers.in_set(VolumeSystems::Prepare));
+}
+
+/// The drawn set of a layer and the asset it was built from.
+#[derive(Component, Clone, Copy, Debug)]
+struct Drawn {
+    set: Entity,
+    volume: AssetId<ScalarVolume>,
+}
+
+type Layer<'a> = (
+    Entity,
+    Ref<'a, VolumeLayer>,
+    Ref<'a, VolumeSettings>,
+    &'a mut LayerStatus,
+    Option<&'a Drawn>,
+    Option<&'a RenderLayers>,
+);
+
+#[allow(clippy::too_many_arguments)]
+fn sync_layers(
+    mut commands: Commands,
+    mut layers: Query<Layer>,
+    mut sets: Query<(&mut VolumeSet, &mut Mesh3d)>,
+    volumes: Res<Assets<ScalarVolume>>,
+    mut events: MessageReader<AssetEvent<ScalarVolume>>,
+    server: Res<AssetServer>,
+    depth: Option<Res<OpaqueDepth>>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut images: ResMut<Assets<Image>>,
+    mut materials: ResMut<Assets<VolumeMaterial>>,
+    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut counts: ResMut<VolumeCounts>,
+) {
+    let Some(depth) = depth else { return };
+    let modified: HashSet<_> = changed_assets(&mut events);
+    for (entity, layer, settings, mut status, drawn, render_layers) in &mut layers {
+        let id = layer.volume.id();
+        let Some(vol) = volumes.get(id) else {
+            let pending = LayerStatus::of_pending(&server, &layer.volume);
+            if *status != pending {
+                *status = pending;
+            }
+            continue;
+        };
+        if drawn.is_none_or(|d| d.volume != id) || modified.contains(&id) {
+            if let Some(d) = drawn {
+                if let Ok((old, _)) = sets.get(d.set) {
+                    materials.remove(&old.material);
+                }
+                commands.entity(d.set).despawn();
+            }
+            let set = spawn_volume(
+                &mut commands,
+                &mut meshes,
+                &mut images,
+                &mut materials,
+                &mut buffers,
+                &depth,
+                &vol.0,
+                &settings,
+            );
+            commands.entity(set).insert(ChildOf(entity));
+            if let Some(r) = render_layers {
+                commands.entity(set).insert(r.clone());
+            }
+            commands.entity(entity).insert(Drawn { set, volume: id });
+            *status = LayerStatus::Ready { items: vol.n_voxels() };
+            counts.0.uploads += 1;
+            continue;
+        }
+        if !settings.is_changed() {
+            continue;
+        }
+        let Some(Ok((mut set, mut mesh))) = drawn.map(|d| sets.get_mut(d.set)) else { continue };
+        if set.settings == *settings {
+            continue;
+        }
+        let before = std::mem::replace(&mut set.settings, (*settings).clone());
+        if before.method != settings.method
+            || (settings.method == VolumeMethod::Slicing && before.step != settings.step)
+        {
+            // The number of slices follows the step.
+            mesh.0 = meshes.add(proxy_mesh(set.dims, set.world_from_voxel, &settings));
+            counts.0.repacks += 1;
+        }
+        if let Some(mut m) = materials.get_mut(&set.material) {
+            if before.tf != settings.tf || before.step != settings.step {
+                // The lookup and pre-integration tables depend on the function and the step.
+                let (lut, table) = tf_buffers(&settings);
+                for (h, bytes) in [(m.lut.clone(), lut), (m.table.clone(), table)] {
+                    if let Some(mut b) = buffers.get_mut(&h) {
+                        b.data = Some(bytes);
+                    }
+                }
+            }
+            m.params = VolumeUniform::new(set.dims, set.world_from_voxel, &settings);
+            counts.0.uniform_writes += 1;
+        }
+        if before.tf.range != settings.tf.range {
+            set.histogram = Arc::new(histogram(&vol.data[..vol.n_voxels()], settings.tf.range, HISTOGRAM_BINS));
+        }
+    }
+}
