@@ -94,22 +94,12 @@ impl ExampleApp {
         };
         let app = &mut self.app;
         headless::initialise(app)?;
-        let mut waited = 0;
-        loop {
-            app.update();
-            let world = app.world_mut();
-            let statuses: Vec<LayerStatus> = world.query::<&LayerStatus>().iter(world).cloned().collect();
-            if let Some(LayerStatus::Failed(e)) = statuses.iter().find(|s| matches!(s, LayerStatus::Failed(_))) {
-                return Err(HeadlessError::Timeout(format!("a layer failed: {e}")));
-            }
-            if !statuses.contains(&LayerStatus::Loading) {
-                break;
-            }
-            waited += 1;
-            if waited > 3000 {
-                return Err(HeadlessError::Timeout("layers still loading after 3000 frames".into()));
-            }
-            std::thread::sleep(std::time::Duration::from_millis(2));
+        headless::wait_for_layers(app)?;
+        let world = app.world_mut();
+        if let Some(LayerStatus::Failed(e)) =
+            world.query::<&LayerStatus>().iter(world).find(|s| matches!(s, LayerStatus::Failed(_)))
+        {
+            return Err(HeadlessError::Timeout(format!("a layer failed: {e}")));
         }
         headless::capture(app, target)
     }

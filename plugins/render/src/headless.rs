@@ -482,6 +482,22 @@ fn to_capture(img: Image) -> Result<Capture, HeadlessError> {
     Ok(Capture { width: w, height: h, rgba })
 }
 
+/// Steps `app` until no layer is [`LayerStatus::Loading`](crate::layer::LayerStatus) (its data loaded or
+/// failed), then one frame more so the layers' builds are applied; an error after 3000 frames.
+pub fn wait_for_layers(app: &mut App) -> Result<(), HeadlessError> {
+    use crate::layer::LayerStatus;
+    for _ in 0..3000 {
+        app.update();
+        let world = app.world_mut();
+        if world.query::<&LayerStatus>().iter(world).all(|s| *s != LayerStatus::Loading) {
+            app.update();
+            return Ok(());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    Err(HeadlessError::Timeout("layers still loading after 3000 frames".into()))
+}
+
 /// Whether GPU tests may be skipped: only when `FASCICLE_SKIP_GPU=1` is set explicitly (never in CI).
 pub fn gpu_tests_skipped() -> bool {
     std::env::var("FASCICLE_SKIP_GPU").is_ok_and(|v| v == "1") && !std::env::var("CI").is_ok_and(|v| v == "true")

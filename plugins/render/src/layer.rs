@@ -30,6 +30,25 @@ impl LayerStatus {
     }
 }
 
+/// A layer's data asset once loaded; until then (or if its load failed) `None`, with `status` set to what
+/// [`LayerStatus::of_pending`] says (written only when it differs, so an unchanged status is not marked
+/// changed).
+pub fn loaded_or_pending<'a, A: Asset>(
+    assets: &'a Assets<A>,
+    server: &AssetServer,
+    handle: &Handle<A>,
+    status: &mut Mut<LayerStatus>,
+) -> Option<&'a A> {
+    let asset = assets.get(handle.id());
+    if asset.is_none() {
+        let pending = LayerStatus::of_pending(server, handle);
+        if **status != pending {
+            **status = pending;
+        }
+    }
+    asset
+}
+
 /// The assets of type `A` loaded or modified since the reader last read: a layer built from one of them is
 /// rebuilt.
 pub fn changed_assets<A: Asset>(events: &mut MessageReader<AssetEvent<A>>) -> std::collections::HashSet<AssetId<A>> {

@@ -21,7 +21,7 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::Volume;
 use fascicle_core::sh::glyph::{Glyph, GlyphStyle, make_glyphs};
 use fascicle_core::sh::{self, ShBasis};
-use fascicle_render::layer::{LayerStatus, Selection, StageCounts, changed_assets};
+use fascicle_render::layer::{LayerStatus, Selection, StageCounts, changed_assets, loaded_or_pending};
 
 use crate::{RayCastSettings, ShGlyphMaterial, ShGlyphSet, fill_glyph_set, update_settings};
 
@@ -195,13 +195,7 @@ fn sync_layers(
     let modified = changed_assets(&mut events);
     for (entity, layer, selection, shape, settings, mut status, mut set, built) in &mut layers {
         let id = layer.field.id();
-        let Some(field) = fields.get(id) else {
-            let pending = LayerStatus::of_pending(&server, &layer.field);
-            if *status != pending {
-                *status = pending;
-            }
-            continue;
-        };
+        let Some(field) = loaded_or_pending(&fields, &server, &layer.field, &mut status) else { continue };
         let new_data = built != Some(&BuiltFrom(id)) || modified.contains(&id);
         if new_data || selection.is_changed() || shape.is_changed() {
             commands.entity(entity).despawn_related::<Children>();

@@ -112,16 +112,7 @@ fn counts(app: &App) -> ShGlyphCounts {
 }
 
 fn settle(app: &mut App) {
-    for _ in 0..2000 {
-        app.update();
-        let world = app.world_mut();
-        if world.query::<&LayerStatus>().iter(world).all(|s| !matches!(s, LayerStatus::Loading)) {
-            app.update();
-            return;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(2));
-    }
-    panic!("layers still loading");
+    headless::wait_for_layers(app).expect("layers loaded");
 }
 
 #[test]

@@ -25,7 +25,9 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::Volume;
 use fascicle_core::dti::glyph::{TensorGlyph, tensor_glyph};
 use fascicle_core::dti::splat::{Splat, tensor_splat};
-use fascicle_render::layer::{LayerStatus, LoadError, Selection, SliceAxis, StageCounts, changed_assets, read_all};
+use fascicle_render::layer::{
+    LayerStatus, LoadError, Selection, SliceAxis, StageCounts, changed_assets, loaded_or_pending, read_all,
+};
 use glam::{DMat3, DVec3};
 
 use crate::splat::{SplatMaterial, SplatSet, SplatSettings, spawn_splats};
@@ -251,13 +253,7 @@ fn sync_glyph_layers(
     let modified: HashSet<_> = changed_assets(&mut events);
     for (entity, layer, selection, shape, settings, mut status, set, built) in &mut layers {
         let id = layer.field.id();
-        let Some(field) = fields.get(id) else {
-            let pending = LayerStatus::of_pending(&server, &layer.field);
-            if *status != pending {
-                *status = pending;
-            }
-            continue;
-        };
+        let Some(field) = loaded_or_pending(&fields, &server, &layer.field, &mut status) else { continue };
         let new_data = built.is_none_or(|b| b.field != id) || modified.contains(&id);
         let new_shape = built.is_some_and(|b| b.settings.shape != settings.shape);
         if new_data || new_shape || selection.is_changed() || shape.is_changed() {
@@ -330,13 +326,7 @@ fn sync_splat_layers(
     let modified: HashSet<_> = changed_assets(&mut events);
     for (entity, layer, selection, shape, settings, mut status, drawn, built) in &mut layers {
         let id = layer.field.id();
-        let Some(field) = fields.get(id) else {
-            let pending = LayerStatus::of_pending(&server, &layer.field);
-            if *status != pending {
-                *status = pending;
-            }
-            continue;
-        };
+        let Some(field) = loaded_or_pending(&fields, &server, &layer.field, &mut status) else { continue };
         let new_data = built.is_none_or(|b| b.field != id) || modified.contains(&id);
         if new_data || selection.is_changed() || shape.is_changed() {
             if let Some(d) = drawn {

@@ -160,7 +160,7 @@ fn each_edit_of_a_tensor_layer_costs_what_it_changes() {
     let field = app.world_mut().resource_mut::<Assets<TensorField>>().add(TensorField::new(vol.clone()).unwrap());
     let splats = app.world_mut().spawn(TensorSplats { field: field.clone() }).id();
     let bad = app.world_mut().spawn(TensorGlyphs { field: server.load("sh/small_64D_csa_l6.nii.gz") }).id();
-    wait_loaded(&mut app);
+    headless::wait_for_layers(&mut app).expect("layers loaded");
     let status = |app: &App, e| app.world().get::<LayerStatus>(e).unwrap().clone();
     assert!(matches!(status(&app, glyphs), LayerStatus::Ready { items } if items > 50));
     assert!(matches!(status(&app, splats), LayerStatus::Ready { items } if items > 250));
@@ -240,16 +240,4 @@ fn each_edit_of_a_tensor_layer_costs_what_it_changes() {
     // A frame without edits does nothing.
     app.update();
     assert_eq!((splat_counts(&app), glyph_counts(&app)), ((2, 1, 1, 1), (1, 2, 1)));
-}
-
-fn wait_loaded(app: &mut App) {
-    for _ in 0..3000 {
-        app.update();
-        let world = app.world_mut();
-        if world.query::<&LayerStatus>().iter(world).all(|s| *s != LayerStatus::Loading) {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(2));
-    }
-    app.update();
 }

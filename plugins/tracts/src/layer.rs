@@ -12,7 +12,7 @@ use bevy::asset::{AssetLoader, LoadContext};
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::io::Tractogram;
-use fascicle_render::layer::{LayerStatus, LoadError, StageCounts, changed_assets, read_all};
+use fascicle_render::layer::{LayerStatus, LoadError, StageCounts, changed_assets, loaded_or_pending, read_all};
 
 use crate::{TractMeshMaterial, TubeSettings, TubeletMaterial, spawn_lines, spawn_polygon_tubes, spawn_tubes};
 
@@ -122,13 +122,7 @@ fn sync_layers(
     let modified = changed_assets(&mut events);
     for (entity, layer, style, mut status, drawn) in &mut layers {
         let id = layer.tractogram.id();
-        let Some(t) = assets.get(id) else {
-            let pending = LayerStatus::of_pending(&server, &layer.tractogram);
-            if *status != pending {
-                *status = pending;
-            }
-            continue;
-        };
+        let Some(t) = loaded_or_pending(&assets, &server, &layer.tractogram, &mut status) else { continue };
         let new_data = drawn.is_none_or(|d| d.tractogram != id) || modified.contains(&id);
         if !(new_data || style.is_changed()) {
             continue;

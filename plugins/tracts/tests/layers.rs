@@ -141,15 +141,7 @@ fn a_style_change_rebuilds_that_layer_only_and_bad_files_fail_visibly() {
     let a = app.world_mut().spawn(Tracts { tractogram: server.load("tracts/tracks300.trk") }).id();
     let b = app.world_mut().spawn(Tracts { tractogram: server.load("tracts/standard.tck") }).id();
     let bad = app.world_mut().spawn(Tracts { tractogram: server.load("malformed/no_magic_number.tck") }).id();
-    for _ in 0..2000 {
-        app.update();
-        let world = app.world_mut();
-        if world.query::<&LayerStatus>().iter(world).all(|s| *s != LayerStatus::Loading) {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(2));
-    }
-    app.update();
+    headless::wait_for_layers(&mut app).expect("layers loaded");
     let status = |app: &App, e| app.world().get::<LayerStatus>(e).unwrap().clone();
     assert_eq!(status(&app, a), LayerStatus::Ready { items: 300 });
     match status(&app, bad) {

@@ -21,7 +21,7 @@ use bevy::camera::visibility::RenderLayers;
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::Volume;
-use fascicle_render::layer::{LayerStatus, LoadError, StageCounts, changed_assets, read_all};
+use fascicle_render::layer::{LayerStatus, LoadError, StageCounts, changed_assets, loaded_or_pending, read_all};
 
 use crate::{
     HISTOGRAM_BINS, OpaqueDepth, VolumeMaterial, VolumeMethod, VolumeSet, VolumeSettings, VolumeUniform, histogram,
@@ -150,13 +150,7 @@ fn sync_layers(
     let modified: HashSet<_> = changed_assets(&mut events);
     for (entity, layer, settings, mut status, drawn, render_layers) in &mut layers {
         let id = layer.volume.id();
-        let Some(vol) = volumes.get(id) else {
-            let pending = LayerStatus::of_pending(&server, &layer.volume);
-            if *status != pending {
-                *status = pending;
-            }
-            continue;
-        };
+        let Some(vol) = loaded_or_pending(&volumes, &server, &layer.volume, &mut status) else { continue };
         if drawn.is_none_or(|d| d.volume != id) || modified.contains(&id) {
             if let Some(d) = drawn {
                 if let Ok((old, _)) = sets.get(d.set) {

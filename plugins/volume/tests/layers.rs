@@ -136,15 +136,7 @@ fn each_edit_of_a_volume_layer_costs_what_it_changes() {
     let bad_volume =
         server.load_builder().with_settings(|s: &mut ScalarVolumeSettings| s.volume = 99).load("dwi/small_25.nii.gz");
     let bad = app.world_mut().spawn(VolumeLayer { volume: bad_volume }).id();
-    for _ in 0..3000 {
-        app.update();
-        let world = app.world_mut();
-        if world.query::<&LayerStatus>().iter(world).all(|s| *s != LayerStatus::Loading) {
-            break;
-        }
-        std::thread::sleep(std::time::Duration::from_millis(2));
-    }
-    app.update();
+    headless::wait_for_layers(&mut app).expect("layers loaded");
     let status = |app: &App, e| app.world().get::<LayerStatus>(e).unwrap().clone();
     assert_eq!(status(&app, a), LayerStatus::Ready { items: 1000 });
     assert_eq!(status(&app, b), LayerStatus::Ready { items: 1000 });
