@@ -5,6 +5,7 @@
 //! Coefficient order, every basis: even l = 0, 2, 4, ...; m = -l..l; index `j = l(l+1)/2 + m`.
 
 pub mod basis;
+pub mod exact;
 pub mod fit;
 pub mod glyph;
 pub mod legendre;
