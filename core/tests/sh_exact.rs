@@ -3,7 +3,7 @@
 //! rounding), for every basis, orders 2 to 12, sharpened and negative-lobed glyphs; the ray polynomial
 //! against direct evaluation; the tight boxes against densely sampled surfaces.
 
-use fascicle_core::sh::exact::{PolyCast, RayPolynomial, cast_in_box, cast_poly, glyph_box, ray_box_interval};
+use fascicle_core::sh::exact::{PolyCast, RayPlane, cast_in_box, cast_poly, glyph_box, ray_box_interval};
 use fascicle_core::sh::glyph::{Glyph, GlyphStyle, Lobes, cast_exact, eval_cartesian, make_glyphs};
 use fascicle_core::sh::{self, ShBasis, n_coeffs};
 use glam::DVec3;
@@ -28,19 +28,28 @@ fn random_glyph(rng: &mut impl RngExt, l_max: usize, basis: ShBasis, sharpen: f6
 }
 
 #[test]
-fn the_ray_polynomial_is_exact() {
+fn the_plane_section_is_exact() {
+    // ψ on the ray's great circle from k + 1 samples equals ψ evaluated directly, at every point of the ray.
     let mut rng = rand_pcg::Pcg64::seed_from_u64(23);
-    for l_max in [0usize, 2, 4, 8, 12] {
+    for l_max in [0usize, 2, 4, 8, 12, 16] {
         let c: Vec<f64> = (0..n_coeffs(l_max)).map(|_| rng.random::<f64>() - 0.5).collect();
         let (oc, d) = (random_dir(&mut rng) * 3.0, random_dir(&mut rng));
-        let poly = RayPolynomial::new(&c, l_max, oc, d, 0.5, 5.5);
+        let plane = RayPlane::new(&c, l_max, oc, d);
+        let scale = c.iter().map(|v| v.abs()).sum::<f64>();
         for _ in 0..50 {
-            let t = 0.5 + rng.random::<f64>() * 5.0;
-            let x = oc + t * d;
-            let direct = x.length().powi(l_max as i32) * eval_cartesian(&c, l_max, x.normalize()).0;
-            let scale = c.iter().map(|v| v.abs()).sum::<f64>() * x.length().max(1.0).powi(l_max as i32);
-            assert!((poly.eval(t) - direct).abs() <= 1e-11 * scale, "l {l_max} t {t}: {} vs {direct}", poly.eval(t));
+            let t = rng.random::<f64>() * 20.0 - 10.0;
+            let direct = eval_cartesian(&c, l_max, (oc + t * d).normalize()).0;
+            assert!(
+                (plane.psi_at(t) - direct).abs() <= 1e-12 * scale,
+                "l {l_max} t {t}: {} vs {direct}",
+                plane.psi_at(t)
+            );
         }
+        // Through the centre: ψ(±d).
+        let through = RayPlane::new(&c, l_max, -2.0 * d, d);
+        assert!(through.b < 1e-12);
+        assert!((through.psi_at(3.0) - eval_cartesian(&c, l_max, d).0).abs() <= 1e-12 * scale);
+        assert!((through.psi_at(1.0) - eval_cartesian(&c, l_max, -d).0).abs() <= 1e-12 * scale);
     }
 }
 
@@ -129,9 +138,9 @@ fn polynomial_casts_match_the_marching_reference_in_every_basis() {
 
 #[test]
 fn a_coarse_polynomial_cast_is_accurate_where_it_hits() {
-    // The GPU's default knobs (64 samples, 24 bisections) against the reference: the same root to within the
-    // final bracket (span / samples / 2^24) on most rays; on grazing rays, where f barely dips below zero,
-    // a neighbouring sign change within 1e-3 of the span; another lobe on at most 2 %.
+    // Coarse knobs (64 samples, 24 bisections) against the reference: the same root to within the final
+    // bracket (span / samples / 2^24) on 99 % of rays; a grazing neighbour (within 1e-3 of the span) or
+    // another lobe (a thin one stepped over) on the rest.
     let mut rng = rand_pcg::Pcg64::seed_from_u64(37);
     let knobs = PolyCast { samples: 64, refine: 24 };
     let (mut same, mut grazing, mut other) = (0, 0, 0);
@@ -162,5 +171,5 @@ fn a_coarse_polynomial_cast_is_accurate_where_it_hits() {
     }
     println!("{same} hits on the same root, {grazing} grazing, {other} on another lobe");
     let n = same + grazing + other;
-    assert!(n > 800 && same * 10 >= n * 9 && other * 50 <= n, "{same} / {grazing} / {other}");
+    assert!(n > 800 && same * 100 >= n * 99, "{same} / {grazing} / {other}");
 }

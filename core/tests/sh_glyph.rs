@@ -84,6 +84,7 @@ fn isotropic_glyph_is_an_exact_sphere() {
         coeffs: vec![c00],
         rmax: radius,
         rbound: radius,
+        half: DVec3::splat(radius),
         gfa: 0.0,
     };
     let o = DVec3::new(1.3, 2.1, 10.0);

@@ -1,16 +1,21 @@
-//! SH glyphs by their polynomial form (Peters, Patel, Usher, Johnson, "Ray Tracing Spherical Harmonics
-//! Glyphs", VMV 2023), and tight per-glyph boxes.
+//! SH glyphs hit exactly: the ray's plane through the glyph centre cuts the glyph along a trigonometric
+//! polynomial (after Peters, Patel, Usher, Johnson, "Ray Tracing Spherical Harmonics Glyphs", VMV 2023), and
+//! tight per-glyph boxes.
 //!
-//! For a glyph of even order `k`, `p(x) = |x|^k ψ(x/|x|)` is a polynomial of degree `k` in `x` (each band `l`
-//! contributes `|x|^(k-l)` times a homogeneous harmonic polynomial of degree `l`, and `k - l` is even). On a ray
-//! `x(t) = o + t d`, `p(x(t))` is a univariate polynomial of degree `k`: `k + 1` evaluations of ψ determine it.
-//! They are taken at the Chebyshev points of the ray's span inside the glyph's box, and the polynomial is
-//! evaluated anywhere on the span by the barycentric formula (stable at these nodes, `O(k)` per point), so
-//! the surface `|x| = s(ψ)` becomes the roots of `f(t) = |x(t)|^(k+1) - s(p(t))` (`s` the lobe rule; `f < 0`
-//! inside). `f` is cheap to evaluate: `samples` evaluations bracket its first sign change, bisection refines it.
-//! A grazing pair of roots closer than `span / samples` can be missed, nothing else; the GPU shader
-//! (`sh_glyph.wgsl`, method exact) does the same in f32, and [`cast_poly`] with many samples is its f64
-//! reference (no ψ evaluation per sample: fast enough to render whole benchmark frames).
+//! A ray `x(t) = oc + t d` (relative to the centre) lies in the plane spanned by `e` (towards the ray's
+//! closest point to the centre, at distance `b`) and `d`. In that plane the ray is the polar line
+//! `r = b / cos θ`, and the glyph's section is `r = s(ψ(θ))` with `ψ(θ) = ψ(cos θ e + sin θ d)`. For an
+//! order-`k` glyph, ψ on a great circle is a trigonometric polynomial of degree `k`, with only even
+//! frequencies (even orders are antipodally symmetric): `k + 1` samples at `θ_j = jπ/(k+1)` give its
+//! coefficients exactly (a discrete Fourier transform). The hits are the roots of
+//! `g(θ) = s(ψ(θ)) cos θ - b` (positive inside), a trigonometric polynomial of degree `k + 1`: the paper's
+//! intersection polynomial of degree `2k + 2` in `e^{iθ}`. This form has no radial powers, so it keeps its
+//! precision in f32 for every order (the paper's `|x|^(2k+2)` spans many decades across a box at `k = 12`).
+//! Evaluated at the ray's points `t` (`cos 2θ`, `sin 2θ` are rational in `t`: no trigonometry, nothing
+//! singular when the ray meets the centre), `g` costs `O(k)` and no ψ evaluation: `samples` values bracket
+//! its first sign change on the ray's span inside the box, and bisection refines it. A grazing pair of roots closer than a sample
+//! step can be missed, nothing else. The GPU shader (`sh_glyph.wgsl`, method exact) does this in f32;
+//! [`cast_poly`] with many samples is its f64 reference (fast enough to render whole benchmark frames).
 //!
 //! [`glyph_box`] finds each glyph's extent along the three axes, `max |ψ(u)| |u_a|` (even orders are
 //! antipodally symmetric, so the box is symmetric about the centre; `|ψ|` covers both lobe rules), by local
@@ -18,7 +23,7 @@
 
 use glam::DVec3;
 
-use super::glyph::{Glyph, Hit, Lobes, eval_cartesian, icosphere};
+use super::glyph::{Glyph, Hit, Lobes, eval_cartesian};
 
 /// The ray's span inside a box centred at `c` with half extents `e`: entry and exit distances along the unit
 /// ray, if it meets the box ahead.
@@ -42,63 +47,82 @@ pub fn ray_box_interval(o: DVec3, d: DVec3, c: DVec3, e: DVec3) -> Option<(f64, 
     (t1 >= t0 && t1 > 0.0).then_some((t0.max(0.0), t1))
 }
 
-/// `p(x(t))` on a span `[t0, t1]` of a ray, as its values at the `k + 1` Chebyshev points (second kind).
+/// A glyph's section by the plane of a ray: `ψ(θ)` as a trigonometric polynomial in `φ = 2θ`.
 #[derive(Clone, Debug)]
-pub struct RayPolynomial {
-    pub t0: f64,
-    pub t1: f64,
-    /// The nodes, from `t0` to `t1`.
-    pub nodes: Vec<f64>,
-    pub values: Vec<f64>,
+pub struct RayPlane {
+    /// The ray's distance from the centre, the parameter of its closest point, and the unit vector to it.
+    pub b: f64,
+    pub tc: f64,
+    pub e: DVec3,
+    /// `ψ(θ) = Σ_n a_n cos nφ + b_n sin nφ`, `n = 0..=k/2`.
+    pub cos: Vec<f64>,
+    pub sin: Vec<f64>,
 }
 
-impl RayPolynomial {
-    /// Samples `p` for the glyph `coeffs` (order `k`, [`super::glyph::GLYPH_BASIS`]) on the ray `oc + t d`
-    /// (`oc` the ray origin relative to the glyph centre).
-    pub fn new(coeffs: &[f64], k: usize, oc: DVec3, d: DVec3, t0: f64, t1: f64) -> Self {
-        let n = k.max(1);
-        let nodes: Vec<f64> = (0..=n)
+impl RayPlane {
+    /// The section of the glyph `coeffs` (order `k`, [`super::glyph::GLYPH_BASIS`]) by the plane of the ray
+    /// `oc + t d` (`oc` relative to the centre, `d` unit).
+    pub fn new(coeffs: &[f64], k: usize, oc: DVec3, d: DVec3) -> Self {
+        let tc = -oc.dot(d);
+        let foot = oc + tc * d;
+        let b = foot.length();
+        let e = if b > 0.0 { foot / b } else { d.any_orthonormal_vector() };
+        let n = k + 1;
+        let half = k / 2;
+        let samples: Vec<f64> = (0..n)
             .map(|j| {
-                let c = (std::f64::consts::PI * j as f64 / n as f64).cos();
-                0.5 * (t0 + t1) - 0.5 * (t1 - t0) * c
+                let th = std::f64::consts::PI * j as f64 / n as f64;
+                eval_cartesian(coeffs, k, th.cos() * e + th.sin() * d).0
             })
             .collect();
-        let values = nodes
-            .iter()
-            .map(|&t| {
-                let x = oc + t * d;
-                let r = x.length();
-                if r == 0.0 {
-                    return if k == 0 { eval_cartesian(coeffs, 0, DVec3::Z).0 } else { 0.0 };
-                }
-                r.powi(k as i32) * eval_cartesian(coeffs, k, x / r).0
-            })
-            .collect();
-        Self { t0, t1, nodes, values }
+        let (mut cos, mut sin) = (vec![0.0; half + 1], vec![0.0; half + 1]);
+        for (j, v) in samples.iter().enumerate() {
+            let phi = 2.0 * std::f64::consts::PI * j as f64 / n as f64;
+            for m in 0..=half {
+                let w = if m == 0 { 1.0 } else { 2.0 } / n as f64;
+                cos[m] += w * v * (m as f64 * phi).cos();
+                sin[m] += w * v * (m as f64 * phi).sin();
+            }
+        }
+        Self { b, tc, e, cos, sin }
     }
 
-    /// `p(x(t))` by the barycentric formula (weights `(-1)^j`, halved at the ends).
-    pub fn eval(&self, t: f64) -> f64 {
-        let n = self.nodes.len() - 1;
-        let (mut num, mut den) = (0.0, 0.0);
-        for (j, (&tj, &vj)) in self.nodes.iter().zip(&self.values).enumerate() {
-            let diff = t - tj;
-            if diff == 0.0 {
-                return vj;
-            }
-            let mut w = if j % 2 == 0 { 1.0 } else { -1.0 };
-            if j == 0 || j == n {
-                w *= 0.5;
-            }
-            let q = w / diff;
-            num += q * vj;
-            den += q;
+    /// ψ at the ray's point `t`: with `τ = t - tc` and `r² = τ² + b²`, `cos 2θ = (b² - τ²) / r²` and
+    /// `sin 2θ = 2bτ / r²` (no trigonometry, nothing singular when the ray meets the centre).
+    pub fn psi_at(&self, t: f64) -> f64 {
+        let tau = t - self.tc;
+        let r2 = tau * tau + self.b * self.b;
+        if r2 == 0.0 {
+            return self.psi_phi(1.0, 0.0);
         }
-        num / den
+        self.psi_phi((self.b * self.b - tau * tau) / r2, 2.0 * self.b * tau / r2)
+    }
+
+    /// ψ at `φ = 2θ` given `(cos φ, sin φ)`, by the angle-addition recurrence.
+    pub fn psi_phi(&self, c1: f64, s1: f64) -> f64 {
+        let (mut c, mut s) = (1.0, 0.0);
+        let mut v = self.cos[0];
+        for m in 1..self.cos.len() {
+            (c, s) = (c * c1 - s * s1, s * c1 + c * s1);
+            v += self.cos[m] * c + self.sin[m] * s;
+        }
+        v
+    }
+
+    /// `s(ψ) - r` at the ray's point `t`: positive inside the glyph (there `r < s(ψ)`; with `r = b / cos θ`
+    /// this is the sign of the trigonometric polynomial `s(ψ(θ)) cos θ - b`).
+    pub fn inside(&self, t: f64, lobes: Lobes) -> f64 {
+        let tau = t - self.tc;
+        let p = self.psi_at(t);
+        let s = match lobes {
+            Lobes::Clamp => p.max(0.0),
+            Lobes::Abs => p.abs(),
+        };
+        s - (tau * tau + self.b * self.b).sqrt()
     }
 }
 
-/// Knobs of the polynomial caster: `samples` evaluations of `f` bracket its first root, then `refine`
+/// Knobs of the exact caster: `samples` evaluations of `g` bracket its first root, then `refine`
 /// bisections.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PolyCast {
@@ -111,34 +135,21 @@ impl PolyCast {
     pub const REFERENCE: PolyCast = PolyCast { samples: 4096, refine: 60 };
 }
 
-/// `f(t) = |x(t)|^(k+1) - s(p(t))`, negative inside the glyph.
-fn implicit(poly: &RayPolynomial, k: usize, oc: DVec3, d: DVec3, t: f64, lobes: Lobes) -> f64 {
-    let r = (oc + t * d).length();
-    let p = poly.eval(t);
-    let s = match lobes {
-        Lobes::Clamp => p.max(0.0),
-        Lobes::Abs => p.abs(),
-    };
-    r.powi(k as i32 + 1) - s
-}
-
-/// The first hit of the unit ray `o + t d` with the glyph, by its polynomial form, within the span `(t0, t1)`
-/// of its box (or sphere). `None` if the ray leaves the span outside the glyph.
+/// The first hit of the unit ray `o + t d` with the glyph, by its plane section, within the span
+/// `(t0, t1)` of its box (or sphere). `None` if the ray leaves the span outside the glyph.
 pub fn cast_poly(g: &Glyph, o: DVec3, d: DVec3, span: (f64, f64), knobs: PolyCast, lobes: Lobes) -> Option<Hit> {
-    let k = g.l_max;
-    let oc = o - g.centre;
+    let plane = RayPlane::new(&g.coeffs, g.l_max, o - g.centre, d);
     let (t0, t1) = span;
-    let poly = RayPolynomial::new(&g.coeffs, k, oc, d, t0, t1);
     let n = knobs.samples.max(1);
-    let f = |t: f64| implicit(&poly, k, oc, d, t, lobes);
+    let inside = |t: f64| plane.inside(t, lobes) > 0.0;
     let (mut lo, mut hi) = (t0, t0);
-    let mut found = f(t0) < 0.0;
+    let mut found = inside(t0);
     for i in 1..=n {
         if found {
             break;
         }
         let t = t0 + (t1 - t0) * i as f64 / n as f64;
-        if f(t) < 0.0 {
+        if inside(t) {
             hi = t;
             found = true;
         } else {
@@ -150,7 +161,7 @@ pub fn cast_poly(g: &Glyph, o: DVec3, d: DVec3, span: (f64, f64), knobs: PolyCas
     }
     for _ in 0..knobs.refine {
         let mid = 0.5 * (lo + hi);
-        if f(mid) < 0.0 {
+        if inside(mid) {
             hi = mid;
         } else {
             lo = mid;
@@ -171,8 +182,13 @@ pub fn cast_in_box(g: &Glyph, half: DVec3, o: DVec3, d: DVec3, knobs: PolyCast, 
 /// `|ψ(u)| |u_a|`, found by projected gradient ascent on the sphere from the best of 2,562 directions, and
 /// widened by `1e-6` of the largest radius for rounding.
 pub fn glyph_box(coeffs: &[f64], l_max: usize) -> DVec3 {
-    let dirs = box_directions();
-    let psi: Vec<f64> = dirs.iter().map(|u| eval_cartesian(coeffs, l_max, *u).0).collect();
+    let dirs = &super::glyph::bound_sample().0;
+    let n = coeffs.len();
+    let psi: Vec<f64> = super::glyph::bound_matrix(l_max)
+        .chunks_exact(n)
+        .take(dirs.len())
+        .map(|row| row.iter().zip(coeffs).map(|(b, c)| b * c).sum())
+        .collect();
     let rmax = psi.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let mut half = DVec3::ZERO;
     for a in 0..3 {
@@ -186,7 +202,7 @@ pub fn glyph_box(coeffs: &[f64], l_max: usize) -> DVec3 {
         let mut order: Vec<usize> = (0..dirs.len()).collect();
         order.sort_by(|&i, &j| (psi[j] * dirs[j][a]).abs().total_cmp(&(psi[i] * dirs[i][a]).abs()));
         let mut best = 0.0f64;
-        for &i in order.iter().take(4) {
+        for &i in order.iter().take(3) {
             let mut u = dirs[i];
             let (mut h, mut grad) = objective(u);
             let mut step = 0.05;
@@ -212,10 +228,4 @@ pub fn glyph_box(coeffs: &[f64], l_max: usize) -> DVec3 {
         half[a] = best.sqrt() + 1e-6 * rmax;
     }
     half
-}
-
-/// Directions of an order-4 icosphere, computed once.
-fn box_directions() -> &'static [DVec3] {
-    static DIRS: std::sync::OnceLock<Vec<DVec3>> = std::sync::OnceLock::new();
-    DIRS.get_or_init(|| icosphere(4).0)
 }

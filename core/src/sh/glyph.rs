@@ -152,6 +152,9 @@ pub struct Glyph {
     pub coeffs: Vec<f64>,
     pub rmax: f64,
     pub rbound: f64,
+    /// Half extents of the glyph's axis-aligned box about its centre ([`super::exact::glyph_box`], at most
+    /// `rbound` per axis): the renderer's proxy.
+    pub half: DVec3,
     /// Generalised anisotropy of the ODF before sharpening ([`gfa`]), for colour maps.
     pub gfa: f64,
 }
@@ -165,7 +168,7 @@ pub fn gfa(c: &[f64]) -> f64 {
 
 /// Directions of an order-4 icosphere (2,562) and their covering radius (the largest angle from any point
 /// of the sphere to the nearest direction), computed once.
-fn bound_sample() -> &'static (Vec<DVec3>, f64) {
+pub(crate) fn bound_sample() -> &'static (Vec<DVec3>, f64) {
     static SAMPLE: std::sync::OnceLock<(Vec<DVec3>, f64)> = std::sync::OnceLock::new();
     SAMPLE.get_or_init(|| {
         let (v, f) = icosphere(4);
@@ -183,7 +186,7 @@ fn bound_sample() -> &'static (Vec<DVec3>, f64) {
 }
 
 /// The basis matrix of [`bound_sample`] at `l_max`, computed once per order.
-fn bound_matrix(l_max: usize) -> std::sync::Arc<Vec<f64>> {
+pub(crate) fn bound_matrix(l_max: usize) -> std::sync::Arc<Vec<f64>> {
     static CACHE: std::sync::Mutex<Vec<(usize, std::sync::Arc<Vec<f64>>)>> = std::sync::Mutex::new(Vec::new());
     let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
     if let Some((_, m)) = cache.iter().find(|(l, _)| *l == l_max) {
@@ -275,7 +278,10 @@ pub fn make_glyphs<'a>(
             c.iter_mut().for_each(|v| *v *= k);
             let l_max = l_max_for(c.len()).unwrap_or(0);
             let rbound = render_bound(&c, l_max, rmax * k);
-            Glyph { centre, l_max, coeffs: c, rmax: rmax * k, rbound, gfa }
+            let half = super::exact::glyph_box(&c, l_max);
+            // The sphere's cube where the box is not usable.
+            let half = if half.is_finite() { half.min(DVec3::splat(rbound)) } else { DVec3::splat(rbound) };
+            Glyph { centre, l_max, coeffs: c, rmax: rmax * k, rbound, half, gfa }
         })
         .collect();
     Ok((glyphs, skipped))

@@ -1,12 +1,18 @@
 // Ray-cast SH glyphs (SEEDS.md section 4): the surface r = s(psi(u)) around each glyph centre, s = max(., 0)
-// or |.|, drawn per pixel on a bounding cube proxy, no tessellation.
+// or |.|, drawn per pixel on the glyph's box proxy, no tessellation. Two methods find the first hit:
 //
-// Per fragment: the view ray meets the bounding sphere of radius rmax (Cauchy-Schwarz bound) on
-// [t0, t1]; march from t0 in steps of h * rmax until F(p) = |p - c| - s(psi(u)) < 0, then bisect `refine`
-// times between the last outside and first inside point; discard if no inside point is found. Normal:
-// grad F = u - s'(psi) (I - u u^T) grad g / r (analytic). Headlight shading, true fragment depth.
-// The f64 twin of this algorithm is `fascicle_core::sh::glyph::cast`. Keep `GlyphParams` in sync with
-// `ShGlyphUniform` in `plugins/sh_glyphs/src/lib.rs`.
+// exact (after Peters et al., VMV 2023): the plane through the glyph centre and the ray cuts the glyph along
+// r = s(psi(theta)), psi a trigonometric polynomial of degree k = l_max on that great circle, known exactly
+// from k + 1 evaluations of psi; the ray is r = b / cos(theta), so the hits are the roots of the
+// trigonometric polynomial s(psi(theta)) cos(theta) - b (degree k + 1). On the ray's span inside the glyph's
+// box, `samples` O(k) evaluations bracket the first sign change, `refine` bisections refine it. Coordinates
+// are in units of the glyph's render bound. f64 twin: `fascicle_core::sh::exact::cast_poly`.
+//
+// linear (the seed's): the ray meets the sphere of the render bound on [t0, t1]; march from t0 in steps of
+// h * rbound until F(p) = |p - c| - s(psi(u)) < 0, then bisect. f64 twin: `fascicle_core::sh::glyph::cast`.
+//
+// Normal: grad F = u - s'(psi) (I - u u^T) grad g / r (analytic). Headlight shading, true fragment depth.
+// Keep `GlyphParams` in sync with `ShGlyphUniform` in `plugins/sh_glyphs/src/lib.rs`.
 
 #import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex_scaled}
 #import bevy_pbr::mesh_view_bindings::view
@@ -28,13 +34,14 @@ struct GlyphParams {
     max_steps: u32,
     // Layer-wide size factor: psi and the render bound are multiplied by it (a style edit, no re-upload).
     size: f32,
+    // 0: linear search, 1: exact (polynomial form)
+    method: u32,
+    samples: u32,
     _pad0: f32,
-    _pad1: f32,
-    _pad2: f32,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: GlyphParams;
-// Per glyph, two entries: (centre (world, mm), render bound), (GFA, highlighted, 0, 0).
+// Per glyph, three entries: (centre (world, mm), render bound), (GFA, highlighted, 0, 0), (box half extents, 0).
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> glyphs: array<vec4<f32>>;
 // Per glyph, `stride` coefficients in the glyph basis.
 @group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> coeffs: array<f32>;
@@ -42,21 +49,143 @@ struct GlyphParams {
 @vertex
 fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
     // Loop counts and modes reach the fragment stage flat (the rule in `fascicle::ray`); `Knobs` unpacks them.
-    let modes = params.l_max | (params.lobes << 8u) | (params.colour_mode << 16u);
-    return proxy_vertex_scaled(v, vec4<u32>(modes, params.stride, params.refine, params.max_steps), params.size);
+    let modes = params.l_max | (params.lobes << 8u) | (params.colour_mode << 16u) | (params.method << 24u);
+    // The last knob: the linear search's step count or the exact method's samples.
+    let steps = select(params.max_steps, params.samples, params.method == 1u);
+    return proxy_vertex_scaled(v, vec4<u32>(modes, params.stride, params.refine, steps), params.size);
 }
 
 struct Knobs {
     l_max: u32,
     lobes: u32,
     colour_mode: u32,
+    method: u32,
     stride: u32,
     refine: u32,
+    // Linear: the step count; exact: the samples.
     max_steps: u32,
 };
 
 fn knobs(k: vec4<u32>) -> Knobs {
-    return Knobs(k.x & 0xffu, (k.x >> 8u) & 0xffu, k.x >> 16u, k.y, k.z, k.w);
+    return Knobs(k.x & 0xffu, (k.x >> 8u) & 0xffu, (k.x >> 16u) & 0xffu, k.x >> 24u, k.y, k.z, k.w);
+}
+
+// The glyph's section by the plane through its centre and the ray: psi(theta) on that great circle as a
+// trigonometric polynomial in phi = 2 theta (degree k / 2; even orders have only even frequencies), from
+// k + 1 samples by a discrete Fourier transform. Twin of `fascicle_core::sh::exact::RayPlane`.
+struct RayPlane {
+    b: f32,
+    tc: f32,
+    terms: u32,
+    cs: array<f32, 9>,
+    sn: array<f32, 9>,
+};
+
+fn ray_plane(c: ptr<function, array<f32, 153>>, k: u32, oc: vec3<f32>, dir: vec3<f32>) -> RayPlane {
+    var rp: RayPlane;
+    rp.tc = -dot(oc, dir);
+    let foot = oc + rp.tc * dir;
+    rp.b = length(foot);
+    var e = foot / rp.b;
+    if !(rp.b > 0.0) {
+        e = normalize(cross(dir, select(vec3<f32>(1.0, 0.0, 0.0), vec3<f32>(0.0, 1.0, 0.0), abs(dir.x) > 0.9)));
+    }
+    let n = k + 1u;
+    rp.terms = k / 2u + 1u;
+    for (var m = 0u; m < rp.terms; m++) {
+        rp.cs[m] = 0.0;
+        rp.sn[m] = 0.0;
+    }
+    for (var j = 0u; j < n; j++) {
+        let th = 3.14159265358979 * f32(j) / f32(n);
+        let v = sh_value(c, k, cos(th) * e + sin(th) * dir) / f32(n);
+        // cos(m phi), sin(m phi) by the angle-addition recurrence, phi = 2 theta.
+        let c1 = cos(2.0 * th);
+        let s1 = sin(2.0 * th);
+        var cm = 1.0;
+        var sm = 0.0;
+        rp.cs[0] += v;
+        for (var m = 1u; m < rp.terms; m++) {
+            let cn = cm * c1 - sm * s1;
+            sm = sm * c1 + cm * s1;
+            cm = cn;
+            rp.cs[m] += 2.0 * v * cm;
+            rp.sn[m] += 2.0 * v * sm;
+        }
+    }
+    return rp;
+}
+
+// s(psi) - r at the ray's point t: positive inside the glyph. cos 2theta and sin 2theta are rational in t.
+fn plane_inside(rp: ptr<function, RayPlane>, t: f32, lobes: u32) -> f32 {
+    let tau = t - (*rp).tc;
+    let b = (*rp).b;
+    let r2 = tau * tau + b * b;
+    var c1 = 1.0;
+    var s1 = 0.0;
+    if r2 > 0.0 {
+        c1 = (b * b - tau * tau) / r2;
+        s1 = 2.0 * b * tau / r2;
+    }
+    var cm = 1.0;
+    var sm = 0.0;
+    var psi = (*rp).cs[0];
+    for (var m = 1u; m < (*rp).terms; m++) {
+        let cn = cm * c1 - sm * s1;
+        sm = sm * c1 + cm * s1;
+        cm = cn;
+        psi += (*rp).cs[m] * cm + (*rp).sn[m] * sm;
+    }
+    return shape(psi, lobes) - sqrt(r2);
+}
+
+// Entry (clamped to 0) and exit distances of a unit ray through the box of half extents `half` about the
+// origin (the ray's origin relative to the centre); y <= x means a miss. Twin of
+// `fascicle_core::sh::exact::ray_box_interval`.
+fn box_interval(oc: vec3<f32>, dir: vec3<f32>, half: vec3<f32>) -> vec2<f32> {
+    let inv = 1.0 / dir;
+    let a = (-half - oc) * inv;
+    let b = (half - oc) * inv;
+    let lo = min(a, b);
+    let hi = max(a, b);
+    let t0 = max(max(lo.x, lo.y), max(lo.z, 0.0));
+    let t1 = min(min(hi.x, hi.y), hi.z);
+    return vec2<f32>(t0, t1);
+}
+
+// The exact method: the first hit's distance along the ray (in the units of `oc`), or -1.
+fn first_hit_exact(c: ptr<function, array<f32, 153>>, oc: vec3<f32>, dir: vec3<f32>, half: vec3<f32>, cfg: Knobs) -> f32 {
+    let span = box_interval(oc, dir, half);
+    if span.y <= span.x {
+        return -1.0;
+    }
+    var rp = ray_plane(c, cfg.l_max, oc, dir);
+    let n = max(cfg.max_steps, 1u);
+    let step = (span.y - span.x) / f32(n);
+    var lo = span.x;
+    var hi = span.x;
+    var found = plane_inside(&rp, span.x, cfg.lobes) > 0.0;
+    for (var i = 1u; i <= n && !found; i++) {
+        let t = span.x + step * f32(i);
+        if plane_inside(&rp, t, cfg.lobes) > 0.0 {
+            hi = t;
+            found = true;
+        } else {
+            lo = t;
+        }
+    }
+    if !found {
+        return -1.0;
+    }
+    for (var i = 0u; i < cfg.refine; i++) {
+        let mid = 0.5 * (lo + hi);
+        if plane_inside(&rp, mid, cfg.lobes) > 0.0 {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    return hi;
 }
 
 struct FragmentOutput {
@@ -80,54 +209,67 @@ fn implicit(c: ptr<function, array<f32, 153>>, v: vec3<f32>, cfg: Knobs) -> f32 
 @fragment
 fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     let cfg = knobs(in.knobs);
-    let g = glyphs[2u * in.tag];
+    let g = glyphs[3u * in.tag];
     let centre = g.xyz;
     let rmax = g.w * params.size;
+    // Exact: coefficients and coordinates in units of the render bound (|x| <= sqrt 3 in the box).
+    let unit = select(1.0, 1.0 / rmax, cfg.method == 1u);
     var c: array<f32, 153>;
     let first = in.tag * cfg.stride;
     for (var j = 0u; j < cfg.stride; j++) {
-        c[j] = coeffs[first + j] * params.size;
+        c[j] = coeffs[first + j] * params.size * unit;
     }
     let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
     // Work relative to the centre: the glyph is small next to its distance from the camera.
     let oc = ray.origin - centre;
-    let span = sphere_interval(oc, ray.dir, rmax);
-    if span.y <= 0.0 {
-        discard;
-    }
-    let t0 = span.x;
-    let t1 = span.y;
-    let step = max(params.h, 1e-4) * rmax;
-    var lo = t0;
-    var t = t0;
-    var inside = false;
-    for (var i = 0u; i < cfg.max_steps; i++) {
-        if implicit(&c, oc + t * ray.dir, cfg) < 0.0 {
-            inside = true;
-            break;
+    var hi = 0.0;
+    if cfg.method == 1u {
+        let half = glyphs[3u * in.tag + 2u].xyz * params.size * unit;
+        let t = first_hit_exact(&c, oc * unit, ray.dir, half, cfg);
+        if t < 0.0 {
+            discard;
         }
-        lo = t;
-        if t >= t1 {
-            break;
+        hi = t / unit;
+    } else {
+        let span = sphere_interval(oc, ray.dir, rmax);
+        if span.y <= 0.0 {
+            discard;
         }
-        t = min(t + step, t1);
-    }
-    if !inside {
-        discard;
-    }
-    var hi = t;
-    for (var k = 0u; k < cfg.refine; k++) {
-        let mid = 0.5 * (lo + hi);
-        if implicit(&c, oc + mid * ray.dir, cfg) < 0.0 {
-            hi = mid;
-        } else {
-            lo = mid;
+        let t0 = span.x;
+        let t1 = span.y;
+        let step = max(params.h, 1e-4) * rmax;
+        var lo = t0;
+        var t = t0;
+        var inside = false;
+        for (var i = 0u; i < cfg.max_steps; i++) {
+            if implicit(&c, oc + t * ray.dir, cfg) < 0.0 {
+                inside = true;
+                break;
+            }
+            lo = t;
+            if t >= t1 {
+                break;
+            }
+            t = min(t + step, t1);
+        }
+        if !inside {
+            discard;
+        }
+        hi = t;
+        for (var k = 0u; k < cfg.refine; k++) {
+            let mid = 0.5 * (lo + hi);
+            if implicit(&c, oc + mid * ray.dir, cfg) < 0.0 {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
         }
     }
     let v = oc + hi * ray.dir;
     let r = max(length(v), 1e-20);
     let u = v / r;
-    let pg = sh_value_grad(&c, cfg.l_max, u);
+    // The normal's tangential term is psi's gradient over r, r in world units: undo the exact method's unit.
+    let pg = sh_value_grad(&c, cfg.l_max, u) / vec4<f32>(1.0, unit, unit, unit);
     let sgn = select(1.0, sign(pg.x), cfg.lobes == 1u);
     let tangential = pg.yzw - dot(pg.yzw, u) * u;
     var n = u - sgn * tangential / r;
@@ -138,7 +280,7 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     } else if cfg.colour_mode == 2u {
         base = vec3<f32>(0.8);
     } else if cfg.colour_mode == 3u {
-        base = viridis(glyphs[2u * in.tag + 1u].x);
+        base = viridis(glyphs[3u * in.tag + 1u].x);
     }
     var out: FragmentOutput;
     if cfg.colour_mode == 1u {
@@ -149,7 +291,7 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
             // Negative lobes: desaturated, as mrview marks them.
             shaded = vec3<f32>(dot(shaded, vec3<f32>(0.3, 0.4, 0.3))) * 0.6;
         }
-        if glyphs[2u * in.tag + 1u].y > 0.5 {
+        if glyphs[3u * in.tag + 1u].y > 0.5 {
             // Picked: tinted towards yellow.
             shaded = mix(shaded, vec3<f32>(1.0, 0.85, 0.1), 0.6);
         }

@@ -78,14 +78,29 @@ pub enum GlyphColour {
     Gfa,
 }
 
+/// How the fragment shader finds the ray's first hit with a glyph.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum GlyphMethod {
+    /// The glyph's polynomial form on the ray (Peters et al. 2023): ψ evaluated `l_max + 1` times per pixel,
+    /// then `samples` cheap evaluations of the ray polynomial bracket the first root, and bisection refines
+    /// it (`fascicle_core::sh::exact`).
+    #[default]
+    Exact,
+    /// The seed's method (SEEDS.md §4): steps of `h · rbound` with ψ evaluated at each, then bisection.
+    Linear,
+}
+
 /// The ray caster's quality knobs and drawing options: one component of a [`ShGlyphs`] layer, all of it one
 /// uniform.
 #[derive(Component, Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct RayCastSettings {
-    /// Linear-search step, in units of the glyph's rmax.
+    pub method: GlyphMethod,
+    /// Exact method: samples of the ray polynomial that bracket the first root (the knob of its quality).
+    pub samples: u32,
+    /// Linear method: search step, in units of the glyph's render bound.
     pub h: f32,
-    /// Bisection steps after the search.
+    /// Bisection steps after the bracketing (both methods).
     pub refine: u32,
     pub lobes: Lobes,
     pub colour: GlyphColour,
@@ -97,7 +112,16 @@ pub struct RayCastSettings {
 
 impl Default for RayCastSettings {
     fn default() -> Self {
-        Self { h: 0.02, refine: 4, lobes: Lobes::Clamp, colour: GlyphColour::Direction, ambient: 0.25, size: 1.0 }
+        Self {
+            method: GlyphMethod::Exact,
+            samples: 48,
+            h: 0.02,
+            refine: 12,
+            lobes: Lobes::Clamp,
+            colour: GlyphColour::Direction,
+            ambient: 0.25,
+            size: 1.0,
+        }
     }
 }
 
@@ -113,9 +137,10 @@ pub struct ShGlyphUniform {
     pub colour_mode: u32,
     pub max_steps: u32,
     pub size: f32,
+    /// 0: linear search, 1: exact (polynomial form).
+    pub method: u32,
+    pub samples: u32,
     pub pad0: f32,
-    pub pad1: f32,
-    pub pad2: f32,
 }
 
 const _: () = assert!(std::mem::size_of::<ShGlyphUniform>() == 48);
@@ -142,9 +167,12 @@ impl ShGlyphUniform {
             // The chord is at most 2 rmax: 2 / h steps, plus the last clamped one.
             max_steps: (2.0 / h).ceil() as u32 + 2,
             size: if s.size.is_finite() && s.size > 0.0 { s.size } else { 1.0 },
+            method: match s.method {
+                GlyphMethod::Linear => 0,
+                GlyphMethod::Exact => 1,
+            },
+            samples: s.samples.clamp(1, 1024),
             pad0: 0.0,
-            pad1: 0.0,
-            pad2: 0.0,
         }
     }
 }
@@ -154,8 +182,8 @@ impl ShGlyphUniform {
 pub struct ShGlyphMaterial {
     #[uniform(0)]
     pub params: ShGlyphUniform,
-    /// Two `vec4` per glyph: `(centre, rbound)` (the render bound, `Glyph::rbound`) and
-    /// `(gfa, highlighted, 0, 0)`.
+    /// Three `vec4` per glyph: `(centre, rbound)` (the render bound, `Glyph::rbound`),
+    /// `(gfa, highlighted, 0, 0)` and `(half extents of the glyph's box, 0)`.
     #[storage(1, read_only)]
     pub glyphs: Handle<ShaderBuffer>,
     /// `stride` f32 coefficients per glyph, in `fascicle_core::sh::glyph::GLYPH_BASIS`.
@@ -204,6 +232,7 @@ impl ShGlyphSet {
                     coeffs: g.coeffs.iter().map(|c| c * k).collect(),
                     rmax: g.rmax * k,
                     rbound: g.rbound * k,
+                    half: g.half * k,
                     ..g.clone()
                 })
                 .collect::<Vec<_>>();
@@ -213,7 +242,7 @@ impl ShGlyphSet {
     }
 }
 
-/// Rewrites a set's header buffer (two `vec4` per glyph, no coefficients) when highlights change.
+/// Rewrites a set's header buffer (three `vec4` per glyph, no coefficients) when highlights change.
 fn apply_highlights(
     changed: Query<&ChildOf, Added<Highlighted>>,
     mut removed: RemovedComponents<Highlighted>,
@@ -238,8 +267,8 @@ fn apply_highlights(
     }
 }
 
-/// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rbound), vec4(gfa, 0, 0, 0)` and
-/// the coefficients.
+/// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rbound), vec4(gfa, 0, 0, 0),
+/// vec4(half, 0)` and the coefficients.
 pub fn pack(glyphs: &[Glyph], l_max: usize) -> (Vec<u8>, Vec<u8>) {
     pack_with(glyphs, l_max, &[], true)
 }
@@ -248,11 +277,12 @@ pub fn pack(glyphs: &[Glyph], l_max: usize) -> (Vec<u8>, Vec<u8>) {
 /// only when `with_coeffs`.
 fn pack_with(glyphs: &[Glyph], l_max: usize, highlighted: &[u32], with_coeffs: bool) -> (Vec<u8>, Vec<u8>) {
     let stride = fascicle_core::sh::n_coeffs(l_max);
-    let mut head = Vec::with_capacity(glyphs.len() * 32);
+    let mut head = Vec::with_capacity(glyphs.len() * 48);
     let mut coeffs = Vec::with_capacity(glyphs.len() * stride * 4);
     for (i, g) in glyphs.iter().enumerate() {
         let lit = if highlighted.contains(&(i as u32)) { 1.0 } else { 0.0 };
-        for v in [g.centre.x, g.centre.y, g.centre.z, g.rbound, g.gfa, lit, 0.0, 0.0] {
+        let h = g.half;
+        for v in [g.centre.x, g.centre.y, g.centre.z, g.rbound, g.gfa, lit, 0.0, 0.0, h.x, h.y, h.z, 0.0] {
             head.extend_from_slice(&(v as f32).to_le_bytes());
         }
         if !with_coeffs {
@@ -321,7 +351,8 @@ pub fn fill_glyph_set(
                     Mesh3d(cube.clone()),
                     MeshMaterial3d(material.clone()),
                     MeshTag(i as u32),
-                    Transform::from_translation(g.centre.as_vec3()).with_scale(Vec3::splat(g.rbound as f32)),
+                    // The proxy is the glyph's box (both methods: no surface lies outside it).
+                    Transform::from_translation(g.centre.as_vec3()).with_scale(g.half.as_vec3()),
                     ChildOf(parent),
                 )
             })
