@@ -14,7 +14,7 @@ use fascicle_core::dvr::{TfPoint, TransferFunction};
 
 use fascicle_core::dti::glyph::TensorShape;
 use fascicle_core::sh::glyph::{GlyphPlane, Lobes, Normalise, Sampling};
-use fascicle_sh_glyphs::GlyphColour;
+use fascicle_sh_glyphs::{GlyphColour, GlyphMethod};
 use fascicle_tensors::TensorColour;
 
 use crate::scene::{LayerKind, ShSource, SliceAxis};
@@ -167,8 +167,19 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
         ui.radio_value(&mut style.normalise, Normalise::PerGlyph, "per glyph");
         ui.radio_value(&mut style.normalise, Normalise::Global, "global");
     });
-    ui.add(egui::Slider::new(&mut render.h, 0.002..=0.2).logarithmic(true).text("step h (rmax)"));
-    ui.add(egui::Slider::new(&mut render.refine, 0..=12).text("bisections"));
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut render.method, GlyphMethod::Exact, "exact");
+        ui.radio_value(&mut render.method, GlyphMethod::Linear, "linear search (seed)");
+    });
+    match render.method {
+        GlyphMethod::Exact => {
+            ui.add(egui::Slider::new(&mut render.samples, 4..=256).logarithmic(true).text("root samples"));
+        }
+        GlyphMethod::Linear => {
+            ui.add(egui::Slider::new(&mut render.h, 0.002..=0.2).logarithmic(true).text("step h (rmax)"));
+        }
+    }
+    ui.add(egui::Slider::new(&mut render.refine, 0..=24).text("bisections"));
     ui.horizontal(|ui| {
         ui.radio_value(&mut render.lobes, Lobes::Clamp, "clamp negative");
         ui.radio_value(&mut render.lobes, Lobes::Abs, "|psi|, mark negative");

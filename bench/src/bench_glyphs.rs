@@ -1,6 +1,9 @@
-//! `fascicle-bench glyphs`: ray-cast SH glyphs against the deformed-icosphere mesh baseline, frame time
-//! against depth error, rendered offscreen (lavapipe without a GPU) and compared with the f64 reference
-//! ray caster of `fascicle_core::sh::glyph`.
+//! `fascicle-bench glyphs`: SH glyphs three ways, frame time against depth error, rendered offscreen
+//! (lavapipe without a GPU) and compared with the f64 exact caster (`fascicle_core::sh::exact`, 1,024 samples
+//! and 50 bisections per ray):
+//! - `exact`: the shader's exact method (the glyph's section by the ray's plane; knob: samples),
+//! - `linear`: the seed's linear search and bisection (knob: the step h),
+//! - `mesh`: deformed icospheres through Bevy's standard pipeline (knob: the subdivision order).
 //!
 //! Scene: `n` glyphs (one to three fibres each, deterministic) on a square grid in the z = 0 plane, spacing
 //! rmax, seen from above. Error: mean over the pixels either method or the reference covers of
@@ -13,27 +16,37 @@ use std::time::Instant;
 
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
-use fascicle_core::sh::glyph::{Glyph, GlyphStyle, Lobes, cast_within, make_glyphs};
+use fascicle_core::sh::exact::{PolyCast, cast_in_box};
+use fascicle_core::sh::glyph::{Glyph, GlyphStyle, Lobes, make_glyphs};
 use fascicle_core::sh::{ShBasis, sh_matrix};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, DepthMap};
-use fascicle_sh_glyphs::{RayCastSettings, ShGlyphMaterial, ShGlyphPlugin, spawn_glyph_set, spawn_mesh_glyphs};
+use fascicle_sh_glyphs::{
+    GlyphMethod, RayCastSettings, ShGlyphMaterial, ShGlyphPlugin, spawn_glyph_set, spawn_mesh_glyphs,
+};
 use glam::DVec3;
 use rayon::prelude::*;
 
 const RMAX: f64 = 1.0;
 const FOV_Y: f64 = 0.5235987755982988; // 30 degrees
 const NEAR: f64 = 0.1; // Bevy's default
-/// Frames timed per setting after the first (compilation and upload are not timed).
-const FRAMES: u32 = 3;
+/// Frames timed per setting after the first (compilation and upload are not timed): 3, or 1 for images over a
+/// megapixel.
+fn frames(w: u32, h: u32) -> u32 {
+    if w * h > 1 << 20 { 1 } else { 3 }
+}
 /// Mesh settings above this many vertices are skipped (memory).
 const MAX_MESH_VERTICES: usize = 24_000_000;
 
 #[derive(Clone, Copy)]
 enum Method {
-    RayCast { h: f32, refine: u32 },
+    Exact { samples: u32, refine: u32 },
+    Linear { h: f32, refine: u32 },
     Mesh { order: u32 },
 }
+
+/// The reference caster's knobs.
+const REFERENCE: PolyCast = PolyCast { samples: 1024, refine: 50 };
 
 /// `n` glyphs on a grid, one to three fibres each (a splitmix sequence picks the directions).
 fn field(n: usize, l_max: usize) -> (Vec<Glyph>, usize) {
@@ -74,16 +87,17 @@ fn field(n: usize, l_max: usize) -> (Vec<Glyph>, usize) {
 }
 
 fn eye(side: usize) -> DVec3 {
+    // The grid fills the image's height (the narrower side).
     let half = side as f64 * RMAX / 2.0 + RMAX;
     DVec3::new(0.0, 0.0, half / (FOV_Y / 2.0).tan())
 }
 
-/// Renders once (compiling, uploading), then times `FRAMES` more frames; returns mean ms and the depth.
-fn render(glyphs: &[Glyph], side: usize, size: u32, method: Method) -> Result<(f64, DepthMap), String> {
+/// Renders once (compiling, uploading), then times [`frames`] more frames; returns mean ms and the depth.
+fn render(glyphs: &[Glyph], side: usize, (w, h): (u32, u32), method: Method) -> Result<(f64, DepthMap), String> {
     let mut app = headless::headless_app();
     app.add_plugins((FascicleRenderPlugin, ShGlyphPlugin));
-    let target = headless::add_target_image(&mut app, size, size);
-    let copy = headless::add_depth_copy(&mut app, size, size);
+    let target = headless::add_target_image(&mut app, w, h);
+    let copy = headless::add_depth_copy(&mut app, w, h);
     let glyphs = glyphs.to_vec();
     app.add_systems(
         Startup,
@@ -92,8 +106,12 @@ fn render(glyphs: &[Glyph], side: usize, size: u32, method: Method) -> Result<(f
               mut glyph_mats: ResMut<Assets<ShGlyphMaterial>>,
               mut std_mats: ResMut<Assets<StandardMaterial>>,
               mut buffers: ResMut<Assets<ShaderBuffer>>| match method {
-            Method::RayCast { h, refine } => {
-                let s = RayCastSettings { h, refine, ..default() };
+            Method::Exact { samples, refine } => {
+                let s = RayCastSettings { method: GlyphMethod::Exact, samples, refine, ..default() };
+                spawn_glyph_set(&mut commands, &mut meshes, &mut glyph_mats, &mut buffers, &glyphs, None, &s);
+            }
+            Method::Linear { h, refine } => {
+                let s = RayCastSettings { method: GlyphMethod::Linear, h, refine, ..default() };
                 spawn_glyph_set(&mut commands, &mut meshes, &mut glyph_mats, &mut buffers, &glyphs, None, &s);
             }
             Method::Mesh { order } => {
@@ -111,31 +129,30 @@ fn render(glyphs: &[Glyph], side: usize, size: u32, method: Method) -> Result<(f
         .insert(headless::depth_copy_camera(copy.clone()));
     let (_, depth) = headless::capture_with_depth(&mut app, target, Some(&copy)).map_err(|e| e.to_string())?;
     let t = Instant::now();
-    for _ in 0..FRAMES {
+    for _ in 0..frames(w, h) {
         app.update();
     }
-    let ms = t.elapsed().as_secs_f64() * 1000.0 / FRAMES as f64;
+    let ms = t.elapsed().as_secs_f64() * 1000.0 / frames(w, h) as f64;
     Ok((ms, depth.ok_or("no depth")?))
 }
 
-/// Reference view depth per pixel: the f64 caster at 1/500 steps of the (guaranteed, tested) render bound
-/// with 40 bisections, over the glyphs
-/// whose grid cell is within one of the pixel ray's crossing of z = 0.
-fn reference(glyphs: &[Glyph], side: usize, size: u32) -> Vec<Option<f64>> {
+/// Reference view depth per pixel: the f64 exact caster ([`REFERENCE`]) in each glyph's box, over the
+/// glyphs whose grid cell is within one of the pixel ray's crossing of z = 0.
+fn reference(glyphs: &[Glyph], side: usize, (w, h): (u32, u32)) -> Vec<Option<f64>> {
     let cam = fascicle_render::reference::PinholeCamera {
         eye: eye(side),
         target: DVec3::ZERO,
         up: DVec3::Y,
         fov_y: FOV_Y,
-        width: size,
-        height: size,
+        width: w,
+        height: h,
     };
     let forward = -DVec3::Z;
     let cell = |v: f64| ((v / RMAX) + (side as f64 - 1.0) / 2.0).round() as i64;
-    (0..size * size)
+    (0..w * h)
         .into_par_iter()
         .map(|i| {
-            let (o, d) = cam.subpixel_ray((i % size) as f64 + 0.5, (i / size) as f64 + 0.5);
+            let (o, d) = cam.subpixel_ray((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
             let at = o + d * (-o.z / d.z);
             let (cx, cy) = (cell(at.x), cell(at.y));
             let mut best: Option<f64> = None;
@@ -146,7 +163,7 @@ fn reference(glyphs: &[Glyph], side: usize, size: u32) -> Vec<Option<f64>> {
                     }
                     let k = gy as usize * side + gx as usize;
                     if let Some(g) = glyphs.get(k)
-                        && let Some(hit) = cast_within(g, g.rbound, o, d, 2e-3, 40, Lobes::Clamp)
+                        && let Some(hit) = cast_in_box(g, g.half, o, d, REFERENCE, Lobes::Clamp)
                     {
                         let z = hit.t * d.dot(forward);
                         best = Some(best.map_or(z, |b: f64| b.min(z)));
@@ -172,55 +189,73 @@ fn error(depth: &DepthMap, reference: &[Option<f64>]) -> f64 {
     if n == 0 { 0.0 } else { sum / n as f64 }
 }
 
+/// One benchmark case: `n` glyphs of order `l_max` at `width x height`, each method over its knob.
+struct Case {
+    n: usize,
+    l_max: usize,
+    image: (u32, u32),
+    methods: Vec<Method>,
+}
+
+fn sweep(quick: bool) -> Vec<Method> {
+    let mut m: Vec<Method> = if quick { &[8u32, 16, 48][..] } else { &[8u32, 16, 48, 96][..] }
+        .iter()
+        .map(|&samples| Method::Exact { samples, refine: 12 })
+        .collect();
+    let hs: &[f32] = if quick { &[0.08, 0.02] } else { &[0.08, 0.04, 0.02] };
+    m.extend(hs.iter().map(|&h| Method::Linear { h, refine: 4 }));
+    let orders: &[u32] = &[2, 3, 4];
+    m.extend(orders.iter().map(|&order| Method::Mesh { order }));
+    m
+}
+
 pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
-    let (sizes, image): (&[usize], u32) = if quick { (&[1024], 256) } else { (&[1024, 4096, 16384, 65536], 512) };
-    let raycast: &[(f32, u32)] = if quick {
-        &[(0.08, 4), (0.02, 4)]
+    let big = (1280, 960);
+    let mut cases = Vec::new();
+    if quick {
+        for l_max in [4usize, 8] {
+            cases.push(Case { n: 1024, l_max, image: (256, 256), methods: sweep(true) });
+        }
+        cases.push(Case { n: 4096, l_max: 8, image: big, methods: sweep(true) });
     } else {
-        &[(0.16, 4), (0.08, 0), (0.08, 4), (0.04, 4), (0.02, 0), (0.02, 4), (0.01, 4), (0.005, 4)]
-    };
-    let orders: &[u32] = if quick { &[1, 2, 3, 4] } else { &[1, 2, 3, 4, 5, 6] };
+        for l_max in [4usize, 6, 8, 12] {
+            cases.push(Case { n: 4096, l_max, image: big, methods: sweep(false) });
+        }
+    }
     let adapter = std::env::var("VK_ICD_FILENAMES").unwrap_or_else(|_| "default Vulkan adapter".into());
-    println!("## SH glyphs: ray casting vs icosphere meshes ({image}x{image}, {adapter})\n");
+    println!("## SH glyphs: exact and linear ray casting vs icosphere meshes ({adapter})\n");
     println!(
         "error = mean depth error over covered pixels, in units of rmax (a pixel only one side covers counts 1)\n"
     );
-    println!("| method | n | l_max | param | frame (ms) | error |");
-    println!("|---|---|---|---|---|---|");
+    println!("| method | n | l_max | image | param | frame (ms) | error |");
+    println!("|---|---|---|---|---|---|---|");
     let mut rows = Vec::new();
-    for &n in sizes {
-        for l_max in [4usize, 8] {
-            let (glyphs, side) = field(n, l_max);
-            let t = Instant::now();
-            let reference = reference(&glyphs, side, image);
-            eprintln!("reference for n {n} l_max {l_max}: {:.1} s", t.elapsed().as_secs_f64());
-            let mut settings: Vec<(Method, String)> = raycast
-                .iter()
-                .map(|&(h, refine)| (Method::RayCast { h, refine }, format!("h={h} refine={refine}")))
-                .collect();
-            for &order in orders {
-                if n * (10 * 4usize.pow(order) + 2) <= MAX_MESH_VERTICES {
-                    settings.push((
-                        Method::Mesh { order },
-                        format!("order={order} ({} vertices)", 10 * 4usize.pow(order) + 2),
-                    ));
-                }
+    for case in cases {
+        let (glyphs, side) = field(case.n, case.l_max);
+        let t = Instant::now();
+        let reference = reference(&glyphs, side, case.image);
+        eprintln!("reference for n {} l_max {}: {:.1} s", case.n, case.l_max, t.elapsed().as_secs_f64());
+        for method in case.methods {
+            let (name, param) = match method {
+                Method::Exact { samples, refine } => ("exact", format!("samples={samples} refine={refine}")),
+                Method::Linear { h, refine } => ("linear", format!("h={h} refine={refine}")),
+                Method::Mesh { order } => ("mesh", format!("order={order} ({} vertices)", 10 * 4usize.pow(order) + 2)),
+            };
+            if let Method::Mesh { order } = method
+                && case.n * (10 * 4usize.pow(order) + 2) > MAX_MESH_VERTICES
+            {
+                continue;
             }
-            for (method, param) in settings {
-                let (ms, depth) = render(&glyphs, side, image, method)?;
-                let err = error(&depth, &reference);
-                let name = match method {
-                    Method::RayCast { .. } => "raycast",
-                    Method::Mesh { .. } => "mesh",
-                };
-                println!("| {name} | {n} | {l_max} | {param} | {ms:.1} | {err:.4} |");
-                rows.push(format!("{name},{n},{l_max},{param},{ms:.2},{err:.6}"));
-            }
+            let (ms, depth) = render(&glyphs, side, case.image, method)?;
+            let err = error(&depth, &reference);
+            let (w, h) = case.image;
+            println!("| {name} | {} | {} | {w}x{h} | {param} | {ms:.1} | {err:.5} |", case.n, case.l_max);
+            rows.push(format!("{name},{},{param},{ms:.2},{err:.7},{},{w},{h}", case.n, case.l_max));
         }
     }
     if let Some(path) = csv {
         let mut f = std::fs::File::create(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        writeln!(f, "method,n,l_max,param,frame_ms,error").map_err(|e| e.to_string())?;
+        writeln!(f, "method,n,param,frame_ms,error,l_max,width,height").map_err(|e| e.to_string())?;
         for r in rows {
             writeln!(f, "{r}").map_err(|e| e.to_string())?;
         }

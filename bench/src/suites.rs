@@ -26,13 +26,14 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         runs: usize,
     },
-    /// SH glyphs: frame time and depth error of ray casting (over h and bisections) and of deformed
-    /// icosphere meshes (over subdivision order), for 1k-64k glyphs at l_max 4 and 8.
+    /// SH glyphs: frame time and depth error of the exact ray caster (over its samples), the seed's linear
+    /// search (over h) and deformed icosphere meshes (over subdivision order): 4,096 glyphs at 1280x960 for
+    /// l_max 4, 6, 8, 12.
     Glyphs {
-        /// 1k glyphs at 256x256 only (under 2 minutes here).
+        /// 1k glyphs at 256x256 (l_max 4, 8) and 4,096 l_max-8 glyphs at 1280x960.
         #[arg(long)]
         quick: bool,
-        /// Also write the rows as CSV (method,n,l_max,param,frame_ms,error).
+        /// Also write the rows as CSV (method,n,param,frame_ms,error,l_max,width,height).
         #[arg(long)]
         csv: Option<PathBuf>,
     },

@@ -159,6 +159,12 @@ fn first_hit_exact(c: ptr<function, array<f32, 153>>, oc: vec3<f32>, dir: vec3<f
     if span.y <= span.x {
         return -1.0;
     }
+    // A ray farther from the centre than the render bound (1 in these units) misses: no psi evaluated.
+    let tc = -dot(oc, dir);
+    let foot = oc + tc * dir;
+    if dot(foot, foot) > 1.0 {
+        return -1.0;
+    }
     var rp = ray_plane(c, cfg.l_max, oc, dir);
     let n = max(cfg.max_steps, 1u);
     let step = (span.y - span.x) / f32(n);

@@ -27,12 +27,14 @@
 //!
 //! # Render integration
 //! Bevy's `Material` pipeline serves here: the glyphs are opaque and depth-tested like any mesh. A layer is
-//! one [`ShGlyphMaterial`] holding every glyph's centre, bound and coefficients in GPU storage buffers, and one
-//! child entity per glyph ([`ShVoxel`]): a unit-cube proxy mesh scaled to the glyph's bound, with a `MeshTag`
-//! that indexes the buffers. Bevy batches them into instanced draws in the main opaque pass (`Opaque3d`
-//! phase). The fragment shader (`shaders/sh_glyph.wgsl`) casts the view ray against `r = ψ(u)` and writes true
-//! depth (`@builtin(frag_depth)`), so glyphs intersect meshes, tubes and each other; the material disables the
-//! prepass, which would write the proxy's depth. The main-world systems run in [`ShGlyphSystems`].
+//! one [`ShGlyphMaterial`] holding every glyph's centre, bounds and coefficients in GPU storage buffers, and one
+//! child entity per glyph ([`ShVoxel`]): a cube proxy mesh scaled to the glyph's tight box
+//! (`fascicle_core::sh::exact::glyph_box`), with a `MeshTag` that indexes the buffers. Bevy batches them into
+//! instanced draws in the main opaque pass (`Opaque3d` phase). The fragment shader (`shaders/sh_glyph.wgsl`)
+//! finds the view ray's first hit with `r = ψ(u)` ([`GlyphMethod::Exact`]: the glyph's section by the ray's
+//! plane, a trigonometric polynomial known from `l_max + 1` values of ψ; or the seed's linear search) and
+//! writes true depth (`@builtin(frag_depth)`), so glyphs intersect meshes, tubes and each other; the material
+//! disables the prepass, which would write the proxy's depth. The main-world systems run in [`ShGlyphSystems`].
 //!
 //! The math (basis conversion, sharpening, normalisation, rmax, the ray caster in f64) lives in
 //! `fascicle_core::sh::glyph`, which is also the test reference.
