@@ -138,28 +138,29 @@ fn polynomial_casts_match_the_marching_reference_in_every_basis() {
 
 #[test]
 fn a_coarse_polynomial_cast_is_accurate_where_it_hits() {
-    // Coarse knobs (64 samples, 24 bisections) against the reference: the same root to within the final
-    // bracket (span / samples / 2^24) on 99 % of rays; a grazing neighbour (within 1e-3 of the span) or
-    // another lobe (a thin one stepped over) on the rest.
+    // Coarse knobs (8 samples: steps of at least span / 32, certified by the Lipschitz bound above that;
+    // 24 bisections) against the reference: the same root to within the final bracket on 99 % of rays; a
+    // grazing neighbour (within 1e-3 of the span), another lobe or a miss on the rest.
     let mut rng = rand_pcg::Pcg64::seed_from_u64(37);
-    let knobs = PolyCast { samples: 64, refine: 24 };
-    let (mut same, mut grazing, mut other) = (0, 0, 0);
+    let knobs = PolyCast { samples: 8, refine: 24 };
+    let (mut same, mut grazing, mut other, mut missed) = (0, 0, 0, 0);
     for l_max in [4usize, 8, 12] {
         for _ in 0..20 {
             let g = random_glyph(&mut rng, l_max, ShBasis::default(), 2.0);
             let half = glyph_box(&g.coeffs, g.l_max);
-            for _ in 0..20 {
+            for _ in 0..80 {
                 let o = g.centre + random_dir(&mut rng) * 3.0 * g.rmax;
-                let d = (g.centre - o).normalize();
+                let d = (g.centre + random_dir(&mut rng) * 0.5 * g.rmax - o).normalize();
                 let Some(span) = ray_box_interval(o, d, g.centre, half) else { continue };
                 let (Some(a), Some(b)) = (
                     cast_poly(&g, o, d, span, PolyCast::REFERENCE, Lobes::Clamp),
                     cast_poly(&g, o, d, span, knobs, Lobes::Clamp),
                 ) else {
+                    missed += usize::from(cast_poly(&g, o, d, span, PolyCast::REFERENCE, Lobes::Clamp).is_some());
                     continue;
                 };
                 let (e, width) = ((a.t - b.t).abs(), span.1 - span.0);
-                if e <= width / 64.0 / f64::from(1u32 << 24) + 1e-12 {
+                if e <= width / f64::from(1u32 << 24) + 1e-12 {
                     same += 1;
                 } else if e <= 1e-3 * width {
                     grazing += 1;
@@ -169,7 +170,7 @@ fn a_coarse_polynomial_cast_is_accurate_where_it_hits() {
             }
         }
     }
-    println!("{same} hits on the same root, {grazing} grazing, {other} on another lobe");
-    let n = same + grazing + other;
-    assert!(n > 800 && same * 100 >= n * 99, "{same} / {grazing} / {other}");
+    println!("{same} hits on the same root, {grazing} grazing, {other} on another lobe, {missed} missed");
+    let n = same + grazing + other + missed;
+    assert!(n > 800 && same * 100 >= n * 99, "{same} / {grazing} / {other} / {missed}");
 }

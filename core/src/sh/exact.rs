@@ -11,11 +11,12 @@
 //! `g(θ) = s(ψ(θ)) cos θ - b` (positive inside), a trigonometric polynomial of degree `k + 1`: the paper's
 //! intersection polynomial of degree `2k + 2` in `e^{iθ}`. This form has no radial powers, so it keeps its
 //! precision in f32 for every order (the paper's `|x|^(2k+2)` spans many decades across a box at `k = 12`).
-//! Evaluated at the ray's points `t` (`cos 2θ`, `sin 2θ` are rational in `t`: no trigonometry, nothing
-//! singular when the ray meets the centre), `g` costs `O(k)` and no ψ evaluation: `samples` values bracket
-//! its first sign change on the ray's span inside the box, and bisection refines it. A grazing pair of roots closer than a sample
-//! step can be missed, nothing else. The GPU shader (`sh_glyph.wgsl`, method exact) does this in f32;
-//! [`cast_poly`] with many samples is its f64 reference (fast enough to render whole benchmark frames).
+//! `g` costs `O(k)` per evaluation and no ψ evaluation. From the span's entry into the box, steps of `-g / Λ`
+//! (`Λ`, a Lipschitz constant of `g` from its coefficients: no root lies closer), at least `span / (4 samples)`,
+//! bracket the first root; bisection in `t` refines it (there `cos 2θ`, `sin 2θ` are rational in `t`: no
+//! trigonometry). Only a pair of roots closer than the smallest step can be missed. The GPU shader
+//! (`sh_glyph.wgsl`, method exact) does the same in f32; [`cast_poly`] with 4,096 samples is its f64
+//! reference (fast enough to render whole benchmark frames).
 //!
 //! [`glyph_box`] finds each glyph's extent along the three axes, `max |ψ(u)| |u_a|` (even orders are
 //! antipodally symmetric, so the box is symmetric about the centre; `|ψ|` covers both lobe rules), by local
@@ -109,6 +110,31 @@ impl RayPlane {
         v
     }
 
+    /// A Lipschitz constant of `g(θ) = s(ψ(θ)) cos θ - b` in θ: `|ψ| + |dψ/dθ|`, bounded by
+    /// `Σ (1 + 2m)(|a_m| + |b_m|)` (each term of ψ in `φ = 2θ` changes at most `2m` times its size per radian).
+    pub fn lipschitz(&self) -> f64 {
+        (0..self.cos.len()).map(|m| (1.0 + 2.0 * m as f64) * (self.cos[m].abs() + self.sin[m].abs())).sum()
+    }
+
+    /// `g(θ) = s(ψ(θ)) cos θ - b`: positive inside the glyph.
+    pub fn section(&self, theta: f64, lobes: Lobes) -> f64 {
+        let (s, c) = theta.sin_cos();
+        let p = self.psi_phi(c * c - s * s, 2.0 * s * c);
+        let v = match lobes {
+            Lobes::Clamp => p.max(0.0),
+            Lobes::Abs => p.abs(),
+        };
+        v * c - self.b
+    }
+
+    /// The angle of the ray's point `t`, and the point of an angle.
+    pub fn theta(&self, t: f64) -> f64 {
+        (t - self.tc).atan2(self.b)
+    }
+    pub fn t_of(&self, theta: f64) -> f64 {
+        self.tc + self.b * theta.tan()
+    }
+
     /// `s(ψ) - r` at the ray's point `t`: positive inside the glyph (there `r < s(ψ)`; with `r = b / cos θ`
     /// this is the sign of the trigonometric polynomial `s(ψ(θ)) cos θ - b`).
     pub fn inside(&self, t: f64, lobes: Lobes) -> f64 {
@@ -122,8 +148,11 @@ impl RayPlane {
     }
 }
 
-/// Knobs of the exact caster: `samples` evaluations of `g` bracket its first root, then `refine`
-/// bisections.
+/// Knobs of the exact caster. From the span's entry, steps in θ of `-g / Λ` (no root can lie closer: `Λ` is
+/// `g`'s Lipschitz constant), at least `span / (4 samples)` (and at most `64 samples` of them; about 15 on
+/// average), bracket the first root; `refine` bisections (in `t`) refine it. Only a pair of roots closer than
+/// the smallest step, where `|g| < Λ · span / (4 samples)`, can be missed. A ray through the centre (θ is
+/// ±π/2 on all of it) is sampled uniformly in `t` at `samples` points instead.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PolyCast {
     pub samples: u32,
@@ -135,6 +164,26 @@ impl PolyCast {
     pub const REFERENCE: PolyCast = PolyCast { samples: 4096, refine: 60 };
 }
 
+/// The first root's bracket in θ by certified steps (see [`PolyCast`]): `(outside, inside)`.
+fn bracket_theta(plane: &RayPlane, th0: f64, th1: f64, samples: u32, lobes: Lobes) -> Option<(f64, f64)> {
+    let lam = plane.lipschitz().max(1e-300);
+    let dmin = (th1 - th0) / (4.0 * f64::from(samples));
+    let mut th = th0;
+    let mut lo = th0;
+    for _ in 0..=64 * samples {
+        let g = plane.section(th, lobes);
+        if g > 0.0 {
+            return Some((lo, th));
+        }
+        if th >= th1 {
+            return None;
+        }
+        lo = th;
+        th = (th + (-g / lam).max(dmin)).min(th1);
+    }
+    None
+}
+
 /// The first hit of the unit ray `o + t d` with the glyph, by its plane section, within the span
 /// `(t0, t1)` of its box (or sphere). `None` if the ray leaves the span outside the glyph.
 pub fn cast_poly(g: &Glyph, o: DVec3, d: DVec3, span: (f64, f64), knobs: PolyCast, lobes: Lobes) -> Option<Hit> {
@@ -142,22 +191,34 @@ pub fn cast_poly(g: &Glyph, o: DVec3, d: DVec3, span: (f64, f64), knobs: PolyCas
     let (t0, t1) = span;
     let n = knobs.samples.max(1);
     let inside = |t: f64| plane.inside(t, lobes) > 0.0;
-    let (mut lo, mut hi) = (t0, t0);
-    let mut found = inside(t0);
-    for i in 1..=n {
-        if found {
-            break;
+    let (mut lo, mut hi);
+    if plane.b > 1e-9 * g.rbound {
+        let (a, b) = bracket_theta(&plane, plane.theta(t0), plane.theta(t1), n, lobes)?;
+        (lo, hi) = (plane.t_of(a).max(t0), plane.t_of(b).min(t1));
+        if inside(lo) || !inside(hi) {
+            // The conversion to t rounded across the root (or θ0 was inside): the nearer end.
+            hi = if inside(lo) { lo } else { hi };
+            lo = hi;
         }
-        let t = t0 + (t1 - t0) * i as f64 / n as f64;
-        if inside(t) {
-            hi = t;
-            found = true;
-        } else {
-            lo = t;
+    } else {
+        // The ray meets the centre: θ is ±π/2 on it; sample t uniformly instead.
+        (lo, hi) = (t0, t0);
+        let mut found = inside(t0);
+        for i in 1..=n {
+            if found {
+                break;
+            }
+            let t = t0 + (t1 - t0) * i as f64 / n as f64;
+            if inside(t) {
+                hi = t;
+                found = true;
+            } else {
+                lo = t;
+            }
         }
-    }
-    if !found {
-        return None;
+        if !found {
+            return None;
+        }
     }
     for _ in 0..knobs.refine {
         let mid = 0.5 * (lo + hi);

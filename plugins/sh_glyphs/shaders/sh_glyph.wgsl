@@ -4,9 +4,10 @@
 // exact (after Peters et al., VMV 2023): the plane through the glyph centre and the ray cuts the glyph along
 // r = s(psi(theta)), psi a trigonometric polynomial of degree k = l_max on that great circle, known exactly
 // from k + 1 evaluations of psi; the ray is r = b / cos(theta), so the hits are the roots of the
-// trigonometric polynomial s(psi(theta)) cos(theta) - b (degree k + 1). On the ray's span inside the glyph's
-// box, `samples` O(k) evaluations bracket the first sign change, `refine` bisections refine it. Coordinates
-// are in units of the glyph's render bound. f64 twin: `fascicle_core::sh::exact::cast_poly`.
+// trigonometric polynomial g = s(psi(theta)) cos(theta) - b (degree k + 1). On the ray's span inside the
+// glyph's box, steps in theta of -g / Lambda (Lambda a Lipschitz constant of g: no root is skipped) and at
+// least span / (4 `samples`) bracket the first root, `refine` bisections in t refine it. Coordinates are in
+// units of the glyph's render bound. f64 twin: `fascicle_core::sh::exact::cast_poly`.
 //
 // linear (the seed's): the ray meets the sphere of the render bound on [t0, t1]; march from t0 in steps of
 // h * rbound until F(p) = |p - c| - s(psi(u)) < 0, then bisect. f64 twin: `fascicle_core::sh::glyph::cast`.
@@ -116,6 +117,20 @@ fn ray_plane(c: ptr<function, array<f32, 153>>, k: u32, oc: vec3<f32>, dir: vec3
     return rp;
 }
 
+// psi at phi = 2 theta from (cos phi, sin phi), by the angle-addition recurrence.
+fn plane_psi(rp: ptr<function, RayPlane>, c1: f32, s1: f32) -> f32 {
+    var cm = 1.0;
+    var sm = 0.0;
+    var psi = (*rp).cs[0];
+    for (var m = 1u; m < (*rp).terms; m++) {
+        let cn = cm * c1 - sm * s1;
+        sm = sm * c1 + cm * s1;
+        cm = cn;
+        psi += (*rp).cs[m] * cm + (*rp).sn[m] * sm;
+    }
+    return psi;
+}
+
 // s(psi) - r at the ray's point t: positive inside the glyph. cos 2theta and sin 2theta are rational in t.
 fn plane_inside(rp: ptr<function, RayPlane>, t: f32, lobes: u32) -> f32 {
     let tau = t - (*rp).tc;
@@ -127,16 +142,23 @@ fn plane_inside(rp: ptr<function, RayPlane>, t: f32, lobes: u32) -> f32 {
         c1 = (b * b - tau * tau) / r2;
         s1 = 2.0 * b * tau / r2;
     }
-    var cm = 1.0;
-    var sm = 0.0;
-    var psi = (*rp).cs[0];
-    for (var m = 1u; m < (*rp).terms; m++) {
-        let cn = cm * c1 - sm * s1;
-        sm = sm * c1 + cm * s1;
-        cm = cn;
-        psi += (*rp).cs[m] * cm + (*rp).sn[m] * sm;
+    return shape(plane_psi(rp, c1, s1), lobes) - sqrt(r2);
+}
+
+// g(theta) = s(psi(theta)) cos(theta) - b: positive inside the glyph.
+fn plane_section(rp: ptr<function, RayPlane>, theta: f32, lobes: u32) -> f32 {
+    let s = sin(theta);
+    let c = cos(theta);
+    return shape(plane_psi(rp, c * c - s * s, 2.0 * s * c), lobes) * c - (*rp).b;
+}
+
+// A Lipschitz constant of g in theta: |psi| + |dpsi/dtheta| <= sum (1 + 2m)(|a_m| + |b_m|).
+fn plane_lipschitz(rp: ptr<function, RayPlane>) -> f32 {
+    var l = 0.0;
+    for (var m = 0u; m < (*rp).terms; m++) {
+        l += (1.0 + 2.0 * f32(m)) * (abs((*rp).cs[m]) + abs((*rp).sn[m]));
     }
-    return shape(psi, lobes) - sqrt(r2);
+    return l;
 }
 
 // Entry (clamped to 0) and exit distances of a unit ray through the box of half extents `half` about the
@@ -167,21 +189,56 @@ fn first_hit_exact(c: ptr<function, array<f32, 153>>, oc: vec3<f32>, dir: vec3<f
     }
     var rp = ray_plane(c, cfg.l_max, oc, dir);
     let n = max(cfg.max_steps, 1u);
-    let step = (span.y - span.x) / f32(n);
     var lo = span.x;
     var hi = span.x;
-    var found = plane_inside(&rp, span.x, cfg.lobes) > 0.0;
-    for (var i = 1u; i <= n && !found; i++) {
-        let t = span.x + step * f32(i);
-        if plane_inside(&rp, t, cfg.lobes) > 0.0 {
-            hi = t;
-            found = true;
-        } else {
-            lo = t;
+    if rp.b > 1e-4 {
+        // Steps in theta of -g / Lambda (certified: no root closer), at least span / (4 samples).
+        let th0 = atan2(span.x - rp.tc, rp.b);
+        let th1 = atan2(span.y - rp.tc, rp.b);
+        let lam = max(plane_lipschitz(&rp), 1e-30);
+        let dmin = (th1 - th0) / (4.0 * f32(n));
+        var th = th0;
+        var th_lo = th0;
+        var found = false;
+        for (var i = 0u; i <= 64u * n; i++) {
+            let g = plane_section(&rp, th, cfg.lobes);
+            if g > 0.0 {
+                found = true;
+                break;
+            }
+            if th >= th1 {
+                break;
+            }
+            th_lo = th;
+            th = min(th + max(-g / lam, dmin), th1);
         }
-    }
-    if !found {
-        return -1.0;
+        if !found {
+            return -1.0;
+        }
+        lo = max(rp.tc + rp.b * tan(th_lo), span.x);
+        hi = min(rp.tc + rp.b * tan(th), span.y);
+        if plane_inside(&rp, lo, cfg.lobes) > 0.0 {
+            return lo;
+        }
+        if !(plane_inside(&rp, hi, cfg.lobes) > 0.0) {
+            return hi;
+        }
+    } else {
+        // The ray meets the centre (theta is +-pi/2 on all of it): uniform samples in t.
+        let step = (span.y - span.x) / f32(n);
+        var found = plane_inside(&rp, span.x, cfg.lobes) > 0.0;
+        for (var i = 1u; i <= n && !found; i++) {
+            let t = span.x + step * f32(i);
+            if plane_inside(&rp, t, cfg.lobes) > 0.0 {
+                hi = t;
+                found = true;
+            } else {
+                lo = t;
+            }
+        }
+        if !found {
+            return -1.0;
+        }
     }
     for (var i = 0u; i < cfg.refine; i++) {
         let mid = 0.5 * (lo + hi);

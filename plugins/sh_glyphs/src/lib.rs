@@ -83,9 +83,9 @@ pub enum GlyphColour {
 /// How the fragment shader finds the ray's first hit with a glyph.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum GlyphMethod {
-    /// The glyph's polynomial form on the ray (Peters et al. 2023): ψ evaluated `l_max + 1` times per pixel,
-    /// then `samples` cheap evaluations of the ray polynomial bracket the first root, and bisection refines
-    /// it (`fascicle_core::sh::exact`).
+    /// The glyph's section by the ray's plane, a trigonometric polynomial (after Peters et al. 2023): ψ
+    /// evaluated `l_max + 1` times per pixel, then certified steps of O(k) each bracket the first root, and
+    /// bisection refines it (`fascicle_core::sh::exact`).
     #[default]
     Exact,
     /// The seed's method (SEEDS.md §4): steps of `h · rbound` with ψ evaluated at each, then bisection.
@@ -98,7 +98,8 @@ pub enum GlyphMethod {
 #[serde(default)]
 pub struct RayCastSettings {
     pub method: GlyphMethod,
-    /// Exact method: samples of the ray polynomial that bracket the first root (the knob of its quality).
+    /// Exact method: the quality knob. Steps along the ray are certified by a Lipschitz bound and at least
+    /// `span / (4 samples)`: only a pair of roots closer than that (a lobe tip thinner) can be missed.
     pub samples: u32,
     /// Linear method: search step, in units of the glyph's render bound.
     pub h: f32,
