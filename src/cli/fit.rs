@@ -58,8 +58,9 @@ pub struct OdfArgs {
     /// SH basis of the written coefficients.
     #[arg(long, value_enum, default_value_t = super::BasisArg::Descoteaux07)]
     pub basis: super::BasisArg,
-    /// Legacy variant of the basis (DIPY's default is descoteaux07 legacy).
-    #[arg(long, default_value_t = false)]
+    /// Legacy variant of the basis: `--legacy true` (the default: DIPY's default basis is descoteaux07 legacy)
+    /// or `--legacy false` (DIPY's `legacy=False`; with `--basis tournier07`, MRtrix3's basis).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     pub legacy: bool,
     /// Laplace-Beltrami regularisation.
     #[arg(long, default_value_t = 0.006)]
@@ -188,6 +189,7 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
     let l = load(&a.input)?;
     let basis = a.basis.with_legacy(a.legacy);
     super::check_output(&a.out)?;
+    super::check_output(&sidecar_path(&a.out))?;
     let model = OdfModel::new(&l.gtab, kind, a.lmax, a.smooth, basis)?;
     let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
     let coeffs = sh::fit_odf_volume_with_progress(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
@@ -195,10 +197,37 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
     // The basis goes into the header (descrip), so that readers need not be told it.
     let meta = nifti::WriteMeta { descrip: sh_descrip(basis, a.lmax), ..Default::default() };
     nifti::write_with(&a.out, &coeffs, nifti::WriteType::F32, &meta)?;
+    // And a JSON sidecar (as BIDS derivatives carry metadata), for tools that do not read `descrip`.
+    let sidecar = sidecar_path(&a.out);
+    let (convention, legacy) = match basis {
+        sh::ShBasis::Descoteaux07 { legacy } => ("descoteaux07", legacy),
+        sh::ShBasis::Tournier07 { legacy } => ("tournier07", legacy),
+    };
+    let json = serde_json::json!({
+        "model": if kind == OdfKind::Csa { "csa" } else { "qball" },
+        "sh_basis": { "convention": convention, "legacy": legacy },
+        "l_max": a.lmax,
+        "smooth": a.smooth,
+    });
+    std::fs::write(&sidecar, serde_json::to_string_pretty(&json).unwrap_or_default() + "\n")
+        .map_err(|e| Error::Io { path: sidecar.clone(), source: e })?;
     if !super::globals().quiet {
-        eprintln!("wrote {} ({} coefficients, {})", a.out.display(), sh::n_coeffs(a.lmax), basis.name());
+        eprintln!(
+            "wrote {} ({} coefficients, {}) and {}",
+            a.out.display(),
+            sh::n_coeffs(a.lmax),
+            basis.name(),
+            sidecar.display()
+        );
     }
     Ok(())
+}
+
+/// `x.nii.gz` / `x.nii` -> `x.json`.
+pub fn sidecar_path(out: &std::path::Path) -> std::path::PathBuf {
+    let name = out.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let stem = name.strip_suffix(".nii.gz").or_else(|| name.strip_suffix(".nii")).unwrap_or(&name);
+    out.with_file_name(format!("{stem}.json"))
 }
 
 pub use fascicle_core::sh::{recorded_basis as recorded_sh_basis, sh_descrip};
