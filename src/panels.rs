@@ -166,6 +166,8 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     ui.horizontal(|ui| {
         ui.radio_value(&mut style.normalise, Normalise::PerGlyph, "per glyph");
         ui.radio_value(&mut style.normalise, Normalise::Global, "global");
+        ui.radio_value(&mut style.normalise, Normalise::A00, "a00 (GFA shows)");
+        ui.radio_value(&mut style.normalise, Normalise::MinMax, "min-max");
     });
     ui.horizontal(|ui| {
         ui.radio_value(&mut render.method, GlyphMethod::Exact, "exact");
@@ -190,6 +192,7 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
         ui.radio_value(&mut render.colour, GlyphColour::Gfa, "GFA");
         ui.radio_value(&mut render.colour, GlyphColour::Normal, "normal");
     });
+    ui.add(egui::Slider::new(&mut render.specular, 0.0..=1.0).text("specular"));
 }
 
 /// Tensor splats: slab and size (rebuild), attenuation and opacity (uniform only).

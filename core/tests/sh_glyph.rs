@@ -296,3 +296,35 @@ fn plane_sampling_nearest_and_trilinear() {
     let m = sh::sh_matrix(GLYPH_BASIS, 8, &[DVec3::Z]);
     assert!(gfa(&m) > 0.9);
 }
+
+#[test]
+fn a00_and_min_max_normalisations() {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(43);
+    let dense = sh::sphere::fibonacci(40_000);
+    let items: Vec<(DVec3, Vec<f64>)> = (0..6)
+        .map(|i| {
+            let mut c = random_coeffs(&mut rng, 8);
+            c[0] = 1.0 + i as f64; // isotropic parts of different sizes
+            (DVec3::new(i as f64, 0.0, 0.0), c)
+        })
+        .collect();
+    let make = |normalise| {
+        let style = GlyphStyle { scale: 1.5, normalise, ..GlyphStyle::default() };
+        make_glyphs(items.iter().map(|(p, c)| (*p, &c[..])), ShBasis::default(), style).unwrap().0
+    };
+    // a00: every glyph's mean radius (a_00 Y_00, and the mean of ψ over the sphere) is the scale.
+    for g in make(Normalise::A00) {
+        assert!((g.coeffs[0] / (2.0 * std::f64::consts::PI.sqrt()) - 1.5).abs() < 1e-12);
+        let mean = dense.iter().map(|u| eval_cartesian(&g.coeffs, g.l_max, *u).0).sum::<f64>() / dense.len() as f64;
+        assert!((mean - 1.5).abs() < 1e-3, "mean radius {mean}");
+    }
+    // min-max: ψ spans [0, scale] over the sphere (the sampled extremes: within 1 %).
+    for g in make(Normalise::MinMax) {
+        let (lo, hi) = dense
+            .iter()
+            .map(|u| eval_cartesian(&g.coeffs, g.l_max, *u).0)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        assert!(lo > -0.015 && lo < 0.015 && (hi - 1.5).abs() < 0.015, "min {lo}, max {hi}");
+        assert!(g.half.max_element() <= g.rbound && g.rbound <= g.rmax * (1.0 + 1e-12));
+    }
+}

@@ -102,6 +102,13 @@ pub enum Normalise {
     PerGlyph,
     /// One factor for all glyphs (the largest rmax is `scale`): sizes compare.
     Global,
+    /// Each glyph scaled so its mean radius (`a_00 Y_00`) is `scale` (the seed's "same a_00 for all"): sharper
+    /// ODFs reach farther, so the anisotropy (GFA) shows in the size.
+    A00,
+    /// Each glyph's ψ mapped to `[0, scale]` by its minimum and maximum over the sphere (2,562 directions):
+    /// `(ψ - min) / (max - min)`, the min-max normalisation of DIPY/FURY and DSI Studio: the isotropic part
+    /// removed, every glyph's largest lobe `scale`.
+    MinMax,
 }
 
 /// Per-glyph CPU work before upload (SEEDS.md §4).
@@ -219,6 +226,16 @@ pub fn render_bound(c: &[f64], l_max: usize, rmax: f64) -> f64 {
     (m / shrink).min(rmax)
 }
 
+/// The smallest and largest ψ over the 2,562 directions of [`bound_sample`].
+fn sampled_range(c: &[f64], l_max: usize) -> (f64, f64) {
+    let n = c.len();
+    bound_matrix(l_max)
+        .chunks_exact(n)
+        .take(bound_sample().0.len())
+        .map(|row| row.iter().zip(c).map(|(x, y)| x * y).sum::<f64>())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
+}
+
 /// Converts coefficients to [`GLYPH_BASIS`] and applies sharpening: the unscaled glyph shape, its rmax and
 /// its GFA (before sharpening).
 /// `None` for an all-zero or non-finite set (nothing to draw).
@@ -260,21 +277,35 @@ pub fn make_glyphs<'a>(
         }
     }
     use rayon::prelude::*;
+    if style.normalise == Normalise::MinMax {
+        // ψ - min is the glyph plus a constant (a_00 += -min / Y_00); its bounds are recomputed below.
+        shapes.par_iter_mut().for_each(|(_, c, rmax, _)| {
+            let l_max = l_max_for(c.len()).unwrap_or(0);
+            let (lo, _) = sampled_range(c, l_max);
+            c[0] -= lo * 2.0 * std::f64::consts::PI.sqrt();
+            *rmax = bound_rmax(GLYPH_BASIS, c);
+        });
+    }
     // What each glyph is normalised by: its Cauchy-Schwarz bound, or its largest lobe.
     let size: Vec<f64> = shapes
         .par_iter()
-        .map(
-            |(_, c, rmax, _)| {
-                if style.fit_lobes { render_bound(c, l_max_for(c.len()).unwrap_or(0), *rmax) } else { *rmax }
-            },
-        )
+        .map(|(_, c, rmax, _)| {
+            let l_max = l_max_for(c.len()).unwrap_or(0);
+            match style.normalise {
+                // The mean radius; a glyph with none is sized by its bound.
+                Normalise::A00 if c[0] > 0.0 => c[0] / (2.0 * std::f64::consts::PI.sqrt()),
+                Normalise::MinMax => sampled_range(c, l_max).1.max(1e-300),
+                _ if style.fit_lobes => render_bound(c, l_max, *rmax),
+                _ => *rmax,
+            }
+        })
         .collect();
     let global = size.iter().copied().fold(0.0f64, f64::max);
     let glyphs = shapes
         .into_par_iter()
         .zip(size)
         .map(|((centre, mut c, rmax, gfa), own)| {
-            let k = style.scale / if style.normalise == Normalise::PerGlyph { own } else { global };
+            let k = style.scale / if style.normalise == Normalise::Global { global } else { own };
             c.iter_mut().for_each(|v| *v *= k);
             let l_max = l_max_for(c.len()).unwrap_or(0);
             let rbound = render_bound(&c, l_max, rmax * k);

@@ -38,7 +38,8 @@ struct GlyphParams {
     // 0: linear search, 1: exact (polynomial form)
     method: u32,
     samples: u32,
-    _pad0: f32,
+    // Phong specular weight of the headlight (exponent 32).
+    specular: f32,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: GlyphParams;
@@ -350,6 +351,8 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
         out.color = vec4<f32>(base, 1.0);
     } else {
         var shaded = headlight(base, n, ray.dir, params.ambient);
+        // Phong with a headlight: the reflected light returns along the view ray where n faces the eye.
+        shaded += vec3<f32>(params.specular * pow(max(dot(n, -ray.dir), 0.0), 32.0));
         if cfg.lobes == 1u && pg.x < 0.0 {
             // Negative lobes: desaturated, as mrview marks them.
             shaded = vec3<f32>(dot(shaded, vec3<f32>(0.3, 0.4, 0.3))) * 0.6;

@@ -109,6 +109,8 @@ pub struct RayCastSettings {
     pub colour: GlyphColour,
     /// Ambient fraction of the headlight shading.
     pub ambient: f32,
+    /// Phong specular weight of the headlight (exponent 32; 0: diffuse only).
+    pub specular: f32,
     /// Size factor on every glyph of the layer (1: as packed). A uniform: changing it re-sends nothing else.
     pub size: f32,
 }
@@ -123,6 +125,7 @@ impl Default for RayCastSettings {
             lobes: Lobes::Clamp,
             colour: GlyphColour::Direction,
             ambient: 0.25,
+            specular: 0.3,
             size: 1.0,
         }
     }
@@ -143,7 +146,7 @@ pub struct ShGlyphUniform {
     /// 0: linear search, 1: exact (polynomial form).
     pub method: u32,
     pub samples: u32,
-    pub pad0: f32,
+    pub specular: f32,
 }
 
 const _: () = assert!(std::mem::size_of::<ShGlyphUniform>() == 48);
@@ -175,7 +178,7 @@ impl ShGlyphUniform {
                 GlyphMethod::Exact => 1,
             },
             samples: s.samples.clamp(1, 1024),
-            pad0: 0.0,
+            specular: s.specular.max(0.0),
         }
     }
 }
