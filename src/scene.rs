@@ -454,7 +454,7 @@ impl Scene {
                 axis: SliceAxis::Z,
                 index: None,
             }
-        } else if lower.ends_with(".trk") || lower.ends_with(".tck") {
+        } else if [".trk", ".tck", ".trk.gz", ".tck.gz"].iter().any(|e| lower.ends_with(e)) {
             LayerKind::Tractogram { path: path.to_path_buf() }
         } else {
             return Err(format!("{}: not a NIfTI image, tractogram or scene file", path.display()));

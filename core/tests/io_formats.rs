@@ -105,6 +105,30 @@ fn trk_and_tck_round_trip() {
 }
 
 #[test]
+fn gzipped_tractograms_round_trip_and_match_nibabel() {
+    let dir = std::env::temp_dir().join(format!("fascicle-io-gz-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (t, h) = trk::read(data("tracts/standard.trk")).unwrap();
+    // Written gzipped (by name), read back by name and by content; the same streamlines as nibabel reads.
+    trk::write(dir.join("a.trk.gz"), &t, h.vox_to_ras, h.dims.map(|d| d as usize)).unwrap();
+    tck::write(dir.join("a.tck.gz"), &t, &[]).unwrap();
+    for name in ["a.trk.gz", "a.tck.gz"] {
+        let bytes = std::fs::read(dir.join(name)).unwrap();
+        assert_eq!(&bytes[..2], &[0x1f, 0x8b], "{name} is not gzip data");
+        let back = Tractogram::read(dir.join(name)).unwrap();
+        assert_matches_nibabel(&back, "standard_trk");
+        assert_eq!(Tractogram::read_bytes(&bytes, dir.join(name)).unwrap().points, back.points);
+    }
+    assert_eq!(fascicle_core::io::tractogram::extension(&dir.join("x.TCK.gz")), "tck");
+    // Truncated gzip data: a clear error naming the file.
+    let bytes = std::fs::read(dir.join("a.tck.gz")).unwrap();
+    std::fs::write(dir.join("cut.tck.gz"), &bytes[..bytes.len() / 2]).unwrap();
+    let e = Tractogram::read(dir.join("cut.tck.gz")).unwrap_err().to_string();
+    assert!(e.contains("cut.tck.gz") && e.contains("gzip"), "{e}");
+    std::fs::remove_dir_all(dir).ok();
+}
+
+#[test]
 fn malformed_tractograms_give_clear_errors() {
     // empty files with valid headers read as empty
     assert_eq!(Tractogram::read(data("malformed/empty.trk")).unwrap().n_streamlines(), 0);

@@ -158,7 +158,7 @@ pub enum Command {
     Select(select::SelectArgs),
     /// Print what a NIfTI image or tractogram holds.
     Info {
-        /// A NIfTI image (.nii, .nii.gz) or a tractogram (.trk, .tck).
+        /// A NIfTI image (.nii, .nii.gz) or a tractogram (.trk, .tck, or gzipped).
         file: PathBuf,
         /// Print one JSON object (for scripts) instead of text.
         #[arg(long)]

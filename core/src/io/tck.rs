@@ -21,8 +21,9 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TckHeader)> {
     read_bytes(&std::fs::read(path).map_err(|e| Error::io(path, e))?, path)
 }
 
-/// [`read`] from the file's bytes in memory; `path` is the name errors use.
+/// [`read`] from the file's bytes in memory (gzipped or not); `path` is the name errors use.
 pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
+    let b = &super::tractogram::gunzipped(b, path)?[..];
     const MAGIC: &[u8] = b"mrtrix tracks";
     // MRtrix's own writers (tckgen) pad the first line with spaces, so that it can be rewritten in place.
     let first_eol = b.iter().take(4096).position(|&c| c == b'\n');
@@ -165,5 +166,5 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)])
     for _ in 0..3 {
         out.extend_from_slice(&f32::INFINITY.to_le_bytes());
     }
-    std::fs::write(path, out).map_err(|e| Error::io(path, e))
+    super::tractogram::write_file(path, out)
 }

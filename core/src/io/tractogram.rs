@@ -56,15 +56,16 @@ impl Tractogram {
         self.offsets.push(self.points.len());
     }
 
-    /// Reads `.trk` or `.tck` by extension.
+    /// Reads `.trk` or `.tck` (or `.trk.gz` / `.tck.gz`) by extension.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         match extension(path).as_str() {
             "trk" => Ok(super::trk::read(path)?.0),
             "tck" => Ok(super::tck::read(path)?.0),
-            other => {
-                Err(Error::format(path, format!("unknown tractogram extension '{other}' (expected .trk or .tck)")))
-            }
+            other => Err(Error::format(
+                path,
+                format!("unknown tractogram extension '{other}' (expected .trk or .tck, or .gz)"),
+            )),
         }
     }
 
@@ -74,16 +75,46 @@ impl Tractogram {
         match extension(path).as_str() {
             "trk" => Ok(super::trk::read_bytes(bytes, path)?.0),
             "tck" => Ok(super::tck::read_bytes(bytes, path)?.0),
-            other => {
-                Err(Error::format(path, format!("unknown tractogram extension '{other}' (expected .trk or .tck)")))
-            }
+            other => Err(Error::format(
+                path,
+                format!("unknown tractogram extension '{other}' (expected .trk or .tck, or .gz)"),
+            )),
         }
     }
 }
 
-/// Lower-case file extension (empty when there is none).
+/// Lower-case file extension (empty when there is none); for a gzipped file the one before `.gz` (`trk` for
+/// `x.trk.gz`).
 pub fn extension(path: &Path) -> String {
-    path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()
+    let ext = |p: &Path| p.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    match ext(path).as_str() {
+        "gz" => path.file_stem().map_or_else(String::new, |stem| ext(Path::new(stem))),
+        e => e.to_string(),
+    }
+}
+
+/// A tractogram file's bytes, decompressed when they are gzip data (by content: `.trk.gz` / `.tck.gz`, or any
+/// name).
+pub(crate) fn gunzipped<'a>(bytes: &'a [u8], path: &Path) -> Result<std::borrow::Cow<'a, [u8]>> {
+    if !bytes.starts_with(&[0x1f, 0x8b]) {
+        return Ok(std::borrow::Cow::Borrowed(bytes));
+    }
+    let mut out = Vec::new();
+    std::io::Read::read_to_end(&mut flate2::read::MultiGzDecoder::new(bytes), &mut out)
+        .map_err(|e| Error::format(path, format!("bad gzip data: {e}")))?;
+    Ok(std::borrow::Cow::Owned(out))
+}
+
+/// Writes a tractogram file's bytes, gzip-compressed when the name ends in `.gz`.
+pub(crate) fn write_file(path: &Path, bytes: Vec<u8>) -> Result<()> {
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("gz")) {
+        let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+        let mut enc = flate2::write::GzEncoder::new(std::io::BufWriter::new(file), flate2::Compression::default());
+        std::io::Write::write_all(&mut enc, &bytes).map_err(|e| Error::io(path, e))?;
+        let mut w = enc.finish().map_err(|e| Error::io(path, e))?;
+        return std::io::Write::flush(&mut w).map_err(|e| Error::io(path, e));
+    }
+    std::fs::write(path, bytes).map_err(|e| Error::io(path, e))
 }
 
 /// Orientation of each voxel axis of an affine: `(world axis, sign)` per column, as nibabel's

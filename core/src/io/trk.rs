@@ -137,8 +137,9 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TrkHeader)> {
     read_bytes(&std::fs::read(path).map_err(|e| Error::io(path, e))?, path)
 }
 
-/// [`read`] from the file's bytes in memory; `path` is the name errors use.
+/// [`read`] from the file's bytes in memory (gzipped or not); `path` is the name errors use.
 pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TrkHeader)> {
+    let b = &super::tractogram::gunzipped(b, path)?[..];
     if b.len() < HDR {
         return Err(Error::format(path, format!("truncated TrackVis header: {} of 1000 bytes", b.len())));
     }
@@ -331,5 +332,5 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, world_from_voxel: DMat4, di
             dst = tail;
         }
     });
-    std::fs::write(path, out).map_err(|e| Error::io(path, e))
+    super::tractogram::write_file(path, out)
 }

@@ -20,7 +20,7 @@ use crate::{TractMeshMaterial, TubeSettings, TubeletMaterial, spawn_lines, spawn
 #[derive(Asset, TypePath, Clone, Debug, Deref)]
 pub struct TractogramAsset(pub Arc<Tractogram>);
 
-/// Loads `.trk` and `.tck` files as [`TractogramAsset`]s.
+/// Loads `.trk` and `.tck` files (and their `.gz`) as [`TractogramAsset`]s.
 #[derive(Default, TypePath)]
 pub struct TractogramLoader;
 
@@ -42,7 +42,7 @@ impl AssetLoader for TractogramLoader {
     }
 
     fn extensions(&self) -> &[&str] {
-        &["trk", "tck"]
+        &["trk", "tck", "trk.gz", "tck.gz"]
     }
 }
 
