@@ -64,9 +64,20 @@ fn test_camera() -> PinholeCamera {
 }
 
 fn render(glyphs: &[(Glyph, Lobes)], settings: RayCastSettings) -> Option<(Capture, DepthMap)> {
-    let (mut app, target) = headless::gpu_test_app(W, H)?;
+    render_at(glyphs, settings, (W, H), EYE)
+}
+
+/// Each glyph as its own set (with its lobe rule), seen from `eye` towards the origin at `w x h`: the image
+/// and the depth.
+fn render_at(
+    glyphs: &[(Glyph, Lobes)],
+    settings: RayCastSettings,
+    (w, h): (u32, u32),
+    eye: DVec3,
+) -> Option<(Capture, DepthMap)> {
+    let (mut app, target) = headless::gpu_test_app(w, h)?;
     app.add_plugins(ShGlyphPlugin);
-    let copy = headless::add_depth_copy(&mut app, W, H);
+    let copy = headless::add_depth_copy(&mut app, w, h);
     app.add_systems(Startup, {
         let glyphs = glyphs.to_vec();
         move |mut commands: Commands,
@@ -87,7 +98,7 @@ fn render(glyphs: &[(Glyph, Lobes)], settings: RayCastSettings) -> Option<(Captu
             }
         }
     });
-    let cam = headless::spawn_test_camera(&mut app, target.clone(), EYE.as_vec3(), Vec3::ZERO);
+    let cam = headless::spawn_test_camera(&mut app, target.clone(), eye.as_vec3(), Vec3::ZERO);
     app.world_mut().entity_mut(cam).insert(headless::depth_copy_camera(copy.clone()));
     match headless::capture_with_depth(&mut app, target, Some(&copy)) {
         Ok((c, Some(d))) => Some((c, d)),
@@ -280,29 +291,7 @@ fn exact_glyphs_match_the_f64_polynomial_caster_in_every_basis_and_order() {
         }
     }
     let settings = RayCastSettings { colour: GlyphColour::Normal, refine: 16, ..default() };
-    let Some((mut app, target)) = headless::gpu_test_app(EW, EH) else { return };
-    app.add_plugins(ShGlyphPlugin);
-    let copy = headless::add_depth_copy(&mut app, EW, EH);
-    app.add_systems(Startup, {
-        let glyphs = glyphs.clone();
-        move |mut commands: Commands,
-              mut meshes: ResMut<Assets<Mesh>>,
-              mut materials: ResMut<Assets<ShGlyphMaterial>>,
-              mut buffers: ResMut<Assets<bevy::render::storage::ShaderBuffer>>| {
-            for (g, lobes) in &glyphs {
-                let s = RayCastSettings { lobes: *lobes, ..settings };
-                let one = std::slice::from_ref(g);
-                spawn_glyph_set(&mut commands, &mut meshes, &mut materials, &mut buffers, one, None, &s);
-            }
-        }
-    });
-    let cam_e = headless::spawn_test_camera(&mut app, target.clone(), eye.as_vec3(), Vec3::ZERO);
-    app.world_mut().entity_mut(cam_e).insert(headless::depth_copy_camera(copy.clone()));
-    let (img, depth) = match headless::capture_with_depth(&mut app, target, Some(&copy)) {
-        Ok((c, Some(d))) => (c, d),
-        Ok(_) => panic!("no depth came back"),
-        Err(e) => panic!("{e}"),
-    };
+    let Some((img, depth)) = render_at(&glyphs, settings, (EW, EH), eye) else { return };
     if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
         std::fs::write(format!("{dir}/gpu_sh_exact.png"), img.to_png().expect("png")).expect("write");
     }
