@@ -5,7 +5,7 @@
 //!
 //! Mouse: left-drag orbits, right-drag pans, wheel zooms, a left click on an SH glyph highlights it and
 //! reports its voxel, Shift + left-drag on a tract ROI moves it. Keys: R resets the view, F12 saves a
-//! screenshot.
+//! screenshot (`fascicle-YYYYMMDD-HHMMSS.png`, never overwriting).
 //! Files dropped on the window are added as layers; a file that fails to load shows an error and the
 //! viewer keeps running.
 
@@ -393,11 +393,33 @@ fn keys(
         *orbit = Orbit::from_spec(&scene.0.camera);
     }
     if input.just_pressed(KeyCode::F12) {
-        let path = format!("fascicle-screenshot-{}.png", ui.screenshots);
+        let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+        let path = screenshot_path(secs, |p| p.exists());
         ui.screenshots += 1;
-        ui.message = Some(format!("saved {path}"));
+        ui.message = Some(format!("saved {}", path.display()));
         commands.spawn(Screenshot::primary_window()).observe(save_to_disk(path));
     }
+}
+
+/// `fascicle-YYYYMMDD-HHMMSS.png` (UTC) in the working directory, with `-2`, `-3`, ... if taken: screenshots
+/// never overwrite one another, across runs too.
+pub fn screenshot_path(unix_secs: u64, exists: impl Fn(&std::path::Path) -> bool) -> PathBuf {
+    let (days, rest) = ((unix_secs / 86_400) as i64, unix_secs % 86_400);
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    let stem = format!("fascicle-{y:04}{m:02}{d:02}-{:02}{:02}{:02}", rest / 3600, rest % 3600 / 60, rest % 60);
+    (1..)
+        .map(|k| PathBuf::from(if k == 1 { format!("{stem}.png") } else { format!("{stem}-{k}.png") }))
+        .find(|p| !exists(p))
+        .unwrap_or_else(|| PathBuf::from(format!("{stem}.png")))
 }
 
 fn dropped_files(mut events: MessageReader<FileDragAndDrop>, mut scene: ResMut<ActiveScene>, mut ui: ResMut<UiState>) {
@@ -558,6 +580,21 @@ mod tests {
 
     /// Dropping files: a good one becomes a layer, a bad one an error message; the app keeps running and the
     /// scene keeps what it had.
+    #[test]
+    fn screenshots_are_named_by_time_and_never_overwrite() {
+        // 2026-11-23 21:42:27 UTC.
+        let t = 1_795_470_147;
+        assert_eq!(super::screenshot_path(t, |_| false), PathBuf::from("fascicle-20261123-214227.png"));
+        let taken = [PathBuf::from("fascicle-20261123-214227.png"), PathBuf::from("fascicle-20261123-214227-2.png")];
+        assert_eq!(
+            super::screenshot_path(t, |p| taken.iter().any(|x| x == p)),
+            PathBuf::from("fascicle-20261123-214227-3.png")
+        );
+        assert_eq!(super::screenshot_path(0, |_| false), PathBuf::from("fascicle-19700101-000000.png"));
+        // A leap day.
+        assert_eq!(super::screenshot_path(951_782_400, |_| false), PathBuf::from("fascicle-20000229-000000.png"));
+    }
+
     #[test]
     fn dropped_files_add_layers_or_report_errors() {
         let mut app = App::new();
