@@ -299,6 +299,50 @@ pub struct CameraSpec {
     pub fov_y_deg: f32,
 }
 
+impl CameraSpec {
+    /// A camera looking at the box `[lo, hi]` (world mm) from the direction `like` looks from, far enough that
+    /// the box's bounding sphere fills about 90 % of the view's height; same up and field of view.
+    pub fn framing(lo: glam::DVec3, hi: glam::DVec3, like: &CameraSpec) -> CameraSpec {
+        let centre = (lo + hi) / 2.0;
+        let radius = ((hi - lo).length() / 2.0).max(1.0);
+        let from = (glam::Vec3::from(like.eye) - glam::Vec3::from(like.target)).as_dvec3().normalize_or(glam::DVec3::Z);
+        let half_fov = (f64::from(like.fov_y_deg.clamp(1.0, 170.0)) / 2.0).to_radians();
+        let distance = radius / half_fov.sin() / 0.9;
+        CameraSpec {
+            eye: (centre + from * distance).as_vec3().to_array(),
+            target: centre.as_vec3().to_array(),
+            ..*like
+        }
+    }
+}
+
+/// The world bounds (RAS+ mm) of a data file: a NIfTI image's voxel grid through its affine (from the header
+/// alone), or a tractogram's points. `None` when the file cannot be read or holds nothing.
+pub fn file_bounds(path: &Path) -> Option<(glam::DVec3, glam::DVec3)> {
+    let lower = path.to_string_lossy().to_ascii_lowercase();
+    let mut lo = glam::DVec3::splat(f64::INFINITY);
+    let mut hi = glam::DVec3::splat(f64::NEG_INFINITY);
+    if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
+        let h = fascicle_core::io::nifti::read_header(path).ok()?;
+        let d = [0, 1, 2].map(|i| h.shape.get(i).copied().unwrap_or(1) as f64 - 1.0);
+        for k in 0..8 {
+            let v = glam::DVec3::new(
+                if k & 1 == 0 { 0.0 } else { d[0] },
+                if k & 2 == 0 { 0.0 } else { d[1] },
+                if k & 4 == 0 { 0.0 } else { d[2] },
+            );
+            let p = h.world_from_voxel.transform_point3(v);
+            (lo, hi) = (lo.min(p), hi.max(p));
+        }
+    } else {
+        let t = fascicle_core::io::Tractogram::read(path).ok()?;
+        for p in &t.points {
+            (lo, hi) = (lo.min(p.as_dvec3()), hi.max(p.as_dvec3()));
+        }
+    }
+    (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+}
+
 impl Default for CameraSpec {
     fn default() -> Self {
         Self { eye: [-70.0, -120.0, 80.0], target: [0.0, 0.0, 0.0], up: [0.0, 0.0, 1.0], fov_y_deg: 45.0 }
@@ -403,6 +447,10 @@ impl Scene {
             *self = Scene::load(path)?;
         } else {
             self.layers.push(Scene::layer_for_file(path)?);
+            // Frame the new data: files from scanners sit far from the origin.
+            if let Some((lo, hi)) = file_bounds(path) {
+                self.camera = CameraSpec::framing(lo, hi, &self.camera);
+            }
         }
         Ok(())
     }

@@ -43,7 +43,7 @@ pub fn view_camera() -> impl Bundle {
     )
 }
 
-#[derive(Resource)]
+#[derive(Resource, Debug, PartialEq)]
 struct Orbit {
     target: Vec3,
     distance: f32,
@@ -422,12 +422,19 @@ pub fn screenshot_path(unix_secs: u64, exists: impl Fn(&std::path::Path) -> bool
         .unwrap_or_else(|| PathBuf::from(format!("{stem}.png")))
 }
 
-fn dropped_files(mut events: MessageReader<FileDragAndDrop>, mut scene: ResMut<ActiveScene>, mut ui: ResMut<UiState>) {
+fn dropped_files(
+    mut events: MessageReader<FileDragAndDrop>,
+    mut scene: ResMut<ActiveScene>,
+    mut ui: ResMut<UiState>,
+    mut orbit: ResMut<Orbit>,
+) {
     for ev in events.read() {
-        if let FileDragAndDrop::DroppedFile { path_buf, .. } = ev
-            && let Err(e) = scene.0.open_file(path_buf)
-        {
-            ui.message = Some(e);
+        if let FileDragAndDrop::DroppedFile { path_buf, .. } = ev {
+            match scene.0.open_file(path_buf) {
+                // The scene's camera frames the new layer: the view follows.
+                Ok(()) => *orbit = Orbit::from_spec(&scene.0.camera),
+                Err(e) => ui.message = Some(e),
+            }
         }
     }
 }
@@ -602,6 +609,7 @@ mod tests {
             .add_message::<FileDragAndDrop>()
             .insert_resource(ActiveScene(Scene::default_scene()))
             .insert_resource(UiState::default())
+            .insert_resource(Orbit::from_spec(&CameraSpec::default()))
             .add_systems(Update, dropped_files);
         let before = app.world().resource::<ActiveScene>().0.layers.len();
         let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
@@ -618,6 +626,15 @@ mod tests {
         );
         let msg = app.world().resource::<UiState>().message.clone().unwrap_or_default();
         assert!(msg.contains("file.nii.gz"), "{msg}");
+        // The camera frames the new streamlines (bounds as `fascicle info` prints them): their centre, with the
+        // whole bounding sphere in view.
+        let (lo, hi) = (glam::DVec3::new(64.02, 78.36, 61.47), glam::DVec3::new(115.56, 121.13, 91.91));
+        let cam = scene.camera;
+        let target = glam::Vec3::from(cam.target).as_dvec3();
+        assert!((target - (lo + hi) / 2.0).length() < 0.05, "target {target}");
+        let distance = (glam::Vec3::from(cam.eye).as_dvec3() - target).length();
+        assert!(distance * (cam.fov_y_deg as f64 / 2.0).to_radians().sin() >= (hi - lo).length() / 2.0);
+        assert_eq!(*app.world().resource::<Orbit>(), Orbit::from_spec(&cam), "the view follows");
         app.update(); // still running
         // An SH coefficient image becomes a glyph layer (func_coef: 45 coefficients, l_max 8).
         let sh = data.join("sh/func_coef.nii.gz");
