@@ -198,13 +198,13 @@ struct Case {
 }
 
 fn sweep(quick: bool) -> Vec<Method> {
-    let mut m: Vec<Method> = if quick { &[8u32, 16, 48][..] } else { &[8u32, 16, 48, 96][..] }
+    let mut m: Vec<Method> = if quick { &[8u32, 16, 48][..] } else { &[8u32, 48, 96][..] }
         .iter()
         .map(|&samples| Method::Exact { samples, refine: 12 })
         .collect();
     let hs: &[f32] = if quick { &[0.08, 0.02] } else { &[0.08, 0.04, 0.02] };
     m.extend(hs.iter().map(|&h| Method::Linear { h, refine: 4 }));
-    let orders: &[u32] = &[2, 3, 4];
+    let orders: &[u32] = if quick { &[2, 3, 4] } else { &[3, 4] };
     m.extend(orders.iter().map(|&order| Method::Mesh { order }));
     m
 }
