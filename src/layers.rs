@@ -28,7 +28,7 @@ use fascicle_tracts::{
     MeshSet, TractMeshMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial, line_mesh, spawn_lines,
     spawn_polygon_tubes, spawn_tubes,
 };
-use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, VolumeUniform, spawn_volume, tf_buffers};
+use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume};
 
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
 use crate::scene::{
@@ -175,16 +175,9 @@ fn sync_scene(
         for (set, le) in &volume_sets {
             if let Some(LayerKind::Volume { render, .. }) = kinds.get(le.0)
                 && spawned.0.get(le.0) != kinds.get(le.0)
-                && let Some(mut m) = volume_materials.get_mut(&set.material)
             {
                 // The transfer function's table and pre-integration table, and the uniform.
-                let (lut, table) = tf_buffers(render);
-                for (h, bytes) in [(m.lut.clone(), lut), (m.table.clone(), table)] {
-                    if let Some(mut b) = buffers.get_mut(&h) {
-                        b.data = Some(bytes);
-                    }
-                }
-                m.params = VolumeUniform::new(set.dims, set.world_from_voxel, render);
+                set.write_style(render, true, &mut volume_materials, &mut buffers);
             }
         }
         for (set, le) in &tensor_sets {

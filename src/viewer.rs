@@ -401,12 +401,9 @@ fn keys(
     }
 }
 
-/// `fascicle-YYYYMMDD-HHMMSS.png` (UTC) in the working directory, with `-2`, `-3`, ... if taken: screenshots
-/// never overwrite one another, across runs too.
-pub fn screenshot_path(unix_secs: u64, exists: impl Fn(&std::path::Path) -> bool) -> PathBuf {
-    let (days, rest) = ((unix_secs / 86_400) as i64, unix_secs % 86_400);
-    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
-    let z = days + 719_468;
+/// The UTC calendar date (year, month, day) of a Unix time: Howard Hinnant's civil-from-days algorithm.
+pub fn civil_date(unix_secs: u64) -> [i64; 3] {
+    let z = (unix_secs / 86_400) as i64 + 719_468;
     let era = z.div_euclid(146_097);
     let doe = z - era * 146_097;
     let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
@@ -414,7 +411,14 @@ pub fn screenshot_path(unix_secs: u64, exists: impl Fn(&std::path::Path) -> bool
     let mp = (5 * doy + 2) / 153;
     let d = doy - (153 * mp + 2) / 5 + 1;
     let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
+    [yoe + era * 400 + i64::from(m <= 2), m, d]
+}
+
+/// `fascicle-YYYYMMDD-HHMMSS.png` (UTC) in the working directory, with `-2`, `-3`, ... if taken: screenshots
+/// never overwrite one another, across runs too.
+pub fn screenshot_path(unix_secs: u64, exists: impl Fn(&std::path::Path) -> bool) -> PathBuf {
+    let [y, m, d] = civil_date(unix_secs);
+    let rest = unix_secs % 86_400;
     let stem = format!("fascicle-{y:04}{m:02}{d:02}-{:02}{:02}{:02}", rest / 3600, rest % 3600 / 60, rest % 60);
     (1..)
         .map(|k| PathBuf::from(if k == 1 { format!("{stem}.png") } else { format!("{stem}-{k}.png") }))

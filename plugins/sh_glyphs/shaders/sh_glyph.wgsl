@@ -83,10 +83,10 @@ struct RayPlane {
     sn: array<f32, 9>,
 };
 
-fn ray_plane(c: ptr<function, array<f32, 153>>, k: u32, oc: vec3<f32>, dir: vec3<f32>) -> RayPlane {
+// `tc` and `foot`: the parameter of the ray's closest point to the centre, and that point.
+fn ray_plane(c: ptr<function, array<f32, 153>>, k: u32, dir: vec3<f32>, tc: f32, foot: vec3<f32>) -> RayPlane {
     var rp: RayPlane;
-    rp.tc = -dot(oc, dir);
-    let foot = oc + rp.tc * dir;
+    rp.tc = tc;
     rp.b = length(foot);
     var e = foot / rp.b;
     if !(rp.b > 0.0) {
@@ -188,7 +188,7 @@ fn first_hit_exact(c: ptr<function, array<f32, 153>>, oc: vec3<f32>, dir: vec3<f
     if dot(foot, foot) > 1.0 {
         return -1.0;
     }
-    var rp = ray_plane(c, cfg.l_max, oc, dir);
+    var rp = ray_plane(c, cfg.l_max, dir, tc, foot);
     let n = max(cfg.max_steps, 1u);
     var lo = span.x;
     var hi = span.x;

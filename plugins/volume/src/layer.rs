@@ -24,8 +24,8 @@ use fascicle_core::Volume;
 use fascicle_render::layer::{LayerStatus, LoadError, StageCounts, changed_assets, loaded_or_pending, read_all};
 
 use crate::{
-    HISTOGRAM_BINS, OpaqueDepth, VolumeMaterial, VolumeMethod, VolumeSet, VolumeSettings, VolumeUniform, histogram,
-    proxy_mesh, spawn_volume, tf_buffers,
+    HISTOGRAM_BINS, OpaqueDepth, VolumeMaterial, VolumeMethod, VolumeSet, VolumeSettings, histogram, proxy_mesh,
+    spawn_volume,
 };
 
 /// A 3D scalar image (T1, FA, MD, a b0) with its voxel-to-world affine (RAS+ mm).
@@ -192,17 +192,8 @@ fn sync_layers(
             mesh.0 = meshes.add(proxy_mesh(set.dims, set.world_from_voxel, &settings));
             counts.0.repacks += 1;
         }
-        if let Some(mut m) = materials.get_mut(&set.material) {
-            if before.tf != settings.tf || before.step != settings.step {
-                // The lookup and pre-integration tables depend on the function and the step.
-                let (lut, table) = tf_buffers(&settings);
-                for (h, bytes) in [(m.lut.clone(), lut), (m.table.clone(), table)] {
-                    if let Some(mut b) = buffers.get_mut(&h) {
-                        b.data = Some(bytes);
-                    }
-                }
-            }
-            m.params = VolumeUniform::new(set.dims, set.world_from_voxel, &settings);
+        let tables = before.tf != settings.tf || before.step != settings.step;
+        if set.write_style(&settings, tables, &mut materials, &mut buffers) {
             counts.0.uniform_writes += 1;
         }
         if before.tf.range != settings.tf.range {

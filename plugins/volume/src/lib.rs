@@ -183,6 +183,31 @@ pub struct VolumeSet {
     pub histogram: std::sync::Arc<Vec<u32>>,
 }
 
+impl VolumeSet {
+    /// Writes `settings` into the set's material: the uniform, and the transfer function's lookup and
+    /// pre-integration tables when `tables` (they depend on the function and the step). The texture and the
+    /// mesh are untouched. False when the material is gone.
+    pub fn write_style(
+        &self,
+        settings: &VolumeSettings,
+        tables: bool,
+        materials: &mut Assets<VolumeMaterial>,
+        buffers: &mut Assets<ShaderBuffer>,
+    ) -> bool {
+        let Some(mut m) = materials.get_mut(&self.material) else { return false };
+        if tables {
+            let (lut, table) = tf_buffers(settings);
+            for (h, bytes) in [(m.lut.clone(), lut), (m.table.clone(), table)] {
+                if let Some(mut b) = buffers.get_mut(&h) {
+                    b.data = Some(bytes);
+                }
+            }
+        }
+        m.params = VolumeUniform::new(self.dims, self.world_from_voxel, settings);
+        true
+    }
+}
+
 /// Bins of a volume's histogram (for the transfer-function editor).
 pub const HISTOGRAM_BINS: usize = 64;
 
