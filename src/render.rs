@@ -44,6 +44,7 @@ pub fn render_scene_with_depth(
     if let Some(c) = &copy {
         app.world_mut().entity_mut(cam).insert(headless::depth_copy_camera(c.clone()));
     }
+    crate::layers::settle(&mut app)?;
     let out = headless::capture_with_depth(&mut app, target, copy.as_ref()).map_err(|e| e.to_string())?;
     let errors = &app.world().resource::<LayerErrors>().0;
     if !errors.is_empty() {

@@ -25,11 +25,12 @@ use bevy_egui::{
 };
 use fascicle_render::FascicleRenderPlugin;
 
-use crate::layers::{ActiveScene, LayerEntity, LayerErrors, ScenePlugin};
+use crate::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin};
 use crate::panels::LayerPanels;
 use crate::render::BACKGROUND;
 use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene};
 use fascicle_core::roi::{RoiShape, SegmentGrid, select};
+use fascicle_render::layer::LayerStatus;
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
 use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
 
@@ -449,6 +450,7 @@ fn dropped_files(
 fn save_selection(
     mut ui: ResMut<UiState>,
     scene: Res<ActiveScene>,
+    cache: Res<crate::cache::DataCache>,
     sets: Query<(&TractSet, &TractSelection, &LayerEntity)>,
 ) {
     let Some(layer) = ui.save_selection.take() else { return };
@@ -456,10 +458,13 @@ fn save_selection(
     let selected = match sets.iter().find(|(_, _, le)| le.0 == layer) {
         Some((set, selection, _)) => Ok((selected_tractogram(set, selection), set.tractogram.n_streamlines())),
         None => match scene.0.layers.get(layer).map(|l| &l.kind) {
-            Some(LayerKind::Tracts { source, rois, .. }) => crate::layers::tract_data(source).map(|(t, _)| {
-                let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
-                (t.subset(&select(&t.points, &t.offsets, &grid, rois)), t.n_streamlines())
-            }),
+            Some(LayerKind::Tracts { source, rois, .. }) => {
+                crate::jobs::tract_data(&cache, source, &Default::default()).map(|d| {
+                    let t = &d.tractogram;
+                    let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
+                    (t.subset(&select(&t.points, &t.offsets, &grid, rois)), t.n_streamlines())
+                })
+            }
             _ => Err(format!("layer {layer} is not a tract layer")),
         },
     };
@@ -476,7 +481,8 @@ fn save_selection(
 fn panel(
     mut contexts: EguiContexts,
     mut scene: ResMut<ActiveScene>,
-    errors: Res<LayerErrors>,
+    states: Query<(&LayerEntity, &LayerStatus, Option<&LayerJob>), With<SceneLayer>>,
+    mut retries: ResMut<RetryLayers>,
     panels: Res<LayerPanels>,
     layer_data: Res<crate::panels::LayerDataMap>,
     mut ui_state: ResMut<UiState>,
@@ -510,6 +516,9 @@ fn panel(
                         remove = Some(i);
                     }
                 });
+                if let Some((_, status, job)) = states.iter().find(|(le, ..)| le.0 == i) {
+                    layer_status(ui, status, job, || retries.0.push(i));
+                }
                 ui.add(egui::Slider::new(&mut layer.opacity, 0.0..=1.0).text("opacity"));
                 if let Some(p) = panels.find(&layer.kind) {
                     let data = layer_data.0.get(&i).cloned().unwrap_or_default();
@@ -557,9 +566,6 @@ fn panel(
                 }
             }
         });
-        for e in &errors.0 {
-            ui.colored_label(egui::Color32::LIGHT_RED, e);
-        }
         if let Some(m) = &ui_state.message {
             ui.label(m);
         }
@@ -583,6 +589,28 @@ fn panel(
         scene.0 = edited;
     }
     Ok(())
+}
+
+/// A layer's job (stage, progress bar, cancel) or its error (with retry).
+fn layer_status(ui: &mut egui::Ui, status: &LayerStatus, job: Option<&LayerJob>, retry: impl FnOnce()) {
+    if let Some(job) = job {
+        let (stage, fraction) = job.progress.snapshot();
+        ui.horizontal(|ui| {
+            let bar = egui::ProgressBar::new(fraction.unwrap_or(0.0)).text(stage).desired_width(160.0);
+            ui.add(bar.animate(fraction.is_none()));
+            if ui.small_button("cancel").clicked() {
+                job.progress.cancel();
+            }
+        });
+        ui.ctx().request_repaint();
+    } else if let LayerStatus::Failed(message) = status {
+        ui.horizontal_wrapped(|ui| {
+            ui.colored_label(egui::Color32::LIGHT_RED, message);
+            if ui.small_button("retry").clicked() {
+                retry();
+            }
+        });
+    }
 }
 
 #[cfg(test)]
@@ -719,6 +747,7 @@ mod tests {
         app.add_plugins(MinimalPlugins)
             .insert_resource(ActiveScene(Scene { layers: vec![layer], camera: CameraSpec::default() }))
             .insert_resource(UiState::default())
+            .init_resource::<crate::cache::DataCache>()
             .add_systems(Update, save_selection);
         let save = |app: &mut App, layer: usize, path: &std::path::Path| {
             let mut ui = app.world_mut().resource_mut::<UiState>();

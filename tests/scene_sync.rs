@@ -6,6 +6,7 @@ use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle::layers::{ActiveScene, LayerErrors, ScenePlugin};
 use fascicle::scene::{LayerKind, Scene};
+use fascicle::{cache::DataCache, jobs::JobProgress};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphSet, ShVoxel};
@@ -13,6 +14,11 @@ use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphSet, ShVoxel};
 fn glyph_layer(scene: &mut Scene) -> &mut LayerKind {
     let i = scene.layers.iter().position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. })).expect("glyph layer");
     &mut scene.layers[i].kind
+}
+
+/// Runs the app until every layer's job is done and swapped in.
+fn settle(app: &mut App) {
+    fascicle::layers::settle(app).unwrap_or_else(|e| panic!("{e}"));
 }
 
 /// A headless app showing `scene`, initialised and updated once; `None` when GPU tests are skipped.
@@ -24,7 +30,7 @@ fn scene_app(scene: Scene) -> Option<App> {
     let mut app = headless::headless_app();
     app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene));
     headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
-    app.update();
+    settle(&mut app);
     Some(app)
 }
 
@@ -48,7 +54,7 @@ fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
         render.h = 0.05;
         render.refine = 7;
     }
-    app.update();
+    settle(&mut app);
     let (e1, mat1, _) = set(&mut app);
     assert_eq!((e1, &mat1), (e0, &mat0));
     assert_eq!(app.world().resource::<Assets<ShaderBuffer>>().len(), buffers0);
@@ -57,16 +63,16 @@ fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
 
     // Hiding: same entity, hidden.
     app.world_mut().resource_mut::<ActiveScene>().0.layers[2].visible = false;
-    app.update();
+    settle(&mut app);
     let (e2, _, _) = set(&mut app);
     assert_eq!(e2, e0);
-    assert_eq!(app.world().get::<Visibility>(e2), Some(&Visibility::Hidden));
+    assert_eq!(app.world().get::<InheritedVisibility>(e2).map(|v| v.get()), Some(false), "hidden with its layer");
 
     // Size: the glyphs are rebuilt.
     if let LayerKind::ShGlyphs { style, .. } = glyph_layer(&mut app.world_mut().resource_mut::<ActiveScene>().0) {
         style.scale *= 2.0;
     }
-    app.update();
+    settle(&mut app);
     let (e3, mat3, n3) = set(&mut app);
     assert_ne!(e3, e0);
     assert_ne!(mat3, mat0);
@@ -107,8 +113,11 @@ fn oblique_glyph_plane_renders_on_the_plane() {
         }],
         camera: CameraSpec { eye: [0.0, -60.0, 90.0], target: [0.0, 0.0, 0.0], up: [0.0, 0.0, 1.0], fov_y_deg: 45.0 },
     };
-    let (glyphs, _) = fascicle::layers::free_plane_glyphs(
-        &ShSource::PhantomCsa { l_max: 4 },
+    let field =
+        fascicle::jobs::sh_field(&DataCache::default(), &ShSource::PhantomCsa { l_max: 4 }, &JobProgress::default())
+            .unwrap();
+    let (glyphs, _) = fascicle::jobs::plane_glyphs(
+        &field,
         &plane,
         Sampling::Trilinear,
         GlyphStyle { scale: 2.5, ..GlyphStyle::default() },
@@ -189,7 +198,7 @@ fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
     let scene = Scene { layers: vec![layer], camera: Default::default() };
     app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene));
     headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
-    app.update();
+    settle(&mut app);
     assert!(app.world().resource::<LayerErrors>().0.is_empty());
     let set = |app: &mut App| {
         let mut q = app.world_mut().query::<(Entity, &TensorGlyphSet)>();
@@ -206,7 +215,7 @@ fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
         render.shape = TensorShape::Superquadric { gamma: 1.5 };
         render.colour = TensorColour::Fa;
     }
-    app.update();
+    settle(&mut app);
     let (e1, m1, _) = set(&mut app);
     assert_eq!((e1, &m1), (e0, &m0));
     let p = app.world().resource::<Assets<TensorGlyphMaterial>>().get(&m1).unwrap().params;
@@ -215,7 +224,7 @@ fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
     {
         render.shape = TensorShape::Ellipsoid;
     }
-    app.update();
+    settle(&mut app);
     let (e2, _, n2) = set(&mut app);
     assert_ne!(e2, e0);
     assert_eq!(n2, n0);
@@ -227,8 +236,15 @@ fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
 fn full_volume_glyphs_cover_the_field() {
     use fascicle::scene::ShSource;
     use fascicle_core::sh::glyph::GlyphStyle;
-    let (glyphs, voxels) =
-        fascicle::layers::volume_glyphs(&ShSource::PhantomCsa { l_max: 4 }, 4, GlyphStyle::default()).unwrap();
+    let field =
+        fascicle::jobs::sh_field(&DataCache::default(), &ShSource::PhantomCsa { l_max: 4 }, &JobProgress::default())
+            .unwrap();
+    let (glyphs, voxels) = fascicle_sh_glyphs::field_glyphs(
+        &field,
+        &fascicle_sh_glyphs::Selection::Volume { spacing: 4 },
+        GlyphStyle::default(),
+    )
+    .unwrap();
     // 12 x 12 x 6 grid points, all with signal (the phantom's background is isotropic, not empty).
     assert_eq!(glyphs.len(), 12 * 12 * 6);
     let slices: std::collections::BTreeSet<u32> = voxels.iter().map(|v| v[2]).collect();
@@ -245,7 +261,7 @@ fn splat_recolouring_rewrites_only_the_styles() {
         .expect("spiral scene");
     let Some(mut app) = scene_app(scene) else { return };
     app.world_mut().spawn((Camera3d::default(), Transform::from_xyz(0.0, -90.0, 40.0).looking_at(Vec3::ZERO, Vec3::Z)));
-    app.update();
+    settle(&mut app);
     let snapshot = |app: &mut App| {
         let mut q = app.world_mut().query::<(Entity, &SplatSet)>();
         let (e, s) = q.single(app.world()).expect("one splat set");
@@ -265,7 +281,7 @@ fn splat_recolouring_rewrites_only_the_styles() {
         assert_eq!(render.colouring.mode, SplatColourMode::Barycentric);
         render.colouring.tf.centre = [0.0, 0.0, 1.0];
     }
-    app.update();
+    settle(&mut app);
     let (e1, mat1, splats1) = snapshot(&mut app);
     assert_eq!((e1, &mat1), (e0, &mat0));
     assert_eq!(app.world().resource::<SplatSortStats>().sorts, sorts0, "no re-sort");
@@ -299,7 +315,7 @@ fn volume_transfer_function_updates_in_place() {
     if let LayerKind::Volume { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
         render.tf.points[2].rgba[3] = 0.5;
     }
-    app.update();
+    settle(&mut app);
     let (e1, m1, _) = snapshot(&mut app);
     assert_eq!((e1, &m1), (e0, &m0));
     let bytes = app.world().resource::<Assets<ShaderBuffer>>().get(&lut).unwrap().data.clone().expect("lut");
@@ -312,7 +328,7 @@ fn volume_transfer_function_updates_in_place() {
     if let LayerKind::Volume { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
         render.clip.max[0] = 0.5;
     }
-    app.update();
+    settle(&mut app);
     let (e3, m3, _) = snapshot(&mut app);
     assert_eq!((e3, &m3), (e0, &m0));
     let params = app.world().resource::<Assets<VolumeMaterial>>().get(&m3).unwrap().params;
@@ -320,7 +336,7 @@ fn volume_transfer_function_updates_in_place() {
     if let LayerKind::Volume { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
         render.method = VolumeMethod::Slicing;
     }
-    app.update();
+    settle(&mut app);
     let (e2, _, _) = snapshot(&mut app);
     assert_ne!(e2, e0);
 }
@@ -332,7 +348,7 @@ fn roi_edits_reselect_without_rebuilding() {
     use fascicle_core::roi::RoiShape;
     use fascicle_tracts::{RoiStats, TractSelection, TractSet};
     let Some(mut app) = scene_app(Scene::default_scene()) else { return };
-    app.update();
+    settle(&mut app);
     let i =
         app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Tracts { .. }));
     let i = i.expect("the default scene has tracts");
@@ -349,8 +365,8 @@ fn roi_edits_reselect_without_rebuilding() {
     {
         *radius = 1.5;
     }
-    app.update();
-    app.update();
+    settle(&mut app);
+    settle(&mut app);
     let (e1, _, selected1) = state(&mut app);
     assert_eq!(e1, e0, "an ROI edit must not rebuild the tubes");
     assert!(app.world().resource::<RoiStats>().evaluations > evals0);
@@ -358,13 +374,13 @@ fn roi_edits_reselect_without_rebuilding() {
     if let LayerKind::Tracts { rois, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
         rois.clear();
     }
-    app.update();
-    app.update();
+    settle(&mut app);
+    settle(&mut app);
     assert_eq!(state(&mut app).2, n);
     if let LayerKind::Tracts { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
         render.scale *= 2.0;
     }
-    app.update();
+    settle(&mut app);
     assert_ne!(state(&mut app).0, e0);
 }
 
@@ -395,7 +411,7 @@ fn rois_act_on_their_own_layer() {
         vec![layer(vec![sphere], TractMode::Tubes), layer(vec![], TractMode::Lines), layer(vec![], TractMode::Polygon)];
     let scene = Scene { layers, camera: CameraSpec::default() };
     let Some(mut app) = scene_app(scene) else { return };
-    app.update();
+    settle(&mut app);
     let selected = |app: &mut App| {
         let mut q = app.world_mut().query::<(&TractSet, &TractSelection, &LayerEntity)>();
         let mut v: Vec<(usize, usize)> =
@@ -411,7 +427,158 @@ fn rois_act_on_their_own_layer() {
             *r = rois;
         }
     }
-    app.update();
-    app.update();
+    settle(&mut app);
+    settle(&mut app);
     assert_eq!(selected(&mut app), vec![n, first[0], first[0]]);
+}
+
+/// Every layer's drawn entities (the layer entity's descendants), by layer index.
+fn drawn(app: &mut App) -> std::collections::BTreeMap<usize, Vec<Entity>> {
+    use fascicle::layers::{LayerEntity, SceneLayer};
+    let mut q = app.world_mut().query_filtered::<(Entity, &LayerEntity), With<SceneLayer>>();
+    let layers: Vec<(Entity, usize)> = q.iter(app.world()).map(|(e, le)| (e, le.0)).collect();
+    let mut out = std::collections::BTreeMap::new();
+    for (e, i) in layers {
+        let (mut below, mut stack) = (Vec::new(), vec![e]);
+        while let Some(x) = stack.pop() {
+            for c in app.world().get::<Children>(x).into_iter().flatten() {
+                below.push(*c);
+                stack.push(*c);
+            }
+        }
+        below.sort();
+        out.insert(i, below);
+    }
+    out
+}
+
+/// Layers are entities and an edit costs what it changes: moving the glyph layer's slice rebuilds that layer
+/// only, from the cache (no file read, no refit); every other layer keeps its entities and buffers.
+/// Reordering moves tags and rebuilds nothing; removing a layer takes only its entities.
+#[test]
+fn a_slice_move_rebuilds_that_layer_only_from_the_cache() {
+    use fascicle::layers::LayerSyncCounts;
+    use fascicle_render::layer::LayerStatus;
+    let Some(mut app) = scene_app(Scene::default_scene()) else { return };
+    settle(&mut app);
+    let n_layers = app.world().resource::<ActiveScene>().0.layers.len();
+    let before = drawn(&mut app);
+    assert_eq!(before.len(), n_layers, "one entity per layer");
+    assert!(before.values().all(|v| !v.is_empty()), "every layer draws something: {before:?}");
+    let stats0 = app.world().resource::<DataCache>().stats();
+    let counts0 = *app.world().resource::<LayerSyncCounts>();
+    let buffer_ids =
+        |app: &App| app.world().resource::<Assets<ShaderBuffer>>().ids().collect::<std::collections::HashSet<_>>();
+    let buffers0 = buffer_ids(&app);
+    let glyphs = app
+        .world()
+        .resource::<ActiveScene>()
+        .0
+        .layers
+        .iter()
+        .position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. }))
+        .unwrap();
+
+    if let LayerKind::ShGlyphs { index, .. } = glyph_layer(&mut app.world_mut().resource_mut::<ActiveScene>().0) {
+        *index = Some(5);
+    }
+    settle(&mut app);
+    let after = drawn(&mut app);
+    for (i, entities) in &before {
+        if *i == glyphs {
+            assert!(entities.iter().all(|e| !after[i].contains(e)), "the glyph layer is rebuilt");
+        } else {
+            assert_eq!(&after[i], entities, "layer {i} untouched");
+        }
+    }
+    let stats1 = app.world().resource::<DataCache>().stats();
+    assert_eq!(stats1.loads, stats0.loads, "no file read, no refit: {stats0:?} -> {stats1:?}");
+    assert!(stats1.hits > stats0.hits);
+    let counts1 = *app.world().resource::<LayerSyncCounts>();
+    assert_eq!(counts1.jobs, counts0.jobs + 1, "one job, for the glyph layer");
+    // Other layers' storage buffers all survive (the glyph layer's old ones are dropped).
+    let buffers1 = buffer_ids(&app);
+    let lost = buffers0.difference(&buffers1).count();
+    let glyph_buffers = 4;
+    assert!(lost <= glyph_buffers, "{lost} buffers dropped");
+
+    // Reorder: the first two layers swap; nothing is built, the entities follow their layers.
+    app.world_mut().resource_mut::<ActiveScene>().0.layers.swap(0, 1);
+    settle(&mut app);
+    let swapped = drawn(&mut app);
+    assert_eq!((&swapped[&0], &swapped[&1]), (&after[&1], &after[&0]));
+    let counts2 = *app.world().resource::<LayerSyncCounts>();
+    assert_eq!((counts2.jobs, counts2.reindexed), (counts1.jobs, counts1.reindexed + 2));
+
+    // Remove the first layer: its entities go, the others shift down unchanged.
+    app.world_mut().resource_mut::<ActiveScene>().0.layers.remove(0);
+    settle(&mut app);
+    let removed = drawn(&mut app);
+    assert_eq!(removed.len(), n_layers - 1);
+    for i in 0..n_layers - 1 {
+        assert_eq!(removed[&i], swapped[&(i + 1)], "layer {i}");
+    }
+    assert!(swapped[&0].iter().all(|e| app.world().get_entity(*e).is_err()), "the removed layer's entities are gone");
+    assert_eq!(app.world().resource::<LayerSyncCounts>().jobs, counts1.jobs);
+    let mut q = app.world_mut().query::<&LayerStatus>();
+    assert!(q.iter(app.world()).all(|s| matches!(s, LayerStatus::Ready { .. })));
+}
+
+/// A layer whose file is bad fails alone, with its message; an unrelated edit does not retry it; a job
+/// cancelled from the panel stops the layer with "cancelled", and a retry builds it.
+#[test]
+fn failures_and_cancels_stay_on_their_layer() {
+    use fascicle::layers::{LayerJob, LayerSyncCounts, RetryLayers};
+    use fascicle::scene::{LayerSpec, SliceAxis, VolumeSource};
+    use fascicle_render::layer::LayerStatus;
+    let mut scene = Scene::default_scene();
+    let missing = std::path::PathBuf::from("/nonexistent/fa.nii.gz");
+    scene.layers.push(LayerSpec {
+        name: "missing".into(),
+        visible: true,
+        opacity: 1.0,
+        kind: LayerKind::Slice {
+            source: VolumeSource::Nifti { path: missing, volume: 0 },
+            axis: SliceAxis::Z,
+            index: None,
+        },
+    });
+    let Some(mut app) = scene_app(scene) else { return };
+    settle(&mut app);
+    let errors = &app.world().resource::<LayerErrors>().0;
+    assert_eq!(errors.len(), 1, "{errors:?}");
+    assert!(errors[0].starts_with("layer 'missing': ") && errors[0].contains("fa.nii.gz"), "{errors:?}");
+    let jobs = app.world().resource::<LayerSyncCounts>().jobs;
+    app.world_mut().resource_mut::<ActiveScene>().0.layers[0].visible = false;
+    settle(&mut app);
+    assert_eq!(app.world().resource::<LayerSyncCounts>().jobs, jobs, "hiding a layer retries nothing");
+
+    // Cancel the glyph layer's rebuild as soon as it starts.
+    if let LayerKind::ShGlyphs { index, .. } = glyph_layer(&mut app.world_mut().resource_mut::<ActiveScene>().0) {
+        *index = Some(3);
+    }
+    app.update();
+    let mut q = app.world_mut().query::<&LayerJob>();
+    let job = q.single(app.world()).expect("one job running");
+    job.progress.cancel();
+    settle(&mut app);
+    let i = app
+        .world()
+        .resource::<ActiveScene>()
+        .0
+        .layers
+        .iter()
+        .position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. }))
+        .unwrap();
+    let status = |app: &mut App| {
+        let mut q =
+            app.world_mut().query::<(&fascicle::layers::LayerEntity, &LayerStatus, &fascicle::layers::SceneLayer)>();
+        q.iter(app.world()).find(|(le, ..)| le.0 == i).map(|(_, s, _)| s.clone()).unwrap()
+    };
+    assert_eq!(status(&mut app), LayerStatus::Failed("cancelled".into()));
+    assert_eq!(app.world().resource::<LayerErrors>().0.len(), 2);
+    app.world_mut().resource_mut::<RetryLayers>().0.push(i);
+    settle(&mut app);
+    assert!(matches!(status(&mut app), LayerStatus::Ready { items } if items > 100), "{:?}", status(&mut app));
+    assert_eq!(app.world().resource::<LayerErrors>().0.len(), 1);
 }

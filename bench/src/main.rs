@@ -3,6 +3,7 @@
 //! report with plots.
 
 mod bench_all;
+mod bench_edits;
 mod bench_fits;
 mod bench_glyphs;
 mod bench_splats;

@@ -113,6 +113,19 @@ pub enum BenchCommand {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
+    /// What an edit costs the app (scene sync, background jobs, uploads; no drawing): the default scene and a
+    /// large one (1M streamlines, 22.5k SH glyphs, a 256³ volume), one row per edit against the initial build.
+    Edits {
+        /// The default scene only.
+        #[arg(long)]
+        quick: bool,
+        /// Also write the rows as CSV (scene,edit,ms,initial_build_ms,worst_frame_ms,frames).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Where the large scene's files are written once (default: the system's temporary directory).
+        #[arg(long)]
+        data: Option<PathBuf>,
+    },
     /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory and
     /// asset counts (the soak test). Fails when a layer reports an error or the second half of the run grows:
     /// resident memory by more than the tolerance, or any asset or pipeline count beyond the first half's
@@ -137,6 +150,9 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
     match cmd {
         BenchCommand::Soak { frames, size, csv, tolerance_mib } => {
             crate::soak::run(frames, &size, csv.as_deref(), tolerance_mib).map_err(Error::Param)
+        }
+        BenchCommand::Edits { quick, csv, data } => {
+            crate::bench_edits::run(quick, csv.as_deref(), data).map_err(Error::Param)
         }
         BenchCommand::Tracking { phantom, python, tckgen, runs } => {
             crate::bench_tracking::run(&phantom, python.as_deref(), tckgen.as_deref(), runs)

@@ -1,5 +1,6 @@
 //! File formats: NIfTI-1/2 images, FSL gradient tables, peak images (MRtrix and DIPY layouts), TrackVis `.trk` and MRtrix `.tck` tractograms.
 
+pub mod classify;
 pub mod gradients;
 pub mod nifti;
 pub mod peaks;

@@ -1,0 +1,669 @@
+//! What a layer shows, computed off the main thread: [`build`] turns a layer's structure (its sources and
+//! what it selects) into [`Content`], CPU data ready to upload, reading files and fitting models through the
+//! [`DataCache`]. Jobs report their stage and progress in a [`JobProgress`] and stop at the next check once
+//! cancelled.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+use bevy::asset::RenderAssetUsages;
+use bevy::image::{Image, ImageSampler};
+use bevy::math::Vec3;
+use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
+use fascicle_core::Volume;
+use fascicle_core::dti::glyph::TensorGlyph;
+use fascicle_core::dti::splat::Splat;
+use fascicle_core::io::{Tractogram, nifti};
+use fascicle_core::sh::glyph::{Glyph, GlyphPlane, GlyphStyle, Sampling, make_glyphs, sample_plane};
+use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
+use fascicle_sh_glyphs::{Selection, ShField, ShFieldSettings, field_glyphs};
+use fascicle_tensors::layer::{field_splats, field_tensor_glyphs};
+use fascicle_tensors::{SplatShape, TensorField, TensorGlyphShape};
+
+use crate::cache::DataCache;
+use crate::scene::{LayerKind, ShSource, SliceAxis, TensorSource, TractSource, VolumeSource};
+
+/// A job's stage, progress and cancel flag, shared between the job and the panel that shows it.
+#[derive(Debug, Default)]
+pub struct JobProgress {
+    stage: Mutex<&'static str>,
+    done: AtomicUsize,
+    total: AtomicUsize,
+    cancelled: AtomicBool,
+}
+
+/// The error a cancelled job ends with.
+pub const CANCELLED: &str = "cancelled";
+
+impl JobProgress {
+    /// Starts a stage of `total` units (0: unknown); fails when the job was cancelled.
+    pub fn stage(&self, name: &'static str, total: usize) -> Result<(), String> {
+        if self.is_cancelled() {
+            return Err(CANCELLED.into());
+        }
+        *self.stage.lock().unwrap_or_else(|e| e.into_inner()) = name;
+        self.done.store(0, Ordering::Relaxed);
+        self.total.store(total, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// `n` more units of the current stage done (from any thread).
+    pub fn advance(&self, n: usize) {
+        self.done.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// The current stage and, when its size is known, the fraction done.
+    pub fn snapshot(&self) -> (&'static str, Option<f32>) {
+        let stage = *self.stage.lock().unwrap_or_else(|e| e.into_inner());
+        let total = self.total.load(Ordering::Relaxed);
+        let done = self.done.load(Ordering::Relaxed);
+        (stage, (total > 0).then(|| (done as f32 / total as f32).min(1.0)))
+    }
+
+    pub fn cancel(&self) {
+        self.cancelled.store(true, Ordering::Relaxed);
+    }
+
+    pub fn is_cancelled(&self) -> bool {
+        self.cancelled.load(Ordering::Relaxed)
+    }
+}
+
+/// A layer's CPU-side content, ready for the main thread to upload.
+pub enum Content {
+    ShGlyphs {
+        glyphs: Vec<Glyph>,
+        voxels: Vec<[u32; 3]>,
+    },
+    TensorGlyphs {
+        glyphs: Vec<TensorGlyph>,
+        voxels: Vec<[u32; 3]>,
+    },
+    /// Colour and opacity unset: the layer's colouring is applied at upload.
+    Splats(Vec<Splat>),
+    Tracts(TractData),
+    Volume(Arc<Volume<f32>>),
+    Slice {
+        image: Box<Image>,
+        corners: [Vec3; 4],
+    },
+    Lines(Arc<Tractogram>),
+    Axes {
+        length_mm: f32,
+    },
+}
+
+impl Content {
+    /// Items it holds (glyphs, splats, streamlines, voxels), for the layer's status.
+    pub fn items(&self) -> usize {
+        match self {
+            Content::ShGlyphs { glyphs, .. } => glyphs.len(),
+            Content::TensorGlyphs { glyphs, .. } => glyphs.len(),
+            Content::Splats(s) => s.len(),
+            Content::Tracts(t) => t.tractogram.n_streamlines(),
+            Content::Volume(v) => v.n_voxels(),
+            Content::Slice { image, .. } => (image.width() * image.height()) as usize,
+            Content::Lines(t) => t.n_streamlines(),
+            Content::Axes { .. } => 3,
+        }
+    }
+}
+
+/// Streamlines and, when the source has them, per-point world tensors (hyperstreamline sections).
+#[derive(Clone)]
+pub struct TractData {
+    pub tractogram: Arc<Tractogram>,
+    pub tensors: Option<Arc<Vec<[f32; 6]>>>,
+}
+
+/// The content of a layer of kind `kind` (its structure: draw settings are applied at upload).
+pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Result<Content, String> {
+    match kind {
+        LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, full_volume, style, .. } => {
+            let field = sh_field(cache, source, progress)?;
+            progress.stage("placing glyphs", 0)?;
+            let (glyphs, voxels) = match plane {
+                _ if *full_volume => field_glyphs(&field, &Selection::Volume { spacing: *spacing }, *style)?,
+                Some(p) => plane_glyphs(&field, p, *sampling, *style)?,
+                None => {
+                    field_glyphs(&field, &Selection::Slice { axis: *axis, index: *index, spacing: *spacing }, *style)?
+                }
+            };
+            Ok(Content::ShGlyphs { glyphs, voxels })
+        }
+        LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, .. } => {
+            let (glyphs, voxels) = tensor_glyphs(cache, source, *axis, *index, *spacing, *size, *min_fa, progress)?;
+            Ok(Content::TensorGlyphs { glyphs, voxels })
+        }
+        LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
+            Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
+        }
+        LayerKind::Tracts { source, .. } => Ok(Content::Tracts(tract_data(cache, source, progress)?)),
+        LayerKind::Volume { source, .. } => Ok(Content::Volume(scalar_volume(cache, source, progress)?)),
+        LayerKind::Slice { source, axis, index } => {
+            let (vol, channel, window) = match source {
+                VolumeSource::PhantomFa => (phantom_fa(cache)?, 0, Some((0.0, 1.0))),
+                VolumeSource::Nifti { path, volume } => {
+                    (image_with_volume(cache, path, *volume, progress)?, *volume, None)
+                }
+            };
+            progress.stage("slicing", 0)?;
+            let (image, corners) = slice_image(&vol, channel, *axis, *index, window)?;
+            Ok(Content::Slice { image: Box::new(image), corners })
+        }
+        LayerKind::Tractogram { path } => {
+            progress.stage("reading streamlines", 0)?;
+            let t = cache.get_or_load(&format!("tractogram:{path:?}"), &[path], tractogram_bytes, || {
+                Tractogram::read(path).map_err(|e| e.to_string())
+            })?;
+            if t.points.is_empty() {
+                return Err("the tractogram holds no points".into());
+            }
+            Ok(Content::Lines(t))
+        }
+        LayerKind::Axes { length_mm } => Ok(Content::Axes { length_mm: *length_mm }),
+    }
+}
+
+fn tractogram_bytes(t: &Tractogram) -> usize {
+    t.points.len() * 12 + t.offsets.len() * 8
+}
+
+fn volume_bytes(v: &Volume<f32>) -> usize {
+    v.data.len() * 4
+}
+
+/// A NIfTI image as f32 (every volume), read once per file state.
+pub fn image(cache: &DataCache, path: &Path, progress: &JobProgress) -> Result<Arc<Volume<f32>>, String> {
+    progress.stage("reading image", 0)?;
+    cache.get_or_load(&format!("nifti:{path:?}"), &[path], volume_bytes, || {
+        nifti::read::<f32>(path).map(|(v, _)| v).map_err(|e| e.to_string())
+    })
+}
+
+/// [`image`], checked to have a 4th-dimension index `volume`.
+fn image_with_volume(
+    cache: &DataCache,
+    path: &Path,
+    volume: usize,
+    progress: &JobProgress,
+) -> Result<Arc<Volume<f32>>, String> {
+    let v = image(cache, path, progress)?;
+    if volume >= v.n_channels() {
+        return Err(format!("volume {volume} requested, the image has {}", v.n_channels()));
+    }
+    Ok(v)
+}
+
+/// The grid of the scenes' built-in ring/cross phantom.
+pub const PHANTOM_DIMS: [usize; 3] = [48, 48, 24];
+
+fn phantom(cache: &DataCache) -> Result<Arc<fascicle_core::phantom::Phantom>, String> {
+    cache.get_or_load(
+        "phantom",
+        &[],
+        |p: &fascicle_core::phantom::Phantom| p.tensors.len() * 48,
+        || Ok(fascicle_core::phantom::ring_cross(PHANTOM_DIMS)),
+    )
+}
+
+fn phantom_fa(cache: &DataCache) -> Result<Arc<Volume<f32>>, String> {
+    let ph = phantom(cache)?;
+    cache.get_or_load("phantom-fa", &[], volume_bytes, || Ok(ph.fa()))
+}
+
+/// One 3D scalar volume of a source (the chosen 4th-dimension index of a NIfTI).
+pub fn scalar_volume(
+    cache: &DataCache,
+    source: &VolumeSource,
+    progress: &JobProgress,
+) -> Result<Arc<Volume<f32>>, String> {
+    match source {
+        VolumeSource::PhantomFa => phantom_fa(cache),
+        VolumeSource::Nifti { path, volume } => {
+            let v = image_with_volume(cache, path, *volume, progress)?;
+            if v.n_channels() == 1 {
+                return Ok(v);
+            }
+            cache.get_or_load(&format!("nifti:{path:?}:{volume}"), &[path], volume_bytes, || {
+                let d = v.dims3();
+                let n = d[0] * d[1] * d[2];
+                let mut out = Volume::zeros(&d, v.world_from_voxel);
+                out.data.copy_from_slice(&v.data[volume * n..(volume + 1) * n]);
+                Ok(out)
+            })
+        }
+    }
+}
+
+/// The SH field of a source: a coefficient file (its recorded basis first, then the scene's), or CSA ODFs
+/// fitted to the phantom's DWI (the whole field, once per order).
+pub fn sh_field(cache: &DataCache, source: &ShSource, progress: &JobProgress) -> Result<ShField, String> {
+    match source {
+        ShSource::PhantomCsa { l_max } => {
+            let ph = phantom(cache)?;
+            progress.stage("simulating the phantom's DWI", 0)?;
+            let dwi = cache.get_or_load(
+                "phantom-dwi",
+                &[],
+                |(v, _): &(Volume<f32>, fascicle_core::io::GradientTable)| volume_bytes(v),
+                || ph.dwi(64, 1000.0).map_err(|e| e.to_string()),
+            )?;
+            let key = format!("sh:{source:?}");
+            let field = cache.get_or_load(
+                &key,
+                &[],
+                |f: &ShField| volume_bytes(&f.coeffs),
+                || {
+                    let (dwi, gtab) = &*dwi;
+                    let basis = ShBasis::default();
+                    let model = OdfModel::new(gtab, OdfKind::Csa, *l_max, 0.006, basis).map_err(|e| e.to_string())?;
+                    progress.stage("fitting CSA ODFs", dwi.n_voxels())?;
+                    let coeffs = sh::fit_odf_volume_with_progress(dwi, &model, None, &|n| progress.advance(n))
+                        .map_err(|e| e.to_string())?;
+                    ShField::new(coeffs, basis)
+                },
+            )?;
+            Ok((*field).clone())
+        }
+        ShSource::Nifti { path, basis } => {
+            progress.stage("reading SH coefficients", 0)?;
+            let field = cache.get_or_load(
+                &format!("sh:{source:?}"),
+                &[path],
+                |f: &ShField| volume_bytes(&f.coeffs),
+                || {
+                    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+                    fascicle_sh_glyphs::layer::read_field(bytes, path, &ShFieldSettings { basis: Some(*basis) })
+                },
+            )?;
+            Ok((*field).clone())
+        }
+    }
+}
+
+/// The tensors of a source, as the tensor plugin's asset.
+pub fn tensor_field(cache: &DataCache, source: &TensorSource, progress: &JobProgress) -> Result<TensorField, String> {
+    let field = match source {
+        TensorSource::Phantom => {
+            let p = phantom(cache)?;
+            cache.get_or_load(
+                "tensor:phantom",
+                &[],
+                |f: &TensorField| volume_bytes(&f.tensors),
+                || {
+                    let data = (0..6).flat_map(|c| p.tensors.iter().map(move |t| t[c] as f32)).collect();
+                    let shape = vec![p.dims[0], p.dims[1], p.dims[2], 6];
+                    TensorField::new(Volume { shape, data, world_from_voxel: p.world_from_voxel })
+                },
+            )?
+        }
+        TensorSource::Spiral { .. } => return Err("the spiral is not a voxel grid".into()),
+        TensorSource::Nifti { path } => {
+            progress.stage("reading tensors", 0)?;
+            cache.get_or_load(
+                &format!("tensor:{path:?}"),
+                &[path],
+                |f: &TensorField| volume_bytes(&f.tensors),
+                || {
+                    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+                    fascicle_tensors::layer::read_field(bytes, path)
+                },
+            )?
+        }
+    };
+    Ok((*field).clone())
+}
+
+/// Glyphs on a free plane of interest (any orientation; nearest or trilinear sampling).
+pub fn plane_glyphs(
+    field: &ShField,
+    plane: &GlyphPlane,
+    sampling: Sampling,
+    style: GlyphStyle,
+) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
+    let items = sample_plane(&field.coeffs, plane, sampling).map_err(|e| e.to_string())?;
+    let style = style.resolved(plane.spacing);
+    let (glyphs, skipped) =
+        make_glyphs(items.iter().map(|(p, c, _)| (*p, &c[..])), field.basis, style).map_err(|e| e.to_string())?;
+    let voxels = items.iter().enumerate().filter(|(i, _)| !skipped.contains(i)).map(|(_, it)| it.2).collect();
+    Ok((glyphs, voxels))
+}
+
+/// Tensor glyphs on a slice: one per `spacing`-th voxel with FA >= `min_fa`, tensors rotated into the world
+/// frame, largest diameter `size` times the glyph spacing (the plugin's `field_tensor_glyphs`).
+#[expect(clippy::too_many_arguments, reason = "a layer kind's fields, passed through")]
+pub fn tensor_glyphs(
+    cache: &DataCache,
+    source: &TensorSource,
+    axis: SliceAxis,
+    index: Option<usize>,
+    spacing: usize,
+    size: f64,
+    min_fa: f64,
+    progress: &JobProgress,
+) -> Result<(Vec<TensorGlyph>, Vec<[u32; 3]>), String> {
+    if let TensorSource::Spiral { n } = source {
+        if spacing == 0 {
+            return Err("glyph spacing must be at least 1 voxel".into());
+        }
+        let (mut glyphs, mut voxels) = (Vec::new(), Vec::new());
+        for (i, (centre, t)) in fascicle_core::phantom::spiral(*n).into_iter().enumerate() {
+            if let Some(g) = fascicle_core::dti::glyph::tensor_glyph(centre, &t, size * SPIRAL_EDGE / 2.0, 0.1)
+                && g.fa >= min_fa
+            {
+                glyphs.push(g);
+                voxels.push([i as u32, 0, 0]);
+            }
+        }
+        return Ok((glyphs, voxels));
+    }
+    let field = tensor_field(cache, source, progress)?;
+    progress.stage("placing glyphs", 0)?;
+    let selection = Selection::Slice { axis, index, spacing };
+    field_tensor_glyphs(&field, &selection, &TensorGlyphShape { size, min_fa, ..Default::default() })
+}
+
+/// Splats of a slab of `thickness` slices centred on a slice: covariance largest standard deviation `size`
+/// voxels (colour and opacity unset: apply a `SplatColouring`); the plugin's `field_splats`.
+#[expect(clippy::too_many_arguments, reason = "a layer kind's fields, passed through")]
+pub fn slab_splats(
+    cache: &DataCache,
+    source: &TensorSource,
+    axis: SliceAxis,
+    index: Option<usize>,
+    thickness: usize,
+    size: f64,
+    min_fa: f64,
+    progress: &JobProgress,
+) -> Result<Vec<Splat>, String> {
+    if let TensorSource::Spiral { n } = source {
+        return Ok(fascicle_core::phantom::spiral(*n)
+            .into_iter()
+            .filter_map(|(c, t)| {
+                fascicle_core::dti::splat::tensor_splat(c, &t, size * SPIRAL_EDGE, glam::DVec3::ONE, 1.0)
+            })
+            .filter(|s| s.fa() >= min_fa)
+            .collect());
+    }
+    let field = tensor_field(cache, source, progress)?;
+    progress.stage("placing splats", 0)?;
+    let selection = Selection::Slab { axis, index, thickness };
+    field_splats(&field, &selection, &SplatShape { size, min_fa })
+}
+
+/// The length sizes of spiral glyphs and splats are fractions of (mm): about the spacing of its tensors.
+const SPIRAL_EDGE: f64 = 8.0;
+
+/// A tract source's streamlines, with per-point world tensors when it has them: tracked (the phantom),
+/// read (a file, its tensors sampled from a field) or made from peaks, once per source and file state.
+pub fn tract_data(cache: &DataCache, source: &TractSource, progress: &JobProgress) -> Result<TractData, String> {
+    let mut files: Vec<&Path> = vec![];
+    match source {
+        TractSource::PhantomRk4 { .. } => {}
+        TractSource::File { path, tensors } => {
+            files.push(path);
+            if let Some(TensorSource::Nifti { path }) = tensors {
+                files.push(path);
+            }
+        }
+        TractSource::Peaks { path, .. } => files.push(path),
+    }
+    let data = cache.get_or_load(
+        &format!("tracts:{source:?}"),
+        &files,
+        |d: &TractData| tractogram_bytes(&d.tractogram) + d.tensors.as_ref().map_or(0, |t| t.len() * 24),
+        || load_tracts(cache, source, progress),
+    )?;
+    Ok((*data).clone())
+}
+
+fn load_tracts(cache: &DataCache, source: &TractSource, progress: &JobProgress) -> Result<TractData, String> {
+    use fascicle_core::tracking::{TensorInterpolation, TrackParams, Tracker, tensors_at};
+    let field_of = |dims: [usize; 3], affine: glam::DMat4, tensors: Vec<[f64; 6]>| {
+        let voxel = glam::DVec3::new(affine.x_axis.length(), affine.y_axis.length(), affine.z_axis.length());
+        fascicle_core::tracking::TensorField::new(
+            dims,
+            voxel,
+            tensors.into_iter().map(Some),
+            TensorInterpolation::Componentwise,
+        )
+        .map_err(|e| e.to_string())
+    };
+    match source {
+        TractSource::PhantomRk4 { seed_spacing } => {
+            let spacing = (*seed_spacing).max(1);
+            let ph = phantom(cache)?;
+            let a = ph.world_from_voxel;
+            let field = field_of(ph.dims, a, ph.tensors.clone())?;
+            let z = ph.dims[2] / 2;
+            let seeds: Vec<glam::DVec3> = (0..ph.dims[1])
+                .step_by(spacing)
+                .flat_map(|y| (0..ph.dims[0]).step_by(spacing).map(move |x| [x, y]))
+                .filter(|[x, y]| {
+                    let t = ph.tensors[x + ph.dims[0] * (y + ph.dims[1] * z)];
+                    fascicle_core::dti::eigh(&t).is_some_and(|e| fascicle_core::dti::metrics::fa(&e.values) >= 0.3)
+                })
+                .map(|[x, y]| glam::DVec3::new(x as f64, y as f64, z as f64))
+                .collect();
+            let params = TrackParams { step_mm: 1.0, ..TrackParams::default() };
+            progress.stage("tracking", seeds.len())?;
+            let tracks = Tracker::new(&field, a, params)
+                .map_err(|e| e.to_string())?
+                .run_with_progress(&seeds, &|n| progress.advance(n));
+            Ok(TractData { tractogram: Arc::new(tracks.tractogram), tensors: Some(Arc::new(tracks.tensors)) })
+        }
+        TractSource::File { path, tensors } => {
+            progress.stage("reading streamlines", 0)?;
+            let t = Tractogram::read(path).map_err(|e| e.to_string())?;
+            let Some(source) = tensors else { return Ok(TractData { tractogram: Arc::new(t), tensors: None }) };
+            let f = tensor_field(cache, source, progress)?.tensors;
+            progress.stage("sampling tensors along the streamlines", 0)?;
+            let (dims, affine, n) = (f.dims3(), f.world_from_voxel, f.n_voxels());
+            let grid: Vec<[f64; 6]> = (0..n).map(|i| std::array::from_fn(|c| f.data[i + n * c] as f64)).collect();
+            let sampled = tensors_at(&field_of(dims, affine, grid)?, affine, &t.points);
+            Ok(TractData { tractogram: Arc::new(t), tensors: Some(Arc::new(sampled)) })
+        }
+        TractSource::Peaks { path, length } => {
+            progress.stage("reading peaks", 0)?;
+            Ok(TractData { tractogram: Arc::new(peak_segments(path, *length)?), tensors: None })
+        }
+    }
+}
+
+/// One two-point streamline per peak of a peaks image, through its voxel centre in world coordinates, the
+/// voxel's largest peak `length` voxels (of its smallest edge) long and the others in proportion.
+pub fn peak_segments(path: &Path, length: f32) -> Result<Tractogram, String> {
+    let img = fascicle_core::io::peaks::read(path).map_err(|e| e.to_string())?;
+    let a = img.world_from_voxel;
+    let m = fascicle_core::io::peaks::direction_frame(a);
+    let edge = [a.x_axis, a.y_axis, a.z_axis].iter().map(|c| c.truncate().length()).fold(f64::MAX, f64::min);
+    let [nx, ny, _] = img.dims;
+    let k = img.npeaks;
+    let mut t = Tractogram::new();
+    for v in 0..img.amplitudes.len() / k {
+        let amps = &img.amplitudes[v * k..(v + 1) * k];
+        let top = amps.iter().copied().fold(0.0f32, f32::max);
+        if top.is_nan() || top <= 0.0 {
+            continue;
+        }
+        let centre =
+            a.transform_point3(glam::DVec3::new((v % nx) as f64, ((v / nx) % ny) as f64, (v / (nx * ny)) as f64));
+        for (d, amp) in img.dirs[v * k..(v + 1) * k].iter().zip(amps) {
+            if *amp > 0.0 {
+                let half = m * glam::Vec3::from(*d).as_dvec3() * (0.5 * edge * f64::from(length * amp / top));
+                t.points.extend([(centre - half).as_vec3(), (centre + half).as_vec3()]);
+                t.offsets.push(t.points.len());
+            }
+        }
+    }
+    Ok(t)
+}
+
+/// A grey image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world
+/// positions of its four outer voxel corners, counter-clockwise from voxel (0, 0).
+pub fn slice_image(
+    vol: &Volume<f32>,
+    channel: usize,
+    axis: SliceAxis,
+    index: Option<usize>,
+    window: Option<(f32, f32)>,
+) -> Result<(Image, [Vec3; 4]), String> {
+    let d = vol.dims3();
+    let (ax, u, v) = match axis {
+        SliceAxis::X => (0, 1, 2),
+        SliceAxis::Y => (1, 0, 2),
+        SliceAxis::Z => (2, 0, 1),
+    };
+    let k = index.unwrap_or(d[ax] / 2);
+    if k >= d[ax] {
+        return Err(format!("slice {k} is outside the volume's {} slices along {axis:?}", d[ax]));
+    }
+    let nvox = vol.n_voxels();
+    let at = |i: usize, j: usize| {
+        let mut p = [0usize; 3];
+        p[ax] = k;
+        p[u] = i;
+        p[v] = j;
+        vol.data[p[0] + d[0] * (p[1] + d[1] * p[2]) + nvox * channel]
+    };
+    let (lo, hi) = window.unwrap_or_else(|| {
+        let mut vals: Vec<f32> =
+            vol.data[nvox * channel..nvox * (channel + 1)].iter().copied().filter(|x| x.is_finite()).collect();
+        vals.sort_by(f32::total_cmp);
+        let lo = vals.first().copied().unwrap_or(0.0);
+        let hi = vals.get((vals.len().saturating_sub(1)) * 995 / 1000).copied().unwrap_or(1.0);
+        (lo, if hi > lo { hi } else { lo + 1.0 })
+    });
+    let (w, h) = (d[u], d[v]);
+    let mut px = Vec::with_capacity(w * h * 4);
+    for j in 0..h {
+        for i in 0..w {
+            let x = at(i, j);
+            let g = if x.is_finite() { ((x - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
+            let b = (g * 255.0).round() as u8;
+            px.extend_from_slice(&[b, b, b, 255]);
+        }
+    }
+    let mut image = Image::new(
+        Extent3d { width: w as u32, height: h as u32, depth_or_array_layers: 1 },
+        TextureDimension::D2,
+        px,
+        TextureFormat::Rgba8Unorm,
+        RenderAssetUsages::RENDER_WORLD,
+    );
+    image.sampler = ImageSampler::nearest();
+    let corner = |a: f64, b: f64| {
+        let mut p = [0f64; 3];
+        p[ax] = k as f64;
+        p[u] = a;
+        p[v] = b;
+        vol.world_from_voxel.transform_point3(glam::DVec3::from_array(p)).as_vec3()
+    };
+    let (a1, b1) = (w as f64 - 0.5, h as f64 - 0.5);
+    Ok((image, [corner(-0.5, -0.5), corner(a1, -0.5), corner(a1, b1), corner(-0.5, b1)]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Tracts from a file with a tensor field: the phantom's RK4 tracts written to `.tck` and read back with
+    /// the phantom's tensors carry the tensors the tracker recorded (to f32 rounding of the points);
+    /// without, none; a field that is not a voxel grid is a clear error.
+    #[test]
+    fn file_tracts_take_tensors_from_a_field() {
+        let (cache, p) = (DataCache::default(), JobProgress::default());
+        let tracked = tract_data(&cache, &TractSource::PhantomRk4 { seed_spacing: 6 }, &p).unwrap();
+        let (t, tracked) = (tracked.tractogram, tracked.tensors.unwrap());
+        let path = std::env::temp_dir().join(format!("fascicle-file-tensors-{}.tck", std::process::id()));
+        fascicle_core::io::tck::write(&path, &t, &[]).unwrap();
+        let file = |tensors| TractSource::File { path: path.clone(), tensors };
+        let back = tract_data(&cache, &file(Some(TensorSource::Phantom)), &p).unwrap();
+        let sampled = back.tensors.unwrap();
+        assert_eq!(back.tractogram.points.len(), tracked.len());
+        let scale = tracked.iter().flatten().fold(0f32, |m, v| m.max(v.abs()));
+        let worst = sampled
+            .iter()
+            .zip(tracked.iter())
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
+            .fold(0f32, f32::max);
+        assert!(worst <= 1e-4 * scale, "{worst} vs {scale}");
+        assert!(tract_data(&cache, &file(None), &p).unwrap().tensors.is_none());
+        let err = tract_data(&cache, &file(Some(TensorSource::Spiral { n: 10 })), &p).err().unwrap();
+        assert!(err.contains("not a voxel grid"), "{err}");
+        std::fs::remove_file(path).ok();
+    }
+
+    /// A cancelled job stops at its next stage with [`CANCELLED`], and a stage's progress is the fraction of
+    /// its units done.
+    #[test]
+    fn jobs_report_progress_and_stop_when_cancelled() {
+        let p = JobProgress::default();
+        p.stage("fitting", 200).unwrap();
+        p.advance(50);
+        assert_eq!(p.snapshot(), ("fitting", Some(0.25)));
+        p.cancel();
+        assert_eq!(p.stage("next", 0), Err(CANCELLED.to_string()));
+        let kind = LayerKind::Tracts {
+            source: TractSource::PhantomRk4 { seed_spacing: 4 },
+            mode: Default::default(),
+            render: Default::default(),
+            rois: vec![],
+        };
+        assert_eq!(build(&kind, &DataCache::default(), &p).err(), Some(CANCELLED.to_string()));
+    }
+
+    /// A peaks file opens as a line layer: one segment per peak, centred on its voxel, along the peak's world
+    /// direction, the largest `length` voxels long and the others in proportion to their amplitudes.
+    #[test]
+    fn peak_files_open_as_segments() {
+        use fascicle_core::sh::PeakVolume;
+        let dims = [3, 2, 2];
+        let n = 12;
+        let mut peaks = PeakVolume {
+            dims,
+            npeaks: 2,
+            dirs: vec![[0.0; 3]; n * 2],
+            values: vec![0.0; n * 2],
+            indices: vec![-1; n * 2],
+            gfa: vec![0.0; n],
+        };
+        // Voxel (1,1,0): a peak along x of amplitude 2 and one along y of amplitude 1.
+        let v = 1 + 3;
+        peaks.dirs[v * 2] = [1.0, 0.0, 0.0];
+        peaks.dirs[v * 2 + 1] = [0.0, 1.0, 0.0];
+        peaks.values[v * 2..v * 2 + 2].copy_from_slice(&[2.0, 1.0]);
+        peaks.indices[v * 2..v * 2 + 2].copy_from_slice(&[0, 1]);
+        // A flipped, scaled affine: x runs right to left, 2 mm voxels.
+        let affine = glam::DMat4::from_cols_array(&[
+            -2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 10.0, 0.0, 0.0, 1.0,
+        ]);
+        let dir = std::env::temp_dir().join(format!("fascicle-peak-layer-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("csa_peaks.nii.gz");
+        fascicle_core::io::peaks::write_mrtrix(&path, &peaks, affine).unwrap();
+        let spec = crate::scene::Scene::layer_for_file(&path).unwrap();
+        assert!(
+            matches!(
+                &spec.kind,
+                LayerKind::Tracts { source: TractSource::Peaks { .. }, mode: crate::scene::TractMode::Lines, .. }
+            ),
+            "{:?}",
+            spec.kind
+        );
+        let t = peak_segments(&path, 0.9).unwrap();
+        assert_eq!(t.n_streamlines(), 2);
+        let centre = glam::Vec3::new(10.0 - 2.0, 2.0, 0.0);
+        let (a, b) = (t.streamline(0), t.streamline(1));
+        // The x peak: along world -x (the flip), 0.9 x 2 mm long; the y peak half as long.
+        assert!(
+            ((a[0] + a[1]) * 0.5 - centre).length() < 1e-5
+                && ((a[1] - a[0]).abs() - glam::Vec3::new(1.8, 0.0, 0.0)).length() < 1e-5,
+            "{a:?}"
+        );
+        assert!(((b[1] - b[0]).abs() - glam::Vec3::new(0.0, 0.9, 0.0)).length() < 1e-5, "{b:?}");
+        std::fs::remove_dir_all(dir).ok();
+    }
+}
