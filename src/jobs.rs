@@ -143,10 +143,11 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::Volume { source, .. } => Ok(Content::Volume(scalar_volume(cache, source, progress)?)),
         LayerKind::Slice { source, axis, index } => {
             let (vol, channel, window) = match source {
-                VolumeSource::PhantomFa => (phantom_fa(cache)?, 0, Some((0.0, 1.0))),
+                VolumeSource::PhantomFa => (phantom_fa(cache)?, Channels::One(0), Some((0.0, 1.0))),
                 VolumeSource::Nifti { path, volume } => {
-                    (image_with_volume(cache, path, *volume, progress)?, *volume, None)
+                    (image_with_volume(cache, path, *volume, progress)?, Channels::One(*volume), None)
                 }
+                VolumeSource::Rgb { path } => (image_with_volume(cache, path, 2, progress)?, Channels::Rgb, None),
             };
             progress.stage("slicing", 0)?;
             let (image, corners) = slice_image(&vol, channel, *axis, *index, window)?;
@@ -221,6 +222,9 @@ pub fn scalar_volume(
 ) -> Result<Arc<Volume<f32>>, String> {
     match source {
         VolumeSource::PhantomFa => phantom_fa(cache),
+        VolumeSource::Rgb { path } => {
+            Err(format!("{}: a colour image shows as a slice; volume rendering needs a scalar image", path.display()))
+        }
         VolumeSource::Nifti { path, volume } => {
             let v = image_with_volume(cache, path, *volume, progress)?;
             if v.n_channels() == 1 {
@@ -300,15 +304,46 @@ pub fn tensor_field(cache: &DataCache, source: &TensorSource, progress: &JobProg
             )?
         }
         TensorSource::Spiral { .. } => return Err("the spiral is not a voxel grid".into()),
-        TensorSource::Nifti { path } => {
+        TensorSource::Nifti { path, order } => {
             progress.stage("reading tensors", 0)?;
+            let key = format!("tensor:{path:?}:{order:?}");
             cache.get_or_load(
-                &format!("tensor:{path:?}"),
+                &key,
                 &[path],
                 |f: &TensorField| volume_bytes(&f.tensors),
                 || {
-                    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-                    fascicle_tensors::layer::read_field(bytes, path)
+                    let (mut vol, _) = nifti::read::<f32>(path).map_err(|e| e.to_string())?;
+                    if vol.n_channels() == 6 {
+                        order.to_dipy(&mut vol);
+                    }
+                    TensorField::new(vol).map_err(|e| format!("{}: {e}", path.display()))
+                },
+            )?
+        }
+        TensorSource::Dwi { path } => {
+            let (bval, bvec) = fascicle_core::io::classify::gradients_beside(path).ok_or_else(|| {
+                format!("{}: no .bval/.bvec beside the image: it cannot be fitted as a DWI", path.display())
+            })?;
+            let dwi = image(cache, path, progress)?;
+            let key = format!("tensor:dwi:{path:?}");
+            cache.get_or_load(
+                &key,
+                &[path, &bval, &bvec],
+                |f: &TensorField| volume_bytes(&f.tensors),
+                || {
+                    use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD};
+                    let gtab =
+                        GradientTable::from_fsl(&bval, &bvec, DEFAULT_B0_THRESHOLD).map_err(|e| e.to_string())?;
+                    progress.stage("fitting tensors (WLS)", dwi.n_voxels())?;
+                    let fit = fascicle_core::dti::fit_volume_with_progress(
+                        &*dwi,
+                        &gtab,
+                        fascicle_core::dti::FitMethod::Wls,
+                        None,
+                        &|n| progress.advance(n),
+                    )
+                    .map_err(|e| format!("{}: {e}", path.display()))?;
+                    TensorField::new(fit.map_n(6, |t, out| out.copy_from_slice(&t.tensor())))
                 },
             )?
         }
@@ -404,11 +439,15 @@ pub fn tract_data(cache: &DataCache, source: &TractSource, progress: &JobProgres
         TractSource::PhantomRk4 { .. } => {}
         TractSource::File { path, tensors } => {
             files.push(path);
-            if let Some(TensorSource::Nifti { path }) = tensors {
+            if let Some(TensorSource::Nifti { path, .. } | TensorSource::Dwi { path }) = tensors {
                 files.push(path);
             }
         }
         TractSource::Peaks { path, .. } => files.push(path),
+        TractSource::Track { tensors: TensorSource::Nifti { path, .. } | TensorSource::Dwi { path }, .. } => {
+            files.push(path)
+        }
+        TractSource::Track { .. } => {}
     }
     let data = cache.get_or_load(
         &format!("tracts:{source:?}"),
@@ -465,11 +504,74 @@ fn load_tracts(cache: &DataCache, source: &TractSource, progress: &JobProgress) 
             let sampled = tensors_at(&field_of(dims, affine, grid)?, affine, &t.points);
             Ok(TractData { tractogram: Arc::new(t), tensors: Some(Arc::new(sampled)) })
         }
+        TractSource::Track { tensors, seeds, params } => {
+            let f = tensor_field(cache, tensors, progress)?.tensors;
+            let (dims, affine, n) = (f.dims3(), f.world_from_voxel, f.n_voxels());
+            let grid: Vec<[f64; 6]> = (0..n).map(|i| std::array::from_fn(|c| f.data[i + n * c] as f64)).collect();
+            let seeds = seed_points(&grid, dims, affine, seeds)?;
+            let field = field_of(dims, affine, grid)?;
+            progress.stage("tracking", seeds.len())?;
+            let tracks = Tracker::new(&field, affine, params.clone())
+                .map_err(|e| e.to_string())?
+                .run_with_progress(&seeds, &|n| progress.advance(n));
+            Ok(TractData { tractogram: Arc::new(tracks.tractogram), tensors: Some(Arc::new(tracks.tensors)) })
+        }
         TractSource::Peaks { path, length } => {
             progress.stage("reading peaks", 0)?;
             Ok(TractData { tractogram: Arc::new(peak_segments(path, *length)?), tensors: None })
         }
     }
+}
+
+/// Seed points (voxel coordinates) of a tensor grid (DIPY order, X-fastest).
+pub fn seed_points(
+    tensors: &[[f64; 6]],
+    dims: [usize; 3],
+    affine: glam::DMat4,
+    seeds: &crate::scene::Seeds,
+) -> Result<Vec<glam::DVec3>, String> {
+    use crate::scene::Seeds;
+    let fa =
+        |v: usize| fascicle_core::dti::eigh(&tensors[v]).map_or(0.0, |e| fascicle_core::dti::metrics::fa(&e.values));
+    let voxels = (0..dims[2]).flat_map(|z| (0..dims[1]).flat_map(move |y| (0..dims[0]).map(move |x| [x, y, z])));
+    let index = |[x, y, z]: [usize; 3]| x + dims[0] * (y + dims[1] * z);
+    let out: Vec<glam::DVec3> = match seeds {
+        Seeds::Grid { spacing, min_fa } => {
+            let s = (*spacing).max(1);
+            voxels
+                .filter(|p| p.iter().all(|c| c % s == 0) && fa(index(*p)) >= *min_fa)
+                .map(|[x, y, z]| glam::DVec3::new(x as f64, y as f64, z as f64))
+                .collect()
+        }
+        Seeds::Sphere { centre, radius, per_voxel } => {
+            if !(radius.is_finite() && *radius > 0.0) || *per_voxel == 0 {
+                return Err(format!(
+                    "a seed sphere needs a positive radius and seeds per voxel (radius {radius}, {per_voxel} per voxel)"
+                ));
+            }
+            let c = glam::Vec3::from(*centre).as_dvec3();
+            // A k x k x k sub-grid per voxel, k the smallest with k³ >= per_voxel.
+            let k = (1..).find(|k: &usize| k.pow(3) >= *per_voxel).unwrap_or(1);
+            let offsets: Vec<glam::DVec3> = (0..k.pow(3))
+                .take(*per_voxel)
+                .map(|i| {
+                    let o = |j: usize| (j as f64 + 0.5) / k as f64 - 0.5;
+                    glam::DVec3::new(o(i % k), o((i / k) % k), o(i / (k * k)))
+                })
+                .collect();
+            voxels
+                .filter(|&[x, y, z]| {
+                    affine.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64)).distance(c)
+                        <= f64::from(*radius)
+                })
+                .flat_map(|[x, y, z]| offsets.iter().map(move |o| glam::DVec3::new(x as f64, y as f64, z as f64) + *o))
+                .collect()
+        }
+    };
+    if out.is_empty() {
+        return Err("no seeds: the seed region holds no voxel of the field (or none above the FA cut)".into());
+    }
+    Ok(out)
 }
 
 /// One two-point streamline per peak of a peaks image, through its voxel centre in world coordinates, the
@@ -501,11 +603,20 @@ pub fn peak_segments(path: &Path, length: f32) -> Result<Tractogram, String> {
     Ok(t)
 }
 
-/// A grey image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world
-/// positions of its four outer voxel corners, counter-clockwise from voxel (0, 0).
+/// Which volumes of an image a slice shows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Channels {
+    /// One volume, in grey.
+    One(usize),
+    /// The first three as red, green, blue (one window for all three).
+    Rgb,
+}
+
+/// An image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world positions
+/// of its four outer voxel corners, counter-clockwise from voxel (0, 0).
 pub fn slice_image(
     vol: &Volume<f32>,
-    channel: usize,
+    channel: Channels,
     axis: SliceAxis,
     index: Option<usize>,
     window: Option<(f32, f32)>,
@@ -521,29 +632,48 @@ pub fn slice_image(
         return Err(format!("slice {k} is outside the volume's {} slices along {axis:?}", d[ax]));
     }
     let nvox = vol.n_voxels();
-    let at = |i: usize, j: usize| {
+    let at = |i: usize, j: usize, channel: usize| {
         let mut p = [0usize; 3];
         p[ax] = k;
         p[u] = i;
         p[v] = j;
         vol.data[p[0] + d[0] * (p[1] + d[1] * p[2]) + nvox * channel]
     };
+    let channels: Vec<usize> = match channel {
+        Channels::One(c) => vec![c],
+        Channels::Rgb => vec![0, 1, 2],
+    };
+    if let Some(c) = channels.iter().find(|&&c| c >= vol.n_channels()) {
+        return Err(format!("volume {c} requested, the image has {}", vol.n_channels()));
+    }
     let (lo, hi) = window.unwrap_or_else(|| {
-        let mut vals: Vec<f32> =
-            vol.data[nvox * channel..nvox * (channel + 1)].iter().copied().filter(|x| x.is_finite()).collect();
+        let mut vals: Vec<f32> = channels
+            .iter()
+            .flat_map(|&c| vol.data[nvox * c..nvox * (c + 1)].iter().copied())
+            .filter(|x| x.is_finite())
+            .collect();
         vals.sort_by(f32::total_cmp);
         let lo = vals.first().copied().unwrap_or(0.0);
         let hi = vals.get((vals.len().saturating_sub(1)) * 995 / 1000).copied().unwrap_or(1.0);
         (lo, if hi > lo { hi } else { lo + 1.0 })
     });
     let (w, h) = (d[u], d[v]);
+    let level = |x: f32| {
+        let g = if x.is_finite() { ((x - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
+        (g * 255.0).round() as u8
+    };
     let mut px = Vec::with_capacity(w * h * 4);
     for j in 0..h {
         for i in 0..w {
-            let x = at(i, j);
-            let g = if x.is_finite() { ((x - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
-            let b = (g * 255.0).round() as u8;
-            px.extend_from_slice(&[b, b, b, 255]);
+            match channel {
+                Channels::One(c) => {
+                    let b = level(at(i, j, c));
+                    px.extend_from_slice(&[b, b, b, 255]);
+                }
+                Channels::Rgb => {
+                    px.extend_from_slice(&[level(at(i, j, 0)), level(at(i, j, 1)), level(at(i, j, 2)), 255])
+                }
+            }
         }
     }
     let mut image = Image::new(
@@ -594,6 +724,101 @@ mod tests {
         let err = tract_data(&cache, &file(Some(TensorSource::Spiral { n: 10 })), &p).err().unwrap();
         assert!(err.contains("not a voxel grid"), "{err}");
         std::fs::remove_file(path).ok();
+    }
+
+    fn data(path: &str) -> std::path::PathBuf {
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(path)
+    }
+
+    /// Tracking on a user's data: from a DWI (tensors fitted in the job, WLS) and from the tensor file that
+    /// `fascicle fit dti` wrote for the same DWI, the streamlines agree (the file holds float32 tensors);
+    /// the fit is cached (a second layer on the same DWI fits nothing); progress counts every seed.
+    #[test]
+    fn tracking_runs_on_a_dwi_and_on_its_tensor_file() {
+        use crate::scene::Seeds;
+        use fascicle_core::tracking::{Integrator, TrackParams};
+        let cache = DataCache::default();
+        let params = TrackParams { step_mm: 0.5, integrator: Integrator::Euler, ..TrackParams::default() };
+        let seeds = Seeds::Grid { spacing: 1, min_fa: 0.3 };
+        let track = |tensors: TensorSource, p: &JobProgress| {
+            tract_data(&cache, &TractSource::Track { tensors, seeds: seeds.clone(), params: params.clone() }, p)
+        };
+        let p = JobProgress::default();
+        let from_dwi = track(TensorSource::Dwi { path: data("dwi/small_64D.nii") }, &p).unwrap();
+        let (stage, done) = p.snapshot();
+        assert_eq!((stage, done), ("tracking", Some(1.0)));
+        let file = TensorSource::Nifti { path: data("dti/small_64D_tensor.nii.gz"), order: Default::default() };
+        let from_file = track(file, &JobProgress::default()).unwrap();
+        let (a, b) = (&from_dwi.tractogram, &from_file.tractogram);
+        assert!(a.n_streamlines() > 50, "{} streamlines", a.n_streamlines());
+        assert_eq!(a.n_streamlines(), b.n_streamlines());
+        let worst = a.points.iter().zip(&b.points).map(|(x, y)| x.distance(*y)).fold(0f32, f32::max);
+        assert!(
+            a.points.len() == b.points.len() && worst < 1e-3,
+            "{} vs {} points, {worst} mm",
+            a.points.len(),
+            b.points.len()
+        );
+        assert_eq!(from_dwi.tensors.as_ref().map(|t| t.len()), Some(a.points.len()));
+        let loads = cache.stats().loads;
+        let glyphs = tensor_glyphs(
+            &cache,
+            &TensorSource::Dwi { path: data("dwi/small_64D.nii") },
+            SliceAxis::Z,
+            None,
+            1,
+            0.9,
+            0.0,
+            &p,
+        );
+        assert!(glyphs.unwrap().0.len() > 10);
+        assert_eq!(cache.stats().loads, loads, "the fit is reused");
+        // A DWI without gradient files beside it is a clear error.
+        let e = tensor_field(&cache, &TensorSource::Dwi { path: data("dti/small_64D_fa.nii.gz") }, &p).err().unwrap();
+        assert!(e.contains("no .bval/.bvec beside"), "{e}");
+    }
+
+    /// Sphere seeds: `per_voxel` seeds in each voxel whose centre is inside the sphere, spread within it.
+    #[test]
+    fn sphere_seeds_fill_the_voxels_inside() {
+        use crate::scene::Seeds;
+        let dims = [10, 10, 10];
+        let grid = vec![[1.0, 0.0, 1.0, 0.0, 0.0, 1.0]; 1000];
+        let affine = glam::DMat4::from_scale(glam::DVec3::splat(2.0));
+        let seeds = Seeds::Sphere { centre: [10.0, 10.0, 10.0], radius: 3.0, per_voxel: 8 };
+        let pts = seed_points(&grid, dims, affine, &seeds).unwrap();
+        // Voxel centres within 3 mm of (10,10,10) mm = voxel (5,5,5), 2 mm voxels: the centre, its 6 face
+        // neighbours (2 mm) and 12 edge neighbours (2.83 mm); corners (3.46 mm) are out.
+        assert_eq!(pts.len(), 19 * 8);
+        assert!(pts.iter().all(|p| (*p - glam::DVec3::splat(5.0)).abs().max_element() <= 1.25));
+        let none = Seeds::Sphere { centre: [500.0, 0.0, 0.0], radius: 1.0, per_voxel: 1 };
+        assert!(seed_points(&grid, dims, affine, &none).unwrap_err().contains("no seeds"));
+    }
+
+    /// A tensor file in FSL's or MRtrix3's element order reads as the same field as DIPY's.
+    #[test]
+    fn tensor_files_in_other_orders_read_as_dipy() {
+        use fascicle_core::io::classify::TensorOrder;
+        let cache = DataCache::default();
+        let p = JobProgress::default();
+        let path = data("dti/small_64D_tensor.nii.gz");
+        let dipy =
+            tensor_field(&cache, &TensorSource::Nifti { path: path.clone(), order: TensorOrder::Dipy }, &p).unwrap();
+        let dir = std::env::temp_dir().join(format!("fascicle-orders-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for order in [TensorOrder::Fsl, TensorOrder::Mrtrix] {
+            let mut v = (*dipy.tensors).clone();
+            let n = v.n_voxels();
+            for (slot, &dst) in order.dipy_slots().iter().enumerate() {
+                v.data[dst * n..(dst + 1) * n].copy_from_slice(&dipy.tensors.data[slot * n..(slot + 1) * n]);
+            }
+            let out = dir.join(format!("{order:?}.nii.gz"));
+            nifti::write(&out, &v, nifti::WriteType::F32).unwrap();
+            let source = crate::scene::tensor_source_for(&out);
+            assert_eq!(source, TensorSource::Nifti { path: out.clone(), order });
+            assert_eq!(tensor_field(&cache, &source, &p).unwrap().tensors.data, dipy.tensors.data);
+        }
+        std::fs::remove_dir_all(dir).ok();
     }
 
     /// A cancelled job stops at its next stage with [`CANCELLED`], and a stage's progress is the fraction of

@@ -227,7 +227,7 @@ fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
 fn tensor_source_field(ui: &mut egui::Ui, tensors: &mut Option<crate::scene::TensorSource>) {
     use crate::scene::TensorSource;
     let shown = |t: &Option<TensorSource>| match t {
-        Some(TensorSource::Nifti { path }) => path.display().to_string(),
+        Some(TensorSource::Nifti { path, .. } | TensorSource::Dwi { path }) => path.display().to_string(),
         Some(TensorSource::Phantom) => "phantom".into(),
         Some(TensorSource::Spiral { n }) => format!("spiral {n}"),
         None => String::new(),
@@ -250,7 +250,7 @@ fn tensor_source_from_text(text: &str) -> Option<crate::scene::TensorSource> {
     match text.trim() {
         "" => None,
         "phantom" => Some(TensorSource::Phantom),
-        path => Some(TensorSource::Nifti { path: path.into() }),
+        path => Some(crate::scene::tensor_source_for(std::path::Path::new(path))),
     }
 }
 
@@ -269,6 +269,9 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     }
     if let crate::scene::TractSource::Peaks { length, .. } = source {
         ui.add(egui::Slider::new(length, 0.1..=2.0).text("peak length (voxels)"));
+    }
+    if let crate::scene::TractSource::Track { seeds, params, .. } = source {
+        track_settings(ui, seeds, params);
     }
     ui.add(egui::Slider::new(&mut render.scale, 0.2..=6.0).text("cross-section scale (mm)"));
     ui.add(egui::Slider::new(&mut render.iterations, 1..=32).text("iterations"));
@@ -326,6 +329,51 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
         if ui.button("+ plane").clicked() {
             rois.push(add(RoiShape::Plane { point: [0.0; 3], normal: [1.0, 0.0, 0.0] }));
         }
+    });
+}
+
+/// Tracking: seeds (a grid over the field or a sphere) and the tracker's parameters; any change tracks again
+/// (in the background).
+fn track_settings(
+    ui: &mut egui::Ui,
+    seeds: &mut crate::scene::Seeds,
+    params: &mut fascicle_core::tracking::TrackParams,
+) {
+    use crate::scene::Seeds;
+    use fascicle_core::tracking::Integrator;
+    ui.horizontal(|ui| {
+        ui.label("seeds");
+        if ui.radio(matches!(seeds, Seeds::Grid { .. }), "grid").clicked() && !matches!(seeds, Seeds::Grid { .. }) {
+            *seeds = Seeds::default();
+        }
+        if ui.radio(matches!(seeds, Seeds::Sphere { .. }), "sphere").clicked() && !matches!(seeds, Seeds::Sphere { .. })
+        {
+            *seeds = Seeds::Sphere { centre: [0.0; 3], radius: 5.0, per_voxel: 8 };
+        }
+    });
+    match seeds {
+        Seeds::Grid { spacing, min_fa } => {
+            ui.add(egui::Slider::new(spacing, 1..=8).text("every n-th voxel"));
+            ui.add(egui::Slider::new(min_fa, 0.0..=0.9).text("seed FA at least"));
+        }
+        Seeds::Sphere { centre, radius, per_voxel } => {
+            ui.horizontal(|ui| {
+                ui.label("centre");
+                for c in centre.iter_mut() {
+                    ui.add(egui::DragValue::new(c).speed(0.5));
+                }
+            });
+            ui.add(egui::Slider::new(radius, 0.5..=40.0).text("radius (mm)"));
+            ui.add(egui::Slider::new(per_voxel, 1..=27).text("seeds per voxel"));
+        }
+    }
+    ui.add(egui::Slider::new(&mut params.fa_threshold, 0.0..=0.9).text("stop below FA"));
+    ui.add(egui::Slider::new(&mut params.max_angle_deg, 5.0..=90.0).text("max angle (deg)"));
+    ui.add(egui::Slider::new(&mut params.step_mm, 0.1..=2.0).text("step (mm)"));
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut params.integrator, Integrator::Euler, "Euler");
+        ui.radio_value(&mut params.integrator, Integrator::Rk2, "RK2");
+        ui.radio_value(&mut params.integrator, Integrator::Rk4, "RK4");
     });
 }
 
@@ -622,7 +670,10 @@ mod tests {
             LayerKind::Tracts {
                 source: crate::scene::TractSource::File {
                     path: "tracts.trk".into(),
-                    tensors: Some(crate::scene::TensorSource::Nifti { path: "dti_tensor.nii.gz".into() }),
+                    tensors: Some(crate::scene::TensorSource::Nifti {
+                        path: "dti_tensor.nii.gz".into(),
+                        order: Default::default(),
+                    }),
                 },
                 mode: crate::scene::TractMode::Lines,
                 render: Default::default(),
@@ -647,7 +698,7 @@ mod tests {
         assert_eq!(tensor_source_from_text("phantom"), Some(TensorSource::Phantom));
         assert_eq!(
             tensor_source_from_text(" out/tensor.nii.gz "),
-            Some(TensorSource::Nifti { path: "out/tensor.nii.gz".into() })
+            Some(TensorSource::Nifti { path: "out/tensor.nii.gz".into(), order: Default::default() })
         );
     }
 

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use fascicle_core::dti::glyph::TensorShape;
+use fascicle_core::io::classify::{ImageKind, TensorOrder};
 use fascicle_core::roi::{Roi, RoiMode, RoiShape};
 use fascicle_core::sh::ShBasis;
 use fascicle_core::sh::glyph::{GlyphPlane, GlyphStyle, Sampling};
@@ -221,6 +222,16 @@ pub enum TractSource {
         #[serde(default)]
         tensors: Option<TensorSource>,
     },
+    /// Deterministic tensor tracking (Euler, RK2 or RK4) through a tensor field, from `seeds`, run in the
+    /// background with progress; each point carries its tensor. Changing an ROI re-selects these streamlines;
+    /// changing the field, seeds or parameters tracks again.
+    Track {
+        tensors: TensorSource,
+        #[serde(default)]
+        seeds: Seeds,
+        #[serde(default)]
+        params: fascicle_core::tracking::TrackParams,
+    },
     /// A peaks image (MRtrix (X,Y,Z,3N) or DIPY (X,Y,Z,N,3) layout, `fascicle peaks`): one short segment per
     /// peak through its voxel centre, the voxel's largest peak `length` voxels long, the others in proportion
     /// to their amplitudes. Drawn as lines by default.
@@ -229,6 +240,22 @@ pub enum TractSource {
         #[serde(default = "default_peak_length")]
         length: f32,
     },
+}
+
+/// Where tracking starts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Seeds {
+    /// Every `spacing`-th voxel along each axis whose FA is at least `min_fa`.
+    Grid { spacing: usize, min_fa: f64 },
+    /// `per_voxel` seeds in each voxel whose centre lies in the sphere (world mm), spread on a regular
+    /// sub-grid.
+    Sphere { centre: [f32; 3], radius: f32, per_voxel: usize },
+}
+
+impl Default for Seeds {
+    fn default() -> Self {
+        Seeds::Grid { spacing: 2, min_fa: 0.3 }
+    }
 }
 
 fn default_peak_length() -> f32 {
@@ -252,8 +279,15 @@ pub enum TractMode {
 pub enum TensorSource {
     /// The built-in phantom's tensors.
     Phantom,
-    /// A tensor image (X,Y,Z,6 lower-triangular) as `fascicle fit dti` and DIPY write it.
-    Nifti { path: PathBuf },
+    /// A tensor image (X,Y,Z,6) as `fascicle fit dti` and DIPY write it (lower triangle), or in FSL's or
+    /// MRtrix3's element order.
+    Nifti {
+        path: PathBuf,
+        #[serde(default)]
+        order: TensorOrder,
+    },
+    /// Tensors fitted (weighted least squares) to a DWI with its `.bval`/`.bvec` beside it.
+    Dwi { path: PathBuf },
     /// The seed's synthetic spiral of `n` tensors (`fascicle_core::phantom::spiral`); the slice settings
     /// are ignored and sizes are fractions of 8 mm.
     Spiral { n: usize },
@@ -284,6 +318,8 @@ pub enum VolumeSource {
         #[serde(default)]
         volume: usize,
     },
+    /// A colour image (RGB24, or three volumes of red, green, blue), shown in colour.
+    Rgb { path: PathBuf },
 }
 
 pub use fascicle_render::layer::SliceAxis;
@@ -455,59 +491,81 @@ impl Scene {
         Ok(())
     }
 
-    /// A layer for a data file by its extension (NIfTI slice or tractogram), named after the file.
+    /// A layer for a data file, by what it holds ([`fascicle_core::io::classify`] for images): SH glyphs in the
+    /// recorded basis, tensor glyphs in the file's element order, peaks as lines, RGB maps in colour, DWIs and
+    /// scalar maps as a slice, tractograms as lines. Where the content is ambiguous this is the likeliest; see
+    /// [`Scene::layer_choices`].
     pub fn layer_for_file(path: &Path) -> Result<LayerSpec, String> {
+        Ok(Scene::layer_choices(path)?.0)
+    }
+
+    /// The layer for a data file and, when its content is ambiguous, the other ways to open it (for the
+    /// viewer to ask).
+    pub fn layer_choices(path: &Path) -> Result<(LayerSpec, Vec<LayerSpec>), String> {
         if !path.is_file() {
             return Err(format!("{}: no such file", path.display()));
         }
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let lower = name.to_ascii_lowercase();
-        let sh_image = || {
-            fascicle_core::io::nifti::read_header(path).ok().is_some_and(|h| {
-                h.shape.len() >= 4
-                    && h.shape[3..].iter().product::<usize>() >= 6
-                    && fascicle_core::sh::l_max_for(h.shape[3..].iter().product()).is_some()
-            })
-        };
-        let nifti = lower.ends_with(".nii") || lower.ends_with(".nii.gz");
-        let peaks_image = || {
-            fascicle_core::io::nifti::read_header(path)
-                .ok()
-                .is_some_and(|h| fascicle_core::io::peaks::is_peaks_image(&h.shape, &lower))
-        };
-        let kind = if nifti && peaks_image() {
-            LayerKind::Tracts {
-                source: TractSource::Peaks { path: path.to_path_buf(), length: default_peak_length() },
-                mode: TractMode::Lines,
-                render: Default::default(),
-                rois: Vec::new(),
-            }
-        } else if nifti && sh_image() {
-            // 6, 15, 28, 45, ... volumes: SH coefficients (DIPY's default basis; change it in the scene).
-            LayerKind::ShGlyphs {
-                source: ShSource::Nifti { path: path.to_path_buf(), basis: ShBasis::default() },
-                axis: SliceAxis::Z,
-                index: None,
-                spacing: 1,
-                plane: None,
-                sampling: Sampling::Nearest,
-                full_volume: false,
-                // Sized to the grid, as mrview and FURY do.
-                style: GlyphStyle { fit_lobes: true, cell_fill: Some(0.9), ..GlyphStyle::default() },
-                render: RayCastSettings::default(),
-            }
-        } else if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
-            LayerKind::Slice {
-                source: VolumeSource::Nifti { path: path.to_path_buf(), volume: 0 },
-                axis: SliceAxis::Z,
-                index: None,
-            }
-        } else if [".trk", ".tck", ".trk.gz", ".tck.gz"].iter().any(|e| lower.ends_with(e)) {
-            LayerKind::Tractogram { path: path.to_path_buf() }
-        } else {
-            return Err(format!("{}: not a NIfTI image, tractogram or scene file", path.display()));
-        };
-        Ok(LayerSpec { name, visible: true, opacity: 1.0, kind })
+        let spec = |kind| LayerSpec { name: name.clone(), visible: true, opacity: 1.0, kind };
+        if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
+            let c = fascicle_core::io::classify::classify(path).map_err(|e| e.to_string())?;
+            let others = c.ambiguous.iter().filter(|k| **k != c.kind).map(|k| spec(layer_kind_for(path, k))).collect();
+            return Ok((spec(layer_kind_for(path, &c.kind)), others));
+        }
+        if [".trk", ".tck", ".trk.gz", ".tck.gz"].iter().any(|e| lower.ends_with(e)) {
+            return Ok((spec(LayerKind::Tractogram { path: path.to_path_buf() }), vec![]));
+        }
+        Err(format!("{}: not a NIfTI image, tractogram or scene file", path.display()))
+    }
+}
+
+/// How an image of `kind` opens.
+pub fn layer_kind_for(path: &Path, kind: &ImageKind) -> LayerKind {
+    let path = path.to_path_buf();
+    match kind {
+        ImageKind::Peaks => LayerKind::Tracts {
+            source: TractSource::Peaks { path, length: default_peak_length() },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: Vec::new(),
+        },
+        ImageKind::Sh { basis, .. } => LayerKind::ShGlyphs {
+            source: ShSource::Nifti { path, basis: basis.unwrap_or_default() },
+            axis: SliceAxis::Z,
+            index: None,
+            spacing: 1,
+            plane: None,
+            sampling: Sampling::Nearest,
+            full_volume: false,
+            // Sized to the grid, as mrview and FURY do.
+            style: GlyphStyle { fit_lobes: true, cell_fill: Some(0.9), ..GlyphStyle::default() },
+            render: RayCastSettings::default(),
+        },
+        ImageKind::Tensor { order } => LayerKind::TensorGlyphs {
+            source: TensorSource::Nifti { path, order: *order },
+            axis: SliceAxis::Z,
+            index: None,
+            spacing: 1,
+            size: glyph_size(),
+            min_fa: 0.0,
+            render: TensorGlyphSettings::default(),
+        },
+        ImageKind::Rgb => LayerKind::Slice { source: VolumeSource::Rgb { path }, axis: SliceAxis::Z, index: None },
+        // A DWI shows its first volume (a b0); tensors fitted to it are a layer the panel adds.
+        ImageKind::Dwi { .. } | ImageKind::Scalar | ImageKind::Series => {
+            LayerKind::Slice { source: VolumeSource::Nifti { path, volume: 0 }, axis: SliceAxis::Z, index: None }
+        }
+    }
+}
+
+/// The tensor source for a file: tensors fitted to it when it is a DWI, else its tensors in the element
+/// order its content shows (DIPY's when it cannot be read).
+pub fn tensor_source_for(path: &Path) -> TensorSource {
+    match fascicle_core::io::classify::classify(path).map(|c| c.kind) {
+        Ok(ImageKind::Dwi { .. }) => TensorSource::Dwi { path: path.to_path_buf() },
+        Ok(ImageKind::Tensor { order }) => TensorSource::Nifti { path: path.to_path_buf(), order },
+        _ => TensorSource::Nifti { path: path.to_path_buf(), order: TensorOrder::default() },
     }
 }
 
@@ -524,6 +582,43 @@ fn faint_context() -> VolumeSettings {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Files open by what they hold: a 6-volume tensor image as tensor glyphs (not l_max 2 SH), an SH image
+    /// as glyphs in the basis its header records, a DWI (bval/bvec beside) as a slice, a tractogram as lines.
+    #[test]
+    fn files_open_by_their_content() {
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+        let kind = |p: &str| Scene::layer_for_file(&data.join(p)).unwrap().kind;
+        assert!(
+            matches!(
+                kind("dti/small_64D_tensor.nii.gz"),
+                LayerKind::TensorGlyphs { source: TensorSource::Nifti { order: TensorOrder::Dipy, .. }, .. }
+            ),
+            "{:?}",
+            kind("dti/small_64D_tensor.nii.gz")
+        );
+        let LayerKind::ShGlyphs { source: ShSource::Nifti { basis, .. }, .. } = kind("sh/small_64D_csa_l6.nii.gz")
+        else {
+            panic!()
+        };
+        assert_eq!(
+            Some(basis),
+            fascicle_core::sh::recorded_basis(
+                &fascicle_core::io::nifti::read_header(data.join("sh/small_64D_csa_l6.nii.gz")).unwrap().descrip
+            )
+        );
+        assert!(matches!(kind("sh/func_coef.nii.gz"), LayerKind::ShGlyphs { .. }));
+        assert!(matches!(
+            kind("dwi/small_64D.nii"),
+            LayerKind::Slice { source: VolumeSource::Nifti { volume: 0, .. }, .. }
+        ));
+        assert!(matches!(kind("dti/small_64D_fa.nii.gz"), LayerKind::Slice { .. }));
+        assert!(matches!(kind("tracts/tracks300.trk"), LayerKind::Tractogram { .. }));
+        assert_eq!(
+            tensor_source_for(&data.join("dwi/small_64D.nii")),
+            TensorSource::Dwi { path: data.join("dwi/small_64D.nii") }
+        );
+    }
 
     /// A scene sets only what it changes: every settings struct and layer field has a default.
     #[test]

@@ -91,6 +91,8 @@ struct UiState {
     selection_path: String,
     /// The tract layer whose selection the panel asked to save.
     save_selection: Option<usize>,
+    /// A dropped file whose content is ambiguous, and the layers it could open as: the panel asks.
+    ask: Option<(PathBuf, Vec<LayerSpec>)>,
 }
 
 /// Builds the starting scene from command-line files: scene files replace the scene, data files add layers.
@@ -435,6 +437,12 @@ fn dropped_files(
 ) {
     for ev in events.read() {
         if let FileDragAndDrop::DroppedFile { path_buf, .. } = ev {
+            if let Ok((first, others)) = Scene::layer_choices(path_buf)
+                && !others.is_empty()
+            {
+                ui.ask = Some((path_buf.clone(), std::iter::once(first).chain(others).collect()));
+                continue;
+            }
             match scene.0.open_file(path_buf) {
                 // The scene's camera frames the new layer: the view follows.
                 Ok(()) => *orbit = Orbit::from_spec(&scene.0.camera),
@@ -506,6 +514,7 @@ fn panel(
         ui.separator();
         ui.heading("Layers");
         let mut remove = None;
+        let mut added = Vec::new();
         // The layer list scrolls; scene controls and messages stay visible below it.
         let list_height = (ui.available_height() - 220.0).max(120.0);
         egui::ScrollArea::vertical().max_height(list_height).show(ui, |ui| {
@@ -524,6 +533,19 @@ fn panel(
                     let data = layer_data.0.get(&i).cloned().unwrap_or_default();
                     ui.push_id(i, |ui| (p.show)(ui, &mut layer.kind, &data));
                 }
+                if let Some(tensors) = tensor_source_of(&layer.kind) {
+                    ui.push_id(("derive", i), |ui| {
+                        ui.horizontal(|ui| {
+                            ui.label("from its tensors:");
+                            for (label, kind) in derived_layers(&tensors) {
+                                if ui.small_button(label).clicked() {
+                                    let name = format!("{label} ({})", layer.name);
+                                    added.push(LayerSpec { name, visible: true, opacity: 1.0, kind });
+                                }
+                            }
+                        });
+                    });
+                }
                 if matches!(layer.kind, LayerKind::Tracts { .. }) {
                     ui.push_id(("selection", i), |ui| {
                         ui.horizontal(|ui| {
@@ -540,6 +562,7 @@ fn panel(
         if let Some(i) = remove {
             edited.layers.remove(i);
         }
+        edited.layers.append(&mut added);
         ui.separator();
         if ui.button("Reset view (R)").clicked() {
             *orbit = Orbit::from_spec(&edited.camera);
@@ -572,6 +595,24 @@ fn panel(
         ui.label("Drop NIfTI, .trk/.tck or .ron files on the window.");
         ui.allocate_rect(ui.available_rect_before_wrap(), egui::Sense::hover());
     });
+    if let Some((path, choices)) = ui_state.ask.clone() {
+        let mut open = true;
+        let mut chosen = None;
+        egui::Window::new("Open as").collapsible(false).open(&mut open).show(ctx, |ui| {
+            ui.label(format!("{}: the content does not tell what it holds.", path.display()));
+            for (k, c) in choices.iter().enumerate() {
+                if ui.button(kind_label(&c.kind)).clicked() {
+                    chosen = Some(k);
+                }
+            }
+        });
+        if let Some(k) = chosen {
+            edited.layers.push(choices[k].clone());
+        }
+        if chosen.is_some() || !open {
+            ui_state.ask = None;
+        }
+    }
     let left = (panel_width.response.rect.width() * window.scale_factor()) as u32;
     let size = UVec2::new(window.physical_width().saturating_sub(left).max(1), window.physical_height().max(1));
     let viewport = Viewport {
@@ -589,6 +630,77 @@ fn panel(
         scene.0 = edited;
     }
     Ok(())
+}
+
+/// The tensors a layer shows or holds: a DWI slice's (fitted), a tensor glyph or splat layer's.
+fn tensor_source_of(kind: &LayerKind) -> Option<crate::scene::TensorSource> {
+    use crate::scene::{TensorSource, VolumeSource};
+    match kind {
+        LayerKind::Slice { source: VolumeSource::Nifti { path, .. }, .. } => {
+            fascicle_core::io::classify::gradients_beside(path).map(|_| TensorSource::Dwi { path: path.clone() })
+        }
+        LayerKind::TensorGlyphs { source, .. } | LayerKind::TensorSplats { source, .. }
+            if !matches!(source, TensorSource::Spiral { .. }) =>
+        {
+            Some(source.clone())
+        }
+        _ => None,
+    }
+}
+
+/// Layers made from a tensor source: glyphs, splats and tracking (whole-field grid seeds).
+fn derived_layers(tensors: &crate::scene::TensorSource) -> Vec<(&'static str, LayerKind)> {
+    use crate::scene::{SliceAxis, TractMode, TractSource};
+    vec![
+        (
+            "glyphs",
+            LayerKind::TensorGlyphs {
+                source: tensors.clone(),
+                axis: SliceAxis::Z,
+                index: None,
+                spacing: 1,
+                size: 0.9,
+                min_fa: 0.2,
+                render: Default::default(),
+            },
+        ),
+        (
+            "splats",
+            LayerKind::TensorSplats {
+                source: tensors.clone(),
+                axis: SliceAxis::Z,
+                index: None,
+                thickness: 1,
+                size: 0.5,
+                min_fa: 0.0,
+                render: Default::default(),
+            },
+        ),
+        (
+            "track",
+            LayerKind::Tracts {
+                source: TractSource::Track {
+                    tensors: tensors.clone(),
+                    seeds: Default::default(),
+                    params: Default::default(),
+                },
+                mode: TractMode::Tubes,
+                render: Default::default(),
+                rois: vec![],
+            },
+        ),
+    ]
+}
+
+/// What the "open as" dialog calls a layer kind.
+fn kind_label(kind: &LayerKind) -> &'static str {
+    match kind {
+        LayerKind::ShGlyphs { .. } => "SH coefficients (ODF glyphs)",
+        LayerKind::TensorGlyphs { .. } => "diffusion tensors (glyphs)",
+        LayerKind::Tracts { .. } => "peaks (lines)",
+        LayerKind::Slice { .. } => "volumes (a slice)",
+        _ => "other",
+    }
 }
 
 /// A layer's job (stage, progress bar, cancel) or its error (with retry).

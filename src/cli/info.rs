@@ -87,28 +87,9 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
         let h = nifti::read_header(path)?;
         let a = h.world_from_voxel;
         let rows: Vec<[f64; 4]> = (0..4).map(|r| [a.x_axis[r], a.y_axis[r], a.z_axis[r], a.w_axis[r]]).collect();
-        let stem = name.trim_end_matches(".gz").trim_end_matches(".nii").to_string();
-        let beside = |ext: &str| {
-            let p = path.to_string_lossy();
-            let base = p.trim_end_matches(".gz").trim_end_matches(".nii");
-            Path::new(&format!("{base}.{ext}")).exists()
-        };
-        let vols: usize = h.shape[3..].iter().product();
-        let kind = if fascicle_core::io::peaks::is_peaks_image(&h.shape, &stem) {
-            "peaks"
-        } else if h.shape.len() >= 4 && (beside("bval") || beside("bvec")) {
-            "dwi"
-        } else if h.shape.len() == 4 && vols == 6 && (stem.contains("tensor") || stem.ends_with("dt")) {
-            "tensor"
-        } else if h.shape.len() == 4 && vols == 3 && (stem.contains("rgb") || h.intent_code == 2003) {
-            "rgb"
-        } else if h.shape.len() == 4 && vols >= 6 && fascicle_core::sh::l_max_for(vols).is_some() {
-            "sh"
-        } else if h.shape.len() <= 3 || vols == 1 {
-            "scalar"
-        } else {
-            "volume"
-        };
+        // What it holds, by header, the files beside it and (where those are silent) its content.
+        let class = fascicle_core::io::classify::classify_with(path, &h, || nifti::read::<f32>(path).map(|(v, _)| v))?;
+        let kind = class.kind.name();
         let mut v = json!({
             "file": path.display().to_string(),
             "format": format!("NIfTI-{}", h.version),
@@ -122,16 +103,22 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
             "qform_code": h.qform_code,
             "descrip": h.descrip,
         });
-        if kind == "sh" {
-            // The basis `fascicle fit` recorded in the header; otherwise DIPY's default, which is what Fascicle
+        v["reason"] = json!(class.reason);
+        if !class.ambiguous.is_empty() {
+            v["could_be"] = json!(class.ambiguous.iter().map(|k| k.name()).collect::<Vec<_>>());
+        }
+        if let fascicle_core::io::classify::ImageKind::Tensor { order } = class.kind {
+            v["tensor_order"] = json!(format!("{order:?}").to_ascii_lowercase());
+        }
+        if let fascicle_core::io::classify::ImageKind::Sh { basis: recorded, l_max } = class.kind {
+            // The basis recorded in the header or a sidecar; otherwise DIPY's default, which is what Fascicle
             // reads an unlabelled file as.
-            let recorded = super::fit::recorded_sh_basis(&h.descrip);
             let (convention, legacy) = match recorded.unwrap_or_default() {
                 fascicle_core::sh::ShBasis::Descoteaux07 { legacy } => ("descoteaux07", legacy),
                 fascicle_core::sh::ShBasis::Tournier07 { legacy } => ("tournier07", legacy),
             };
             v["sh_basis"] = json!({"convention": convention, "legacy": legacy, "recorded": recorded.is_some()});
-            v["l_max"] = json!(fascicle_core::sh::l_max_for(vols));
+            v["l_max"] = json!(l_max);
         }
         return Ok(v);
     }

@@ -424,3 +424,34 @@ mod tests {
         std::fs::remove_dir_all(dir).ok();
     }
 }
+
+#[cfg(test)]
+mod rgb_tests {
+    use super::*;
+    use crate::io::nifti::WriteType;
+
+    /// A packed RGB24 image (as nibabel writes `color_fa`) reads as three volumes of its bytes and classifies
+    /// as RGB.
+    #[test]
+    fn rgb24_images_read_as_three_volumes() {
+        let dir = std::env::temp_dir().join(format!("fascicle-rgb24-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("color_fa.nii");
+        // A u8 image of 6x2x1 holds the 12 bytes of 2x2x1 RGB voxels; its header is then patched to RGB24.
+        let bytes: Vec<u8> = vec![255, 0, 0, 0, 255, 0, 0, 0, 255, 10, 20, 30];
+        let mut v = Volume::<f32>::zeros(&[6, 2, 1], glam::DMat4::IDENTITY);
+        v.data = bytes.iter().map(|&b| b as f32).collect();
+        nifti::write(&path, &v, WriteType::U8).unwrap();
+        let mut file = std::fs::read(&path).unwrap();
+        file[42..44].copy_from_slice(&2i16.to_le_bytes()); // dim[1]
+        file[70..72].copy_from_slice(&128i16.to_le_bytes()); // datatype rgb24
+        file[72..74].copy_from_slice(&24i16.to_le_bytes()); // bitpix
+        std::fs::write(&path, file).unwrap();
+        let (img, _) = nifti::read::<f32>(&path).unwrap();
+        assert_eq!(img.shape, vec![2, 2, 1, 3]);
+        // Channel-major: red of the four voxels, then green, then blue.
+        assert_eq!(img.data, vec![255.0, 0.0, 0.0, 10.0, 0.0, 255.0, 0.0, 20.0, 0.0, 0.0, 255.0, 30.0]);
+        assert_eq!(classify(&path).unwrap().kind, ImageKind::Rgb);
+        std::fs::remove_dir_all(dir).ok();
+    }
+}

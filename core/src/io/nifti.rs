@@ -51,6 +51,8 @@ fn datatype_size(code: i16) -> Option<usize> {
         4 | 512 => 2,          // int16, uint16
         8 | 768 | 16 => 4,     // int32, uint32, float32
         64 | 1024 | 1280 => 8, // float64, int64, uint64
+        128 => 3,              // rgb24
+        2304 => 4,             // rgba32
         _ => return None,
     })
 }
@@ -369,6 +371,20 @@ fn decode<T: Scalar>(bytes: &[u8], path: &Path) -> Result<(Volume<T>, NiftiHeade
                 })
                 .collect::<Vec<T>>()
         }};
+    }
+    if let 128 | 2304 = h.datatype {
+        // Packed colour: r g b (a) bytes per voxel; read as 3 (or 4) volumes of 0..255 (the header's shape
+        // plus a last axis of components).
+        let k = elem;
+        let data: Vec<T> = (0..k).flat_map(|c| raw.iter().skip(c).step_by(k).map(|&b| T::from_f64(b as f64))).collect();
+        let mut shape = h.shape.clone();
+        shape.truncate(3);
+        shape.resize(3, 1);
+        if h.shape.iter().skip(3).product::<usize>() > 1 {
+            return Err(Error::format(path, "an RGB image with more than one volume is not supported"));
+        }
+        shape.push(k);
+        return Ok((Volume { shape, data, world_from_voxel: h.world_from_voxel }, h));
     }
     let data = match h.datatype {
         2 => decode!(u8),

@@ -233,6 +233,9 @@ pub fn cast_poly(g: &Glyph, o: DVec3, d: DVec3, span: (f64, f64), knobs: PolyCas
     Some(Hit { t: hi, point, normal, negative })
 }
 
+/// How many of the best samples are considered as starts of the ascent in [`glyph_box`].
+const STARTS_POOL: usize = 64;
+
 /// The first hit inside the glyph's box ([`glyph_box`]), by [`cast_poly`].
 pub fn cast_in_box(g: &Glyph, half: DVec3, o: DVec3, d: DVec3, knobs: PolyCast, lobes: Lobes) -> Option<Hit> {
     let span = ray_box_interval(o, d, g.centre, half)?;
@@ -243,13 +246,12 @@ pub fn cast_in_box(g: &Glyph, half: DVec3, o: DVec3, d: DVec3, knobs: PolyCast, 
 /// `|ψ(u)| |u_a|`, found by projected gradient ascent on the sphere from the best of 2,562 directions, and
 /// widened by `1e-6` of the largest radius for rounding.
 pub fn glyph_box(coeffs: &[f64], l_max: usize) -> DVec3 {
+    glyph_box_from(coeffs, l_max, &super::glyph::bound_psi(coeffs, l_max))
+}
+
+/// [`glyph_box`] with ψ at the sample directions given.
+pub(crate) fn glyph_box_from(coeffs: &[f64], l_max: usize, psi: &[f64]) -> DVec3 {
     let dirs = &super::glyph::bound_sample().0;
-    let n = coeffs.len();
-    let psi: Vec<f64> = super::glyph::bound_matrix(l_max)
-        .chunks_exact(n)
-        .take(dirs.len())
-        .map(|row| row.iter().zip(coeffs).map(|(b, c)| b * c).sum())
-        .collect();
     let rmax = psi.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let mut half = DVec3::ZERO;
     for a in 0..3 {
@@ -259,11 +261,25 @@ pub fn glyph_box(coeffs: &[f64], l_max: usize) -> DVec3 {
             let e = DVec3::AXES[a];
             (p * p * u[a] * u[a], 2.0 * p * u[a] * (u[a] * g + p * e))
         };
-        // Start from the best few samples (distinct lobes can be close in value).
-        let mut order: Vec<usize> = (0..dirs.len()).collect();
-        order.sort_by(|&i, &j| (psi[j] * dirs[j][a]).abs().total_cmp(&(psi[i] * dirs[i][a]).abs()));
+        // Start from the best samples of up to three distinct lobes (distinct lobes can be close in value;
+        // antipodes and neighbours of a chosen start are the same lobe of h).
+        let score = |i: usize| (psi[i] * dirs[i][a]).abs();
+        let mut starts: Vec<usize> = Vec::with_capacity(3);
+        let mut by_score: Vec<usize> = (0..dirs.len()).collect();
+        let pool = STARTS_POOL.min(by_score.len());
+        by_score.select_nth_unstable_by(pool - 1, |&i, &j| score(j).total_cmp(&score(i)));
+        by_score.truncate(STARTS_POOL);
+        by_score.sort_unstable_by(|&i, &j| score(j).total_cmp(&score(i)));
+        for &i in &by_score {
+            if starts.len() == 3 {
+                break;
+            }
+            if starts.iter().all(|&k| dirs[k].dot(dirs[i]).abs() < 0.94) {
+                starts.push(i);
+            }
+        }
         let mut best = 0.0f64;
-        for &i in order.iter().take(3) {
+        for &i in &starts {
             let mut u = dirs[i];
             let (mut h, mut grad) = objective(u);
             let mut step = 0.05;
@@ -279,7 +295,8 @@ pub fn glyph_box(coeffs: &[f64], l_max: usize) -> DVec3 {
                     step *= 1.5;
                 } else {
                     step *= 0.3;
-                    if step < 1e-10 {
+                    // 1e-7 rad from the maximum: h is within ~1e-14 of it (h is flat there).
+                    if step < 1e-7 {
                         break;
                     }
                 }

@@ -211,19 +211,28 @@ pub(crate) fn bound_matrix(l_max: usize) -> std::sync::Arc<Vec<f64>> {
 /// `m >= |ψ(s)| >= M (1 - (L δ)² / 2)`, i.e. `M <= m / (1 - (L δ)² / 2)`. Falls back to `rmax` where
 /// that is not smaller.
 pub fn render_bound(c: &[f64], l_max: usize, rmax: f64) -> f64 {
-    let (dirs, delta) = bound_sample();
+    render_bound_from(&bound_psi(c, l_max), l_max, rmax)
+}
+
+/// [`render_bound`] from ψ at the directions of [`bound_sample`] ([`bound_psi`]).
+pub(crate) fn render_bound_from(psi: &[f64], l_max: usize, rmax: f64) -> f64 {
+    let (_, delta) = bound_sample();
     let shrink = 1.0 - 0.5 * (l_max as f64 * delta).powi(2);
     if shrink <= 0.05 {
         return rmax;
     }
-    let n = c.len();
-    let b = bound_matrix(l_max);
-    let m = b
-        .chunks_exact(n)
-        .take(dirs.len())
-        .map(|row| row.iter().zip(c).map(|(x, y)| x * y).sum::<f64>().abs())
-        .fold(0.0f64, f64::max);
+    let m = psi.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     (m / shrink).min(rmax)
+}
+
+/// ψ at the 2,562 directions of [`bound_sample`].
+pub(crate) fn bound_psi(c: &[f64], l_max: usize) -> Vec<f64> {
+    let n = c.len();
+    bound_matrix(l_max)
+        .chunks_exact(n)
+        .take(bound_sample().0.len())
+        .map(|row| row.iter().zip(c).map(|(x, y)| x * y).sum::<f64>())
+        .collect()
 }
 
 /// The smallest and largest ψ over the 2,562 directions of [`bound_sample`].
@@ -308,8 +317,10 @@ pub fn make_glyphs<'a>(
             let k = style.scale / if style.normalise == Normalise::Global { global } else { own };
             c.iter_mut().for_each(|v| *v *= k);
             let l_max = l_max_for(c.len()).unwrap_or(0);
-            let rbound = render_bound(&c, l_max, rmax * k);
-            let half = super::exact::glyph_box(&c, l_max);
+            // ψ at the sample directions once, for the render bound and the box.
+            let psi = bound_psi(&c, l_max);
+            let rbound = render_bound_from(&psi, l_max, rmax * k);
+            let half = super::exact::glyph_box_from(&c, l_max, &psi);
             // The sphere's cube where the box is not usable.
             let half = if half.is_finite() { half.min(DVec3::splat(rbound)) } else { DVec3::splat(rbound) };
             Glyph { centre, l_max, coeffs: c, rmax: rmax * k, rbound, half, gfa }
