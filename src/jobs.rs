@@ -22,7 +22,8 @@ use fascicle_tensors::layer::{field_splats, field_tensor_glyphs};
 use fascicle_tensors::{SplatShape, TensorField, TensorGlyphShape};
 
 use crate::cache::DataCache;
-use crate::scene::{LayerKind, ShSource, SliceAxis, TensorSource, TractSource, VolumeSource};
+use crate::scene::{LayerKind, ShSource, SliceAxis, TensorSource, TractMode, TractSource, VolumeSource};
+use fascicle_tracts::PreparedTracts;
 
 /// A job's stage, progress and cancel flag, shared between the job and the panel that shows it.
 #[derive(Debug, Default)]
@@ -82,13 +83,18 @@ pub enum Content {
     },
     /// Colour and opacity unset: the layer's colouring is applied at upload.
     Splats(Vec<Splat>),
-    Tracts(TractData),
+    /// Streamlines with their segment grid and geometry built (as the layer's mode draws them).
+    Tracts(fascicle_tracts::PreparedTracts),
     Volume(Arc<Volume<f32>>),
     Slice {
         image: Box<Image>,
         corners: [Vec3; 4],
     },
-    Lines(Arc<Tractogram>),
+    /// A tractogram's line mesh (lines coloured by direction).
+    Lines {
+        mesh: Box<bevy::mesh::Mesh>,
+        streamlines: usize,
+    },
     Axes {
         length_mm: f32,
     },
@@ -104,7 +110,7 @@ impl Content {
             Content::Tracts(t) => t.tractogram.n_streamlines(),
             Content::Volume(v) => v.n_voxels(),
             Content::Slice { image, .. } => (image.width() * image.height()) as usize,
-            Content::Lines(t) => t.n_streamlines(),
+            Content::Lines { streamlines, .. } => *streamlines,
             Content::Axes { .. } => 3,
         }
     }
@@ -139,7 +145,16 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
-        LayerKind::Tracts { source, .. } => Ok(Content::Tracts(tract_data(cache, source, progress)?)),
+        LayerKind::Tracts { source, mode, render, .. } => {
+            let data = tract_data(cache, source, progress)?;
+            progress.stage("building the geometry", 0)?;
+            let (t, tensors) = (data.tractogram, data.tensors.as_deref().map(|v| v.as_slice()));
+            Ok(Content::Tracts(match mode {
+                TractMode::Tubes => PreparedTracts::tubes(t, tensors, render),
+                TractMode::Polygon => PreparedTracts::polygon_tubes(t, tensors, render.scale),
+                TractMode::Lines => PreparedTracts::lines(t),
+            }))
+        }
         LayerKind::Volume { source, .. } => Ok(Content::Volume(scalar_volume(cache, source, progress)?)),
         LayerKind::Slice { source, axis, index } => {
             let (vol, channel, window) = match source {
@@ -161,7 +176,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             if t.points.is_empty() {
                 return Err("the tractogram holds no points".into());
             }
-            Ok(Content::Lines(t))
+            Ok(Content::Lines { mesh: Box::new(fascicle_tracts::line_mesh(&t)), streamlines: t.n_streamlines() })
         }
         LayerKind::Axes { length_mm } => Ok(Content::Axes { length_mm: *length_mm }),
     }

@@ -24,15 +24,15 @@ use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
 use fascicle_tracts::{
-    MeshSet, TractMeshMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial, line_mesh, spawn_lines,
-    spawn_polygon_tubes, spawn_tubes,
+    MeshSet, PreparedGeometry, TractMeshMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial,
+    spawn_prepared,
 };
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume};
 
 use crate::cache::DataCache;
 use crate::jobs::{CANCELLED, Content, JobProgress, build};
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
-use crate::scene::{LayerKind, LayerSpec, Scene, TractMode};
+use crate::scene::{LayerKind, LayerSpec, Scene};
 
 /// The scene being shown.
 #[derive(Resource, Clone, Debug)]
@@ -319,15 +319,14 @@ impl Uploads<'_> {
                 render.colouring.apply(&mut splats);
                 spawn_splats(c, m, &mut self.splat_materials, b, &splats, render)
             }
-            (Content::Tracts(data), LayerKind::Tracts { mode, render, rois, .. }) => {
-                let (t, tensors) = (data.tractogram, data.tensors.as_deref().map(|v| v.as_slice()));
-                let set = match mode {
-                    TractMode::Tubes => spawn_tubes(c, m, &mut self.tube_materials, b, t, tensors, render),
-                    TractMode::Polygon => {
-                        spawn_polygon_tubes(c, m, &mut self.mesh_materials, b, t, tensors, render.scale, spec.opacity)
-                    }
-                    TractMode::Lines => spawn_lines(c, m, &mut self.mesh_materials, b, t, spec.opacity),
-                };
+            (Content::Tracts(mut prepared), LayerKind::Tracts { render, rois, .. }) => {
+                // The job built the tubes from the layer's structure (scale, colour); the per-pixel knobs are
+                // the layer's settings now.
+                if let PreparedGeometry::Tubes { settings, .. } = &mut prepared.geometry {
+                    *settings = *render;
+                }
+                let (tubes, meshes) = (&mut self.tube_materials, &mut self.mesh_materials);
+                let set = spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity);
                 spawn_rois(c, rois, index, set);
                 set
             }
@@ -340,8 +339,8 @@ impl Uploads<'_> {
                 mat.base_color_texture = Some(self.images.add(*image));
                 c.spawn((Mesh3d(m.add(quad(corners))), MeshMaterial3d(self.materials.add(mat)))).id()
             }
-            (Content::Lines(t), _) => {
-                c.spawn((Mesh3d(m.add(line_mesh(&t))), MeshMaterial3d(self.materials.add(unlit(spec.opacity))))).id()
+            (Content::Lines { mesh, .. }, _) => {
+                c.spawn((Mesh3d(m.add(*mesh)), MeshMaterial3d(self.materials.add(unlit(spec.opacity))))).id()
             }
             (Content::Axes { length_mm: l }, _) => {
                 let w = l / 40.0;

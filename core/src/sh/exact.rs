@@ -251,7 +251,8 @@ pub fn glyph_box(coeffs: &[f64], l_max: usize) -> DVec3 {
 
 /// [`glyph_box`] with ψ at the sample directions given.
 pub(crate) fn glyph_box_from(coeffs: &[f64], l_max: usize, psi: &[f64]) -> DVec3 {
-    let dirs = &super::glyph::bound_sample().0;
+    let (dirs, delta) = super::glyph::bound_sample();
+    let shrink = 1.0 - 0.5 * ((l_max + 1) as f64 * delta).powi(2);
     let rmax = psi.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let mut half = DVec3::ZERO;
     for a in 0..3 {
@@ -280,6 +281,11 @@ pub(crate) fn glyph_box_from(coeffs: &[f64], l_max: usize, psi: &[f64]) -> DVec3
         }
         let mut best = 0.0f64;
         for &i in &starts {
+            // ψ u_a has degree l_max + 1: by Bernstein's inequality (as in `render_bound`) no point of this
+            // start's lobe exceeds its best sample by more than 1 / shrink. Skip lobes that cannot win.
+            if best > 0.0 && shrink > 0.05 && (score(i) / shrink).powi(2) <= best {
+                continue;
+            }
             let mut u = dirs[i];
             let (mut h, mut grad) = objective(u);
             let mut step = 0.05;

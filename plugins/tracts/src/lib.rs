@@ -255,13 +255,108 @@ pub fn tract_tubelets(t: &Tractogram, tensors: Option<&[[f32; 6]]>, settings: &T
     out
 }
 
+/// A tract set's CPU work, done before it is spawned (on any thread: the app builds it in a background job):
+/// the segment grid of the selection and, for the chosen style, the packed tubelets or the mesh.
+pub struct PreparedTracts {
+    pub tractogram: Arc<Tractogram>,
+    pub grid: Arc<SegmentGrid>,
+    pub geometry: PreparedGeometry,
+}
+
+/// The drawable part of [`PreparedTracts`].
+pub enum PreparedGeometry {
+    /// Hyperstreamlines: the packed tubelet buffer, their count and the settings they were made with.
+    Tubes { packed: Vec<u8>, n_tubelets: usize, settings: TubeSettings },
+    /// Lines or polygon tubes.
+    Mesh(Box<Mesh>),
+}
+
+impl PreparedTracts {
+    fn with(tractogram: Arc<Tractogram>, geometry: PreparedGeometry) -> Self {
+        let grid = Arc::new(SegmentGrid::new(&tractogram.points, &tractogram.offsets, 4.0));
+        PreparedTracts { tractogram, grid, geometry }
+    }
+
+    /// Hyperstreamlines (optional per-point world tensors give the sections).
+    pub fn tubes(tractogram: Arc<Tractogram>, tensors: Option<&[[f32; 6]]>, settings: &TubeSettings) -> Self {
+        let tubes = tract_tubelets(&tractogram, tensors, settings);
+        let geometry = PreparedGeometry::Tubes { packed: pack(&tubes), n_tubelets: tubes.len(), settings: *settings };
+        PreparedTracts::with(tractogram, geometry)
+    }
+
+    /// Lines coloured by segment direction ([`line_mesh`]).
+    pub fn lines(tractogram: Arc<Tractogram>) -> Self {
+        let mesh = line_mesh(&tractogram);
+        PreparedTracts::with(tractogram, PreparedGeometry::Mesh(Box::new(mesh)))
+    }
+
+    /// Polygon tubes, 16 sides per ring ([`polygon_tube_mesh`]).
+    pub fn polygon_tubes(tractogram: Arc<Tractogram>, tensors: Option<&[[f32; 6]]>, scale: f64) -> Self {
+        let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
+        PreparedTracts::with(tractogram, PreparedGeometry::Mesh(Box::new(mesh)))
+    }
+}
+
 /// The selection target of a tractogram: its segment grid and a flag buffer with every streamline selected.
-fn tract_set(buffers: &mut Assets<ShaderBuffer>, tractogram: Arc<Tractogram>) -> (TractSet, TractSelection) {
+fn tract_set(
+    buffers: &mut Assets<ShaderBuffer>,
+    tractogram: Arc<Tractogram>,
+    grid: Arc<SegmentGrid>,
+) -> (TractSet, TractSelection) {
     let n_streamlines = tractogram.n_streamlines();
     let flags = [1u8, 0, 0, 0].repeat(n_streamlines.max(1));
-    let grid = Arc::new(SegmentGrid::new(&tractogram.points, &tractogram.offsets, 4.0));
     let selected = buffers.add(ShaderBuffer::new(&flags, RenderAssetUsages::default()));
     (TractSet { tractogram, grid, selected }, TractSelection(vec![true; n_streamlines]))
+}
+
+/// Spawns prepared tracts (tubes, lines or polygon tubes); `opacity` applies to meshes. Returns the set's
+/// entity (parent of its ROIs).
+pub fn spawn_prepared(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    tube_materials: &mut Assets<TubeletMaterial>,
+    mesh_materials: &mut Assets<TractMeshMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    prepared: PreparedTracts,
+    opacity: f32,
+) -> Entity {
+    let PreparedTracts { tractogram, grid, geometry } = prepared;
+    let (set, selection) = tract_set(buffers, tractogram, grid);
+    match geometry {
+        PreparedGeometry::Tubes { packed, n_tubelets, settings } => {
+            let material = tube_materials.add(TubeletMaterial {
+                params: (&settings).into(),
+                tubes: buffers.add(ShaderBuffer::new(&packed, RenderAssetUsages::RENDER_WORLD)),
+                selected: set.selected.clone(),
+            });
+            let mut e = commands.spawn((
+                set,
+                selection,
+                TubeSet { material: material.clone(), n_tubelets, settings },
+                Transform::default(),
+                Visibility::default(),
+            ));
+            if n_tubelets > 0 {
+                e.insert((Mesh3d(meshes.add(boxes(n_tubelets))), MeshMaterial3d(material), NoFrustumCulling));
+            }
+            e.id()
+        }
+        PreparedGeometry::Mesh(mesh) => {
+            let params = TractMeshUniform { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3 };
+            let material = mesh_materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
+            commands
+                .spawn((
+                    set,
+                    selection,
+                    MeshSet { material: material.clone() },
+                    Mesh3d(meshes.add(*mesh)),
+                    MeshMaterial3d(material),
+                    Transform::default(),
+                    Visibility::default(),
+                ))
+                .id()
+        }
+    }
 }
 
 /// Spawns a tractogram as hyperstreamlines (optional per-point world tensors give the sections); returns
@@ -275,24 +370,8 @@ pub fn spawn_tubes(
     tensors: Option<&[[f32; 6]]>,
     settings: &TubeSettings,
 ) -> Entity {
-    let tubes = tract_tubelets(&tractogram, tensors, settings);
-    let (set, selection) = tract_set(buffers, tractogram);
-    let material = materials.add(TubeletMaterial {
-        params: settings.into(),
-        tubes: buffers.add(ShaderBuffer::new(&pack(&tubes), RenderAssetUsages::RENDER_WORLD)),
-        selected: set.selected.clone(),
-    });
-    let mut e = commands.spawn((
-        set,
-        selection,
-        TubeSet { material: material.clone(), n_tubelets: tubes.len(), settings: *settings },
-        Transform::default(),
-        Visibility::default(),
-    ));
-    if !tubes.is_empty() {
-        e.insert((Mesh3d(meshes.add(boxes(tubes.len()))), MeshMaterial3d(material), NoFrustumCulling));
-    }
-    e.id()
+    let prepared = PreparedTracts::tubes(tractogram, tensors, settings);
+    spawn_prepared(commands, meshes, materials, &mut Assets::default(), buffers, prepared, 1.0)
 }
 
 /// Spawns a tractogram as lines coloured by segment direction; returns the set's entity (parent of its
@@ -305,8 +384,15 @@ pub fn spawn_lines(
     tractogram: Arc<Tractogram>,
     opacity: f32,
 ) -> Entity {
-    let mesh = line_mesh(&tractogram);
-    spawn_mesh_set(commands, meshes.add(mesh), materials, buffers, tractogram, opacity)
+    spawn_prepared(
+        commands,
+        meshes,
+        &mut Assets::default(),
+        materials,
+        buffers,
+        PreparedTracts::lines(tractogram),
+        opacity,
+    )
 }
 
 /// Spawns a tractogram as polygon tubes (`sides` per ring, sections from the optional per-point world
@@ -322,32 +408,8 @@ pub fn spawn_polygon_tubes(
     scale: f64,
     opacity: f32,
 ) -> Entity {
-    let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
-    spawn_mesh_set(commands, meshes.add(mesh), materials, buffers, tractogram, opacity)
-}
-
-fn spawn_mesh_set(
-    commands: &mut Commands,
-    mesh: Handle<Mesh>,
-    materials: &mut Assets<TractMeshMaterial>,
-    buffers: &mut Assets<ShaderBuffer>,
-    tractogram: Arc<Tractogram>,
-    opacity: f32,
-) -> Entity {
-    let (set, selection) = tract_set(buffers, tractogram);
-    let params = TractMeshUniform { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3 };
-    let material = materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
-    commands
-        .spawn((
-            set,
-            selection,
-            MeshSet { material: material.clone() },
-            Mesh3d(mesh),
-            MeshMaterial3d(material),
-            Transform::default(),
-            Visibility::default(),
-        ))
-        .id()
+    let prepared = PreparedTracts::polygon_tubes(tractogram, tensors, scale);
+    spawn_prepared(commands, meshes, &mut Assets::default(), materials, buffers, prepared, opacity)
 }
 
 /// Line segments of every streamline: positions, colours |direction| and UV x = the streamline's index
