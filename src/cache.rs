@@ -45,6 +45,8 @@ struct Inner {
     entries: HashMap<String, Entry>,
     clock: u64,
     stats: CacheStats,
+    /// Loads per kind of value (the key up to its first ':').
+    loads_by_kind: HashMap<String, u64>,
 }
 
 /// What the cache did since it was made: `loads` values computed (a file read, a model fitted), `hits` values
@@ -84,6 +86,12 @@ impl DataCache {
         self.lock().stats
     }
 
+    /// Values of one kind computed so far: `nifti` (images read), `sh` and `tensor` (fields read or fitted),
+    /// `glyphs` (glyphs placed), `tracts`, ... (the key up to its first ':').
+    pub fn loads_of(&self, kind: &str) -> u64 {
+        self.lock().loads_by_kind.get(kind).copied().unwrap_or(0)
+    }
+
     /// Number of values held.
     pub fn len(&self) -> usize {
         self.lock().entries.len()
@@ -120,6 +128,7 @@ impl DataCache {
         let size = bytes(&value);
         let mut inner = self.lock();
         inner.stats.loads += 1;
+        *inner.loads_by_kind.entry(key.split(':').next().unwrap_or(key).to_string()).or_default() += 1;
         inner.clock += 1;
         let used = inner.clock;
         inner.entries.insert(key.to_string(), Entry { value: value.clone(), stamps, bytes: size, used });

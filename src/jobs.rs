@@ -85,7 +85,11 @@ pub enum Content {
     Splats(Vec<Splat>),
     /// Streamlines with their segment grid and geometry built (as the layer's mode draws them).
     Tracts(fascicle_tracts::PreparedTracts),
-    Volume(Arc<Volume<f32>>),
+    /// A scalar volume and its 3D texture.
+    Volume {
+        volume: Arc<Volume<f32>>,
+        texture: Box<Image>,
+    },
     Slice {
         image: Box<Image>,
         corners: [Vec3; 4],
@@ -108,7 +112,7 @@ impl Content {
             Content::TensorGlyphs { glyphs, .. } => glyphs.len(),
             Content::Splats(s) => s.len(),
             Content::Tracts(t) => t.tractogram.n_streamlines(),
-            Content::Volume(v) => v.n_voxels(),
+            Content::Volume { volume, .. } => volume.n_voxels(),
             Content::Slice { image, .. } => (image.width() * image.height()) as usize,
             Content::Lines { streamlines, .. } => *streamlines,
             Content::Axes { .. } => 3,
@@ -128,14 +132,31 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
     match kind {
         LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, full_volume, style, .. } => {
             let field = sh_field(cache, source, progress)?;
-            progress.stage("placing glyphs", 0)?;
-            let (glyphs, voxels) = match plane {
-                _ if *full_volume => field_glyphs(&field, &Selection::Volume { spacing: *spacing }, *style)?,
-                Some(p) => plane_glyphs(&field, p, *sampling, *style)?,
-                None => {
-                    field_glyphs(&field, &Selection::Slice { axis: *axis, index: *index, spacing: *spacing }, *style)?
-                }
-            };
+            // Placed glyphs are kept too (keyed by the layer's structure): stepping back to a slice, or onto
+            // one that was prefetched (`prefetch_neighbours`), costs a copy.
+            // A slice given as "the middle one" is keyed by its index, as its neighbours are.
+            let mut key_kind = kind.structure();
+            if let LayerKind::ShGlyphs { index: k @ None, axis, .. } = &mut key_kind {
+                *k = Some(field.coeffs.dims3()[axis.index()] / 2);
+            }
+            let placed = cache.get_or_load(
+                &format!("glyphs:{key_kind:?}"),
+                &source_files(source),
+                |(g, _): &(Vec<Glyph>, Vec<[u32; 3]>)| g.iter().map(|g| 96 + 8 * g.coeffs.len()).sum(),
+                || {
+                    progress.stage("placing glyphs", 0)?;
+                    match plane {
+                        _ if *full_volume => field_glyphs(&field, &Selection::Volume { spacing: *spacing }, *style),
+                        Some(p) => plane_glyphs(&field, p, *sampling, *style),
+                        None => field_glyphs(
+                            &field,
+                            &Selection::Slice { axis: *axis, index: *index, spacing: *spacing },
+                            *style,
+                        ),
+                    }
+                },
+            )?;
+            let (glyphs, voxels) = (*placed).clone();
             Ok(Content::ShGlyphs { glyphs, voxels })
         }
         LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, .. } => {
@@ -155,7 +176,11 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 TractMode::Lines => PreparedTracts::lines(t),
             }))
         }
-        LayerKind::Volume { source, .. } => Ok(Content::Volume(scalar_volume(cache, source, progress)?)),
+        LayerKind::Volume { source, .. } => {
+            let volume = scalar_volume(cache, source, progress)?;
+            progress.stage("making the texture", 0)?;
+            Ok(Content::Volume { texture: Box::new(fascicle_volume::volume_texture(&volume)), volume })
+        }
         LayerKind::Slice { source, axis, index } => {
             let (vol, channel, window) = match source {
                 VolumeSource::PhantomFa => (phantom_fa(cache)?, Channels::One(0), Some((0.0, 1.0))),
@@ -179,6 +204,50 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             Ok(Content::Lines { mesh: Box::new(fascicle_tracts::line_mesh(&t)), streamlines: t.n_streamlines() })
         }
         LayerKind::Axes { length_mm } => Ok(Content::Axes { length_mm: *length_mm }),
+    }
+}
+
+/// The files an SH source reads (for cache stamps).
+fn source_files(source: &ShSource) -> Vec<&Path> {
+    match source {
+        ShSource::Nifti { path, .. } => vec![path.as_path()],
+        ShSource::PhantomCsa { .. } => vec![],
+    }
+}
+
+/// The glyph layers one slice away from `kind` along its axis (an SH glyph slice layer; none for others),
+/// whose glyphs a background task can place before the user steps there.
+pub fn neighbour_slices(kind: &LayerKind, dims: [usize; 3]) -> Vec<LayerKind> {
+    let LayerKind::ShGlyphs { axis, index, plane: None, full_volume: false, .. } = kind else { return vec![] };
+    let n = dims[axis.index()];
+    let k = index.unwrap_or(n / 2);
+    [k.checked_sub(1), Some(k + 1).filter(|&j| j < n)]
+        .into_iter()
+        .flatten()
+        .map(|j| {
+            let mut other = kind.clone();
+            if let LayerKind::ShGlyphs { index, .. } = &mut other {
+                *index = Some(j);
+            }
+            other
+        })
+        .collect()
+}
+
+/// Places the glyphs of the slices next to an SH glyph layer's, into the cache, on background tasks (counted
+/// in `in_flight` while they run). The field is already cached, so nothing is read or fitted.
+pub fn prefetch_neighbours(kind: &LayerKind, cache: &DataCache, in_flight: &Arc<AtomicUsize>) {
+    let LayerKind::ShGlyphs { source, .. } = kind else { return };
+    let Ok(field) = sh_field(cache, source, &JobProgress::default()) else { return };
+    for next in neighbour_slices(&kind.structure(), field.coeffs.dims3()) {
+        let (cache, in_flight) = (cache.clone(), in_flight.clone());
+        in_flight.fetch_add(1, Ordering::Relaxed);
+        bevy::tasks::AsyncComputeTaskPool::get()
+            .spawn(async move {
+                let _ = build(&next, &cache, &JobProgress::default());
+                in_flight.fetch_sub(1, Ordering::Relaxed);
+            })
+            .detach();
     }
 }
 
@@ -834,6 +903,40 @@ mod tests {
             assert_eq!(tensor_field(&cache, &source, &p).unwrap().tensors.data, dipy.tensors.data);
         }
         std::fs::remove_dir_all(dir).ok();
+    }
+
+    /// The slices placed ahead are the ones next to the layer's, inside the grid; free planes and full
+    /// volumes have none.
+    #[test]
+    fn neighbour_slices_stay_in_the_grid() {
+        let layer = |index| LayerKind::ShGlyphs {
+            source: ShSource::PhantomCsa { l_max: 4 },
+            axis: SliceAxis::Y,
+            index,
+            spacing: 1,
+            plane: None,
+            sampling: Default::default(),
+            full_volume: false,
+            style: Default::default(),
+            render: Default::default(),
+        };
+        let indices = |k| -> Vec<Option<usize>> {
+            neighbour_slices(&layer(k), [4, 6, 8])
+                .iter()
+                .map(|n| match n {
+                    LayerKind::ShGlyphs { index, .. } => *index,
+                    _ => unreachable!(),
+                })
+                .collect()
+        };
+        assert_eq!(indices(None), vec![Some(2), Some(4)], "the middle of 6 is 3");
+        assert_eq!(indices(Some(0)), vec![Some(1)]);
+        assert_eq!(indices(Some(5)), vec![Some(4)]);
+        let mut volume = layer(None);
+        if let LayerKind::ShGlyphs { full_volume, .. } = &mut volume {
+            *full_volume = true;
+        }
+        assert!(neighbour_slices(&volume, [4, 6, 8]).is_empty());
     }
 
     /// A cancelled job stops at its next stage with [`CANCELLED`], and a stage's progress is the fraction of

@@ -27,7 +27,7 @@ use fascicle_tracts::{
     MeshSet, PreparedGeometry, TractMeshMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial,
     spawn_prepared,
 };
-use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume};
+use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume_texture};
 
 use crate::cache::DataCache;
 use crate::jobs::{CANCELLED, Content, JobProgress, build};
@@ -72,6 +72,17 @@ pub struct LayerJob {
     pub progress: Arc<JobProgress>,
     structure: LayerKind,
     task: Task<Result<Content, String>>,
+}
+
+/// Background tasks placing glyphs of neighbouring slices ([`crate::jobs::prefetch_neighbours`]) still
+/// running.
+#[derive(Resource, Default, Clone)]
+pub struct Prefetches(pub Arc<std::sync::atomic::AtomicUsize>);
+
+impl Prefetches {
+    pub fn running(&self) -> usize {
+        self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
 }
 
 /// Requests from the panels: rebuild these layers (after a failure or a cancel).
@@ -119,6 +130,7 @@ impl Plugin for ScenePlugin {
         app.init_resource::<LayerErrors>()
             .init_resource::<DataCache>()
             .init_resource::<RetryLayers>()
+            .init_resource::<Prefetches>()
             .init_resource::<Restyles>()
             .init_resource::<LayerSyncCounts>()
             .init_resource::<LayerDataMap>()
@@ -251,6 +263,8 @@ fn start_job(
 /// settings. A cancelled job's layer shows that it was cancelled and keeps nothing.
 fn finish_jobs(
     mut commands: Commands,
+    cache: Res<DataCache>,
+    prefetch: Res<Prefetches>,
     mut layers: Query<(Entity, &LayerEntity, &mut SceneLayer, &mut LayerJob)>,
     mut upload: Uploads,
 ) {
@@ -270,6 +284,7 @@ fn finish_jobs(
         }) {
             Ok(items) => {
                 layer.built = Some(job.structure.clone());
+                crate::jobs::prefetch_neighbours(&job.structure, &cache, &prefetch.0);
                 LayerStatus::Ready { items }
             }
             Err(message) => {
@@ -330,9 +345,10 @@ impl Uploads<'_> {
                 spawn_rois(c, rois, index, set);
                 set
             }
-            (Content::Volume(vol), LayerKind::Volume { render, .. }) => {
+            (Content::Volume { volume, texture }, LayerKind::Volume { render, .. }) => {
                 let depth = self.depth.as_deref().ok_or("the volume plugin has not started")?;
-                spawn_volume(c, m, &mut self.images, &mut self.volume_materials, b, depth, &vol, render)
+                let (images, materials) = (&mut self.images, &mut self.volume_materials);
+                spawn_volume_texture(c, m, images, materials, b, depth, &volume, *texture, render)
             }
             (Content::Slice { image, corners }, _) => {
                 let mut mat = unlit(spec.opacity);

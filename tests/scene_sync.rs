@@ -466,6 +466,10 @@ fn a_slice_move_rebuilds_that_layer_only_from_the_cache() {
     assert_eq!(before.len(), n_layers, "one entity per layer");
     assert!(before.values().all(|v| !v.is_empty()), "every layer draws something: {before:?}");
     let stats0 = app.world().resource::<DataCache>().stats();
+    let loads0: std::collections::HashMap<&str, u64> = ["nifti", "sh", "phantom-dwi", "tensor", "tracts"]
+        .into_iter()
+        .map(|k| (k, app.world().resource::<DataCache>().loads_of(k)))
+        .collect();
     let counts0 = *app.world().resource::<LayerSyncCounts>();
     let buffer_ids =
         |app: &App| app.world().resource::<Assets<ShaderBuffer>>().ids().collect::<std::collections::HashSet<_>>();
@@ -492,7 +496,9 @@ fn a_slice_move_rebuilds_that_layer_only_from_the_cache() {
         }
     }
     let stats1 = app.world().resource::<DataCache>().stats();
-    assert_eq!(stats1.loads, stats0.loads, "no file read, no refit: {stats0:?} -> {stats1:?}");
+    for kind in ["nifti", "sh", "phantom-dwi", "tensor", "tracts"] {
+        assert_eq!(loads0[kind], app.world().resource::<DataCache>().loads_of(kind), "no {kind} loaded again");
+    }
     assert!(stats1.hits > stats0.hits);
     let counts1 = *app.world().resource::<LayerSyncCounts>();
     assert_eq!(counts1.jobs, counts0.jobs + 1, "one job, for the glyph layer");
@@ -581,4 +587,41 @@ fn failures_and_cancels_stay_on_their_layer() {
     settle(&mut app);
     assert!(matches!(status(&mut app), LayerStatus::Ready { items } if items > 100), "{:?}", status(&mut app));
     assert_eq!(app.world().resource::<LayerErrors>().0.len(), 1);
+}
+
+/// Stepping through slices: once a glyph slice shows, the slices next to it are placed in the background, so
+/// a step of one slice places nothing (a cache hit); a jump to a far slice places its glyphs then.
+#[test]
+fn neighbouring_glyph_slices_are_placed_ahead() {
+    use fascicle::layers::Prefetches;
+    let Some(mut app) = scene_app(Scene::default_scene()) else { return };
+    settle(&mut app);
+    let wait = |app: &mut App| {
+        for _ in 0..20_000 {
+            if app.world().resource::<Prefetches>().running() == 0 {
+                return;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        panic!("prefetch did not finish");
+    };
+    wait(&mut app);
+    let placed = |app: &App| app.world().resource::<DataCache>().loads_of("glyphs");
+    let before = placed(&app);
+    // The default glyph layer shows the middle axial slice (12 of 24): 11 and 13 were placed ahead.
+    let set_index = |app: &mut App, k: usize| {
+        if let LayerKind::ShGlyphs { index, .. } = glyph_layer(&mut app.world_mut().resource_mut::<ActiveScene>().0) {
+            *index = Some(k);
+        }
+    };
+    set_index(&mut app, 11);
+    settle(&mut app);
+    assert_eq!(placed(&app), before, "slice 11 was placed ahead");
+    wait(&mut app);
+    // Now 10 was placed ahead (12 is cached); a jump to 3 places once.
+    let ahead = placed(&app);
+    assert_eq!(ahead, before + 1, "only slice 10 is new");
+    set_index(&mut app, 3);
+    settle(&mut app);
+    assert_eq!(placed(&app), ahead + 1);
 }

@@ -459,6 +459,13 @@ pub fn spawn_volume(
     vol: &Volume<f32>,
     settings: &VolumeSettings,
 ) -> Entity {
+    let texture = volume_texture(vol);
+    spawn_volume_texture(commands, meshes, images, materials, buffers, depth, vol, texture, settings)
+}
+
+/// The 3D texture of a volume (R32Float, non-finite values as 0): the costly part of [`spawn_volume`], which
+/// can be made on any thread.
+pub fn volume_texture(vol: &Volume<f32>) -> Image {
     let d = vol.dims3();
     let n = d[0] * d[1] * d[2];
     let bytes: Vec<u8> =
@@ -471,6 +478,24 @@ pub fn spawn_volume(
         RenderAssetUsages::RENDER_WORLD,
     );
     tex.sampler = ImageSampler::nearest();
+    tex
+}
+
+/// [`spawn_volume`] with the volume's texture already made ([`volume_texture`]).
+#[allow(clippy::too_many_arguments, reason = "the asset stores a volume layer writes to")]
+pub fn spawn_volume_texture(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    images: &mut Assets<Image>,
+    materials: &mut Assets<VolumeMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    depth: &OpaqueDepth,
+    vol: &Volume<f32>,
+    tex: Image,
+    settings: &VolumeSettings,
+) -> Entity {
+    let d = vol.dims3();
+    let n = d[0] * d[1] * d[2];
     let (lut, table) = tf_buffers(settings);
     let params = VolumeUniform::new(d, vol.world_from_voxel, settings);
     let material = materials.add(VolumeMaterial {
