@@ -234,20 +234,29 @@ pub fn neighbour_slices(kind: &LayerKind, dims: [usize; 3]) -> Vec<LayerKind> {
         .collect()
 }
 
-/// Places the glyphs of the slices next to an SH glyph layer's, into the cache, on background tasks (counted
-/// in `in_flight` while they run). The field is already cached, so nothing is read or fitted.
+/// Places the glyphs of the slices next to an SH glyph layer's into the cache, on a thread of their own (not
+/// the layer jobs' pool, so that a job the user is waiting for never queues behind a guess), counted in
+/// `in_flight` while it runs. The field is already cached, so nothing is read or fitted.
 pub fn prefetch_neighbours(kind: &LayerKind, cache: &DataCache, in_flight: &Arc<AtomicUsize>) {
     let LayerKind::ShGlyphs { source, .. } = kind else { return };
     let Ok(field) = sh_field(cache, source, &JobProgress::default()) else { return };
-    for next in neighbour_slices(&kind.structure(), field.coeffs.dims3()) {
-        let (cache, in_flight) = (cache.clone(), in_flight.clone());
-        in_flight.fetch_add(1, Ordering::Relaxed);
-        bevy::tasks::AsyncComputeTaskPool::get()
-            .spawn(async move {
-                let _ = build(&next, &cache, &JobProgress::default());
-                in_flight.fetch_sub(1, Ordering::Relaxed);
-            })
-            .detach();
+    let next = neighbour_slices(&kind.structure(), field.coeffs.dims3());
+    if next.is_empty() {
+        return;
+    }
+    let (cache, in_flight) = (cache.clone(), in_flight.clone());
+    in_flight.fetch_add(1, Ordering::Relaxed);
+    let spawned = std::thread::Builder::new().name("fascicle-prefetch".into()).spawn({
+        let in_flight = in_flight.clone();
+        move || {
+            for kind in next {
+                let _ = build(&kind, &cache, &JobProgress::default());
+            }
+            in_flight.fetch_sub(1, Ordering::Relaxed);
+        }
+    });
+    if spawned.is_err() {
+        in_flight.fetch_sub(1, Ordering::Relaxed);
     }
 }
 
