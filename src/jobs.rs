@@ -188,6 +188,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                     (image_with_volume(cache, path, *volume, progress)?, Channels::One(*volume), None)
                 }
                 VolumeSource::Rgb { path } => (image_with_volume(cache, path, 2, progress)?, Channels::Rgb, None),
+                VolumeSource::Density { .. } => (scalar_volume(cache, source, progress)?, Channels::One(0), None),
             };
             progress.stage("slicing", 0)?;
             let (image, corners) = slice_image(&vol, channel, *axis, *index, window)?;
@@ -317,6 +318,16 @@ pub fn scalar_volume(
         VolumeSource::PhantomFa => phantom_fa(cache),
         VolumeSource::Rgb { path } => {
             Err(format!("{}: a colour image shows as a slice; volume rendering needs a scalar image", path.display()))
+        }
+        VolumeSource::Density { tracts, voxel_mm } => {
+            let data = tract_data(cache, tracts, progress)?;
+            progress.stage("counting streamlines per voxel", 0)?;
+            let key = format!("tdi:{tracts:?}:{voxel_mm}");
+            cache.get_or_load(&key, &tract_files(tracts), volume_bytes, || {
+                use fascicle_core::tdi::{TdiGrid, track_density};
+                let grid = TdiGrid::covering(&data.tractogram, *voxel_mm).map_err(|e| e.to_string())?;
+                track_density(&data.tractogram, &grid).map_err(|e| e.to_string())
+            })
         }
         VolumeSource::Nifti { path, volume } => {
             let v = image_with_volume(cache, path, *volume, progress)?;
@@ -527,6 +538,18 @@ const SPIRAL_EDGE: f64 = 8.0;
 /// A tract source's streamlines, with per-point world tensors when it has them: tracked (the phantom),
 /// read (a file, its tensors sampled from a field) or made from peaks, once per source and file state.
 pub fn tract_data(cache: &DataCache, source: &TractSource, progress: &JobProgress) -> Result<TractData, String> {
+    let files = tract_files(source);
+    let data = cache.get_or_load(
+        &format!("tracts:{source:?}"),
+        &files,
+        |d: &TractData| tractogram_bytes(&d.tractogram) + d.tensors.as_ref().map_or(0, |t| t.len() * 24),
+        || load_tracts(cache, source, progress),
+    )?;
+    Ok((*data).clone())
+}
+
+/// The files a tract source reads (for cache stamps).
+fn tract_files(source: &TractSource) -> Vec<&Path> {
     let mut files: Vec<&Path> = vec![];
     match source {
         TractSource::PhantomRk4 { .. } => {}
@@ -542,13 +565,7 @@ pub fn tract_data(cache: &DataCache, source: &TractSource, progress: &JobProgres
         }
         TractSource::Track { .. } => {}
     }
-    let data = cache.get_or_load(
-        &format!("tracts:{source:?}"),
-        &files,
-        |d: &TractData| tractogram_bytes(&d.tractogram) + d.tensors.as_ref().map_or(0, |t| t.len() * 24),
-        || load_tracts(cache, source, progress),
-    )?;
-    Ok((*data).clone())
+    files
 }
 
 fn load_tracts(cache: &DataCache, source: &TractSource, progress: &JobProgress) -> Result<TractData, String> {
@@ -869,6 +886,28 @@ mod tests {
         // A DWI without gradient files beside it is a clear error.
         let e = tensor_field(&cache, &TensorSource::Dwi { path: data("dti/small_64D_fa.nii.gz") }, &p).err().unwrap();
         assert!(e.contains("no .bval/.bvec beside"), "{e}");
+    }
+
+    /// A density layer of a tractogram: every streamline counts in at least one voxel and at most once per
+    /// voxel, on the asked voxel size; the slice shows it; a missing tractogram is the tract source's error.
+    #[test]
+    fn density_maps_of_tract_sources() {
+        let cache = DataCache::default();
+        let p = JobProgress::default();
+        let tracts = TractSource::File { path: data("tracts/tracks300.trk"), tensors: None };
+        let n = tract_data(&cache, &tracts, &p).unwrap().tractogram.n_streamlines() as f32;
+        let source = VolumeSource::Density { tracts: tracts.clone(), voxel_mm: 2.0 };
+        let tdi = scalar_volume(&cache, &source, &p).unwrap();
+        assert!((tdi.voxel_size() - glam::DVec3::splat(2.0)).length() < 1e-12);
+        let max = tdi.data.iter().copied().fold(0.0, f32::max);
+        assert!(max > 1.0 && max <= n && tdi.data.iter().sum::<f32>() >= n, "max {max} of {n} streamlines");
+        let slice = LayerKind::Slice { source, axis: SliceAxis::Z, index: None };
+        assert!(matches!(build(&slice, &cache, &p), Ok(Content::Slice { .. })));
+        let missing = VolumeSource::Density {
+            tracts: TractSource::File { path: data("tracts/none.trk"), tensors: None },
+            voxel_mm: 1.0,
+        };
+        assert!(scalar_volume(&cache, &missing, &p).err().unwrap().contains("none.trk"));
     }
 
     /// Sphere seeds: `per_voxel` seeds in each voxel whose centre is inside the sphere, spread within it.

@@ -258,6 +258,10 @@ impl Default for Seeds {
     }
 }
 
+fn default_density_voxel() -> f64 {
+    1.0
+}
+
 fn default_peak_length() -> f32 {
     0.9
 }
@@ -320,6 +324,13 @@ pub enum VolumeSource {
     },
     /// A colour image (RGB24, or three volumes of red, green, blue), shown in colour.
     Rgb { path: PathBuf },
+    /// The track-density map of a tract source (streamlines per voxel, each counted once per voxel, as
+    /// MRtrix3's `tckmap`) on an axis-aligned grid of `voxel_mm` voxels covering the streamlines.
+    Density {
+        tracts: TractSource,
+        #[serde(default = "default_density_voxel")]
+        voxel_mm: f64,
+    },
 }
 
 pub use fascicle_render::layer::SliceAxis;

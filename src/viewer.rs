@@ -546,6 +546,14 @@ fn panel(
                         });
                     });
                 }
+                if let Some(tracts) = tract_source_of(&layer.kind)
+                    && ui.push_id(("density", i), |ui| ui.small_button("track density map")).inner.clicked()
+                {
+                    let name = format!("density ({})", layer.name);
+                    let source = crate::scene::VolumeSource::Density { tracts, voxel_mm: 1.0 };
+                    let kind = LayerKind::Slice { source, axis: crate::scene::SliceAxis::Z, index: None };
+                    added.push(LayerSpec { name, visible: true, opacity: 1.0, kind });
+                }
                 if matches!(layer.kind, LayerKind::Tracts { .. }) {
                     ui.push_id(("selection", i), |ui| {
                         ui.horizontal(|ui| {
@@ -644,6 +652,15 @@ fn tensor_source_of(kind: &LayerKind) -> Option<crate::scene::TensorSource> {
         {
             Some(source.clone())
         }
+        _ => None,
+    }
+}
+
+/// The streamlines a layer draws, as a tract source (for its density map).
+fn tract_source_of(kind: &LayerKind) -> Option<crate::scene::TractSource> {
+    match kind {
+        LayerKind::Tracts { source, .. } => Some(source.clone()),
+        LayerKind::Tractogram { path } => Some(crate::scene::TractSource::File { path: path.clone(), tensors: None }),
         _ => None,
     }
 }

@@ -625,3 +625,39 @@ fn neighbouring_glyph_slices_are_placed_ahead() {
     settle(&mut app);
     assert_eq!(placed(&app), ahead + 1);
 }
+
+/// A track-density map of `tracks300.trk` as a slice layer renders through the headless renderer: the slice
+/// through the middle of the streamlines' box shows counts (bright pixels) over a dark background.
+#[test]
+fn track_density_slices_render() {
+    use fascicle::scene::{CameraSpec, LayerSpec, SliceAxis, TractSource, VolumeSource};
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tracts/tracks300.trk");
+    let t = fascicle_core::io::Tractogram::read(&path).unwrap();
+    let (lo, hi) =
+        t.points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(a, b), p| (a.min(*p), b.max(*p)));
+    let c = (lo + hi) * 0.5;
+    let tracts = TractSource::File { path, tensors: None };
+    let kind =
+        LayerKind::Slice { source: VolumeSource::Density { tracts, voxel_mm: 2.0 }, axis: SliceAxis::Z, index: None };
+    let extent = (hi - lo).max_element();
+    let scene = Scene {
+        layers: vec![LayerSpec { name: "tdi".into(), visible: true, opacity: 1.0, kind }],
+        camera: CameraSpec {
+            eye: [c.x, c.y, c.z + 1.6 * extent],
+            target: c.to_array(),
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 45.0,
+        },
+    };
+    let img = fascicle::render::render_scene(&scene, 128, 128).unwrap_or_else(|e| panic!("{e}"));
+    // Voxels no streamline crosses are black (below the clear colour); crossed ones are brighter than it.
+    let grey: Vec<u8> = img.rgba.chunks(4).map(|p| p[0]).collect();
+    let background = grey[0];
+    let (empty, bright) =
+        (grey.iter().filter(|g| **g < background / 2).count(), grey.iter().filter(|g| **g > 60).count());
+    assert!(background > 20 && empty > 200 && bright > 200, "background {background}: {empty} empty, {bright} bright");
+}

@@ -14,6 +14,7 @@ pub mod linalg;
 pub mod phantom;
 pub mod roi;
 pub mod sh;
+pub mod tdi;
 pub mod tracking;
 pub mod tubelet;
 pub mod volume;
