@@ -519,7 +519,7 @@ impl Scene {
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         let lower = name.to_ascii_lowercase();
         let spec = |kind| LayerSpec { name: name.clone(), visible: true, opacity: 1.0, kind };
-        if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
+        if [".nii", ".nii.gz", ".mif", ".mif.gz"].iter().any(|e| lower.ends_with(e)) {
             let c = fascicle_core::io::classify::classify(path).map_err(|e| e.to_string())?;
             let others = c.ambiguous.iter().filter(|k| **k != c.kind).map(|k| spec(layer_kind_for(path, k))).collect();
             return Ok((spec(layer_kind_for(path, &c.kind)), others));
@@ -527,7 +527,7 @@ impl Scene {
         if [".trk", ".tck", ".trk.gz", ".tck.gz"].iter().any(|e| lower.ends_with(e)) {
             return Ok((spec(LayerKind::Tractogram { path: path.to_path_buf() }), vec![]));
         }
-        Err(format!("{}: not a NIfTI image, tractogram or scene file", path.display()))
+        Err(format!("{}: not a NIfTI or MRtrix image, tractogram or scene file", path.display()))
     }
 }
 

@@ -161,8 +161,41 @@ fn string_value(text: &str, key: &str) -> Option<String> {
 /// Classifies the image at `path` (reading its data only when the header and the files beside it do not
 /// decide).
 pub fn classify(path: &Path) -> Result<Classified> {
+    if super::mif::is_mif(path) {
+        return classify_mif(path);
+    }
     let header = nifti::read_header(path)?;
     classify_with(path, &header, || nifti::read::<f32>(path).map(|(v, _)| v))
+}
+
+/// An MRtrix image: SH in MRtrix's basis (tournier07) and tensors in its element order unless the content says
+/// otherwise; a `dw_scheme` marks a DWI series (shown as volumes: the scheme is not a bval/bvec pair).
+fn classify_mif(path: &Path) -> Result<Classified> {
+    let (vol, h) = super::mif::read::<f32>(path)?;
+    let vols: usize = vol.shape.get(3..).map_or(1, |s| s.iter().product());
+    let decided = |kind, reason: &str| Ok(Classified { kind, reason: reason.to_string(), ambiguous: vec![] });
+    if vols <= 1 {
+        return decided(ImageKind::Scalar, "one volume");
+    }
+    if !h.dw_scheme.is_empty() {
+        return decided(ImageKind::Series, "a DWI series (dw_scheme)");
+    }
+    if vols == 6 {
+        let (order, share) = best_tensor_order(&vol);
+        if share >= 0.5 {
+            return decided(ImageKind::Tensor { order }, "6 volumes of positive-definite tensors");
+        }
+    }
+    if let Some(l_max) = sh::l_max_for(vols)
+        && positive_first_share(&vol) >= 0.99
+    {
+        let basis = Some(ShBasis::Tournier07 { legacy: false });
+        return decided(ImageKind::Sh { l_max, basis }, "SH coefficients of an MRtrix image (tournier07)");
+    }
+    decided(
+        if vols.is_multiple_of(3) && vols != 3 { ImageKind::Peaks } else { ImageKind::Series },
+        "volumes of an MRtrix image",
+    )
 }
 
 /// [`classify`] with the header read and the data behind `data` (called at most once).
