@@ -195,3 +195,40 @@ fn fitted_odfs_open_in_the_viewer_along_the_true_fibres() {
     assert!(wrong > 3.0 * recorded.max(2.0), "the wrong convention also fits: {wrong} degrees");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `convert` between NIfTI and MRtrix images and between `.trk` and `.tck`: values, affine and streamlines come
+/// back unchanged; `info --json` reads the `.mif`; mixing an image with a tractogram is a clear error.
+#[test]
+fn convert_round_trips_images_and_tractograms() {
+    let dir = std::env::temp_dir().join(format!("fascicle-convert-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (mif, back) = (dir.join("fa.mif.gz"), dir.join("fa_back.nii.gz"));
+    let o = fascicle(&["convert", &data("dti/small_64D_fa.nii.gz"), mif.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{o:?}");
+    let o = fascicle(&["convert", mif.to_str().unwrap(), back.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{o:?}");
+    let (a, _) = fascicle_core::io::nifti::read::<f32>(data("dti/small_64D_fa.nii.gz")).unwrap();
+    let (b, _) = fascicle_core::io::nifti::read::<f32>(&back).unwrap();
+    assert_eq!(a.data, b.data);
+    let worst = (0..16)
+        .map(|i| (a.world_from_voxel.to_cols_array()[i] - b.world_from_voxel.to_cols_array()[i]).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-5, "affine differs by {worst}");
+    let o = fascicle(&["info", "--json", mif.to_str().unwrap()]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!((v["format"].as_str(), v["kind"].as_str()), (Some("MRtrix image"), Some("scalar")), "{v}");
+    assert_eq!(v["shape"], serde_json::json!([10, 10, 10]));
+
+    let tck = dir.join("t.tck");
+    let o = fascicle(&["convert", &data("tracts/tracks300.trk"), tck.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{o:?}");
+    let (t, u) = (
+        fascicle_core::io::Tractogram::read(data("tracts/tracks300.trk")).unwrap(),
+        fascicle_core::io::Tractogram::read(&tck).unwrap(),
+    );
+    assert_eq!((t.offsets, t.points), (u.offsets, u.points));
+    let o = fascicle(&["convert", &data("tracts/tracks300.trk"), dir.join("x.nii").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("both must be images"), "{o:?}");
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -99,8 +99,8 @@ fn mif_written_by_fascicle_reads_in_mrtrix() {
     same_in_scanner_space(&back, &fa);
 }
 
-/// A `.tck` Fascicle writes is counted by `tckinfo` as Fascicle counts it, and the `.tck` MRtrix writes of it
-/// reads back the same.
+/// A `.tck` Fascicle writes is counted by `tckinfo` as Fascicle counts it, the `.tck` MRtrix writes of it reads
+/// back the same, and `tckgen`'s output has MRtrix's count in Fascicle.
 #[test]
 fn tck_written_by_fascicle_reads_in_mrtrix() {
     if !mrtrix() {
@@ -123,4 +123,41 @@ fn tck_written_by_fascicle_reads_in_mrtrix() {
     let back = Tractogram::read(&theirs).unwrap();
     assert_eq!(back.offsets, t.offsets);
     assert_eq!(back.points, t.points);
+
+    // `tckgen` output (Tensor_Det from a sphere on the ring phantom, length limits opened): Fascicle counts its
+    // streamlines as `tckinfo` does, empty ones (seeds that tracked nowhere) included, every point in the grid.
+    let tracked = scratch("tensor_det.tck");
+    let grad = [data("phantom/phantom_ring_cross.bvec"), data("phantom/phantom_ring_cross.bval")];
+    let dwi = data("phantom/phantom_ring_cross.nii.gz");
+    let args = [
+        "-quiet",
+        "-force",
+        "-algorithm",
+        "Tensor_Det",
+        "-fslgrad",
+        grad[0].to_str().unwrap(),
+        grad[1].to_str().unwrap(),
+        "-seed_sphere",
+        "0,28,1,3",
+        "-seeds",
+        "500",
+        "-minlength",
+        "0",
+        "-maxlength",
+        "1000",
+        "-nthreads",
+        "0",
+        dwi.to_str().unwrap(),
+        tracked.to_str().unwrap(),
+    ];
+    run("tckgen", &args);
+    let read = Tractogram::read(&tracked).unwrap();
+    assert!(read.n_streamlines() > 0);
+    assert_eq!(read.n_streamlines(), count(&tracked));
+    let (img, _) = nifti::read::<f32>(&dwi).unwrap();
+    let inv = img.world_from_voxel.inverse();
+    for p in &read.points {
+        let v = inv.transform_point3(p.as_dvec3());
+        assert!((0..3).all(|k| v[k] > -1.0 && v[k] < [48.0, 48.0, 24.0][k]), "point {p} at voxel {v}");
+    }
 }

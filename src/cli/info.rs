@@ -11,6 +11,16 @@ pub fn run(path: &Path, json: bool) -> Result<(), Error> {
         return Ok(());
     }
     let name = path.to_string_lossy().to_ascii_lowercase();
+    if fascicle_core::io::mif::is_mif(path) {
+        let v = info_json(path)?;
+        println!("{}: MRtrix image", path.display());
+        println!("  kind        {} ({})", v["kind"].as_str().unwrap_or(""), v["reason"].as_str().unwrap_or(""));
+        println!("  shape       {}", v["shape"]);
+        println!("  datatype    {}", v["datatype"].as_str().unwrap_or(""));
+        println!("  voxel size  {}", v["voxel_size"]);
+        println!("  affine      {}", v["affine"]);
+        return Ok(());
+    }
     if name.ends_with(".nii") || name.ends_with(".nii.gz") {
         let h = nifti::read_header(path)?;
         let a = h.world_from_voxel;
@@ -83,6 +93,30 @@ fn print_tracts(t: &tractogram::Tractogram) {
 pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
     use serde_json::json;
     let name = path.to_string_lossy().to_ascii_lowercase();
+    if fascicle_core::io::mif::is_mif(path) {
+        let (vol, h) = fascicle_core::io::mif::read::<f32>(path)?;
+        let a = vol.world_from_voxel;
+        let rows: Vec<[f64; 4]> = (0..4).map(|r| [a.x_axis[r], a.y_axis[r], a.z_axis[r], a.w_axis[r]]).collect();
+        let class = fascicle_core::io::classify::classify(path)?;
+        let vox = vol.voxel_size();
+        let mut v = json!({
+            "file": path.display().to_string(),
+            "format": "MRtrix image",
+            "kind": class.kind.name(),
+            "reason": class.reason,
+            "shape": vol.shape,
+            "datatype": h.datatype,
+            "voxel_size": [vox.x, vox.y, vox.z],
+            "affine": rows,
+            "axes": tractogram::axcodes(&a),
+            "dw_scheme_rows": h.dw_scheme.len(),
+        });
+        if let fascicle_core::io::classify::ImageKind::Sh { basis: Some(b), l_max } = class.kind {
+            v["sh_basis"] = json!({"convention": if matches!(b, fascicle_core::sh::ShBasis::Tournier07 { .. }) { "tournier07" } else { "descoteaux07" }, "legacy": matches!(b, fascicle_core::sh::ShBasis::Tournier07 { legacy: true } | fascicle_core::sh::ShBasis::Descoteaux07 { legacy: true })});
+            v["l_max"] = json!(l_max);
+        }
+        return Ok(v);
+    }
     if name.ends_with(".nii") || name.ends_with(".nii.gz") {
         let h = nifti::read_header(path)?;
         let a = h.world_from_voxel;

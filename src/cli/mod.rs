@@ -1,7 +1,8 @@
-//! The command line: `view`, `render`, `fit`, `track`, `peaks`, `select`, `info` (benchmarks and the soak run are
+//! The command line: `view`, `render`, `fit`, `track`, `peaks`, `select`, `convert`, `info` (benchmarks and the soak run are
 //! the separate `fascicle-bench` binary). Names and outputs here are an interface that other
 //! tools call; change them only with care.
 
+pub mod convert;
 pub mod fit;
 pub mod info;
 pub mod peaks;
@@ -156,6 +157,14 @@ pub enum Command {
     Peaks(peaks::PeaksArgs),
     /// Keep the streamlines that meet every include ROI and no exclude ROI; write .trk/.tck.
     Select(select::SelectArgs),
+    /// Convert images between NIfTI and MRtrix (.nii[.gz] <-> .mif[.gz]) and tractograms between .trk and .tck
+    /// (either gzipped), by the names.
+    Convert {
+        /// The file to read: .nii, .nii.gz, .mif, .mif.gz, .trk, .tck (or gzipped tractograms).
+        input: PathBuf,
+        /// The file to write, of the same family; its name picks the format.
+        output: PathBuf,
+    },
     /// Print what a NIfTI image or tractogram holds.
     Info {
         /// A NIfTI image (.nii, .nii.gz) or a tractogram (.trk, .tck, or gzipped).

@@ -110,9 +110,9 @@ pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
             break;
         }
         if p.iter().any(|v| v.is_nan()) {
-            if t.points.len() > cur {
-                t.offsets.push(t.points.len());
-            }
+            // Every NaN triplet ends a streamline, an empty one too (MRtrix counts those: `tckgen` writes
+            // them for seeds that tracked nowhere).
+            t.offsets.push(t.points.len());
             cur = t.points.len();
             continue;
         }
@@ -167,4 +167,27 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)])
         out.extend_from_slice(&f32::INFINITY.to_le_bytes());
     }
     super::tractogram::write_file(path, out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every NaN triplet ends a streamline: consecutive ones are empty streamlines, counted as MRtrix counts
+    /// them, and they survive a write and read.
+    #[test]
+    fn empty_streamlines_are_kept() {
+        let mut b = b"mrtrix tracks\ndatatype: Float32LE\nfile: . 64\nEND\n".to_vec();
+        b.resize(64, 0);
+        let nan = [f32::NAN; 3];
+        for p in [[1.0, 2.0, 3.0], nan, nan, [4.0, 5.0, 6.0], [7.0, 8.0, 9.0], nan, nan, [f32::INFINITY; 3]] {
+            p.iter().for_each(|v| b.extend(v.to_le_bytes()));
+        }
+        let (t, _) = read_bytes(&b, Path::new("empty.tck")).unwrap();
+        assert_eq!(t.offsets, vec![0, 1, 1, 3, 3]);
+        let path = std::env::temp_dir().join(format!("fascicle-empty-{}.tck", std::process::id()));
+        write(&path, &t, &[]).unwrap();
+        assert_eq!(read(&path).unwrap().0, t);
+        std::fs::remove_file(path).ok();
+    }
 }
