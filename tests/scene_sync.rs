@@ -16,6 +16,12 @@ fn glyph_layer(scene: &mut Scene) -> &mut LayerKind {
     &mut scene.layers[i].kind
 }
 
+/// The index of the scene's SH glyph layer.
+fn glyph_index(app: &App) -> usize {
+    let layers = &app.world().resource::<ActiveScene>().0.layers;
+    layers.iter().position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. })).expect("a glyph layer")
+}
+
 /// Runs the app until every layer's job is done and swapped in.
 fn settle(app: &mut App) {
     fascicle::layers::settle(app).unwrap_or_else(|e| panic!("{e}"));
@@ -474,14 +480,7 @@ fn a_slice_move_rebuilds_that_layer_only_from_the_cache() {
     let buffer_ids =
         |app: &App| app.world().resource::<Assets<ShaderBuffer>>().ids().collect::<std::collections::HashSet<_>>();
     let buffers0 = buffer_ids(&app);
-    let glyphs = app
-        .world()
-        .resource::<ActiveScene>()
-        .0
-        .layers
-        .iter()
-        .position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. }))
-        .unwrap();
+    let glyphs = glyph_index(&app);
 
     if let LayerKind::ShGlyphs { index, .. } = glyph_layer(&mut app.world_mut().resource_mut::<ActiveScene>().0) {
         *index = Some(5);
@@ -568,14 +567,7 @@ fn failures_and_cancels_stay_on_their_layer() {
     let job = q.single(app.world()).expect("one job running");
     job.progress.cancel();
     settle(&mut app);
-    let i = app
-        .world()
-        .resource::<ActiveScene>()
-        .0
-        .layers
-        .iter()
-        .position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. }))
-        .unwrap();
+    let i = glyph_index(&app);
     let status = |app: &mut App| {
         let mut q =
             app.world_mut().query::<(&fascicle::layers::LayerEntity, &LayerStatus, &fascicle::layers::SceneLayer)>();
