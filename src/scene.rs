@@ -364,21 +364,29 @@ impl CameraSpec {
 }
 
 /// The world bounds (RAS+ mm) of a data file: a NIfTI image's voxel grid through its affine (from the header
-/// alone), or a tractogram's points. `None` when the file cannot be read or holds nothing.
+/// alone), an MRtrix image's, or a tractogram's points. `None` when the file cannot be read or holds nothing.
 pub fn file_bounds(path: &Path) -> Option<(glam::DVec3, glam::DVec3)> {
     let lower = path.to_string_lossy().to_ascii_lowercase();
     let mut lo = glam::DVec3::splat(f64::INFINITY);
     let mut hi = glam::DVec3::splat(f64::NEG_INFINITY);
-    if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
-        let h = fascicle_core::io::nifti::read_header(path).ok()?;
-        let d = [0, 1, 2].map(|i| h.shape.get(i).copied().unwrap_or(1) as f64 - 1.0);
+    let grid = if fascicle_core::io::mif::is_mif(path) {
+        // An MRtrix header is text of unknown length: the image is read (and the layer reads it again, cached).
+        let v = fascicle_core::io::mif::read_image::<f32>(path).ok()?;
+        Some((v.shape, v.world_from_voxel))
+    } else if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
+        fascicle_core::io::nifti::read_header(path).ok().map(|h| (h.shape, h.world_from_voxel))
+    } else {
+        None
+    };
+    if let Some((shape, world_from_voxel)) = grid {
+        let d = [0, 1, 2].map(|i| shape.get(i).copied().unwrap_or(1) as f64 - 1.0);
         for k in 0..8 {
             let v = glam::DVec3::new(
                 if k & 1 == 0 { 0.0 } else { d[0] },
                 if k & 2 == 0 { 0.0 } else { d[1] },
                 if k & 4 == 0 { 0.0 } else { d[2] },
             );
-            let p = h.world_from_voxel.transform_point3(v);
+            let p = world_from_voxel.transform_point3(v);
             (lo, hi) = (lo.min(p), hi.max(p));
         }
     } else {
@@ -629,6 +637,18 @@ mod tests {
             tensor_source_for(&data.join("dwi/small_64D.nii")),
             TensorSource::Dwi { path: data.join("dwi/small_64D.nii") }
         );
+    }
+
+    /// An MRtrix image frames the camera as its NIfTI does: the same voxel grid in scanner space.
+    #[test]
+    fn mif_images_have_the_bounds_of_their_nifti() {
+        let nii = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/dti/small_64D_fa.nii.gz");
+        let (v, _) = fascicle_core::io::nifti::read::<f32>(&nii).unwrap();
+        let mif = std::env::temp_dir().join(format!("fascicle-bounds-{}.mif", std::process::id()));
+        fascicle_core::io::mif::write(&mif, &v, &[]).unwrap();
+        let (a, b) = (file_bounds(&nii).unwrap(), file_bounds(&mif).unwrap());
+        assert!((a.0 - b.0).abs().max_element() < 1e-5 && (a.1 - b.1).abs().max_element() < 1e-5, "{a:?} {b:?}");
+        std::fs::remove_file(mif).ok();
     }
 
     /// A scene sets only what it changes: every settings struct and layer field has a default.

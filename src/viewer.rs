@@ -600,7 +600,7 @@ fn panel(
         if let Some(m) = &ui_state.message {
             ui.label(m);
         }
-        ui.label("Drop NIfTI, .trk/.tck or .ron files on the window.");
+        ui.label("Drop NIfTI, .mif, .trk/.tck or .ron files on the window.");
         ui.allocate_rect(ui.available_rect_before_wrap(), egui::Sense::hover());
     });
     if let Some((path, choices)) = ui_state.ask.clone() {
