@@ -73,10 +73,8 @@ impl JobProgress {
 
 /// A layer's CPU-side content, ready for the main thread to upload.
 pub enum Content {
-    ShGlyphs {
-        glyphs: Vec<Glyph>,
-        voxels: Vec<[u32; 3]>,
-    },
+    /// Placed glyphs and their voxels, shared with the cache.
+    ShGlyphs(Arc<(Vec<Glyph>, Vec<[u32; 3]>)>),
     TensorGlyphs {
         glyphs: Vec<TensorGlyph>,
         voxels: Vec<[u32; 3]>,
@@ -108,7 +106,7 @@ impl Content {
     /// Items it holds (glyphs, splats, streamlines, voxels), for the layer's status.
     pub fn items(&self) -> usize {
         match self {
-            Content::ShGlyphs { glyphs, .. } => glyphs.len(),
+            Content::ShGlyphs(placed) => placed.0.len(),
             Content::TensorGlyphs { glyphs, .. } => glyphs.len(),
             Content::Splats(s) => s.len(),
             Content::Tracts(t) => t.tractogram.n_streamlines(),
@@ -156,8 +154,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                     }
                 },
             )?;
-            let (glyphs, voxels) = (*placed).clone();
-            Ok(Content::ShGlyphs { glyphs, voxels })
+            Ok(Content::ShGlyphs(placed))
         }
         LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, .. } => {
             let (glyphs, voxels) = tensor_glyphs(cache, source, *axis, *index, *spacing, *size, *min_fa, progress)?;
@@ -195,10 +192,8 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             Ok(Content::Slice { image: Box::new(image), corners })
         }
         LayerKind::Tractogram { path } => {
-            progress.stage("reading streamlines", 0)?;
-            let t = cache.get_or_load(&format!("tractogram:{path:?}"), &[path], tractogram_bytes, || {
-                Tractogram::read(path).map_err(|e| e.to_string())
-            })?;
+            // The same cached streamlines as a tract layer (or a density map) of this file.
+            let t = tract_data(cache, &TractSource::File { path: path.clone(), tensors: None }, progress)?.tractogram;
             if t.points.is_empty() {
                 return Err("the tractogram holds no points".into());
             }
@@ -236,22 +231,22 @@ pub fn neighbour_slices(kind: &LayerKind, dims: [usize; 3]) -> Vec<LayerKind> {
 }
 
 /// Places the glyphs of the slices next to an SH glyph layer's into the cache, on a thread of their own (not
-/// the layer jobs' pool, so that a job the user is waiting for never queues behind a guess), counted in
-/// `in_flight` while it runs. The field is already cached, so nothing is read or fitted.
+/// the layer jobs' pool, so that a job the user is waiting for never queues behind a guess, and not the main
+/// thread, should the field have left the cache), counted in `in_flight` while it runs.
 pub fn prefetch_neighbours(kind: &LayerKind, cache: &DataCache, in_flight: &Arc<AtomicUsize>) {
-    let LayerKind::ShGlyphs { source, .. } = kind else { return };
-    let Ok(field) = sh_field(cache, source, &JobProgress::default()) else { return };
-    let next = neighbour_slices(&kind.structure(), field.coeffs.dims3());
-    if next.is_empty() {
-        return;
-    }
-    let (cache, in_flight) = (cache.clone(), in_flight.clone());
+    let LayerKind::ShGlyphs { plane: None, full_volume: false, .. } = kind else { return };
+    let (kind, cache, in_flight) = (kind.structure(), cache.clone(), in_flight.clone());
     in_flight.fetch_add(1, Ordering::Relaxed);
     let spawned = std::thread::Builder::new().name("fascicle-prefetch".into()).spawn({
         let in_flight = in_flight.clone();
         move || {
-            for kind in next {
-                let _ = build(&kind, &cache, &JobProgress::default());
+            // The layer's job has just read the field: a cache hit.
+            if let LayerKind::ShGlyphs { source, .. } = &kind
+                && let Ok(field) = sh_field(&cache, source, &JobProgress::default())
+            {
+                for next in neighbour_slices(&kind, field.coeffs.dims3()) {
+                    let _ = build(&next, &cache, &JobProgress::default());
+                }
             }
             in_flight.fetch_sub(1, Ordering::Relaxed);
         }
@@ -568,6 +563,14 @@ fn tract_files(source: &TractSource) -> Vec<&Path> {
     files
 }
 
+/// A tensor image (X,Y,Z,6, DIPY order) as the tracker's grid: its dimensions, affine and one f64 tensor per
+/// voxel.
+fn tensor_grid(f: &Volume<f32>) -> ([usize; 3], glam::DMat4, Vec<[f64; 6]>) {
+    let n = f.n_voxels();
+    let grid = (0..n).map(|i| std::array::from_fn(|c| f.data[i + n * c] as f64)).collect();
+    (f.dims3(), f.world_from_voxel, grid)
+}
+
 fn load_tracts(cache: &DataCache, source: &TractSource, progress: &JobProgress) -> Result<TractData, String> {
     use fascicle_core::tracking::{TensorInterpolation, TrackParams, Tracker, tensors_at};
     let field_of = |dims: [usize; 3], affine: glam::DMat4, tensors: Vec<[f64; 6]>| {
@@ -609,15 +612,13 @@ fn load_tracts(cache: &DataCache, source: &TractSource, progress: &JobProgress) 
             let Some(source) = tensors else { return Ok(TractData { tractogram: Arc::new(t), tensors: None }) };
             let f = tensor_field(cache, source, progress)?.tensors;
             progress.stage("sampling tensors along the streamlines", 0)?;
-            let (dims, affine, n) = (f.dims3(), f.world_from_voxel, f.n_voxels());
-            let grid: Vec<[f64; 6]> = (0..n).map(|i| std::array::from_fn(|c| f.data[i + n * c] as f64)).collect();
+            let (dims, affine, grid) = tensor_grid(&f);
             let sampled = tensors_at(&field_of(dims, affine, grid)?, affine, &t.points);
             Ok(TractData { tractogram: Arc::new(t), tensors: Some(Arc::new(sampled)) })
         }
         TractSource::Track { tensors, seeds, params } => {
             let f = tensor_field(cache, tensors, progress)?.tensors;
-            let (dims, affine, n) = (f.dims3(), f.world_from_voxel, f.n_voxels());
-            let grid: Vec<[f64; 6]> = (0..n).map(|i| std::array::from_fn(|c| f.data[i + n * c] as f64)).collect();
+            let (dims, affine, grid) = tensor_grid(&f);
             let seeds = seed_points(&grid, dims, affine, seeds)?;
             let field = field_of(dims, affine, grid)?;
             progress.stage("tracking", seeds.len())?;

@@ -324,8 +324,9 @@ impl Uploads<'_> {
     ) -> Result<(), String> {
         let (c, m, b) = (&mut *commands, &mut *self.meshes, &mut *self.buffers);
         let root = match (content, &spec.kind) {
-            (Content::ShGlyphs { glyphs, voxels }, LayerKind::ShGlyphs { render, .. }) => {
-                spawn_glyph_set(c, m, &mut self.glyph_materials, b, &glyphs, Some(&voxels), render)
+            (Content::ShGlyphs(placed), LayerKind::ShGlyphs { render, .. }) => {
+                let (glyphs, voxels) = &*placed;
+                spawn_glyph_set(c, m, &mut self.glyph_materials, b, glyphs, Some(voxels), render)
             }
             (Content::TensorGlyphs { glyphs, voxels }, LayerKind::TensorGlyphs { render, .. }) => {
                 spawn_tensor_glyphs(c, m, &mut self.tensor_materials, b, &glyphs, Some(&voxels), render)

@@ -291,26 +291,18 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
                     remove = Some(i);
                 }
             });
-            let drag = |ui: &mut egui::Ui, v: &mut [f32; 3], label: &str| {
-                ui.horizontal(|ui| {
-                    ui.label(label);
-                    for c in v.iter_mut() {
-                        ui.add(egui::DragValue::new(c).speed(0.5));
-                    }
-                });
-            };
             match &mut roi.shape {
                 RoiShape::Sphere { centre, radius } => {
-                    drag(ui, centre, "sphere at");
+                    vec3_drag(ui, centre, "sphere at");
                     ui.add(egui::Slider::new(radius, 0.5..=60.0).text("radius (mm)"));
                 }
                 RoiShape::Box { min, max } => {
-                    drag(ui, min, "box from");
-                    drag(ui, max, "to");
+                    vec3_drag(ui, min, "box from");
+                    vec3_drag(ui, max, "to");
                 }
                 RoiShape::Plane { point, normal } => {
-                    drag(ui, point, "plane through");
-                    drag(ui, normal, "normal");
+                    vec3_drag(ui, point, "plane through");
+                    vec3_drag(ui, normal, "normal");
                 }
             }
         });
@@ -328,6 +320,16 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
         }
         if ui.button("+ plane").clicked() {
             rois.push(add(RoiShape::Plane { point: [0.0; 3], normal: [1.0, 0.0, 0.0] }));
+        }
+    });
+}
+
+/// A labelled row of three drag values (a point or direction in mm).
+fn vec3_drag(ui: &mut egui::Ui, v: &mut [f32; 3], label: &str) {
+    ui.horizontal(|ui| {
+        ui.label(label);
+        for c in v.iter_mut() {
+            ui.add(egui::DragValue::new(c).speed(0.5));
         }
     });
 }
@@ -357,12 +359,7 @@ fn track_settings(
             ui.add(egui::Slider::new(min_fa, 0.0..=0.9).text("seed FA at least"));
         }
         Seeds::Sphere { centre, radius, per_voxel } => {
-            ui.horizontal(|ui| {
-                ui.label("centre");
-                for c in centre.iter_mut() {
-                    ui.add(egui::DragValue::new(c).speed(0.5));
-                }
-            });
+            vec3_drag(ui, centre, "centre");
             ui.add(egui::Slider::new(radius, 0.5..=40.0).text("radius (mm)"));
             ui.add(egui::Slider::new(per_voxel, 1..=27).text("seeds per voxel"));
         }

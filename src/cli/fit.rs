@@ -199,13 +199,9 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
     nifti::write_with(&a.out, &coeffs, nifti::WriteType::F32, &meta)?;
     // And a JSON sidecar (as BIDS derivatives carry metadata), for tools that do not read `descrip`.
     let sidecar = sidecar_path(&a.out);
-    let (convention, legacy) = match basis {
-        sh::ShBasis::Descoteaux07 { legacy } => ("descoteaux07", legacy),
-        sh::ShBasis::Tournier07 { legacy } => ("tournier07", legacy),
-    };
     let json = serde_json::json!({
         "model": if kind == OdfKind::Csa { "csa" } else { "qball" },
-        "sh_basis": { "convention": convention, "legacy": legacy },
+        "sh_basis": { "convention": basis.convention(), "legacy": basis.legacy() },
         "l_max": a.lmax,
         "smooth": a.smooth,
     });

@@ -97,7 +97,7 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
         let (vol, h) = fascicle_core::io::mif::read::<f32>(path)?;
         let a = vol.world_from_voxel;
         let rows: Vec<[f64; 4]> = (0..4).map(|r| [a.x_axis[r], a.y_axis[r], a.z_axis[r], a.w_axis[r]]).collect();
-        let class = fascicle_core::io::classify::classify(path)?;
+        let class = fascicle_core::io::classify::classify_mif_image(&vol, &h);
         let vox = vol.voxel_size();
         let mut v = json!({
             "file": path.display().to_string(),
@@ -112,7 +112,7 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
             "dw_scheme_rows": h.dw_scheme.len(),
         });
         if let fascicle_core::io::classify::ImageKind::Sh { basis: Some(b), l_max } = class.kind {
-            v["sh_basis"] = json!({"convention": if matches!(b, fascicle_core::sh::ShBasis::Tournier07 { .. }) { "tournier07" } else { "descoteaux07" }, "legacy": matches!(b, fascicle_core::sh::ShBasis::Tournier07 { legacy: true } | fascicle_core::sh::ShBasis::Descoteaux07 { legacy: true })});
+            v["sh_basis"] = json!({"convention": b.convention(), "legacy": b.legacy()});
             v["l_max"] = json!(l_max);
         }
         return Ok(v);
@@ -147,11 +147,8 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
         if let fascicle_core::io::classify::ImageKind::Sh { basis: recorded, l_max } = class.kind {
             // The basis recorded in the header or a sidecar; otherwise DIPY's default, which is what Fascicle
             // reads an unlabelled file as.
-            let (convention, legacy) = match recorded.unwrap_or_default() {
-                fascicle_core::sh::ShBasis::Descoteaux07 { legacy } => ("descoteaux07", legacy),
-                fascicle_core::sh::ShBasis::Tournier07 { legacy } => ("tournier07", legacy),
-            };
-            v["sh_basis"] = json!({"convention": convention, "legacy": legacy, "recorded": recorded.is_some()});
+            let b = recorded.unwrap_or_default();
+            v["sh_basis"] = json!({"convention": b.convention(), "legacy": b.legacy(), "recorded": recorded.is_some()});
             v["l_max"] = json!(l_max);
         }
         return Ok(v);

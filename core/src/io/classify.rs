@@ -132,10 +132,15 @@ fn with_ext(stem: &Path, ext: &str) -> PathBuf {
     PathBuf::from(s)
 }
 
-/// What a JSON sidecar beside the image (`x.json`) says: the SH basis and the model, if it has them. A small
-/// scan for the two keys `fascicle fit` and BIDS-style derivatives write, not a general JSON parser.
-pub fn sidecar_basis(path: &Path) -> Option<ShBasis> {
-    let text = std::fs::read_to_string(with_ext(&stem_path(path), "json")).ok()?;
+/// The text of the JSON sidecar beside an image (`x.nii.gz` -> `x.json`), if there is one.
+fn sidecar(path: &Path) -> Option<String> {
+    std::fs::read_to_string(with_ext(&stem_path(path), "json")).ok()
+}
+
+/// The SH basis a sidecar's text records (`"sh_basis": {"convention": ..., "legacy": ...}`, as `fascicle fit`
+/// writes it). A small scan for the keys `fascicle fit` and BIDS-style derivatives write, not a general JSON
+/// parser.
+fn sidecar_basis(text: &str) -> Option<ShBasis> {
     let at = text.find("\"sh_basis\"")?;
     let rest = &text[at..];
     let convention = string_value(rest, "convention")?;
@@ -144,11 +149,6 @@ pub fn sidecar_basis(path: &Path) -> Option<ShBasis> {
         .map(|i| rest[i + 8..].trim_start_matches([' ', ':', '\t', '\n']))
         .is_some_and(|v| v.starts_with("true"));
     ShBasis::parse(&convention, legacy).ok()
-}
-
-fn sidecar_model(path: &Path) -> Option<String> {
-    let text = std::fs::read_to_string(with_ext(&stem_path(path), "json")).ok()?;
-    string_value(&text, "model")
 }
 
 fn string_value(text: &str, key: &str) -> Option<String> {
@@ -172,8 +172,13 @@ pub fn classify(path: &Path) -> Result<Classified> {
 /// otherwise; a `dw_scheme` marks a DWI series (shown as volumes: the scheme is not a bval/bvec pair).
 fn classify_mif(path: &Path) -> Result<Classified> {
     let (vol, h) = super::mif::read::<f32>(path)?;
+    Ok(classify_mif_image(&vol, &h))
+}
+
+/// [`classify`] of an MRtrix image already read.
+pub fn classify_mif_image(vol: &Volume<f32>, h: &super::mif::MifHeader) -> Classified {
     let vols: usize = vol.shape.get(3..).map_or(1, |s| s.iter().product());
-    let decided = |kind, reason: &str| Ok(Classified { kind, reason: reason.to_string(), ambiguous: vec![] });
+    let decided = |kind, reason: &str| Classified { kind, reason: reason.to_string(), ambiguous: vec![] };
     if vols <= 1 {
         return decided(ImageKind::Scalar, "one volume");
     }
@@ -181,13 +186,13 @@ fn classify_mif(path: &Path) -> Result<Classified> {
         return decided(ImageKind::Series, "a DWI series (dw_scheme)");
     }
     if vols == 6 {
-        let (order, share) = best_tensor_order(&vol);
+        let (order, share) = best_tensor_order(vol);
         if share >= 0.5 {
             return decided(ImageKind::Tensor { order }, "6 volumes of positive-definite tensors");
         }
     }
     if let Some(l_max) = sh::l_max_for(vols)
-        && positive_first_share(&vol) >= 0.99
+        && positive_first_share(vol) >= 0.99
     {
         let basis = Some(ShBasis::Tournier07 { legacy: false });
         return decided(ImageKind::Sh { l_max, basis }, "SH coefficients of an MRtrix image (tournier07)");
@@ -219,12 +224,14 @@ pub fn classify_with(path: &Path, h: &NiftiHeader, data: impl FnOnce() -> Result
     if let Some((bval, bvec)) = gradients_beside(path) {
         return decided(ImageKind::Dwi { bval, bvec }, "bval/bvec beside the image");
     }
-    let recorded = sh::recorded_basis(&h.descrip).or_else(|| sidecar_basis(path));
+    // The sidecar is read once, for the basis and the model.
+    let side = sidecar(path);
+    let recorded = sh::recorded_basis(&h.descrip).or_else(|| side.as_deref().and_then(sidecar_basis));
     let l_max = sh::l_max_for(vols);
     if let (Some(basis), Some(l_max)) = (recorded, l_max) {
         return decided(ImageKind::Sh { l_max, basis: Some(basis) }, "SH basis recorded in the header or sidecar");
     }
-    let model = sidecar_model(path).map(|m| m.to_ascii_lowercase());
+    let model = side.as_deref().and_then(|t| string_value(t, "model")).map(|m| m.to_ascii_lowercase());
     if vols == 6 && (h.intent_code == INTENT_SYMMATRIX || matches!(model.as_deref(), Some("dti" | "tensor"))) {
         let vol = data()?;
         let (order, _) = best_tensor_order(&vol);

@@ -51,9 +51,21 @@ impl ShBasis {
     }
 
     pub fn name(&self) -> String {
+        format!("{}{}", self.convention(), if self.legacy() { " legacy" } else { "" })
+    }
+
+    /// The convention's name, as DIPY and MRtrix call it: "descoteaux07" or "tournier07".
+    pub fn convention(&self) -> &'static str {
         match self {
-            ShBasis::Descoteaux07 { legacy } => format!("descoteaux07{}", if *legacy { " legacy" } else { "" }),
-            ShBasis::Tournier07 { legacy } => format!("tournier07{}", if *legacy { " legacy" } else { "" }),
+            ShBasis::Descoteaux07 { .. } => "descoteaux07",
+            ShBasis::Tournier07 { .. } => "tournier07",
+        }
+    }
+
+    /// Whether it is the convention's legacy variant.
+    pub fn legacy(&self) -> bool {
+        match self {
+            ShBasis::Descoteaux07 { legacy } | ShBasis::Tournier07 { legacy } => *legacy,
         }
     }
 

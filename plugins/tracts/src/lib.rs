@@ -273,8 +273,7 @@ pub enum PreparedGeometry {
 
 impl PreparedTracts {
     fn with(tractogram: Arc<Tractogram>, geometry: PreparedGeometry) -> Self {
-        let grid = Arc::new(SegmentGrid::new(&tractogram.points, &tractogram.offsets, 4.0));
-        PreparedTracts { tractogram, grid, geometry }
+        PreparedTracts { grid: segment_grid(&tractogram), tractogram, geometry }
     }
 
     /// Hyperstreamlines (optional per-point world tensors give the sections).
@@ -309,6 +308,11 @@ fn tract_set(
     (TractSet { tractogram, grid, selected }, TractSelection(vec![true; n_streamlines]))
 }
 
+/// The grid of segments the ROI selection scans.
+fn segment_grid(t: &Tractogram) -> Arc<SegmentGrid> {
+    Arc::new(SegmentGrid::new(&t.points, &t.offsets, 4.0))
+}
+
 /// Spawns prepared tracts (tubes, lines or polygon tubes); `opacity` applies to meshes. Returns the set's
 /// entity (parent of its ROIs).
 pub fn spawn_prepared(
@@ -321,42 +325,67 @@ pub fn spawn_prepared(
     opacity: f32,
 ) -> Entity {
     let PreparedTracts { tractogram, grid, geometry } = prepared;
-    let (set, selection) = tract_set(buffers, tractogram, grid);
+    let target = tract_set(buffers, tractogram, grid);
     match geometry {
         PreparedGeometry::Tubes { packed, n_tubelets, settings } => {
-            let material = tube_materials.add(TubeletMaterial {
-                params: (&settings).into(),
-                tubes: buffers.add(ShaderBuffer::new(&packed, RenderAssetUsages::RENDER_WORLD)),
-                selected: set.selected.clone(),
-            });
-            let mut e = commands.spawn((
-                set,
-                selection,
-                TubeSet { material: material.clone(), n_tubelets, settings },
-                Transform::default(),
-                Visibility::default(),
-            ));
-            if n_tubelets > 0 {
-                e.insert((Mesh3d(meshes.add(boxes(n_tubelets))), MeshMaterial3d(material), NoFrustumCulling));
-            }
-            e.id()
+            spawn_tube_set(commands, meshes, tube_materials, buffers, target, &packed, n_tubelets, settings)
         }
-        PreparedGeometry::Mesh(mesh) => {
-            let params = TractMeshUniform { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3 };
-            let material = mesh_materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
-            commands
-                .spawn((
-                    set,
-                    selection,
-                    MeshSet { material: material.clone() },
-                    Mesh3d(meshes.add(*mesh)),
-                    MeshMaterial3d(material),
-                    Transform::default(),
-                    Visibility::default(),
-                ))
-                .id()
-        }
+        PreparedGeometry::Mesh(mesh) => spawn_mesh_set(commands, meshes, mesh_materials, target, *mesh, opacity),
     }
+}
+
+/// A tract set drawn as hyperstreamlines from its packed tubelets.
+#[allow(clippy::too_many_arguments, reason = "the asset stores, the set and its tubelets")]
+fn spawn_tube_set(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<TubeletMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    (set, selection): (TractSet, TractSelection),
+    packed: &[u8],
+    n_tubelets: usize,
+    settings: TubeSettings,
+) -> Entity {
+    let material = materials.add(TubeletMaterial {
+        params: (&settings).into(),
+        tubes: buffers.add(ShaderBuffer::new(packed, RenderAssetUsages::RENDER_WORLD)),
+        selected: set.selected.clone(),
+    });
+    let mut e = commands.spawn((
+        set,
+        selection,
+        TubeSet { material: material.clone(), n_tubelets, settings },
+        Transform::default(),
+        Visibility::default(),
+    ));
+    if n_tubelets > 0 {
+        e.insert((Mesh3d(meshes.add(boxes(n_tubelets))), MeshMaterial3d(material), NoFrustumCulling));
+    }
+    e.id()
+}
+
+/// A tract set drawn as a mesh (lines or polygon tubes).
+fn spawn_mesh_set(
+    commands: &mut Commands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<TractMeshMaterial>,
+    (set, selection): (TractSet, TractSelection),
+    mesh: Mesh,
+    opacity: f32,
+) -> Entity {
+    let params = TractMeshUniform { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3 };
+    let material = materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
+    commands
+        .spawn((
+            set,
+            selection,
+            MeshSet { material: material.clone() },
+            Mesh3d(meshes.add(mesh)),
+            MeshMaterial3d(material),
+            Transform::default(),
+            Visibility::default(),
+        ))
+        .id()
 }
 
 /// Spawns a tractogram as hyperstreamlines (optional per-point world tensors give the sections); returns
@@ -370,8 +399,9 @@ pub fn spawn_tubes(
     tensors: Option<&[[f32; 6]]>,
     settings: &TubeSettings,
 ) -> Entity {
-    let prepared = PreparedTracts::tubes(tractogram, tensors, settings);
-    spawn_prepared(commands, meshes, materials, &mut Assets::default(), buffers, prepared, 1.0)
+    let tubes = tract_tubelets(&tractogram, tensors, settings);
+    let target = tract_set(buffers, tractogram.clone(), segment_grid(&tractogram));
+    spawn_tube_set(commands, meshes, materials, buffers, target, &pack(&tubes), tubes.len(), *settings)
 }
 
 /// Spawns a tractogram as lines coloured by segment direction; returns the set's entity (parent of its
@@ -384,18 +414,12 @@ pub fn spawn_lines(
     tractogram: Arc<Tractogram>,
     opacity: f32,
 ) -> Entity {
-    spawn_prepared(
-        commands,
-        meshes,
-        &mut Assets::default(),
-        materials,
-        buffers,
-        PreparedTracts::lines(tractogram),
-        opacity,
-    )
+    let mesh = line_mesh(&tractogram);
+    let target = tract_set(buffers, tractogram.clone(), segment_grid(&tractogram));
+    spawn_mesh_set(commands, meshes, materials, target, mesh, opacity)
 }
 
-/// Spawns a tractogram as polygon tubes (`sides` per ring, sections from the optional per-point world
+/// Spawns a tractogram as polygon tubes (16 sides per ring, sections from the optional per-point world
 /// tensors, as [`polygon_tube_mesh`]) with headlight shading; returns the set's entity (parent of its ROIs).
 #[allow(clippy::too_many_arguments, reason = "the asset stores, the tractogram and its drawing options")]
 pub fn spawn_polygon_tubes(
@@ -408,8 +432,9 @@ pub fn spawn_polygon_tubes(
     scale: f64,
     opacity: f32,
 ) -> Entity {
-    let prepared = PreparedTracts::polygon_tubes(tractogram, tensors, scale);
-    spawn_prepared(commands, meshes, &mut Assets::default(), materials, buffers, prepared, opacity)
+    let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
+    let target = tract_set(buffers, tractogram.clone(), segment_grid(&tractogram));
+    spawn_mesh_set(commands, meshes, materials, target, mesh, opacity)
 }
 
 /// Line segments of every streamline: positions, colours |direction| and UV x = the streamline's index
