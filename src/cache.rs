@@ -110,35 +110,51 @@ impl DataCache {
         bytes: impl FnOnce(&T) -> usize,
         load: impl FnOnce() -> Result<T, String>,
     ) -> Result<Arc<T>, String> {
+        // Stamped before the load: a file rewritten meanwhile is read again next time.
         let stamps: Vec<Stamp> = files.iter().map(|p| Stamp::of(p)).collect();
-        {
-            let mut inner = self.lock();
-            inner.clock += 1;
-            let now = inner.clock;
-            if let Some(e) = inner.entries.get_mut(key)
-                && e.stamps == stamps
-                && let Ok(v) = e.value.clone().downcast::<T>()
-            {
-                e.used = now;
-                inner.stats.hits += 1;
-                return Ok(v);
-            }
+        if let Some(v) = self.peek_stamped(key, &stamps) {
+            return Ok(v);
         }
         let value = Arc::new(load()?);
-        let size = bytes(&value);
+        self.put_stamped(key, stamps, bytes(&value), value.clone());
+        Ok(value)
+    }
+
+    /// The value under `key`, if held, of type `T` and read from `files` as they are now (a hit).
+    pub fn peek<T: Any + Send + Sync>(&self, key: &str, files: &[&Path]) -> Option<Arc<T>> {
+        self.peek_stamped(key, &files.iter().map(|p| Stamp::of(p)).collect::<Vec<_>>())
+    }
+
+    fn peek_stamped<T: Any + Send + Sync>(&self, key: &str, stamps: &[Stamp]) -> Option<Arc<T>> {
+        let mut inner = self.lock();
+        inner.clock += 1;
+        let now = inner.clock;
+        let e = inner.entries.get_mut(key).filter(|e| e.stamps == stamps)?;
+        let v = e.value.clone().downcast::<T>().ok()?;
+        e.used = now;
+        inner.stats.hits += 1;
+        Some(v)
+    }
+
+    /// Keeps `value` (about `bytes` large) under `key`, read from `files` (a load), replacing what was there;
+    /// least recently used values go past the budget.
+    pub fn put<T: Any + Send + Sync>(&self, key: &str, files: &[&Path], bytes: usize, value: Arc<T>) {
+        self.put_stamped(key, files.iter().map(|p| Stamp::of(p)).collect(), bytes, value);
+    }
+
+    fn put_stamped<T: Any + Send + Sync>(&self, key: &str, stamps: Vec<Stamp>, bytes: usize, value: Arc<T>) {
         let mut inner = self.lock();
         inner.stats.loads += 1;
         *inner.loads_by_kind.entry(key.split(':').next().unwrap_or(key).to_string()).or_default() += 1;
         inner.clock += 1;
         let used = inner.clock;
-        inner.entries.insert(key.to_string(), Entry { value: value.clone(), stamps, bytes: size, used });
+        inner.entries.insert(key.to_string(), Entry { value, stamps, bytes, used });
         while inner.entries.values().map(|e| e.bytes).sum::<usize>() > self.budget && inner.entries.len() > 1 {
             let oldest = inner.entries.iter().filter(|(k, _)| *k != key).min_by_key(|(_, e)| e.used);
             let Some(k) = oldest.map(|(k, _)| k.clone()) else { break };
             inner.entries.remove(&k);
             inner.stats.evictions += 1;
         }
-        Ok(value)
     }
 }
 

@@ -25,14 +25,59 @@ use crate::cache::DataCache;
 use crate::scene::{LayerKind, ShSource, SliceAxis, TensorSource, TractMode, TractSource, VolumeSource};
 use fascicle_tracts::PreparedTracts;
 
-/// A job's stage, progress and cancel flag, shared between the job and the panel that shows it.
+/// A job's stage, progress and cancel flag, shared between the job and the panel that shows it, and the parts
+/// of its content it has delivered so far ([`Content::Streamed`]).
 #[derive(Debug, Default)]
 pub struct JobProgress {
     stage: Mutex<&'static str>,
     done: AtomicUsize,
     total: AtomicUsize,
     cancelled: AtomicBool,
+    pub parts: Parts,
 }
+
+/// Parts of a layer's content that its job delivers while it runs, oldest first: streamlines as they are
+/// tracked, or a large tractogram in parts of at most [`PART_POINTS`] points, so that the main thread uploads
+/// one part per frame and never stalls on one large upload.
+#[derive(Default)]
+pub struct Parts(Mutex<std::collections::VecDeque<Content>>);
+
+impl std::fmt::Debug for Parts {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Parts({} waiting)", self.len())
+    }
+}
+
+impl Parts {
+    fn lock(&self) -> std::sync::MutexGuard<'_, std::collections::VecDeque<Content>> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub fn push(&self, part: Content) {
+        self.lock().push_back(part);
+    }
+
+    /// The oldest part not yet taken.
+    pub fn pop(&self) -> Option<Content> {
+        self.lock().pop_front()
+    }
+
+    pub fn len(&self) -> usize {
+        self.lock().len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// The most glyphs of one delivered part of an SH glyph layer (one entity each: 4,096 spawn and upload in
+/// about 27 ms on this project's 2-core reference machine).
+pub const GLYPH_PART: usize = 4096;
+
+/// The most points of one delivered part of a tract layer (lines: about 2 vertices per point; 250k points
+/// upload in about 20 ms on this project's 2-core reference machine).
+pub const PART_POINTS: usize = 250_000;
 
 /// The error a cancelled job ends with.
 pub const CANCELLED: &str = "cancelled";
@@ -100,6 +145,11 @@ pub enum Content {
     Axes {
         length_mm: f32,
     },
+    /// Everything went through the job's [`JobProgress::parts`] (each a `Tracts` or `Lines` part) while it ran;
+    /// `items` in all.
+    Streamed {
+        items: usize,
+    },
 }
 
 impl Content {
@@ -114,6 +164,7 @@ impl Content {
             Content::Slice { image, .. } => (image.width() * image.height()) as usize,
             Content::Lines { streamlines, .. } => *streamlines,
             Content::Axes { .. } => 3,
+            Content::Streamed { items } => *items,
         }
     }
 }
@@ -154,7 +205,16 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                     }
                 },
             )?;
-            Ok(Content::ShGlyphs(placed))
+            let (glyphs, voxels) = &*placed;
+            if glyphs.len() <= GLYPH_PART {
+                return Ok(Content::ShGlyphs(placed));
+            }
+            // One entity per glyph: a large slice goes in parts, a part per frame.
+            for (k, part) in glyphs.chunks(GLYPH_PART).enumerate() {
+                let vox = voxels.get(k * GLYPH_PART..(k * GLYPH_PART + part.len()).min(voxels.len()));
+                progress.parts.push(Content::ShGlyphs(Arc::new((part.to_vec(), vox.unwrap_or_default().to_vec()))));
+            }
+            Ok(Content::Streamed { items: glyphs.len() })
         }
         LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, .. } => {
             let (glyphs, voxels) = tensor_glyphs(cache, source, *axis, *index, *spacing, *size, *min_fa, progress)?;
@@ -164,14 +224,34 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
         LayerKind::Tracts { source, mode, render, .. } => {
-            let data = tract_data(cache, source, progress)?;
+            let prepare = |part: TractData| {
+                let (t, tensors) = (part.tractogram, part.tensors.as_deref().map(|v| v.as_slice()));
+                Content::Tracts(match mode {
+                    TractMode::Tubes => PreparedTracts::tubes(t, tensors, render),
+                    TractMode::Polygon => PreparedTracts::polygon_tubes(t, tensors, render.scale),
+                    TractMode::Lines => PreparedTracts::lines(t),
+                })
+            };
+            // Tracking delivers its streamlines as they are computed.
+            let streamed = AtomicBool::new(false);
+            let on_part = |part: TractData| {
+                streamed.store(true, Ordering::Relaxed);
+                progress.parts.push(prepare(part));
+            };
+            let data = tract_data_in_parts(cache, source, progress, Some(&on_part))?;
             progress.stage("building the geometry", 0)?;
-            let (t, tensors) = (data.tractogram, data.tensors.as_deref().map(|v| v.as_slice()));
-            Ok(Content::Tracts(match mode {
-                TractMode::Tubes => PreparedTracts::tubes(t, tensors, render),
-                TractMode::Polygon => PreparedTracts::polygon_tubes(t, tensors, render.scale),
-                TractMode::Lines => PreparedTracts::lines(t),
-            }))
+            let items = data.tractogram.n_streamlines();
+            if streamed.load(Ordering::Relaxed) {
+                return Ok(Content::Streamed { items });
+            }
+            if data.tractogram.points.len() <= PART_POINTS {
+                return Ok(prepare(data));
+            }
+            for part in split(&data, PART_POINTS) {
+                progress.stage("building the geometry", 0)?;
+                progress.parts.push(prepare(part));
+            }
+            Ok(Content::Streamed { items })
         }
         LayerKind::Volume { source, .. } => {
             let volume = scalar_volume(cache, source, progress)?;
@@ -197,7 +277,19 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             if t.points.is_empty() {
                 return Err("the tractogram holds no points".into());
             }
-            Ok(Content::Lines { mesh: Box::new(fascicle_tracts::line_mesh(&t)), streamlines: t.n_streamlines() })
+            let lines = |t: &Tractogram| Content::Lines {
+                mesh: Box::new(fascicle_tracts::line_mesh(t)),
+                streamlines: t.n_streamlines(),
+            };
+            if t.points.len() <= PART_POINTS {
+                return Ok(lines(&t));
+            }
+            let data = TractData { tractogram: t, tensors: None };
+            for part in split(&data, PART_POINTS) {
+                progress.stage("building the lines", 0)?;
+                progress.parts.push(lines(&part.tractogram));
+            }
+            Ok(Content::Streamed { items: data.tractogram.n_streamlines() })
         }
         LayerKind::Axes { length_mm } => Ok(Content::Axes { length_mm: *length_mm }),
     }
@@ -533,14 +625,173 @@ const SPIRAL_EDGE: f64 = 8.0;
 /// A tract source's streamlines, with per-point world tensors when it has them: tracked (the phantom),
 /// read (a file, its tensors sampled from a field) or made from peaks, once per source and file state.
 pub fn tract_data(cache: &DataCache, source: &TractSource, progress: &JobProgress) -> Result<TractData, String> {
+    tract_data_in_parts(cache, source, progress, None)
+}
+
+/// A part of the streamlines, delivered while they are tracked.
+type OnPart<'a> = &'a (dyn Fn(TractData) + Sync);
+
+/// [`tract_data`], giving the streamlines to `on_part` in parts while they are tracked (only when they are
+/// tracked, not when they come from the cache or a file).
+pub fn tract_data_in_parts(
+    cache: &DataCache,
+    source: &TractSource,
+    progress: &JobProgress,
+    on_part: Option<OnPart>,
+) -> Result<TractData, String> {
     let files = tract_files(source);
     let data = cache.get_or_load(
         &format!("tracts:{source:?}"),
         &files,
-        |d: &TractData| tractogram_bytes(&d.tractogram) + d.tensors.as_ref().map_or(0, |t| t.len() * 24),
-        || load_tracts(cache, source, progress),
+        |d: &TractData| tract_bytes(d),
+        || load_tracts(cache, source, progress, on_part),
     )?;
     Ok((*data).clone())
+}
+
+fn tract_bytes(d: &TractData) -> usize {
+    tractogram_bytes(&d.tractogram) + d.tensors.as_ref().map_or(0, |t| t.len() * 24)
+}
+
+/// `data` in parts of whole streamlines, each of at most `max_points` points (or one streamline, if longer),
+/// in order.
+pub fn split(data: &TractData, max_points: usize) -> Vec<TractData> {
+    let t = &data.tractogram;
+    let mut parts = vec![];
+    let mut first = 0;
+    while first < t.n_streamlines() {
+        let start = t.offsets[first];
+        let mut last = first + 1;
+        while last < t.n_streamlines() && t.offsets[last + 1] - start <= max_points {
+            last += 1;
+        }
+        parts.push(streamlines_of(data, first..last));
+        first = last;
+    }
+    parts
+}
+
+/// Streamlines `range` of `data`, with their tensors.
+fn streamlines_of(data: &TractData, range: std::ops::Range<usize>) -> TractData {
+    let t = &data.tractogram;
+    let (a, b) = (t.offsets[range.start], t.offsets[range.end]);
+    let mut out = Tractogram::new();
+    out.points = t.points[a..b].to_vec();
+    out.offsets = t.offsets[range].iter().map(|o| o - a).chain([b - a]).collect();
+    TractData { tractogram: Arc::new(out), tensors: data.tensors.as_ref().map(|v| Arc::new(v[a..b].to_vec())) }
+}
+
+/// The last streamlines tracked through one field with one set of parameters, per seed: a new seed set
+/// re-uses the streamlines of the seeds it shares with it and tracks only the others.
+struct SeededTracks {
+    /// The seeds (voxel coordinates, as bits), in order.
+    seeds: Vec<[u64; 3]>,
+    /// Seed `i` gave streamlines `first[i]..first[i + 1]`.
+    first: Vec<usize>,
+    data: TractData,
+}
+
+fn seed_bits(p: glam::DVec3) -> [u64; 3] {
+    [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]
+}
+
+/// Seeds tracked per delivered part (a part is also a cancellation point).
+fn seeds_per_part(n: usize) -> usize {
+    (n / 16).clamp(256, 16_384)
+}
+
+/// Tracks `seeds` (voxel coordinates) through `field`: the same streamlines, in seed order, as one
+/// [`fascicle_core::tracking::Tracker::run`] over them, but in parts given to `on_part` as they are done, and,
+/// with `reuse` (a cache key and the field's files), taking the streamlines of seeds that the last tracking
+/// under that key also had from it: only new seeds are tracked ([`JobProgress`] counts those).
+#[allow(clippy::too_many_arguments, reason = "the tracker's inputs, the cache and the job's channels")]
+fn track<F: fascicle_core::tracking::DirectionField + Sync>(
+    cache: &DataCache,
+    reuse: Option<(&str, &[&Path])>,
+    field: &F,
+    affine: glam::DMat4,
+    params: &fascicle_core::tracking::TrackParams,
+    seeds: &[glam::DVec3],
+    progress: &JobProgress,
+    on_part: Option<OnPart>,
+) -> Result<TractData, String> {
+    use fascicle_core::tracking::Tracker;
+    let last: Option<Arc<SeededTracks>> = reuse.and_then(|(key, files)| cache.peek(key, files));
+    let index: std::collections::HashMap<[u64; 3], usize> =
+        last.iter().flat_map(|l| l.seeds.iter().enumerate().map(|(i, s)| (*s, i))).collect();
+    let old: Vec<Option<usize>> = seeds.iter().map(|s| index.get(&seed_bits(*s)).copied()).collect();
+    let missing: Vec<usize> = (0..seeds.len()).filter(|&i| old[i].is_none()).collect();
+    let tracker = Tracker::new(field, affine, params.clone()).map_err(|e| e.to_string())?;
+    // Streamlines of seed `i` from `d` (`first` its per-seed index), appended to `out`.
+    let copy = |out: &mut (Tractogram, Vec<[f32; 6]>), d: &TractData, range: std::ops::Range<usize>| {
+        let t = &d.tractogram;
+        let (a, b) = (t.offsets[range.start], t.offsets[range.end]);
+        let base = out.0.points.len();
+        out.0.points.extend_from_slice(&t.points[a..b]);
+        out.0.offsets.extend(t.offsets[range.start + 1..=range.end].iter().map(|o| o - a + base));
+        if let Some(tensors) = &d.tensors {
+            out.1.extend_from_slice(&tensors[a..b]);
+        }
+    };
+    let finish = |(t, tensors): (Tractogram, Vec<[f32; 6]>)| TractData {
+        tractogram: Arc::new(t),
+        tensors: Some(Arc::new(tensors)),
+    };
+    if let (Some(last), Some(on_part)) = (&last, on_part)
+        && missing.len() < seeds.len()
+    {
+        let mut kept = (Tractogram::new(), vec![]);
+        for j in old.iter().flatten() {
+            copy(&mut kept, &last.data, last.first[*j]..last.first[*j + 1]);
+        }
+        for part in split(&finish(kept), PART_POINTS) {
+            on_part(part);
+        }
+    }
+    progress.stage("tracking", missing.len())?;
+    // New seeds in parts: (the part's streamlines, the first streamline of each of its seeds).
+    let mut parts: Vec<(TractData, Vec<usize>)> = vec![];
+    for block in missing.chunks(seeds_per_part(missing.len())) {
+        if progress.is_cancelled() {
+            return Err(CANCELLED.into());
+        }
+        let points: Vec<glam::DVec3> = block.iter().map(|&i| seeds[i]).collect();
+        let t = tracker.run_with_progress(&points, &|n| progress.advance(n));
+        let mut first = vec![0; block.len() + 1];
+        for &s in &t.seed_index {
+            first[s as usize + 1] += 1;
+        }
+        for k in 0..block.len() {
+            first[k + 1] += first[k];
+        }
+        let data = TractData { tractogram: Arc::new(t.tractogram), tensors: Some(Arc::new(t.tensors)) };
+        if let Some(on_part) = on_part {
+            on_part(data.clone());
+        }
+        parts.push((data, first));
+    }
+    // In seed order: each seed's streamlines from the last tracking or from its part.
+    let mut out = (Tractogram::new(), vec![]);
+    let mut first = Vec::with_capacity(seeds.len() + 1);
+    let mut new_seeds = parts.iter().flat_map(|(d, f)| (0..f.len() - 1).map(move |k| (d, f[k]..f[k + 1])));
+    for o in &old {
+        first.push(out.0.n_streamlines());
+        match (o, &last) {
+            (Some(j), Some(last)) => copy(&mut out, &last.data, last.first[*j]..last.first[*j + 1]),
+            _ => {
+                let (d, range) = new_seeds.next().ok_or("internal error: a seed without its tracking")?;
+                copy(&mut out, d, range);
+            }
+        }
+    }
+    first.push(out.0.n_streamlines());
+    let data = finish(out);
+    if let Some((key, files)) = reuse {
+        let seeds = seeds.iter().map(|s| seed_bits(*s)).collect::<Vec<_>>();
+        let bytes = tract_bytes(&data) + seeds.len() * 32;
+        cache.put(key, files, bytes, Arc::new(SeededTracks { seeds, first, data: data.clone() }));
+    }
+    Ok(data)
 }
 
 /// The files a tract source reads (for cache stamps).
@@ -571,8 +822,13 @@ fn tensor_grid(f: &Volume<f32>) -> ([usize; 3], glam::DMat4, Vec<[f64; 6]>) {
     (f.dims3(), f.world_from_voxel, grid)
 }
 
-fn load_tracts(cache: &DataCache, source: &TractSource, progress: &JobProgress) -> Result<TractData, String> {
-    use fascicle_core::tracking::{TensorInterpolation, TrackParams, Tracker, tensors_at};
+fn load_tracts(
+    cache: &DataCache,
+    source: &TractSource,
+    progress: &JobProgress,
+    on_part: Option<OnPart>,
+) -> Result<TractData, String> {
+    use fascicle_core::tracking::{TensorInterpolation, TrackParams, tensors_at};
     let field_of = |dims: [usize; 3], affine: glam::DMat4, tensors: Vec<[f64; 6]>| {
         let voxel = glam::DVec3::new(affine.x_axis.length(), affine.y_axis.length(), affine.z_axis.length());
         fascicle_core::tracking::TensorField::new(
@@ -600,11 +856,7 @@ fn load_tracts(cache: &DataCache, source: &TractSource, progress: &JobProgress) 
                 .map(|[x, y]| glam::DVec3::new(x as f64, y as f64, z as f64))
                 .collect();
             let params = TrackParams { step_mm: 1.0, ..TrackParams::default() };
-            progress.stage("tracking", seeds.len())?;
-            let tracks = Tracker::new(&field, a, params)
-                .map_err(|e| e.to_string())?
-                .run_with_progress(&seeds, &|n| progress.advance(n));
-            Ok(TractData { tractogram: Arc::new(tracks.tractogram), tensors: Some(Arc::new(tracks.tensors)) })
+            track(cache, None, &field, a, &params, &seeds, progress, on_part)
         }
         TractSource::File { path, tensors } => {
             progress.stage("reading streamlines", 0)?;
@@ -621,11 +873,10 @@ fn load_tracts(cache: &DataCache, source: &TractSource, progress: &JobProgress) 
             let (dims, affine, grid) = tensor_grid(&f);
             let seeds = seed_points(&grid, dims, affine, seeds)?;
             let field = field_of(dims, affine, grid)?;
-            progress.stage("tracking", seeds.len())?;
-            let tracks = Tracker::new(&field, affine, params.clone())
-                .map_err(|e| e.to_string())?
-                .run_with_progress(&seeds, &|n| progress.advance(n));
-            Ok(TractData { tractogram: Arc::new(tracks.tractogram), tensors: Some(Arc::new(tracks.tensors)) })
+            // Moving the seeds tracks only the seeds that the last tracking of this field did not have.
+            let key = format!("seeded:{tensors:?}:{params:?}");
+            let files = tract_files(source);
+            track(cache, Some((&key, &files)), &field, affine, params, &seeds, progress, on_part)
         }
         TractSource::Peaks { path, length } => {
             progress.stage("reading peaks", 0)?;
@@ -926,6 +1177,128 @@ mod tests {
         assert!(pts.iter().all(|p| (*p - glam::DVec3::splat(5.0)).abs().max_element() <= 1.25));
         let none = Seeds::Sphere { centre: [500.0, 0.0, 0.0], radius: 1.0, per_voxel: 1 };
         assert!(seed_points(&grid, dims, affine, &none).unwrap_err().contains("no seeds"));
+    }
+
+    /// Moving a seed sphere tracks only the seeds that are new: the job's tracking stage counts exactly the
+    /// seeds of the new sphere that the old one did not have, and the streamlines (points, offsets, tensors)
+    /// are bit for bit those of tracking the new sphere from nothing. Other parameters do not reuse.
+    #[test]
+    fn moving_seeds_tracks_only_the_new_ones() {
+        use crate::scene::Seeds;
+        use fascicle_core::tracking::TrackParams;
+        let source = |centre: [f32; 3], params: TrackParams| TractSource::Track {
+            tensors: TensorSource::Phantom,
+            seeds: Seeds::Sphere { centre, radius: 6.0, per_voxel: 8 },
+            params,
+        };
+        let (a, b) = ([28.0, 0.0, 0.0], [28.0, 2.0, 0.0]);
+        let cache = DataCache::default();
+        let first = tract_data(&cache, &source(a, TrackParams::default()), &JobProgress::default()).unwrap();
+        assert!(first.tractogram.n_streamlines() > 100, "{} streamlines", first.tractogram.n_streamlines());
+        let moved = JobProgress::default();
+        let reused = tract_data(&cache, &source(b, TrackParams::default()), &moved).unwrap();
+
+        // The seeds of each sphere, as the job computes them.
+        let f = tensor_field(&cache, &TensorSource::Phantom, &JobProgress::default()).unwrap().tensors;
+        let (dims, affine, grid) = tensor_grid(&f);
+        let seeds = |c| {
+            let s = Seeds::Sphere { centre: c, radius: 6.0, per_voxel: 8 };
+            seed_points(&grid, dims, affine, &s).unwrap().into_iter().map(seed_bits).collect::<Vec<_>>()
+        };
+        let (old, new) = (seeds(a), seeds(b));
+        let fresh: usize = new.iter().filter(|s| !old.contains(s)).count();
+        assert!(fresh > 0 && fresh < new.len() / 2, "{fresh} of {} seeds are new", new.len());
+        assert_eq!(moved.total.load(Ordering::Relaxed), fresh, "only the new seeds are tracked");
+
+        let scratch = tract_data(&DataCache::default(), &source(b, TrackParams::default()), &JobProgress::default());
+        let scratch = scratch.unwrap();
+        assert_eq!(reused.tractogram.offsets, scratch.tractogram.offsets);
+        assert_eq!(reused.tractogram.points, scratch.tractogram.points);
+        assert_eq!(reused.tensors, scratch.tensors);
+
+        // Another step length: nothing of the last tracking applies.
+        let other = JobProgress::default();
+        let params = TrackParams { step_mm: 0.25, ..TrackParams::default() };
+        tract_data(&cache, &source(b, params), &other).unwrap();
+        assert_eq!(other.total.load(Ordering::Relaxed), new.len());
+    }
+
+    /// Tracking delivers its streamlines in parts while it runs: the first part comes before the last seed is
+    /// tracked, and the parts in order are the whole result.
+    #[test]
+    fn tracking_delivers_parts_as_it_goes() {
+        let (cache, progress) = (DataCache::default(), JobProgress::default());
+        let delivered = Mutex::new(vec![]);
+        let on_part = |part: TractData| {
+            let done = progress.done.load(Ordering::Relaxed);
+            delivered.lock().unwrap().push((done, part));
+        };
+        let all = tract_data_in_parts(&cache, &TractSource::PhantomRk4 { seed_spacing: 1 }, &progress, Some(&on_part))
+            .unwrap();
+        let parts = delivered.into_inner().unwrap();
+        let total = progress.total.load(Ordering::Relaxed);
+        assert!(parts.len() >= 2 && total > 512, "{} parts of {total} seeds", parts.len());
+        assert!(parts[0].0 < total, "the first part came after {} of {total} seeds", parts[0].0);
+        let mut joined = Tractogram::new();
+        let mut tensors = vec![];
+        for (_, p) in &parts {
+            p.tractogram.iter().for_each(|s| joined.push(s));
+            tensors.extend_from_slice(p.tensors.as_deref().unwrap());
+        }
+        assert_eq!(joined.offsets, all.tractogram.offsets);
+        assert_eq!(joined.points, all.tractogram.points);
+        assert_eq!(Some(&tensors), all.tensors.as_deref());
+    }
+
+    /// A large tractogram goes to the layer in parts of whole streamlines of at most the limit (one
+    /// streamline longer than the limit is a part of its own), in order and complete; the parts of a tract
+    /// layer from a file are built by the job and the content says so.
+    #[test]
+    fn large_tractograms_are_split_into_parts() {
+        let mut t = Tractogram::new();
+        for k in 0..50usize {
+            let n = [1, 7, 30, 3][k % 4];
+            t.push(&(0..n).map(|i| Vec3::new(k as f32, i as f32, 0.0)).collect::<Vec<_>>());
+        }
+        let tensors: Vec<[f32; 6]> = (0..t.points.len()).map(|i| [i as f32; 6]).collect();
+        let data = TractData { tractogram: Arc::new(t.clone()), tensors: Some(Arc::new(tensors.clone())) };
+        let parts = split(&data, 20);
+        let mut joined = Tractogram::new();
+        let mut joined_tensors = vec![];
+        for p in &parts {
+            let n = p.tractogram.points.len();
+            assert!(n <= 20 || p.tractogram.n_streamlines() == 1, "a part of {n} points");
+            p.tractogram.iter().for_each(|s| joined.push(s));
+            joined_tensors.extend_from_slice(p.tensors.as_deref().unwrap());
+        }
+        assert_eq!((joined.offsets, joined.points), (t.offsets.clone(), t.points.clone()));
+        assert_eq!(joined_tensors, tensors);
+        assert!(split(&TractData { tractogram: Arc::new(Tractogram::new()), tensors: None }, 20).is_empty());
+
+        // Through a layer: a file of more than PART_POINTS points arrives in parts.
+        let mut big = Tractogram::new();
+        for k in 0..(PART_POINTS / 100 + 10) {
+            big.push(&(0..100).map(|i| Vec3::new(k as f32 * 0.01, i as f32 * 0.5, 0.0)).collect::<Vec<_>>());
+        }
+        let path = std::env::temp_dir().join(format!("fascicle-parts-{}.tck", std::process::id()));
+        fascicle_core::io::tck::write(&path, &big, &[]).unwrap();
+        let kind = LayerKind::Tracts {
+            source: TractSource::File { path: path.clone(), tensors: None },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: vec![],
+        };
+        let progress = JobProgress::default();
+        let content = build(&kind, &DataCache::default(), &progress).unwrap();
+        assert!(matches!(content, Content::Streamed { items } if items == big.n_streamlines()));
+        let mut streamlines = 0;
+        while let Some(part) = progress.parts.pop() {
+            let Content::Tracts(p) = part else { panic!("a part that is not tracts") };
+            assert!(p.tractogram.points.len() <= PART_POINTS);
+            streamlines += p.tractogram.n_streamlines();
+        }
+        assert_eq!(streamlines, big.n_streamlines());
+        std::fs::remove_file(path).ok();
     }
 
     /// A tensor file in FSL's or MRtrix3's element order reads as the same field as DIPY's.

@@ -72,6 +72,8 @@ pub struct LayerJob {
     pub progress: Arc<JobProgress>,
     structure: LayerKind,
     task: Task<Result<Content, String>>,
+    /// Parts of its content shown so far ([`stream_parts`]): the layer's old content is gone.
+    pub parts_shown: usize,
 }
 
 /// Background tasks placing glyphs of neighbouring slices ([`crate::jobs::prefetch_neighbours`]) still
@@ -90,12 +92,14 @@ impl Prefetches {
 pub struct RetryLayers(pub Vec<usize>);
 
 /// What layer syncing did since the app started: `jobs` builds started, `restyles` in-place updates of a
-/// layer's settings, `reindexed` layers moved without a rebuild.
+/// layer's settings, `reindexed` layers moved without a rebuild, `parts` parts of content shown as they came.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LayerSyncCounts {
     pub jobs: u64,
     pub restyles: u64,
     pub reindexed: u64,
+    /// Parts of content shown while their jobs ran ([`crate::jobs::Parts`]).
+    pub parts: u64,
 }
 
 /// Settings edits of layers whose content stays, for [`restyle_layers`]: (index, before, after).
@@ -139,7 +143,7 @@ impl Plugin for ScenePlugin {
                 Update,
                 (
                     (sync_layers.run_if(scene_or_retries_changed), restyle_layers).chain().in_set(SceneSystems::Sync),
-                    (finish_jobs, report_errors, report_layer_data).chain().in_set(SceneSystems::Finish),
+                    (stream_parts, finish_jobs, report_errors, report_layer_data).chain().in_set(SceneSystems::Finish),
                 ),
             );
     }
@@ -255,8 +259,42 @@ fn start_job(
     let progress = Arc::new(JobProgress::default());
     let (p, c, kind) = (progress.clone(), cache.clone(), structure.clone());
     let task = AsyncComputeTaskPool::get().spawn(async move { build(&kind, &c, &p) });
-    commands.entity(layer).insert((LayerJob { progress, structure, task }, LayerStatus::Loading));
+    commands.entity(layer).insert((LayerJob { progress, structure, task, parts_shown: 0 }, LayerStatus::Loading));
     counts.jobs += 1;
+}
+
+/// Shows the parts that running jobs delivered ([`crate::jobs::Parts`]: streamlines as they are tracked, a
+/// large tractogram part by part), one part per layer and frame, so no frame uploads more than one part. The
+/// first part of a job replaces the layer's old content.
+fn stream_parts(
+    mut commands: Commands,
+    mut layers: Query<(Entity, &LayerEntity, &SceneLayer, &mut LayerJob)>,
+    mut counts: ResMut<LayerSyncCounts>,
+    mut upload: Uploads,
+) {
+    for (e, le, layer, mut job) in &mut layers {
+        if job.progress.is_cancelled() {
+            continue;
+        }
+        let Some(part) = job.progress.parts.pop() else { continue };
+        if job.parts_shown == 0 {
+            clear_content(&mut commands, e, le.0, &layer.spec);
+        }
+        job.parts_shown += 1;
+        counts.parts += 1;
+        if let Err(message) = upload.spawn(&mut commands, e, le.0, &layer.spec, part) {
+            commands.entity(e).insert(LayerStatus::Failed(message));
+        }
+    }
+}
+
+/// Removes what layer `e` shows and, for a tract layer, gives it its ROIs again (children of the layer: they
+/// act on all its tract sets).
+fn clear_content(commands: &mut Commands, e: Entity, index: usize, spec: &LayerSpec) {
+    commands.entity(e).despawn_related::<Children>();
+    if let LayerKind::Tracts { rois, .. } = &spec.kind {
+        spawn_rois(commands, rois, index, e);
+    }
 }
 
 /// Swaps finished jobs' content in: the layer's old content goes, the new is uploaded with the layer's current
@@ -272,15 +310,26 @@ fn finish_jobs(
         let result = if job.progress.is_cancelled() {
             Err(CANCELLED.to_string())
         } else {
+            // A finished job has delivered all its parts: it ends when they are all shown.
+            if !job.task.is_finished() || !job.progress.parts.is_empty() {
+                continue;
+            }
             match check_ready(&mut job.task) {
                 Some(r) => r,
                 None => continue,
             }
         };
-        commands.entity(e).remove::<LayerJob>().despawn_related::<Children>();
+        commands.entity(e).remove::<LayerJob>();
+        // Streamed content is in place already (its first part cleared the old); anything else replaces it.
+        if !matches!(result, Ok(Content::Streamed { .. })) || job.parts_shown == 0 {
+            clear_content(&mut commands, e, le.0, &layer.spec);
+        }
         let status = match result.and_then(|content| {
             let items = content.items();
-            upload.spawn(&mut commands, e, le.0, &layer.spec, content).map(|()| items)
+            match content {
+                Content::Streamed { .. } => Ok(items),
+                content => upload.spawn(&mut commands, e, le.0, &layer.spec, content).map(|()| items),
+            }
         }) {
             Ok(items) => {
                 layer.built = Some(job.structure.clone());
@@ -335,16 +384,14 @@ impl Uploads<'_> {
                 render.colouring.apply(&mut splats);
                 spawn_splats(c, m, &mut self.splat_materials, b, &splats, render)
             }
-            (Content::Tracts(mut prepared), LayerKind::Tracts { render, rois, .. }) => {
+            (Content::Tracts(mut prepared), LayerKind::Tracts { render, .. }) => {
                 // The job built the tubes from the layer's structure (scale, colour); the per-pixel knobs are
                 // the layer's settings now.
                 if let PreparedGeometry::Tubes { settings, .. } = &mut prepared.geometry {
                     *settings = *render;
                 }
                 let (tubes, meshes) = (&mut self.tube_materials, &mut self.mesh_materials);
-                let set = spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity);
-                spawn_rois(c, rois, index, set);
-                set
+                spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity)
             }
             (Content::Volume { volume, texture }, LayerKind::Volume { render, .. }) => {
                 let depth = self.depth.as_deref().ok_or("the volume plugin has not started")?;
@@ -386,10 +433,11 @@ impl Uploads<'_> {
     }
 }
 
-/// A tract layer's ROIs, as children of its set: they act on this layer only and go when it goes.
-fn spawn_rois(commands: &mut Commands, rois: &[fascicle_core::roi::Roi], layer: usize, set: Entity) {
+/// A tract layer's ROIs, as children of the layer's entity: they act on its tract sets only (every part of
+/// its streamlines) and go when it goes.
+fn spawn_rois(commands: &mut Commands, rois: &[fascicle_core::roi::Roi], index: usize, layer: Entity) {
     for r in rois {
-        commands.spawn((TractRoi(*r), LayerEntity(layer), ChildOf(set)));
+        commands.spawn((TractRoi(*r), LayerEntity(index), ChildOf(layer)));
     }
 }
 
@@ -406,6 +454,7 @@ fn restyle_layers(
     tensor_sets: Query<(&TensorGlyphSet, &LayerEntity)>,
     tract_sets: Query<TractParts, With<TractSet>>,
     rois: Query<(Entity, &LayerEntity), With<TractRoi>>,
+    layer_entities: Query<(Entity, &LayerEntity), With<SceneLayer>>,
     volume_sets: Query<(&VolumeSet, &LayerEntity)>,
     parts: Query<(&MeshMaterial3d<StandardMaterial>, &LayerEntity)>,
     mut upload: Uploads,
@@ -453,19 +502,21 @@ fn restyle_layers(
                 }
             }
             (LayerKind::Tracts { render: a, rois: ra, .. }, LayerKind::Tracts { render, rois: rb, .. }) => {
-                for (set, tubes, _, _) in tract_sets.iter().filter(|(.., le)| le.0 == i) {
+                for (_, tubes, _, _) in tract_sets.iter().filter(|(.., le)| le.0 == i) {
                     if a != render
                         && let Some(tubes) = tubes
                         && let Some(mut m) = tube_materials.get_mut(&tubes.material)
                     {
                         m.params = render.into();
                     }
-                    if ra != rb {
-                        for (e, _) in rois.iter().filter(|(_, le)| le.0 == i) {
-                            commands.entity(e).despawn();
-                        }
-                        spawn_rois(&mut commands, rb, i, set);
+                }
+                if ra != rb
+                    && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)
+                {
+                    for (e, _) in rois.iter().filter(|(_, le)| le.0 == i) {
+                        commands.entity(e).despawn();
                     }
+                    spawn_rois(&mut commands, rb, i, layer);
                 }
             }
             _ => {}

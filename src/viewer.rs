@@ -28,7 +28,7 @@ use fascicle_render::FascicleRenderPlugin;
 use crate::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin};
 use crate::panels::LayerPanels;
 use crate::render::BACKGROUND;
-use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene};
+use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene, Seeds, TractSource};
 use fascicle_core::roi::{RoiShape, SegmentGrid, select};
 use fascicle_render::layer::LayerStatus;
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
@@ -93,6 +93,8 @@ struct UiState {
     save_selection: Option<usize>,
     /// A dropped file whose content is ambiguous, and the layers it could open as: the panel asks.
     ask: Option<(PathBuf, Vec<LayerSpec>)>,
+    /// The panel asked for the file dialog.
+    open_dialog: bool,
 }
 
 /// Builds the starting scene from command-line files: scene files replace the scene, data files add layers.
@@ -173,6 +175,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .insert_resource(ActiveScene(scene))
     .init_resource::<LayerPanels>()
     .init_resource::<RoiDrag>()
+    .init_resource::<FileDialog>()
     .insert_resource(orbit)
     .insert_resource(UiState {
         message: (!errors.is_empty()).then(|| errors.join("\n")),
@@ -206,7 +209,9 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             pick_glyph.run_if(not(egui_wants_any_pointer_input)),
             keys.run_if(not(egui_wants_any_keyboard_input)),
             dropped_files,
+            file_dialog,
             save_selection,
+            draw_seed_spheres.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>),
             apply_orbit.run_if(resource_changed::<Orbit>),
         ),
     )
@@ -249,12 +254,47 @@ fn cursor_ray(window: &Window, (cam, tf): (&Camera, &GlobalTransform)) -> Option
     cam.viewport_to_world(tf, cursor - offset).ok()
 }
 
-/// An ROI held by a Shift + left-drag: which one, where the cursor ray first met it, the view direction
+/// What a Shift + left-drag can hold in a tract layer: one of its ROIs, or the sphere its tracking is seeded
+/// from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Grip {
+    Roi(usize),
+    Seeds,
+}
+
+/// The shapes a tract layer offers to a drag.
+fn grips(kind: &LayerKind) -> Vec<(Grip, RoiShape)> {
+    let LayerKind::Tracts { rois, source, .. } = kind else { return vec![] };
+    let mut out: Vec<(Grip, RoiShape)> = rois.iter().enumerate().map(|(k, r)| (Grip::Roi(k), r.shape)).collect();
+    if let TractSource::Track { seeds: Seeds::Sphere { centre, radius, .. }, .. } = source {
+        out.push((Grip::Seeds, RoiShape::Sphere { centre: *centre, radius: *radius }));
+    }
+    out
+}
+
+/// Moves the gripped shape of a tract layer to `shape`; false when the layer has no such grip.
+fn set_grip(kind: &mut LayerKind, grip: Grip, shape: RoiShape) -> bool {
+    let LayerKind::Tracts { rois, source, .. } = kind else { return false };
+    match (grip, source, shape) {
+        (Grip::Roi(k), _, _) => rois.get_mut(k).map(|r| r.shape = shape).is_some(),
+        (
+            Grip::Seeds,
+            TractSource::Track { seeds: Seeds::Sphere { centre, radius, .. }, .. },
+            RoiShape::Sphere { centre: c, radius: r },
+        ) => {
+            (*centre, *radius) = (c, r);
+            true
+        }
+        _ => false,
+    }
+}
+
+/// A shape held by a Shift + left-drag: which one, where the cursor ray first met it, the view direction
 /// then, and its shape then. The drag moves it in the plane through that point facing the camera.
 #[derive(Clone, Copy, Debug)]
 struct RoiGrab {
     layer: usize,
-    roi: usize,
+    grip: Grip,
     hit: Vec3,
     normal: Vec3,
     shape: RoiShape,
@@ -263,24 +303,18 @@ struct RoiGrab {
 #[derive(Resource, Default)]
 struct RoiDrag(Option<RoiGrab>);
 
-/// The ROI of a visible tract layer that a ray meets first: (layer, ROI index, distance).
-fn pick_roi(scene: &Scene, o: Vec3, d: Vec3) -> Option<(usize, usize, f32)> {
+/// The ROI or seed sphere of a visible tract layer that a ray meets first: (layer, what, distance).
+fn pick_roi(scene: &Scene, o: Vec3, d: Vec3) -> Option<(usize, Grip, f32)> {
     scene
         .layers
         .iter()
         .enumerate()
         .filter(|(_, l)| l.visible)
-        .filter_map(|(i, l)| match &l.kind {
-            LayerKind::Tracts { rois, .. } => Some((i, rois)),
-            _ => None,
-        })
-        .flat_map(|(i, rois)| {
-            rois.iter().enumerate().filter_map(move |(k, r)| r.shape.ray_hit(o, d).map(|t| (i, k, t)))
-        })
+        .flat_map(|(i, l)| grips(&l.kind).into_iter().filter_map(move |(g, s)| s.ray_hit(o, d).map(|t| (i, g, t))))
         .min_by(|a, b| a.2.total_cmp(&b.2))
 }
 
-/// The grabbed ROI moved by where the cursor ray (`o`, `d`) meets the grab plane; None when the ray runs
+/// The grabbed shape moved by where the cursor ray (`o`, `d`) meets the grab plane; None when the ray runs
 /// along the plane or meets it behind the camera.
 fn dragged_shape(g: &RoiGrab, o: Vec3, d: Vec3) -> Option<RoiShape> {
     let denom = d.dot(g.normal);
@@ -291,8 +325,9 @@ fn dragged_shape(g: &RoiGrab, o: Vec3, d: Vec3) -> Option<RoiShape> {
     (t > 0.0).then(|| g.shape.translated(o + d * t - g.hit))
 }
 
-/// Shift + left-drag on an ROI's outline moves it (in the plane facing the camera); the tracts re-select as
-/// it moves. Writes the scene only when the ROI actually moved.
+/// Shift + left-drag on an ROI's outline moves it (in the plane facing the camera): the tracts re-select as
+/// it moves. On a seed sphere it moves the seeds: the layer tracks again, only from the seeds that are new.
+/// Writes the scene only when the shape actually moved.
 fn drag_roi(
     buttons: Res<ButtonInput<MouseButton>>,
     keys: Res<ButtonInput<KeyCode>>,
@@ -308,24 +343,31 @@ fn drag_roi(
     let Some(ray) = cursor_ray(&window, *camera) else { return };
     let (o, d) = (ray.origin, ray.direction.as_vec3());
     if buttons.just_pressed(MouseButton::Left) && keys.any_pressed([KeyCode::ShiftLeft, KeyCode::ShiftRight]) {
-        drag.0 = pick_roi(&scene.0, o, d).and_then(|(layer, roi, t)| match &scene.0.layers[layer].kind {
-            LayerKind::Tracts { rois, .. } => {
-                let normal = camera.1.forward().as_vec3();
-                Some(RoiGrab { layer, roi, hit: o + d * t, normal, shape: rois[roi].shape })
-            }
-            _ => None,
+        drag.0 = pick_roi(&scene.0, o, d).and_then(|(layer, grip, t)| {
+            let shape = grips(&scene.0.layers[layer].kind).into_iter().find(|(g, _)| *g == grip)?.1;
+            Some(RoiGrab { layer, grip, hit: o + d * t, normal: camera.1.forward().as_vec3(), shape })
         });
     }
     let Some(g) = drag.0 else { return };
     let Some(shape) = dragged_shape(&g, o, d) else { return };
-    let current = match scene.0.layers.get(g.layer).map(|l| &l.kind) {
-        Some(LayerKind::Tracts { rois, .. }) => rois.get(g.roi).map(|r| r.shape),
-        _ => None,
-    };
-    if current.is_some_and(|c| c != shape)
-        && let LayerKind::Tracts { rois, .. } = &mut scene.0.layers[g.layer].kind
-    {
-        rois[g.roi].shape = shape;
+    let current = scene.0.layers.get(g.layer).and_then(|l| grips(&l.kind).into_iter().find(|(k, _)| *k == g.grip));
+    if current.is_some_and(|(_, c)| c != shape) {
+        set_grip(&mut scene.0.layers[g.layer].kind, g.grip, shape);
+    }
+}
+
+/// Outlines the seed spheres of visible tracking layers (yellow; ROIs are drawn by the tracts plugin).
+fn draw_seed_spheres(mut gizmos: Gizmos, scene: Res<ActiveScene>) {
+    for l in scene.0.layers.iter().filter(|l| l.visible) {
+        for (grip, shape) in grips(&l.kind) {
+            if let (Grip::Seeds, RoiShape::Sphere { centre, radius }) = (grip, shape) {
+                gizmos.sphere(
+                    Isometry3d::from_translation(Vec3::from(centre)),
+                    radius,
+                    Color::linear_rgb(1.0, 0.85, 0.1),
+                );
+            }
+        }
     }
 }
 
@@ -437,24 +479,73 @@ fn dropped_files(
 ) {
     for ev in events.read() {
         if let FileDragAndDrop::DroppedFile { path_buf, .. } = ev {
-            if let Ok((first, others)) = Scene::layer_choices(path_buf)
-                && !others.is_empty()
-            {
-                ui.ask = Some((path_buf.clone(), std::iter::once(first).chain(others).collect()));
-                continue;
-            }
-            match scene.0.open_file(path_buf) {
-                // The scene's camera frames the new layer: the view follows.
-                Ok(()) => *orbit = Orbit::from_spec(&scene.0.camera),
-                Err(e) => ui.message = Some(e),
-            }
+            open_path(path_buf, &mut scene, &mut ui, &mut orbit);
         }
     }
 }
 
+/// Opens a file as a new layer (or asks what it is, when its content does not tell); the camera frames it.
+fn open_path(path: &std::path::Path, scene: &mut ActiveScene, ui: &mut UiState, orbit: &mut Orbit) {
+    if let Ok((first, others)) = Scene::layer_choices(path)
+        && !others.is_empty()
+    {
+        ui.ask = Some((path.to_path_buf(), std::iter::once(first).chain(others).collect()));
+        return;
+    }
+    match scene.0.open_file(path) {
+        // The scene's camera frames the new layer: the view follows.
+        Ok(()) => *orbit = Orbit::from_spec(&scene.0.camera),
+        Err(e) => ui.message = Some(e),
+    }
+}
+
+/// The system's file dialog, open: it runs on its own thread (the window keeps drawing) and gives the files
+/// chosen, or none when cancelled.
+#[derive(Resource, Default)]
+struct FileDialog(Option<bevy::tasks::Task<Option<Vec<PathBuf>>>>);
+
+/// Opens the file dialog when the panel asked, and the files chosen in it when it closes.
+fn file_dialog(
+    mut dialog: ResMut<FileDialog>,
+    mut scene: ResMut<ActiveScene>,
+    mut ui: ResMut<UiState>,
+    mut orbit: ResMut<Orbit>,
+) {
+    if std::mem::take(&mut ui.open_dialog) && dialog.0.is_none() {
+        let pick = rfd::AsyncFileDialog::new()
+            .set_title("Open diffusion MRI files")
+            .add_filter("images, tractograms, scenes", OPENABLE)
+            .add_filter("all files", &["*"])
+            .set_directory(std::env::current_dir().unwrap_or_default())
+            .pick_files();
+        let task = bevy::tasks::IoTaskPool::get()
+            .spawn(async move { pick.await.map(|files| files.iter().map(|f| f.path().to_path_buf()).collect()) });
+        dialog.0 = Some(task);
+    }
+    let Some(task) = dialog.0.as_mut() else { return };
+    let Some(chosen) = bevy::tasks::futures::check_ready(task) else { return };
+    dialog.0 = None;
+    for path in chosen.unwrap_or_default() {
+        if path.extension().is_some_and(|e| e == "ron") {
+            match Scene::load(&path) {
+                Ok(s) => {
+                    *orbit = Orbit::from_spec(&s.camera);
+                    scene.0 = s;
+                }
+                Err(e) => ui.message = Some(e),
+            }
+        } else {
+            open_path(&path, &mut scene, &mut ui, &mut orbit);
+        }
+    }
+}
+
+/// File name endings the open dialog lists (the last part: `.nii.gz` is `gz`).
+const OPENABLE: &[&str] = &["nii", "gz", "mif", "trk", "tck", "ron"];
+
 /// Writes the streamlines that a tract layer's ROIs select to `UiState::selection_path`, when the panel
-/// asked: from the layer's tract set, or, when it has none (its data failed to load), selected again from the
-/// layer's source.
+/// asked: from the layer's tract set, or, when it has none (its data failed to load) or several (parts), selected
+/// again from the layer's source (cached), in the source's order.
 fn save_selection(
     mut ui: ResMut<UiState>,
     scene: Res<ActiveScene>,
@@ -463,9 +554,11 @@ fn save_selection(
 ) {
     let Some(layer) = ui.save_selection.take() else { return };
     let path = PathBuf::from(ui.selection_path.trim());
-    let selected = match sets.iter().find(|(_, _, le)| le.0 == layer) {
-        Some((set, selection, _)) => Ok((selected_tractogram(set, selection), set.tractogram.n_streamlines())),
-        None => match scene.0.layers.get(layer).map(|l| &l.kind) {
+    let layer_sets: Vec<_> = sets.iter().filter(|(_, _, le)| le.0 == layer).collect();
+    let selected = match layer_sets[..] {
+        [(set, selection, _)] => Ok((selected_tractogram(set, selection), set.tractogram.n_streamlines())),
+        // None, or the streamlines in parts (as they were tracked): from the source, in its order.
+        _ => match scene.0.layers.get(layer).map(|l| &l.kind) {
             Some(LayerKind::Tracts { source, rois, .. }) => {
                 crate::jobs::tract_data(&cache, source, &Default::default()).map(|d| {
                     let t = &d.tractogram;
@@ -572,9 +665,14 @@ fn panel(
         }
         edited.layers.append(&mut added);
         ui.separator();
-        if ui.button("Reset view (R)").clicked() {
-            *orbit = Orbit::from_spec(&edited.camera);
-        }
+        ui.horizontal(|ui| {
+            if ui.button("Open files…").clicked() {
+                ui_state.open_dialog = true;
+            }
+            if ui.button("Reset view (R)").clicked() {
+                *orbit = Orbit::from_spec(&edited.camera);
+            }
+        });
         ui.horizontal(|ui| {
             ui.text_edit_singleline(&mut ui_state.scene_path);
         });
@@ -600,7 +698,7 @@ fn panel(
         if let Some(m) = &ui_state.message {
             ui.label(m);
         }
-        ui.label("Drop NIfTI, .mif, .trk/.tck or .ron files on the window.");
+        ui.label("Open or drop NIfTI, .mif, .trk/.tck or .ron files on the window.");
         ui.allocate_rect(ui.available_rect_before_wrap(), egui::Sense::hover());
     });
     if let Some((path, choices)) = ui_state.ask.clone() {
@@ -830,13 +928,13 @@ mod tests {
         };
         // Looking down -z from z = 40: the hidden layer's sphere is first along the ray but not pickable.
         let (o, d) = (Vec3::new(0.0, 0.0, 40.0), -Vec3::Z);
-        assert_eq!(pick_roi(&scene, o, d), Some((0, 1, 28.0)));
-        assert_eq!(pick_roi(&scene, Vec3::new(2.5, 2.5, 40.0), d), Some((0, 0, 37.0)));
+        assert_eq!(pick_roi(&scene, o, d), Some((0, Grip::Roi(1), 28.0)));
+        assert_eq!(pick_roi(&scene, Vec3::new(2.5, 2.5, 40.0), d), Some((0, Grip::Roi(0), 37.0)));
         assert_eq!(pick_roi(&scene, Vec3::new(10.0, 0.0, 40.0), d), None);
 
         // Grab the sphere at its top (z = 12) and drag the cursor: a ray from the eye through a point 3 mm
         // to the right and 1 mm up in the grab plane moves the centre by exactly that.
-        let g = RoiGrab { layer: 0, roi: 1, hit: o + d * 28.0, normal: d, shape: near };
+        let g = RoiGrab { layer: 0, grip: Grip::Roi(1), hit: o + d * 28.0, normal: d, shape: near };
         let eye = Vec3::new(0.0, 0.0, 40.0);
         let target = Vec3::new(3.0, 1.0, 12.0);
         let moved = dragged_shape(&g, eye, (target - eye).normalize()).unwrap();
@@ -844,6 +942,41 @@ mod tests {
         assert!((Vec3::from(centre) - Vec3::new(3.0, 1.0, 10.0)).length() < 1e-5 && radius == 2.0, "{centre:?}");
         // A ray along the plane does not move it.
         assert_eq!(dragged_shape(&g, eye, Vec3::X), None);
+    }
+
+    /// A tracking layer's seed sphere is picked and dragged like an ROI: the drag moves the sphere's centre in
+    /// the scene (its radius and seed count stay); grid seeds offer nothing to drag.
+    #[test]
+    fn seed_spheres_are_picked_and_dragged() {
+        use crate::scene::TensorSource;
+        let track = |seeds: Seeds| LayerSpec {
+            name: "tracking".into(),
+            visible: true,
+            opacity: 1.0,
+            kind: LayerKind::Tracts {
+                source: TractSource::Track { tensors: TensorSource::Phantom, seeds, params: Default::default() },
+                mode: crate::scene::TractMode::Tubes,
+                render: Default::default(),
+                rois: vec![],
+            },
+        };
+        let sphere = Seeds::Sphere { centre: [28.0, 0.0, 0.0], radius: 6.0, per_voxel: 8 };
+        let mut scene = Scene { layers: vec![track(Seeds::default()), track(sphere)], camera: CameraSpec::default() };
+        assert!(grips(&scene.layers[0].kind).is_empty());
+        let (o, d) = (Vec3::new(28.0, 0.0, 40.0), -Vec3::Z);
+        assert_eq!(pick_roi(&scene, o, d), Some((1, Grip::Seeds, 34.0)));
+        let shape = grips(&scene.layers[1].kind)[0].1;
+        let g = RoiGrab { layer: 1, grip: Grip::Seeds, hit: o + d * 34.0, normal: d, shape };
+        let target = Vec3::new(30.0, 4.0, 6.0);
+        let moved = dragged_shape(&g, o, (target - o).normalize()).unwrap();
+        assert!(set_grip(&mut scene.layers[1].kind, Grip::Seeds, moved));
+        let LayerKind::Tracts { source: TractSource::Track { seeds, .. }, .. } = &scene.layers[1].kind else {
+            unreachable!()
+        };
+        let Seeds::Sphere { centre, radius, per_voxel } = seeds else { panic!("{seeds:?}") };
+        assert!((Vec3::from(*centre) - Vec3::new(30.0, 4.0, 0.0)).length() < 1e-4, "{centre:?}");
+        assert_eq!((*radius, *per_voxel), (6.0, 8));
+        assert!(!set_grip(&mut scene.layers[0].kind, Grip::Seeds, moved), "grid seeds have no sphere");
     }
 
     /// "Save selection" writes what the ROIs select: from a tract set's own selection flags, or, for a layer

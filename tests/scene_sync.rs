@@ -655,3 +655,75 @@ fn track_density_slices_render() {
         (grey.iter().filter(|g| **g < background / 2).count(), grey.iter().filter(|g| **g > 60).count());
     assert!(background > 20 && empty > 200 && bright > 200, "background {background}: {empty} empty, {bright} bright");
 }
+
+/// Tracking streams into its layer: the layer shows its first streamlines while the job still runs (one
+/// part per frame), and in the end its parts hold every streamline the job tracked, in as many tract sets as
+/// parts were shown. The layer's include ROI (a child of the layer) selects in every part what it selects in
+/// the whole tractogram.
+#[test]
+fn tracking_streams_into_its_layer() {
+    use fascicle::jobs::tract_data;
+    use fascicle::layers::{LayerEntity, LayerJob, LayerSyncCounts};
+    use fascicle::scene::{CameraSpec, LayerSpec, Seeds, TensorSource, TractMode, TractSource};
+    use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
+    use fascicle_tracts::{TractSelection, TractSet};
+    if headless::gpu_tests_skipped() {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+        return;
+    }
+    let source = TractSource::Track {
+        tensors: TensorSource::Phantom,
+        seeds: Seeds::Grid { spacing: 2, min_fa: 0.3 },
+        params: Default::default(),
+    };
+    let rois = vec![Roi { shape: RoiShape::Sphere { centre: [28.0, 0.0, 0.0], radius: 6.0 }, mode: RoiMode::Include }];
+    let layer = LayerSpec {
+        name: "tracking".into(),
+        visible: true,
+        opacity: 1.0,
+        kind: LayerKind::Tracts {
+            source: source.clone(),
+            mode: TractMode::Tubes,
+            render: default(),
+            rois: rois.clone(),
+        },
+    };
+    let mut app = headless::headless_app();
+    let empty = Scene { layers: vec![], camera: CameraSpec::default() };
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(empty));
+    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    let parts0 = app.world().resource::<LayerSyncCounts>().parts;
+    app.world_mut().resource_mut::<ActiveScene>().0.layers.push(layer);
+    let mut shown_while_running = 0;
+    for _ in 0..100_000 {
+        app.update();
+        let world = app.world_mut();
+        let running = world.query::<&LayerJob>().iter(world).next().is_some();
+        let sets = world.query::<&TractSet>().iter(world).count();
+        if running && sets > 0 {
+            shown_while_running += 1;
+        }
+        if !running {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    settle(&mut app);
+    assert!(app.world().resource::<LayerErrors>().0.is_empty(), "{:?}", app.world().resource::<LayerErrors>().0);
+    assert!(shown_while_running > 0, "no streamlines showed before the job ended");
+
+    let whole = tract_data(app.world().resource::<DataCache>(), &source, &JobProgress::default()).unwrap().tractogram;
+    let mut q = app.world_mut().query::<(&TractSet, &TractSelection, &LayerEntity)>();
+    let sets: Vec<(usize, usize)> = q
+        .iter(app.world())
+        .filter(|(.., le)| le.0 == 0)
+        .map(|(s, sel, _)| (s.tractogram.n_streamlines(), sel.0.iter().filter(|x| **x).count()))
+        .collect();
+    let parts = app.world().resource::<LayerSyncCounts>().parts - parts0;
+    assert!(sets.len() >= 2 && sets.len() as u64 == parts, "{} sets, {parts} parts shown", sets.len());
+    assert_eq!(sets.iter().map(|s| s.0).sum::<usize>(), whole.n_streamlines());
+    let grid = SegmentGrid::new(&whole.points, &whole.offsets, 4.0);
+    let expected = select(&whole.points, &whole.offsets, &grid, &rois).iter().filter(|x| **x).count();
+    assert!(expected > 0 && expected < whole.n_streamlines(), "{expected} selected");
+    assert_eq!(sets.iter().map(|s| s.1).sum::<usize>(), expected);
+}

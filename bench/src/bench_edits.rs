@@ -15,7 +15,9 @@ use std::time::Instant;
 
 use bevy::prelude::*;
 use fascicle::layers::{ActiveScene, LayerJob, ScenePlugin};
-use fascicle::scene::{LayerKind, LayerSpec, Scene, ShSource, SliceAxis, TractMode, TractSource, VolumeSource};
+use fascicle::scene::{
+    LayerKind, LayerSpec, Scene, Seeds, ShSource, SliceAxis, TensorSource, TractMode, TractSource, VolumeSource,
+};
 use fascicle_core::roi::{Roi, RoiMode, RoiShape};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
@@ -150,6 +152,21 @@ fn measure(name: &'static str, scene: Scene, drags: usize) -> Result<Vec<Row>, S
             }
         })?;
     }
+    let seeded = layer_of(&scene, |k| {
+        matches!(k, LayerKind::Tracts { source: TractSource::Track { seeds: Seeds::Sphere { .. }, .. }, .. })
+    });
+    if let Some(t) = seeded {
+        // The seed sphere one voxel (2 mm) along y: the seeds it keeps reuse their streamlines, the new ones
+        // are tracked.
+        time(&mut app, "seed_roi_move", &|s| {
+            if let LayerKind::Tracts {
+                source: TractSource::Track { seeds: Seeds::Sphere { centre, .. }, .. }, ..
+            } = &mut s.layers[t].kind
+            {
+                centre[1] += 2.0;
+            }
+        })?;
+    }
     if let Some(t) = tracts {
         // Drag the first sphere ROI by 0.5 mm steps: one row, the median step.
         wait_for_prefetch(&mut app);
@@ -271,6 +288,25 @@ fn large_scene(dir: &Path) -> Result<Scene, String> {
     Ok(scene)
 }
 
+/// Tracking of the phantom's tensors from a seed sphere on its ring (6 mm, 8 seeds per voxel), as hyperstreamlines.
+fn seeded_tracking() -> LayerSpec {
+    LayerSpec {
+        name: "seeded tracking".into(),
+        visible: true,
+        opacity: 1.0,
+        kind: LayerKind::Tracts {
+            source: TractSource::Track {
+                tensors: TensorSource::Phantom,
+                seeds: Seeds::Sphere { centre: [28.0, 0.0, 0.0], radius: 6.0, per_voxel: 8 },
+                params: Default::default(),
+            },
+            mode: TractMode::Tubes,
+            render: Default::default(),
+            rois: vec![],
+        },
+    }
+}
+
 /// Runs both scenes (the large one unless `quick`), prints a Markdown table and writes the CSV.
 pub fn run(quick: bool, csv: Option<&Path>, data_dir: Option<PathBuf>) -> Result<(), String> {
     // The default scene's glyph slice is "the middle one" (12 of 24): named, so that a step goes to 11.
@@ -280,10 +316,12 @@ pub fn run(quick: bool, csv: Option<&Path>, data_dir: Option<PathBuf>) -> Result
             *index = Some(12);
         }
     }
+    default.layers.push(seeded_tracking());
     let mut rows = measure("default", default, 20)?;
     if !quick {
         let dir = data_dir.unwrap_or_else(|| std::env::temp_dir().join("fascicle-bench-edits"));
         let mut large = large_scene(&dir)?;
+        large.layers.push(seeded_tracking());
         // Diagnostics: EDITS_LAYERS=0,2 keeps only those layers of the large scene.
         if let Ok(keep) = std::env::var("EDITS_LAYERS") {
             let keep: Vec<usize> = keep.split(',').filter_map(|k| k.trim().parse().ok()).collect();

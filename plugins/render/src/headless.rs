@@ -430,7 +430,16 @@ pub fn capture_with_depth(
             .id()
     });
     let (mut got_colour, mut got_depth) = (None, None);
-    for _ in 0..60 {
+    // The readback arrives when the GPU has finished the frame and mapped the buffer: on a software rasteriser
+    // sharing the CPU with other work that can take many quick frames, so the wait is bounded in time (at
+    // least 60 frames and 60 seconds), not in frames alone.
+    let start = std::time::Instant::now();
+    let mut frames = 0;
+    while frames < 60 || start.elapsed() < std::time::Duration::from_secs(60) {
+        frames += 1;
+        if frames > 60 {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
         app.update();
         if got_colour.is_none() {
             got_colour = colour.lock().ok().and_then(|mut s| s.take());
@@ -449,7 +458,7 @@ pub fn capture_with_depth(
             return Ok((to_capture(img)?, depth_map));
         }
     }
-    Err(HeadlessError::Timeout("no screenshot (or depth readback) arrived within 60 frames".into()))
+    Err(HeadlessError::Timeout(format!("no screenshot (or depth readback) arrived within {frames} frames (60 s)")))
 }
 
 fn to_depth_map(d: &DepthCopy, bytes: &[u8]) -> Result<DepthMap, HeadlessError> {

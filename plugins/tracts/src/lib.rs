@@ -508,12 +508,18 @@ pub fn apply_rois(
     mut stats: ResMut<RoiStats>,
 ) {
     let removed_any = removed.read().count() > 0;
-    if changed_rois.is_empty() && !removed_any && !sets.iter().any(|(_, s, _, _)| s.is_added()) {
+    // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
+    let rois_changed = !changed_rois.is_empty() || removed_any;
+    if !rois_changed && !sets.iter().any(|(_, s, _, _)| s.is_added()) {
         return;
     }
     let t0 = Instant::now();
     let mut selected = 0;
     for (entity, set, mut selection, layer) in &mut sets {
+        if !rois_changed && !set.is_added() {
+            selected += selection.0.iter().filter(|s| **s).count();
+            continue;
+        }
         // An ROI acts on its parent set, on the sets of its parent layer, or (without a parent) on all.
         let owner = |p: &ChildOf| p.parent() == entity || layer.is_some_and(|l| l.parent() == p.parent());
         let list: Vec<Roi> = rois.iter().filter(|(_, parent)| parent.is_none_or(owner)).map(|(r, _)| r.0).collect();
