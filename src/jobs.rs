@@ -322,6 +322,20 @@ pub fn neighbour_slices(kind: &LayerKind, dims: [usize; 3]) -> Vec<LayerKind> {
         .collect()
 }
 
+/// Runs `f` (a layer's job) with its parallel work (fits, tracking, glyph placement) on the jobs' own rayon
+/// threads. The main thread's parallel work (ROI selection as tract parts arrive, as an ROI is dragged) uses the
+/// global pool: were the jobs there too, a frame would wait until their queued work was done (a 2.2 s frame
+/// while the large bench scene built). Without the pool (threads could not be made), `f` runs on the global one.
+pub fn on_job_threads<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+    static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
+    let pool =
+        POOL.get_or_init(|| rayon::ThreadPoolBuilder::new().thread_name(|i| format!("fascicle-job-{i}")).build().ok());
+    match pool {
+        Some(pool) => pool.install(f),
+        None => f(),
+    }
+}
+
 /// Places the glyphs of the slices next to an SH glyph layer's into the cache, on a thread of their own (not
 /// the layer jobs' pool, so that a job the user is waiting for never queues behind a guess, and not the main
 /// thread, should the field have left the cache), counted in `in_flight` while it runs.
@@ -337,7 +351,7 @@ pub fn prefetch_neighbours(kind: &LayerKind, cache: &DataCache, in_flight: &Arc<
                 && let Ok(field) = sh_field(&cache, source, &JobProgress::default())
             {
                 for next in neighbour_slices(&kind, field.coeffs.dims3()) {
-                    let _ = build(&next, &cache, &JobProgress::default());
+                    let _ = on_job_threads(|| build(&next, &cache, &JobProgress::default()));
                 }
             }
             in_flight.fetch_sub(1, Ordering::Relaxed);

@@ -30,7 +30,7 @@ use fascicle_tracts::{
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume_texture};
 
 use crate::cache::DataCache;
-use crate::jobs::{CANCELLED, Content, JobProgress, build};
+use crate::jobs::{CANCELLED, Content, JobProgress, build, on_job_threads};
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
 use crate::scene::{LayerKind, LayerSpec, Scene};
 
@@ -130,6 +130,15 @@ impl Plugin for ScenePlugin {
         }
         if !app.is_plugin_added::<TractPlugin>() {
             app.add_plugins(TractPlugin);
+        }
+        // Meshes over 4 MiB (the parts of a large tract layer) get buffers of their own: in Bevy's shared
+        // slabs each part would grow the slab by half and copy all of it (on a 1M-streamline layer, frames of
+        // 40 to 250 ms as the parts arrived, growing with what was already shown).
+        if let Some(render) = app.get_sub_app_mut(bevy::render::RenderApp)
+            && let Some(mut s) =
+                render.world_mut().get_resource_mut::<bevy::render::mesh::allocator::MeshAllocatorSettings>()
+        {
+            s.large_threshold = s.large_threshold.min(4 << 20);
         }
         app.init_resource::<LayerErrors>()
             .init_resource::<DataCache>()
@@ -258,7 +267,7 @@ fn start_job(
 ) {
     let progress = Arc::new(JobProgress::default());
     let (p, c, kind) = (progress.clone(), cache.clone(), structure.clone());
-    let task = AsyncComputeTaskPool::get().spawn(async move { build(&kind, &c, &p) });
+    let task = AsyncComputeTaskPool::get().spawn(async move { on_job_threads(|| build(&kind, &c, &p)) });
     commands.entity(layer).insert((LayerJob { progress, structure, task, parts_shown: 0 }, LayerStatus::Loading));
     counts.jobs += 1;
 }

@@ -1,6 +1,6 @@
 //! `fascicle-bench edits`: what an edit costs the app, on the default scene and on a large one (1M
 //! streamlines as lines with an include sphere, 22.5k SH glyphs of order 8 (a 150x150x8 field), a 256³ volume, the phantom's
-//! splats). The app runs headless with no camera, so the figures are the CPU side: scene sync, background jobs
+//! splats); both also track the phantom from a seed sphere (`seed_roi_move` moves it one voxel). The app runs headless with no camera, so the figures are the CPU side: scene sync, background jobs
 //! (reading, fitting, placing) and the uploads, not drawing.
 //!
 //! Each row times one edit from the change of the scene to the frame its result is in place (`ms`, wall time,
@@ -8,6 +8,8 @@
 //! `worst_frame_ms` is the longest single frame on the main thread meanwhile and in the two frames after (the
 //! render world's uploads): what a user would see as a stall. Before each edit the app idles until the
 //! viewer's background prefetch (glyphs of neighbouring slices) is done, as while a user looks at the result.
+//! Diagnostics: `EDITS_LAYERS=0,2` keeps only those layers of the large scene; `EDITS_SLOW=1` prints every frame
+//! over 40 ms with the number of streamed parts shown so far.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -45,6 +47,10 @@ fn until_settled(app: &mut App) -> Result<(f64, f64, usize), String> {
         let t = Instant::now();
         app.update();
         worst = worst.max(t.elapsed().as_secs_f64() * 1e3);
+        if std::env::var("EDITS_SLOW").is_ok() && t.elapsed().as_secs_f64() > 0.04 {
+            let parts = app.world().resource::<fascicle::layers::LayerSyncCounts>().parts;
+            eprintln!("slow frame {frames}: {:.1} ms, parts shown {parts}", t.elapsed().as_secs_f64() * 1e3);
+        }
         let world = app.world_mut();
         let busy = world.query::<&LayerJob>().iter(world).next().is_some()
             || world.query::<&LayerStatus>().iter(world).any(|s| *s == LayerStatus::Loading);
