@@ -563,7 +563,14 @@ pub fn plane_glyphs(
     sampling: Sampling,
     style: GlyphStyle,
 ) -> Result<(Vec<Glyph>, Vec<[u32; 3]>), String> {
-    let items = sample_plane(&field.coeffs, plane, sampling).map_err(|e| e.to_string())?;
+    let mut items = sample_plane(&field.coeffs, plane, sampling).map_err(|e| e.to_string())?;
+    // Voxel-axis coefficients (DIPY's) into world axes, as the slice glyphs' (`field_glyphs`).
+    let affine = field.coeffs.world_from_voxel;
+    if let Some(t) = sh::frame::to_world_axes(field.basis, field.l_max(), affine).map_err(|e| e.to_string())? {
+        for (_, c, _) in &mut items {
+            *c = sh::frame::apply(&t, c);
+        }
+    }
     let style = style.resolved(plane.spacing);
     let (glyphs, skipped) =
         make_glyphs(items.iter().map(|(p, c, _)| (*p, &c[..])), field.basis, style).map_err(|e| e.to_string())?;

@@ -21,7 +21,9 @@ fn main() -> std::process::ExitCode {
         Some(cli::Command::Track(a)) => cli::track::run(a).map_err(|e| e.to_string()),
         Some(cli::Command::Peaks(a)) => cli::peaks::run(a).map_err(|e| e.to_string()),
         Some(cli::Command::Select(a)) => cli::select::run(a).map_err(|e| e.to_string()),
-        Some(cli::Command::Convert { input, output }) => cli::convert::run(&input, &output).map_err(|e| e.to_string()),
+        Some(cli::Command::Convert { input, output, sh_basis }) => {
+            cli::convert::run(&input, &output, sh_basis.map(Into::into)).map_err(|e| e.to_string())
+        }
         Some(cli::Command::Info { file, json }) => cli::info::run(&file, json).map_err(|e| e.to_string()),
         Some(cli::Command::Render { scene, out, size, depth }) => cli::check_output(&out)
             .map_err(|e| e.to_string())

@@ -161,3 +161,72 @@ fn tck_written_by_fascicle_reads_in_mrtrix() {
         assert!((0..3).all(|k| v[k] > -1.0 && v[k] < [48.0, 48.0, 24.0][k]), "point {p} at voxel {v}");
     }
 }
+
+/// Runs the `fascicle` binary; its stdout.
+fn fascicle(args: &[&str]) -> String {
+    run(env!("CARGO_BIN_EXE_fascicle"), args)
+}
+
+/// SH coefficients in DIPY's default basis (voxel axes) on an x-flipped, oblique image, converted by
+/// `fascicle convert` to a `.mif`: MRtrix3's own `sh2amp` evaluates them along world directions to the values
+/// DIPY's coefficients take along the voxel directions that point there (1e-5 of the largest amplitude). This
+/// checks the basis conversion and the turn between voxel and scanner axes against MRtrix3 itself.
+#[test]
+fn sh_converted_for_mrtrix_evaluates_in_sh2amp_as_in_fascicle() {
+    use fascicle_core::sh::{self, ShBasis};
+    if !mrtrix() {
+        return;
+    }
+    let rot = glam::DMat3::from_rotation_y(0.3) * glam::DMat3::from_rotation_z(-0.2);
+    let affine = glam::DMat4::from_mat3_translation(
+        rot * glam::DMat3::from_diagonal(glam::DVec3::new(-2.0, 2.0, 2.5)),
+        glam::DVec3::new(10.0, -5.0, 3.0),
+    );
+    let (l_max, dims) = (6, [3usize, 2, 2]);
+    let k = sh::n_coeffs(l_max);
+    let mut vol = Volume::<f32>::zeros(&[dims[0], dims[1], dims[2], k], affine);
+    let n = vol.n_voxels();
+    for v in 0..n {
+        for j in 0..k {
+            vol.data[v + n * j] = if j == 0 { 0.8 } else { (((v + 5) * (j * 3 + 1)) % 11) as f32 / 40.0 - 0.12 };
+        }
+    }
+    let dipy = ShBasis::Descoteaux07 { legacy: true };
+    let input = scratch("sh_dipy.nii.gz");
+    let meta = nifti::WriteMeta { descrip: sh::sh_descrip(dipy, l_max), ..Default::default() };
+    nifti::write_with(&input, &vol, nifti::WriteType::F32, &meta).unwrap();
+    let converted = scratch("sh_mrtrix.mif");
+    fascicle(&["convert", "--quiet", "--force", input.to_str().unwrap(), converted.to_str().unwrap()]);
+
+    let world: Vec<glam::DVec3> = sh::sphere::fibonacci(25);
+    let dirs = scratch("dirs.txt");
+    let text: String = world.iter().map(|d| format!("{} {} {}\n", d.x, d.y, d.z)).collect();
+    std::fs::write(&dirs, text).unwrap();
+    let amps = scratch("amps.mif");
+    let args = ["-quiet", "-force", converted.to_str().unwrap(), dirs.to_str().unwrap(), amps.to_str().unwrap()];
+    run("sh2amp", &args);
+    let amps = mif::read_image::<f32>(&amps).unwrap();
+    assert_eq!(amps.n_channels(), world.len());
+
+    let m = sh::world_from_voxel_axes(affine);
+    let inv = amps.world_from_voxel.inverse();
+    let (na, da) = (amps.n_voxels(), amps.dims3());
+    let mut expected = vec![];
+    let mut got = vec![];
+    for v in 0..n {
+        let c: Vec<f64> = (0..k).map(|j| vol.data[v + n * j] as f64).collect();
+        let i =
+            glam::DVec3::new((v % dims[0]) as f64, ((v / dims[0]) % dims[1]) as f64, (v / (dims[0] * dims[1])) as f64);
+        let r = inv.transform_point3(affine.transform_point3(i)).round();
+        let w = r.x as usize + da[0] * (r.y as usize + da[1] * r.z as usize);
+        for (q, d) in world.iter().enumerate() {
+            expected.push(sh::eval(dipy, &c, m.transpose() * *d).unwrap());
+            got.push(amps.data[w + na * q] as f64);
+        }
+    }
+    assert!(got.iter().all(|x| x.is_finite()), "sh2amp gave non-finite amplitudes");
+    let scale = expected.iter().fold(0f64, |a, x| a.max(x.abs()));
+    let worst = expected.iter().zip(&got).map(|(a, b)| (a - b).abs()).fold(0f64, f64::max);
+    println!("sh2amp vs Fascicle: worst {worst:.2e} of {scale:.3}");
+    assert!(worst <= 1e-5 * scale, "worst difference {worst} of {scale}");
+}

@@ -192,8 +192,14 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
     super::check_output(&sidecar_path(&a.out))?;
     let model = OdfModel::new(&l.gtab, kind, a.lmax, a.smooth, basis)?;
     let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
-    let coeffs = sh::fit_odf_volume_with_progress(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
+    let mut coeffs = sh::fit_odf_volume_with_progress(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
     pb.finish_and_clear();
+    // The fit follows the b-vectors, in voxel axes: MRtrix3's basis is written in scanner axes, as its own
+    // programs write it.
+    let axes = sh::world_from_voxel_axes(coeffs.world_from_voxel);
+    if basis.frame() == sh::Frame::World && !axes.abs_diff_eq(glam::DMat3::IDENTITY, 1e-12) {
+        sh::frame::reorient_volume(&mut coeffs, &sh::reorientation(basis, a.lmax, axes)?)?;
+    }
     // The basis goes into the header (descrip), so that readers need not be told it.
     let meta = nifti::WriteMeta { descrip: sh_descrip(basis, a.lmax), ..Default::default() };
     nifti::write_with(&a.out, &coeffs, nifti::WriteType::F32, &meta)?;

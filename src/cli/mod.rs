@@ -119,6 +119,31 @@ impl BasisArg {
     }
 }
 
+/// An SH basis by its full name, for `convert --sh-basis`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ShBasisName {
+    /// DIPY's basis (legacy=False), in voxel axes.
+    Descoteaux07,
+    /// DIPY's default basis (legacy=True), in voxel axes.
+    Descoteaux07Legacy,
+    /// MRtrix3's basis, in scanner axes.
+    Tournier07,
+    /// MRtrix3's basis as DIPY's legacy variant, in scanner axes.
+    Tournier07Legacy,
+}
+
+impl From<ShBasisName> for fascicle_core::sh::ShBasis {
+    fn from(b: ShBasisName) -> Self {
+        use fascicle_core::sh::ShBasis;
+        match b {
+            ShBasisName::Descoteaux07 => ShBasis::Descoteaux07 { legacy: false },
+            ShBasisName::Descoteaux07Legacy => ShBasis::Descoteaux07 { legacy: true },
+            ShBasisName::Tournier07 => ShBasis::Tournier07 { legacy: false },
+            ShBasisName::Tournier07Legacy => ShBasis::Tournier07 { legacy: true },
+        }
+    }
+}
+
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Open the viewer with files (NIfTI, .trk/.tck, scene .ron); the default phantom scene without any.
@@ -164,6 +189,11 @@ pub enum Command {
         input: PathBuf,
         /// The file to write, of the same family; its name picks the format.
         output: PathBuf,
+        /// For an SH image, the basis to write (default: MRtrix3's, tournier07, into a .mif; the input's
+        /// otherwise). DIPY's bases are in voxel axes and MRtrix3's in scanner axes: between the two the
+        /// coefficients are also turned through the image's affine.
+        #[arg(long, value_enum)]
+        sh_basis: Option<ShBasisName>,
     },
     /// Print what a NIfTI image or tractogram holds.
     Info {

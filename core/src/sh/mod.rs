@@ -7,6 +7,7 @@
 pub mod basis;
 pub mod exact;
 pub mod fit;
+pub mod frame;
 pub mod glyph;
 pub mod legendre;
 pub mod peaks;
@@ -14,6 +15,7 @@ pub mod sphere;
 
 pub use basis::{ShBasis, bound_rmax, convert, eval, eval_with_gradient, sh_matrix};
 pub use fit::{OdfKind, OdfModel, fit_odf_coefficients, fit_odf_volume, fit_odf_volume_with_progress};
+pub use frame::{Frame, convert_image, reorientation, world_from_voxel_axes};
 pub use peaks::{PeakParams, PeakVolume, ShGrid, Sphere, peak_directions, peaks_from_sh};
 
 /// Number of coefficients of an even-order basis up to `l_max` (15 at 4, 45 at 8, 153 at 16).

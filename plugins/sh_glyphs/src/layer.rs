@@ -124,7 +124,8 @@ pub fn read_field(bytes: Vec<u8>, path: &Path, settings: &ShFieldSettings) -> Re
 }
 
 /// The glyphs of `selection` (voxels with signal, `c00 > 0`), shaped by `shape` (sized from the selection's
-/// cell when `cell_fill` is set), and their voxels.
+/// cell when `cell_fill` is set), and their voxels. Coefficients in voxel axes (DIPY's bases) are turned into
+/// world axes through the affine first, so that a flipped or oblique image shows its ODFs where they point.
 pub fn field_glyphs(
     field: &ShField,
     selection: &Selection,
@@ -133,10 +134,13 @@ pub fn field_glyphs(
     let vol = &field.coeffs;
     let d = vol.dims3();
     let (n, nc) = (vol.n_voxels(), vol.n_channels());
+    // DIPY's coefficients follow the voxel axes: turned into world axes (the affine's rotation or reflection).
+    let turn = sh::frame::to_world_axes(field.basis, field.l_max(), vol.world_from_voxel).map_err(|e| e.to_string())?;
     let mut items = Vec::new();
     for [x, y, z] in selection.voxels(d)? {
         let v = x + d[0] * (y + d[1] * z);
         let c: Vec<f64> = (0..nc).map(|j| vol.data[v + n * j] as f64).collect();
+        let c = turn.as_deref().map_or(c.clone(), |t| sh::frame::apply(t, &c));
         if c[0] > 0.0 {
             let centre = vol.world_from_voxel.transform_point3(glam::DVec3::new(x as f64, y as f64, z as f64));
             items.push((centre, c, [x as u32, y as u32, z as u32]));
@@ -231,5 +235,52 @@ fn sync_layers(
             update_settings(&mut materials, set, &settings);
             counts.0.uniform_writes += 1;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{DMat3, DMat4, DVec3};
+
+    /// One voxel holding a sharp single-fibre ODF along `fibre` (voxel axes, DIPY's default basis), on an image
+    /// with `affine`: the largest lobe of its glyph, in world axes.
+    fn glyph_lobe(fibre: DVec3, affine: DMat4) -> DVec3 {
+        let basis = ShBasis::default();
+        let l_max = 8;
+        let dirs = sh::sphere::fibonacci(600);
+        let a = sh::sh_matrix(basis, l_max, &dirs);
+        let k = sh::n_coeffs(l_max);
+        let pinv = fascicle_core::linalg::pinv(&a, dirs.len(), k);
+        let f: Vec<f64> = dirs.iter().map(|u| u.dot(fibre).powi(8) + 0.05).collect();
+        let c: Vec<f64> = (0..k).map(|i| (0..dirs.len()).map(|r| pinv[i * dirs.len() + r] * f[r]).sum()).collect();
+        let mut vol = Volume::<f32>::zeros(&[1, 1, 1, k], affine);
+        for (j, x) in c.iter().enumerate() {
+            vol.data[j] = *x as f32;
+        }
+        let field = ShField::new(vol, basis).unwrap();
+        let selection = Selection::Slice { axis: crate::SliceAxis::Z, index: Some(0), spacing: 1 };
+        let (glyphs, _) = field_glyphs(&field, &selection, GlyphStyle::default()).unwrap();
+        let g = &glyphs[0];
+        dirs.into_iter()
+            .max_by(|p, q| {
+                let v = |u: DVec3| sh::glyph::eval_cartesian(&g.coeffs, g.l_max, u).0;
+                v(*p).total_cmp(&v(*q))
+            })
+            .unwrap()
+    }
+
+    /// DIPY's coefficients follow the voxel axes: on an x-flipped, rotated image, a fibre along voxel (1, 1, 0)
+    /// shows along the world direction the affine maps it to, not along (1, 1, 0) read as world axes.
+    #[test]
+    fn voxel_axis_odfs_show_in_world_axes() {
+        let fibre = DVec3::new(1.0, 1.0, 0.0).normalize();
+        let plain = glyph_lobe(fibre, DMat4::from_scale(DVec3::splat(2.0)));
+        assert!(plain.dot(fibre).abs() > 0.99, "{plain}");
+        let m = DMat3::from_rotation_z(0.4) * DMat3::from_diagonal(DVec3::new(-2.0, 2.0, 2.0));
+        let lobe = glyph_lobe(fibre, DMat4::from_mat3(m));
+        let expected = (m * fibre).normalize();
+        assert!(lobe.dot(expected).abs() > 0.99, "{lobe} vs {expected}");
+        assert!(lobe.dot(fibre).abs() < 0.9, "the lobe stayed in voxel axes: {lobe}");
     }
 }
