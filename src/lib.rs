@@ -3,6 +3,7 @@
 
 pub mod cache;
 pub mod cli;
+pub mod history;
 pub mod jobs;
 pub mod layers;
 pub mod panels;

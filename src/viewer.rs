@@ -25,6 +25,7 @@ use bevy_egui::{
 };
 use fascicle_render::FascicleRenderPlugin;
 
+use crate::history::{RecentFiles, SceneHistory};
 use crate::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin};
 use crate::panels::LayerPanels;
 use crate::render::BACKGROUND;
@@ -95,6 +96,10 @@ struct UiState {
     ask: Option<(PathBuf, Vec<LayerSpec>)>,
     /// The panel asked for the file dialog.
     open_dialog: bool,
+    /// An undo (true) or redo (false) asked for.
+    history_step: Option<bool>,
+    /// A recent file the panel asked to open.
+    open_recent: Option<PathBuf>,
 }
 
 /// Builds the starting scene from command-line files: scene files replace the scene, data files add layers.
@@ -176,6 +181,8 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .init_resource::<LayerPanels>()
     .init_resource::<RoiDrag>()
     .init_resource::<FileDialog>()
+    .init_resource::<SceneHistory>()
+    .insert_resource(RecentFiles::for_user())
     .insert_resource(orbit)
     .insert_resource(UiState {
         message: (!errors.is_empty()).then(|| errors.join("\n")),
@@ -212,9 +219,12 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             file_dialog,
             save_selection,
             draw_seed_spheres.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>),
+            undo_keys.run_if(not(egui_wants_any_keyboard_input)),
             apply_orbit.run_if(resource_changed::<Orbit>),
         ),
     )
+    // Undo applies before the layers sync, so the scene it restores shows in the same frame.
+    .add_systems(Update, scene_history.before(crate::layers::SceneSystems::Sync))
     .add_systems(EguiPrimaryContextPass, panel)
     .run()
 }
@@ -446,6 +456,41 @@ fn keys(
     }
 }
 
+/// Ctrl+Z undoes the last scene edit, Ctrl+Shift+Z (or Ctrl+Y) redoes it.
+fn undo_keys(input: Res<ButtonInput<KeyCode>>, mut ui: ResMut<UiState>) {
+    let ctrl = input.any_pressed([KeyCode::ControlLeft, KeyCode::ControlRight]);
+    let shift = input.any_pressed([KeyCode::ShiftLeft, KeyCode::ShiftRight]);
+    if ctrl && input.just_pressed(KeyCode::KeyZ) {
+        ui.history_step = Some(!shift);
+    } else if ctrl && input.just_pressed(KeyCode::KeyY) {
+        ui.history_step = Some(false);
+    }
+}
+
+/// Records scene edits for undo (a drag with the mouse held is one step) and applies the undo or redo the
+/// keys or the panel asked for.
+fn scene_history(
+    mut history: ResMut<SceneHistory>,
+    mut scene: ResMut<ActiveScene>,
+    mut ui: ResMut<UiState>,
+    buttons: Res<ButtonInput<MouseButton>>,
+) {
+    if let Some(undo) = ui.history_step.take() {
+        let current = scene.0.clone();
+        let step = if undo { history.undo(&current) } else { history.redo(&current) };
+        match step {
+            Some(s) => scene.0 = s,
+            None => ui.message = Some(format!("nothing to {}", if undo { "undo" } else { "redo" })),
+        }
+    }
+    if scene.is_changed() {
+        history.record(&scene.0, buttons.pressed(MouseButton::Left));
+    } else if !buttons.pressed(MouseButton::Left) {
+        // A release ends the gesture even when the last frame changed nothing.
+        history.record(&scene.0, false);
+    }
+}
+
 /// The UTC calendar date (year, month, day) of a Unix time: Howard Hinnant's civil-from-days algorithm.
 pub fn civil_date(unix_secs: u64) -> [i64; 3] {
     let z = (unix_secs / 86_400) as i64 + 719_468;
@@ -476,16 +521,26 @@ fn dropped_files(
     mut scene: ResMut<ActiveScene>,
     mut ui: ResMut<UiState>,
     mut orbit: ResMut<Orbit>,
+    mut recent: ResMut<RecentFiles>,
 ) {
     for ev in events.read() {
         if let FileDragAndDrop::DroppedFile { path_buf, .. } = ev {
-            open_path(path_buf, &mut scene, &mut ui, &mut orbit);
+            open_path(path_buf, &mut scene, &mut ui, &mut orbit, &mut recent);
         }
+    }
+    if let Some(path) = ui.open_recent.take() {
+        open_path(&path, &mut scene, &mut ui, &mut orbit, &mut recent);
     }
 }
 
 /// Opens a file as a new layer (or asks what it is, when its content does not tell); the camera frames it.
-fn open_path(path: &std::path::Path, scene: &mut ActiveScene, ui: &mut UiState, orbit: &mut Orbit) {
+fn open_path(
+    path: &std::path::Path,
+    scene: &mut ActiveScene,
+    ui: &mut UiState,
+    orbit: &mut Orbit,
+    recent: &mut RecentFiles,
+) {
     if let Ok((first, others)) = Scene::layer_choices(path)
         && !others.is_empty()
     {
@@ -494,7 +549,12 @@ fn open_path(path: &std::path::Path, scene: &mut ActiveScene, ui: &mut UiState, 
     }
     match scene.0.open_file(path) {
         // The scene's camera frames the new layer: the view follows.
-        Ok(()) => *orbit = Orbit::from_spec(&scene.0.camera),
+        Ok(()) => {
+            *orbit = Orbit::from_spec(&scene.0.camera);
+            if let Err(e) = recent.add(path) {
+                ui.message = Some(e);
+            }
+        }
         Err(e) => ui.message = Some(e),
     }
 }
@@ -510,6 +570,7 @@ fn file_dialog(
     mut scene: ResMut<ActiveScene>,
     mut ui: ResMut<UiState>,
     mut orbit: ResMut<Orbit>,
+    mut recent: ResMut<RecentFiles>,
 ) {
     if std::mem::take(&mut ui.open_dialog) && dialog.0.is_none() {
         let pick = rfd::AsyncFileDialog::new()
@@ -535,7 +596,7 @@ fn file_dialog(
                 Err(e) => ui.message = Some(e),
             }
         } else {
-            open_path(&path, &mut scene, &mut ui, &mut orbit);
+            open_path(&path, &mut scene, &mut ui, &mut orbit, &mut recent);
         }
     }
 }
@@ -591,6 +652,7 @@ fn panel(
     time: Res<Time>,
     mut camera: Single<&mut Camera, (With<Camera3d>, Without<EguiContext>)>,
     window: Single<&Window, With<PrimaryWindow>>,
+    (history, recent): (Res<SceneHistory>, Res<RecentFiles>),
 ) -> Result {
     let ctx = contexts.ctx_mut()?;
     let dt = time.delta_secs() * 1000.0;
@@ -673,6 +735,24 @@ fn panel(
                 *orbit = Orbit::from_spec(&edited.camera);
             }
         });
+        ui.horizontal(|ui| {
+            if ui.add_enabled(history.can_undo(), egui::Button::new("Undo (Ctrl+Z)")).clicked() {
+                ui_state.history_step = Some(true);
+            }
+            if ui.add_enabled(history.can_redo(), egui::Button::new("Redo (Ctrl+Shift+Z)")).clicked() {
+                ui_state.history_step = Some(false);
+            }
+        });
+        if !recent.files.is_empty() {
+            ui.collapsing("Recent files", |ui| {
+                for f in &recent.files {
+                    let name = f.file_name().map_or_else(|| f.display().to_string(), |n| n.to_string_lossy().into());
+                    if ui.button(name).on_hover_text(f.display().to_string()).clicked() {
+                        ui_state.open_recent = Some(f.clone());
+                    }
+                }
+            });
+        }
         ui.horizontal(|ui| {
             ui.text_edit_singleline(&mut ui_state.scene_path);
         });
@@ -868,6 +948,7 @@ mod tests {
             .add_message::<FileDragAndDrop>()
             .insert_resource(ActiveScene(Scene::default_scene()))
             .insert_resource(UiState::default())
+            .init_resource::<RecentFiles>()
             .insert_resource(Orbit::from_spec(&CameraSpec::default()))
             .add_systems(Update, dropped_files);
         let before = app.world().resource::<ActiveScene>().0.layers.len();
@@ -901,6 +982,12 @@ mod tests {
         app.update();
         let scene = &app.world().resource::<ActiveScene>().0;
         assert!(matches!(scene.layers.last().map(|l| &l.kind), Some(LayerKind::ShGlyphs { .. })));
+        // Opened files are the recent ones, newest first; the missing one is not.
+        let recent = &app.world().resource::<RecentFiles>().files;
+        assert!(
+            recent.len() == 2 && recent[0].ends_with("sh/func_coef.nii.gz") && recent[1].ends_with("tracks300.trk"),
+            "{recent:?}"
+        );
     }
 
     /// Picking and dragging ROIs: the first ROI along the ray among visible tract layers; a drag moves it by
