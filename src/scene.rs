@@ -532,7 +532,7 @@ impl Scene {
             let others = c.ambiguous.iter().filter(|k| **k != c.kind).map(|k| spec(layer_kind_for(path, k))).collect();
             return Ok((spec(layer_kind_for(path, &c.kind)), others));
         }
-        if [".trk", ".tck", ".trk.gz", ".tck.gz"].iter().any(|e| lower.ends_with(e)) {
+        if [".trk", ".tck", ".trk.gz", ".tck.gz", ".trx"].iter().any(|e| lower.ends_with(e)) {
             return Ok((spec(LayerKind::Tractogram { path: path.to_path_buf() }), vec![]));
         }
         Err(format!("{}: not a NIfTI or MRtrix image, tractogram or scene file", path.display()))

@@ -602,7 +602,7 @@ fn file_dialog(
 }
 
 /// File name endings the open dialog lists (the last part: `.nii.gz` is `gz`).
-const OPENABLE: &[&str] = &["nii", "gz", "mif", "trk", "tck", "ron"];
+const OPENABLE: &[&str] = &["nii", "gz", "mif", "trk", "tck", "trx", "ron"];
 
 /// Writes the streamlines that a tract layer's ROIs select to `UiState::selection_path`, when the panel
 /// asked: from the layer's tract set, or, when it has none (its data failed to load) or several (parts), selected

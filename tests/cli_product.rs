@@ -211,6 +211,22 @@ fn fitted_odfs_open_in_the_viewer_along_the_true_fibres() {
 fn convert_round_trips_images_and_tractograms() {
     let dir = std::env::temp_dir().join(format!("fascicle-convert-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
+    // TRX both ways: trx-python's file to .tck and back to .trx keeps every point; info --json counts it.
+    let (tck, trx) = (dir.join("from_trx.tck"), dir.join("back.trx"));
+    let o = fascicle(&["convert", &data("tracts/tracks300_f32_deflate.trx"), tck.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{o:?}");
+    let o = fascicle(&["convert", tck.to_str().unwrap(), trx.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{o:?}");
+    let original = fascicle_core::io::Tractogram::read(data("tracts/tracks300_f32_deflate.trx")).unwrap();
+    let back = fascicle_core::io::Tractogram::read(&trx).unwrap();
+    assert_eq!((&back.offsets, &back.points), (&original.offsets, &original.points));
+    let v: serde_json::Value =
+        serde_json::from_slice(&fascicle(&["info", "--json", &data("tracts/tracks300_f16.trx")]).stdout).unwrap();
+    assert_eq!(
+        (v["format"].as_str(), v["count"].as_u64(), v["points"].as_u64()),
+        (Some("TRX"), Some(300), Some(14576))
+    );
+    assert_eq!(v["groups"]["first_ten"].as_u64(), Some(10));
     let (mif, back) = (dir.join("fa.mif.gz"), dir.join("fa_back.nii.gz"));
     let o = fascicle(&["convert", &data("dti/small_64D_fa.nii.gz"), mif.to_str().unwrap(), "--quiet"]);
     assert!(o.status.success(), "{o:?}");

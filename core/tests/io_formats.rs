@@ -317,3 +317,152 @@ fn nifti_writer_keeps_codes_and_intent_and_header_reads_stop_early() {
     assert!(nifti::read::<f32>(&cut).is_err(), "the full read of a truncated file fails");
     std::fs::remove_dir_all(dir).ok();
 }
+
+/// TRX files written by trx-python: the float32 deflated one holds nibabel's points of `tracks300.trk`; the
+/// float16 one holds numpy's float16 rounding of them exactly, with its per-streamline lengths, per-point z, the
+/// group and the reference grid of the `.trk`.
+#[test]
+fn trx_files_from_trx_python_read_as_nibabel() {
+    use fascicle_core::io::trx;
+    let (t32, h32) = trx::read(data("tracts/tracks300_f32_deflate.trx")).unwrap();
+    assert_matches_nibabel(&t32, "tracks300_trk");
+    let (t16, h16) = trx::read(data("tracts/tracks300_f16.trx")).unwrap();
+    assert_eq!(t16.offsets, t32.offsets);
+    let (_, rounded) = npy("reference/trx/tracks300_f16_positions.npy");
+    let flat: Vec<f64> = t16.points.iter().flat_map(|p| p.to_array()).map(f64::from).collect();
+    assert_eq!(flat, rounded, "float16 positions decode as numpy's");
+    let (_, trk_header) = trk::read(data("tracts/tracks300.trk")).unwrap();
+    for h in [&h32, &h16] {
+        assert_eq!(h.dims.map(|d| d as u16), trk_header.dims.map(|d| d as u16));
+        assert!(h.voxel_to_rasmm.abs_diff_eq(trk_header.vox_to_ras, 1e-6), "{:?}", h.voxel_to_rasmm);
+    }
+    assert_eq!(h16.groups, vec![("first_ten".to_string(), (0..10).collect::<Vec<u32>>())]);
+    let z = &t16.scalars.iter().find(|(n, _)| n == "z_mm").unwrap().1;
+    assert!(z.iter().zip(&t32.points).all(|(a, p)| *a == p.z), "z_mm is each point's z");
+    let lengths = &t16.properties.iter().find(|(n, _)| n == "length_mm").unwrap().1;
+    for (i, l) in lengths.iter().enumerate() {
+        let s = t32.streamline(i);
+        let own: f32 = s.windows(2).map(|w| w[0].distance(w[1])).sum();
+        assert!((own - l).abs() <= 1e-4 * l.max(1.0), "streamline {i}: {own} vs {l}");
+    }
+}
+
+/// TRX written by Fascicle reads back: float32 and float64 positions exactly, float16 as numpy rounds them
+/// (bit for bit the positions array trx-python wrote); scalars, properties, groups and grid round trip.
+#[test]
+fn trx_round_trips_in_every_precision() {
+    use fascicle_core::io::trx::{self, PositionType};
+    let (mut t, h) = trx::read(data("tracts/tracks300_f16.trx")).unwrap();
+    let exact = Tractogram::read(data("tracts/tracks300.trk")).unwrap();
+    t.points = exact.points.clone();
+    let dir = std::env::temp_dir().join(format!("fascicle-trx-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for (kind, name) in [(PositionType::F32, "a32.trx"), (PositionType::F64, "a64.trx"), (PositionType::F16, "a16.trx")]
+    {
+        let path = dir.join(name);
+        trx::write(&path, &t, Some(&h), kind).unwrap();
+        let (back, hb) = trx::read(&path).unwrap();
+        assert_eq!(back.offsets, t.offsets);
+        assert_eq!((&back.scalars, &back.properties), (&t.scalars, &t.properties));
+        assert_eq!(hb, h);
+        if kind == PositionType::F16 {
+            let (_, rounded) = npy("reference/trx/tracks300_f16_positions.npy");
+            let flat: Vec<f64> = back.points.iter().flat_map(|p| p.to_array()).map(f64::from).collect();
+            assert_eq!(flat, rounded, "float16 rounding as numpy's");
+        } else {
+            assert_eq!(back.points, t.points);
+        }
+        // Through the generic reader too (by extension).
+        assert_eq!(Tractogram::read(&path).unwrap().offsets, t.offsets);
+    }
+    // Without a header: a grid covering the points; no groups.
+    trx::write(dir.join("plain.trx"), &exact, None, PositionType::F32).unwrap();
+    let (plain, hp) = trx::read(dir.join("plain.trx")).unwrap();
+    assert_eq!(plain.points, exact.points);
+    assert!(hp.groups.is_empty() && hp.dims.iter().all(|d| *d > 1));
+    std::fs::remove_dir_all(dir).ok();
+}
+
+/// Half precision: every finite half survives a round trip through single precision; rounding is to nearest
+/// with ties to even, subnormals included; overflow gives infinity.
+#[test]
+fn half_precision_converts_as_ieee() {
+    use fascicle_core::io::trx::{f16_to_f32, f32_to_f16};
+    for h in 0..=u16::MAX {
+        let x = f16_to_f32(h);
+        if x.is_nan() {
+            assert!(f32_to_f16(x) & 0x7c00 == 0x7c00 && f32_to_f16(x) & 0x3ff != 0);
+        } else {
+            assert_eq!(f32_to_f16(x), h, "half {h:#06x} = {x}");
+        }
+    }
+    assert_eq!(f32_to_f16(1.0 + 2f32.powi(-11)), 0x3c00, "a tie goes to the even neighbour (1.0)");
+    assert_eq!(f32_to_f16(1.0 + 3.0 * 2f32.powi(-11)), 0x3c02, "a tie goes to the even neighbour (1 + 2^-9)");
+    assert_eq!(f32_to_f16(2f32.powi(-25)), 0, "half the smallest subnormal rounds to zero (even)");
+    assert_eq!(f32_to_f16(3.0 * 2f32.powi(-25)), 2, "1.5 subnormal units round to 2");
+    assert_eq!(f32_to_f16(65520.0), 0x7c00, "past the largest half: infinity");
+    assert_eq!(f32_to_f16(-1e10), 0xfc00);
+}
+
+/// Damaged TRX files give an error naming the file, never a panic: not a zip, a truncated zip, a header that
+/// is not JSON or lacks counts, positions that do not match the count, offsets out of order, a group past the
+/// end.
+#[test]
+fn malformed_trx_files_are_clear_errors() {
+    use fascicle_core::io::trx;
+    use std::io::Write;
+    let good = std::fs::read(data("tracts/tracks300_f16.trx")).unwrap();
+    let path = std::path::Path::new("broken.trx");
+    let zip_of = |entries: &[(&str, Vec<u8>)]| {
+        let mut buf = std::io::Cursor::new(Vec::new());
+        let mut z = zip::ZipWriter::new(&mut buf);
+        for (name, bytes) in entries {
+            z.start_file(*name, zip::write::SimpleFileOptions::default()).unwrap();
+            z.write_all(bytes).unwrap();
+        }
+        z.finish().unwrap();
+        buf.into_inner()
+    };
+    let header = |nv: usize, ns: usize| {
+        format!(r#"{{"DIMENSIONS":[2,2,2],"VOXEL_TO_RASMM":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]],"NB_VERTICES":{nv},"NB_STREAMLINES":{ns}}}"#)
+            .into_bytes()
+    };
+    let pos = |n: usize| (0..3 * n).flat_map(|i| (i as f32).to_le_bytes()).collect::<Vec<u8>>();
+    let off = |o: &[u32]| o.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("not a zip", b"hello".to_vec()),
+        ("truncated", good[..good.len() / 2].to_vec()),
+        ("no header", zip_of(&[("positions.3.float32", pos(2)), ("offsets.uint32", off(&[0]))])),
+        ("bad json", zip_of(&[("header.json", b"{".to_vec())])),
+        ("no counts", zip_of(&[("header.json", br#"{"DIMENSIONS":[1,1,1]}"#.to_vec())])),
+        (
+            "short positions",
+            zip_of(&[("header.json", header(3, 1)), ("positions.3.float32", pos(2)), ("offsets.uint32", off(&[0]))]),
+        ),
+        (
+            "unordered offsets",
+            zip_of(&[("header.json", header(4, 2)), ("positions.3.float32", pos(4)), ("offsets.uint32", off(&[3, 1]))]),
+        ),
+        (
+            "group past the end",
+            zip_of(&[
+                ("header.json", header(2, 1)),
+                ("positions.3.float32", pos(2)),
+                ("offsets.uint32", off(&[0])),
+                ("groups/g.uint32", off(&[5])),
+            ]),
+        ),
+        (
+            "integer positions",
+            zip_of(&[("header.json", header(1, 1)), ("positions.3.int32", pos(1)), ("offsets.uint32", off(&[0]))]),
+        ),
+    ];
+    for (what, bytes) in cases {
+        match trx::read_bytes(&bytes, path) {
+            Err(Error::Format { path: p, reason }) => {
+                assert!(p.ends_with("broken.trx") && !reason.is_empty(), "{what}")
+            }
+            other => panic!("{what}: {other:?}"),
+        }
+    }
+}

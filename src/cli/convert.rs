@@ -20,7 +20,7 @@ fn is_image(path: &Path) -> bool {
 }
 
 fn is_tractogram(path: &Path) -> bool {
-    matches!(tractogram::extension(path).as_str(), "trk" | "tck")
+    matches!(tractogram::extension(path).as_str(), "trk" | "tck" | "trx")
 }
 
 /// The bases an SH image goes between (None: not an SH image, nothing asked).

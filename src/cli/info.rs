@@ -61,8 +61,20 @@ pub fn run(path: &Path, json: bool) -> Result<(), Error> {
                 println!("  {k}: {}", v.replace('\n', "\n    "));
             }
         }
+        "trx" => {
+            let (t, h) = fascicle_core::io::trx::read(path)?;
+            println!("{}: TRX", path.display());
+            print_tracts(&t);
+            println!("  grid        {:?} voxels", h.dims);
+            for (name, members) in &h.groups {
+                println!("  group       {name} ({} streamlines)", members.len());
+            }
+        }
         other => {
-            return Err(Error::Param(format!("{}: unknown file type '{other}' (NIfTI, .trk or .tck)", path.display())));
+            return Err(Error::Param(format!(
+                "{}: unknown file type '{other}' (NIfTI, .mif, .trk, .tck or .trx)",
+                path.display()
+            )));
         }
     }
     Ok(())
@@ -164,8 +176,18 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
             let (t, _) = tck::read(path)?;
             (t, json!({"points": "RAS+ mm (scanner)"}), json!({"format": "MRtrix tracks"}))
         }
+        "trx" => {
+            let (t, h) = fascicle_core::io::trx::read(path)?;
+            let groups: serde_json::Map<String, serde_json::Value> =
+                h.groups.iter().map(|(n, m)| (n.clone(), json!(m.len()))).collect();
+            let space = json!({"dims": h.dims, "voxel_to_rasmm": h.voxel_to_rasmm.transpose().to_cols_array_2d(), "points": "RAS+ mm"});
+            (t, space, json!({"format": "TRX", "groups": groups}))
+        }
         other => {
-            return Err(Error::Param(format!("{}: unknown file type '{other}' (NIfTI, .trk or .tck)", path.display())));
+            return Err(Error::Param(format!(
+                "{}: unknown file type '{other}' (NIfTI, .mif, .trk, .tck or .trx)",
+                path.display()
+            )));
         }
     };
     let bounds =
@@ -183,5 +205,6 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
         "bounds": bounds,
         "scalars": t.scalars.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>(),
         "properties": t.properties.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>(),
+        "groups": extra.get("groups").cloned().unwrap_or(serde_json::Value::Null),
     }))
 }

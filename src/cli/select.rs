@@ -108,9 +108,11 @@ pub fn write(path: &Path, t: &Tractogram, header: Option<&trk::TrkHeader>) -> Re
             trk::write(path, t, affine, dims)
         }
         "tck" => tck::write(path, t, &[]),
-        other => {
-            Err(Error::Param(format!("output '{}': unknown extension '{other}' (use .trk or .tck)", path.display())))
-        }
+        "trx" => fascicle_core::io::trx::write(path, t, None, fascicle_core::io::trx::PositionType::F32),
+        other => Err(Error::Param(format!(
+            "output '{}': unknown extension '{other}' (use .trk, .tck or .trx)",
+            path.display()
+        ))),
     }
 }
 

@@ -1,4 +1,4 @@
-//! File formats: NIfTI-1/2 images, FSL gradient tables, peak images (MRtrix and DIPY layouts), TrackVis `.trk` and MRtrix `.tck` tractograms.
+//! File formats: NIfTI-1/2 images, FSL gradient tables, peak images (MRtrix and DIPY layouts), TrackVis `.trk`, MRtrix `.tck` and TRX `.trx` tractograms.
 
 pub mod classify;
 pub mod gradients;
@@ -8,6 +8,7 @@ pub mod peaks;
 pub mod tck;
 pub mod tractogram;
 pub mod trk;
+pub mod trx;
 
 pub use gradients::GradientTable;
 pub use tractogram::Tractogram;

@@ -56,15 +56,16 @@ impl Tractogram {
         self.offsets.push(self.points.len());
     }
 
-    /// Reads `.trk` or `.tck` (or `.trk.gz` / `.tck.gz`) by extension.
+    /// Reads `.trk`, `.tck` (or `.trk.gz` / `.tck.gz`) or `.trx` by extension.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         match extension(path).as_str() {
             "trk" => Ok(super::trk::read(path)?.0),
             "tck" => Ok(super::tck::read(path)?.0),
+            "trx" => Ok(super::trx::read(path)?.0),
             other => Err(Error::format(
                 path,
-                format!("unknown tractogram extension '{other}' (expected .trk or .tck, or .gz)"),
+                format!("unknown tractogram extension '{other}' (expected .trk, .tck, .trx, or .gz)"),
             )),
         }
     }
@@ -75,9 +76,10 @@ impl Tractogram {
         match extension(path).as_str() {
             "trk" => Ok(super::trk::read_bytes(bytes, path)?.0),
             "tck" => Ok(super::tck::read_bytes(bytes, path)?.0),
+            "trx" => Ok(super::trx::read_bytes(bytes, path)?.0),
             other => Err(Error::format(
                 path,
-                format!("unknown tractogram extension '{other}' (expected .trk or .tck, or .gz)"),
+                format!("unknown tractogram extension '{other}' (expected .trk, .tck, .trx, or .gz)"),
             )),
         }
     }

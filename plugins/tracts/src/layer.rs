@@ -42,7 +42,7 @@ impl AssetLoader for TractogramLoader {
     }
 
     fn extensions(&self) -> &[&str] {
-        &["trk", "tck", "trk.gz", "tck.gz"]
+        &["trk", "tck", "trk.gz", "tck.gz", "trx"]
     }
 }
 
