@@ -373,8 +373,9 @@ fn volume_bytes(v: &Volume<f32>) -> usize {
 /// A NIfTI image as f32 (every volume), read once per file state.
 pub fn image(cache: &DataCache, path: &Path, progress: &JobProgress) -> Result<Arc<Volume<f32>>, String> {
     progress.stage("reading image", 0)?;
+    // NIfTI or MRtrix, by the name.
     cache.get_or_load(&format!("nifti:{path:?}"), &[path], volume_bytes, || {
-        nifti::read::<f32>(path).map(|(v, _)| v).map_err(|e| e.to_string())
+        fascicle_core::io::mif::read_image::<f32>(path).map_err(|e| e.to_string())
     })
 }
 
@@ -526,19 +527,30 @@ pub fn tensor_field(cache: &DataCache, source: &TensorSource, progress: &JobProg
             )?
         }
         TensorSource::Dwi { path } => {
-            let (bval, bvec) = fascicle_core::io::classify::gradients_beside(path).ok_or_else(|| {
-                format!("{}: no .bval/.bvec beside the image: it cannot be fitted as a DWI", path.display())
-            })?;
+            use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD};
+            let beside = fascicle_core::io::classify::gradients_beside(path);
+            let has_scheme = fascicle_core::io::mif::is_mif(path)
+                && fascicle_core::io::mif::read_dw_scheme(path).is_ok_and(|r| !r.is_empty());
+            if beside.is_none() && !has_scheme {
+                return Err(format!(
+                    "{}: no .bval/.bvec beside the image (nor a .mif dw_scheme): it cannot be fitted as a DWI",
+                    path.display()
+                ));
+            }
             let dwi = image(cache, path, progress)?;
             let key = format!("tensor:dwi:{path:?}");
+            let mut files: Vec<&Path> = vec![path];
+            if let Some((bval, bvec)) = &beside {
+                files.extend([bval.as_path(), bvec.as_path()]);
+            }
             cache.get_or_load(
                 &key,
-                &[path, &bval, &bvec],
+                &files,
                 |f: &TensorField| volume_bytes(&f.tensors),
                 || {
-                    use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD};
-                    let gtab =
-                        GradientTable::from_fsl(&bval, &bvec, DEFAULT_B0_THRESHOLD).map_err(|e| e.to_string())?;
+                    let gtab = GradientTable::of_image(path, dwi.world_from_voxel, DEFAULT_B0_THRESHOLD)
+                        .ok_or_else(|| format!("{}: no gradients", path.display()))?
+                        .map_err(|e| e.to_string())?;
                     progress.stage("fitting tensors (WLS)", dwi.n_voxels())?;
                     let fit = fascicle_core::dti::fit_volume_with_progress(
                         &*dwi,

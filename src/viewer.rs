@@ -818,12 +818,34 @@ fn panel(
     Ok(())
 }
 
+/// Whether `path` is a `.mif` whose header holds a `dw_scheme`. The panel asks every frame: the header is
+/// read again only when the file's modification time changes.
+fn has_dw_scheme(path: &std::path::Path) -> bool {
+    type Seen = std::collections::HashMap<PathBuf, (Option<std::time::SystemTime>, bool)>;
+    static SEEN: std::sync::Mutex<Option<Seen>> = std::sync::Mutex::new(None);
+    if !fascicle_core::io::mif::is_mif(path) {
+        return false;
+    }
+    let modified = std::fs::metadata(path).and_then(|m| m.modified()).ok();
+    let mut seen = SEEN.lock().unwrap_or_else(|e| e.into_inner());
+    let seen = seen.get_or_insert_with(Default::default);
+    if let Some((when, has)) = seen.get(path)
+        && *when == modified
+    {
+        return *has;
+    }
+    let has = fascicle_core::io::mif::read_dw_scheme(path).is_ok_and(|r| !r.is_empty());
+    seen.insert(path.to_path_buf(), (modified, has));
+    has
+}
+
 /// The tensors a layer shows or holds: a DWI slice's (fitted), a tensor glyph or splat layer's.
 fn tensor_source_of(kind: &LayerKind) -> Option<crate::scene::TensorSource> {
     use crate::scene::{TensorSource, VolumeSource};
     match kind {
         LayerKind::Slice { source: VolumeSource::Nifti { path, .. }, .. } => {
-            fascicle_core::io::classify::gradients_beside(path).map(|_| TensorSource::Dwi { path: path.clone() })
+            (fascicle_core::io::classify::gradients_beside(path).is_some() || has_dw_scheme(path))
+                .then(|| TensorSource::Dwi { path: path.clone() })
         }
         LayerKind::TensorGlyphs { source, .. } | LayerKind::TensorSplats { source, .. }
             if !matches!(source, TensorSource::Spiral { .. }) =>

@@ -230,3 +230,66 @@ fn sh_converted_for_mrtrix_evaluates_in_sh2amp_as_in_fascicle() {
     println!("sh2amp vs Fascicle: worst {worst:.2e} of {scale:.3}");
     assert!(worst <= 1e-5 * scale, "worst difference {worst} of {scale}");
 }
+
+/// A DWI that MRtrix3 wrote (`mrconvert -fslgrad`: its axes reordered, the gradients in its `dw_scheme`) is
+/// fitted by `fascicle fit dti` with no gradient files: FA equals the fit of the NIfTI with its bval/bvec at
+/// every scanner position (1e-4), and the principal eigenvectors, taken to scanner axes, agree where FA > 0.3.
+#[test]
+fn dwi_mif_from_mrtrix_fits_as_its_nifti() {
+    if !mrtrix() {
+        return;
+    }
+    let dwi = data("dwi/small_64D.nii");
+    let (bval, bvec) = (data("dwi/small_64D.bval"), data("dwi/small_64D.bvec"));
+    let mif = scratch("small_64D_dwi.mif");
+    let args = ["-quiet", "-force", dwi.to_str().unwrap(), "-fslgrad", bvec.to_str().unwrap(), bval.to_str().unwrap()];
+    run("mrconvert", &[&args[..], &[mif.to_str().unwrap()]].concat());
+    let (a, b) = (scratch("fit_nifti"), scratch("fit_mif"));
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    fascicle(&[
+        "fit",
+        "dti",
+        &s(&dwi),
+        "--bval",
+        &s(&bval),
+        "--bvec",
+        &s(&bvec),
+        "--quiet",
+        "--force",
+        "--out",
+        &s(&a),
+    ]);
+    fascicle(&["fit", "dti", &s(&mif), "--quiet", "--force", "--out", &s(&b)]);
+    let read =
+        |prefix: &PathBuf, what: &str| nifti::read::<f32>(format!("{}_{what}.nii.gz", prefix.display())).unwrap().0;
+    let (fa_a, fa_b) = (read(&a, "fa"), read(&b, "fa"));
+    let (ev_a, ev_b) = (read(&a, "evecs"), read(&b, "evecs"));
+    let axes = |v: &Volume<f32>| fascicle_core::sh::world_from_voxel_axes(v.world_from_voxel);
+    let (ma, mb) = (axes(&fa_a), axes(&fa_b));
+    let inv = fa_b.world_from_voxel.inverse();
+    let (da, db) = (fa_a.dims3(), fa_b.dims3());
+    let (na, nb) = (fa_a.n_voxels(), fa_b.n_voxels());
+    let (mut worst_fa, mut worst_dir, mut compared) = (0f64, 0f64, 0);
+    for v in 0..na {
+        let i = glam::DVec3::new((v % da[0]) as f64, ((v / da[0]) % da[1]) as f64, (v / (da[0] * da[1])) as f64);
+        let r = inv.transform_point3(fa_a.world_from_voxel.transform_point3(i)).round();
+        let w = r.x as usize + db[0] * (r.y as usize + db[1] * r.z as usize);
+        let (x, y) = (fa_a.data[v] as f64, fa_b.data[w] as f64);
+        assert!(x.is_finite() && y.is_finite(), "voxel {i}: FA {x} vs {y}");
+        worst_fa = worst_fa.max((x - y).abs());
+        if x > 0.3 {
+            // evecs: X,Y,Z,3,3 as DIPY's, eigenvector j in column j: volumes 0, 1, 2 hold the first's x, y, z.
+            let e = |ev: &Volume<f32>, n: usize, k: usize| {
+                glam::DVec3::new(ev.data[k] as f64, ev.data[k + n] as f64, ev.data[k + 2 * n] as f64)
+            };
+            let (ea, eb) = (ma * e(&ev_a, na, v), mb * e(&ev_b, nb, w));
+            worst_dir = worst_dir.max(1.0 - ea.normalize().dot(eb.normalize()).abs());
+            compared += 1;
+        }
+    }
+    println!(
+        "fit of MRtrix's .mif vs the NIfTI: FA worst {worst_fa:.2e}, e1 worst 1 - |cos| {worst_dir:.2e} over {compared}"
+    );
+    assert!(worst_fa < 1e-4, "FA differs by {worst_fa}");
+    assert!(compared > 50 && worst_dir < 1e-4, "principal directions differ: 1 - |cos| = {worst_dir}");
+}

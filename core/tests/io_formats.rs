@@ -466,3 +466,34 @@ fn malformed_trx_files_are_clear_errors() {
         }
     }
 }
+
+/// A `.mif` DWI's `dw_scheme` (scanner axes) becomes b-vectors in the image's voxel axes: on an x-flipped,
+/// rotated grid each direction maps back to the scanner direction through the affine; the header alone is
+/// read, gzipped or not; b-values and b0s carry over.
+#[test]
+fn mif_dw_scheme_gives_voxel_axis_gradients() {
+    use fascicle_core::io::{GradientTable, mif};
+    use glam::{DMat3, DVec3};
+    let m = DMat3::from_rotation_z(0.5) * DMat3::from_diagonal(DVec3::new(-2.0, 2.0, 2.0));
+    let vol = fascicle_core::Volume::<f32>::zeros(&[2, 2, 2, 3], DMat4::from_mat3(m));
+    let rows = [[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 1000.0], [0.0, 0.6, 0.8, 2000.0]];
+    let extra: Vec<(String, String)> =
+        rows.iter().map(|r| ("dw_scheme".to_string(), format!("{},{},{},{}", r[0], r[1], r[2], r[3]))).collect();
+    let dir = std::env::temp_dir().join(format!("fascicle-dwscheme-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for name in ["dwi.mif", "dwi.mif.gz"] {
+        let path = dir.join(name);
+        mif::write(&path, &vol, &extra).unwrap();
+        assert_eq!(mif::read_dw_scheme(&path).unwrap(), rows.to_vec(), "{name}");
+        let read = mif::read_image::<f32>(&path).unwrap();
+        let g = GradientTable::of_image(&path, read.world_from_voxel, 50.0).unwrap().unwrap();
+        assert_eq!(g.bvals, vec![0.0, 1000.0, 2000.0]);
+        let axes = fascicle_core::sh::world_from_voxel_axes(read.world_from_voxel);
+        for (v, r) in g.bvecs.iter().zip(&rows).skip(1) {
+            assert!((axes * *v - DVec3::new(r[0], r[1], r[2])).length() < 1e-9, "{name}: {v}");
+        }
+        assert_eq!(g.bvecs[0], DVec3::ZERO);
+    }
+    assert!(GradientTable::of_image(&dir.join("none.nii"), DMat4::IDENTITY, 50.0).is_none());
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -12,14 +12,15 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Args, Debug)]
 pub struct DwiArgs {
-    /// 4D diffusion-weighted image (.nii/.nii.gz).
+    /// 4D diffusion-weighted image (.nii/.nii.gz, or .mif/.mif.gz with its dw_scheme).
     pub dwi: PathBuf,
-    /// FSL b-values (one row, or one per line).
+    /// FSL b-values (one row, or one per line); default: the .bval beside the image, or a .mif's dw_scheme.
     #[arg(long)]
-    pub bval: PathBuf,
-    /// FSL b-vectors (3 rows or 3 columns, in the image's voxel axes as DIPY reads them).
+    pub bval: Option<PathBuf>,
+    /// FSL b-vectors (3 rows or 3 columns, in the image's voxel axes as DIPY reads them); default: the .bvec
+    /// beside the image, or a .mif's dw_scheme (turned from scanner into voxel axes).
     #[arg(long)]
-    pub bvec: PathBuf,
+    pub bvec: Option<PathBuf>,
     /// 3D mask: voxels > 0 are fitted.
     #[arg(long)]
     pub mask: Option<PathBuf>,
@@ -77,15 +78,26 @@ pub(crate) struct Loaded {
 }
 
 pub(crate) fn load(a: &DwiArgs) -> Result<Loaded, Error> {
-    let (dwi, _) = nifti::read::<f32>(&a.dwi)?;
+    let dwi = fascicle_core::io::mif::read_image::<f32>(&a.dwi)?;
     if dwi.shape.len() != 4 {
         return Err(Error::Shape(format!("{}: a DWI must be 4D, this image is {:?}", a.dwi.display(), dwi.shape)));
     }
-    let gtab = GradientTable::from_fsl(&a.bval, &a.bvec, a.b0_threshold)?;
+    let (gtab, source) = match (&a.bval, &a.bvec) {
+        (Some(bval), Some(bvec)) => (GradientTable::from_fsl(bval, bvec, a.b0_threshold)?, bval.display().to_string()),
+        (None, None) => {
+            let gtab = GradientTable::of_image(&a.dwi, dwi.world_from_voxel, a.b0_threshold).ok_or_else(|| {
+                Error::Param(format!(
+                    "{}: no gradients: give --bval and --bvec (or put them beside the image, or use a .mif with a dw_scheme)",
+                    a.dwi.display()
+                ))
+            })??;
+            (gtab, format!("the gradients of {}", a.dwi.display()))
+        }
+        _ => return Err(Error::Param("give both --bval and --bvec, or neither".into())),
+    };
     if gtab.len() != dwi.shape[3] {
         return Err(Error::Shape(format!(
-            "{} has {} b-values but {} has {} volumes",
-            a.bval.display(),
+            "{source} has {} b-values but {} has {} volumes",
             gtab.len(),
             a.dwi.display(),
             dwi.shape[3]

@@ -56,7 +56,7 @@ impl PeakArgs {
 
 #[derive(Args, Debug)]
 pub struct PeaksArgs {
-    /// 4D DWI to fit (needs --bval and --bvec).
+    /// 4D DWI to fit (gradients: --bval and --bvec, the files beside it, or a .mif's dw_scheme).
     #[arg(long, conflicts_with = "sh", required_unless_present = "sh")]
     pub dwi: Option<PathBuf>,
     /// FSL b-values of --dwi.
@@ -113,8 +113,10 @@ pub fn run(a: PeaksArgs) -> Result<(), Error> {
         let sh = ShGrid { dims, coeffs: &coeffs, l_max, basis };
         (odf_peaks(sh, vol.world_from_voxel, &params, mask.as_deref())?, vol.world_from_voxel)
     } else {
-        let (Some(dwi), Some(bval), Some(bvec)) = (&a.dwi, &a.bval, &a.bvec) else {
-            return Err(Error::Param("give --dwi FILE with --bval and --bvec, or --sh FILE".into()));
+        let Some(dwi) = &a.dwi else {
+            return Err(Error::Param(
+                "give --dwi FILE (its gradients beside it, in a .mif, or --bval and --bvec), or --sh FILE".into(),
+            ));
         };
         let kind = match a.model {
             OdfArg::Csa => OdfKind::Csa,
@@ -122,8 +124,8 @@ pub fn run(a: PeaksArgs) -> Result<(), Error> {
         };
         let l = load(&DwiArgs {
             dwi: dwi.clone(),
-            bval: bval.clone(),
-            bvec: bvec.clone(),
+            bval: a.bval.clone(),
+            bvec: a.bvec.clone(),
             mask: a.mask.clone(),
             b0_threshold: fascicle_core::io::gradients::DEFAULT_B0_THRESHOLD,
         })?;

@@ -43,7 +43,7 @@ pub enum FieldInterpolation {
 
 #[derive(Args, Debug)]
 pub struct TrackArgs {
-    /// 4D DWI to fit and track (--model); needs --bval and --bvec.
+    /// 4D DWI to fit and track (--model); gradients: --bval and --bvec, the files beside it, or a .mif's dw_scheme.
     #[arg(long, conflicts_with_all = ["tensor", "sh", "peaks"], required_unless_present_any = ["tensor", "sh", "peaks"])]
     pub dwi: Option<PathBuf>,
     /// FSL b-values of --dwi.
@@ -280,13 +280,13 @@ fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
             mask,
         ));
     }
-    let (Some(dwi), Some(bval), Some(bvec)) = (&a.dwi, &a.bval, &a.bvec) else {
-        return Err(Error::Param("give --dwi FILE with --bval and --bvec, or --tensor, --sh or --peaks FILE".into()));
+    let Some(dwi) = &a.dwi else {
+        return Err(Error::Param("give --dwi FILE (its gradients beside it, in a .mif, or --bval and --bvec), or --tensor, --sh or --peaks FILE".into()));
     };
     let args = DwiArgs {
         dwi: dwi.clone(),
-        bval: bval.clone(),
-        bvec: bvec.clone(),
+        bval: a.bval.clone(),
+        bvec: a.bvec.clone(),
         mask: a.mask.clone(),
         b0_threshold: DEFAULT_B0_THRESHOLD,
     };

@@ -55,6 +55,37 @@ impl GradientTable {
         Ok(Self { bvals, bvecs, b0_threshold })
     }
 
+    /// From an MRtrix `dw_scheme` (per volume x, y, z in scanner axes and b) of an image with
+    /// `world_from_voxel`: directions turned into the image's voxel axes (the transpose of the affine's
+    /// rotation; a reflection where it flips), as b-vectors are.
+    pub fn from_dw_scheme(rows: &[[f64; 4]], world_from_voxel: glam::DMat4, b0_threshold: f64) -> Result<Self> {
+        let m = crate::linalg::polar_rotation(glam::DMat3::from_mat4(world_from_voxel));
+        let bvecs = rows
+            .iter()
+            .map(|r| {
+                let g = DVec3::new(r[0], r[1], r[2]);
+                if g.length() > 0.0 { (m.transpose() * g).normalize() } else { DVec3::ZERO }
+            })
+            .collect();
+        GradientTable::new(rows.iter().map(|r| r[3]).collect(), bvecs, b0_threshold)
+    }
+
+    /// The gradient table of the DWI at `path` (with `world_from_voxel` as read): FSL `.bval`/`.bvec` beside it,
+    /// else the `dw_scheme` of a `.mif`; None when it has neither.
+    pub fn of_image(path: &Path, world_from_voxel: glam::DMat4, b0_threshold: f64) -> Option<Result<Self>> {
+        if let Some((bval, bvec)) = super::classify::gradients_beside(path) {
+            return Some(GradientTable::from_fsl(bval, bvec, b0_threshold));
+        }
+        if !super::mif::is_mif(path) {
+            return None;
+        }
+        match super::mif::read_dw_scheme(path) {
+            Ok(rows) if rows.is_empty() => None,
+            Ok(rows) => Some(GradientTable::from_dw_scheme(&rows, world_from_voxel, b0_threshold)),
+            Err(e) => Some(Err(e)),
+        }
+    }
+
     /// Reads FSL text files: `bval` is one row (or column) of N numbers; `bvec` is 3 rows of N (FSL) or N
     /// rows of 3 (either orientation is accepted; 3x3 is read as FSL's 3 rows).
     pub fn from_fsl(bval: impl AsRef<Path>, bvec: impl AsRef<Path>, b0_threshold: f64) -> Result<Self> {

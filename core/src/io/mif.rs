@@ -34,6 +34,41 @@ pub fn is_mif(path: &Path) -> bool {
     name.ends_with(".mif") || name.ends_with(".mif.gz")
 }
 
+/// The `dw_scheme` rows of a `.mif` (x, y, z in scanner axes, b), read from its header alone (the file is read
+/// up to the header's END line, through gzip when compressed).
+pub fn read_dw_scheme(path: impl AsRef<Path>) -> Result<Vec<[f64; 4]>> {
+    let path = path.as_ref();
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut reader = std::io::BufReader::new(file);
+    let gz = std::io::BufRead::fill_buf(&mut reader).map_err(|e| Error::io(path, e))?.starts_with(&[0x1f, 0x8b]);
+    let mut stream: Box<dyn Read> =
+        if gz { Box::new(flate2::read::MultiGzDecoder::new(reader)) } else { Box::new(reader) };
+    let mut bytes = Vec::new();
+    let mut chunk = [0u8; 4096];
+    let end = loop {
+        let n = stream.read(&mut chunk).map_err(|e| Error::format(path, format!("reading the header: {e}")))?;
+        bytes.extend_from_slice(&chunk[..n]);
+        if let Some(end) = find(&bytes, b"\nEND\n") {
+            break end;
+        }
+        if n == 0 || bytes.len() > 64 << 20 {
+            return Err(Error::format(path, "the header has no END line"));
+        }
+    };
+    if !bytes.starts_with(b"mrtrix image") {
+        return Err(Error::format(path, "not an MRtrix image: the first line is not 'mrtrix image'"));
+    }
+    let text = std::str::from_utf8(&bytes[..end]).map_err(|_| Error::format(path, "the header is not text"))?;
+    text.lines()
+        .filter_map(|l| l.split_once(':').filter(|(k, _)| k.trim() == "dw_scheme").map(|(_, v)| v.trim()))
+        .map(|v| {
+            let n: Vec<f64> = v.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+            <[f64; 4]>::try_from(n)
+                .map_err(|_| Error::format(path, format!("dw_scheme row '{v}' does not have 4 values")))
+        })
+        .collect()
+}
+
 pub fn read<T: Scalar>(path: impl AsRef<Path>) -> Result<(Volume<T>, MifHeader)> {
     let path = path.as_ref();
     let raw = std::fs::read(path).map_err(|e| Error::io(path, e))?;
