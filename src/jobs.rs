@@ -22,7 +22,9 @@ use fascicle_tensors::layer::{field_splats, field_tensor_glyphs};
 use fascicle_tensors::{SplatShape, TensorField, TensorGlyphShape};
 
 use crate::cache::DataCache;
-use crate::scene::{LayerKind, ShSource, SliceAxis, TensorSource, TractMode, TractSource, VolumeSource};
+use crate::scene::{
+    LayerKind, ShSource, SliceAxis, TensorSource, TractColouring, TractMode, TractSource, VolumeSource,
+};
 use fascicle_tracts::PreparedTracts;
 
 /// A job's stage, progress and cancel flag, shared between the job and the panel that shows it, and the parts
@@ -223,13 +225,20 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
-        LayerKind::Tracts { source, mode, render, .. } => {
+        LayerKind::Tracts { source, mode, render, colouring, .. } => {
+            // A scalar image to colour by is read (through the cache) before any part is made.
+            let scalar = match colouring {
+                TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
+                _ => None,
+            };
             let prepare = |part: TractData| {
+                let colours = point_colours(colouring, &part.tractogram, scalar.as_deref());
+                let colour = colours.as_deref();
                 let (t, tensors) = (part.tractogram, part.tensors.as_deref().map(|v| v.as_slice()));
                 Content::Tracts(match mode {
-                    TractMode::Tubes => PreparedTracts::tubes(t, tensors, render),
+                    TractMode::Tubes => PreparedTracts::tubes_coloured(t, tensors, render, colour),
                     TractMode::Polygon => PreparedTracts::polygon_tubes(t, tensors, render.scale),
-                    TractMode::Lines => PreparedTracts::lines(t),
+                    TractMode::Lines => PreparedTracts::lines_coloured(t, colour),
                 })
             };
             // Tracking delivers its streamlines as they are computed.
@@ -292,6 +301,48 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             Ok(Content::Streamed { items: data.tractogram.n_streamlines() })
         }
         LayerKind::Axes { length_mm } => Ok(Content::Axes { length_mm: *length_mm }),
+    }
+}
+
+/// A streamline point's colour: (streamline, world point) to linear RGB.
+pub type ColourFn = dyn Fn(usize, Vec3) -> [f32; 3] + Sync;
+
+/// The colour of each point of `t`'s streamlines under `colouring` (None: the style's own), as a function of
+/// (streamline, point): the direction between a streamline's ends, its length, or `scalar` sampled there.
+pub fn point_colours(
+    colouring: &TractColouring,
+    t: &Tractogram,
+    scalar: Option<&Volume<f32>>,
+) -> Option<Box<ColourFn>> {
+    use fascicle_core::dti::splat::viridis;
+    let on_viridis = |x: f64| viridis(x).as_vec3().to_array();
+    let per_streamline = |f: &dyn Fn(&[Vec3]) -> [f32; 3]| -> Vec<[f32; 3]> { t.iter().map(f).collect() };
+    match colouring {
+        TractColouring::Style => None,
+        TractColouring::Ends => {
+            let c = per_streamline(&|s| {
+                let d = (s[s.len().saturating_sub(1)] - s[0]).normalize_or_zero().abs();
+                d.to_array()
+            });
+            Some(Box::new(move |i, _| c[i]))
+        }
+        TractColouring::Length { max_mm } => {
+            let max = f64::from(max_mm.max(1e-6));
+            let c = per_streamline(&|s| {
+                on_viridis(s.windows(2).map(|w| f64::from(w[0].distance(w[1]))).sum::<f64>() / max)
+            });
+            Some(Box::new(move |i, _| c[i]))
+        }
+        TractColouring::Scalar { window: (lo, hi), .. } => {
+            let vol = scalar?.clone();
+            let inv = vol.world_from_voxel.inverse();
+            let (lo, hi) = (f64::from(*lo), f64::from(*hi));
+            let span = if hi > lo { hi - lo } else { 1.0 };
+            Some(Box::new(move |_, p| {
+                let v = fascicle_core::dvr::sample(&vol, inv.transform_point3(p.as_dvec3()));
+                on_viridis((v - lo) / span)
+            }))
+        }
     }
 }
 
@@ -1320,6 +1371,7 @@ mod tests {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
+            colouring: Default::default(),
         };
         let progress = JobProgress::default();
         let content = build(&kind, &DataCache::default(), &progress).unwrap();
@@ -1332,6 +1384,81 @@ mod tests {
         }
         assert_eq!(streamlines, big.n_streamlines());
         std::fs::remove_file(path).ok();
+    }
+
+    /// Tract colourings, checked on the line mesh a layer's job builds: every vertex of a streamline takes the
+    /// direction between its ends, or viridis of its length, or viridis of a linear scalar image (trilinear
+    /// sampling is exact on it) at the vertex; hyperstreamlines take the same colours at their tubelets' ends.
+    #[test]
+    fn tracts_are_coloured_by_ends_length_and_a_scalar_image() {
+        use crate::scene::TractColouring;
+        use bevy::mesh::{Mesh, VertexAttributeValues};
+        use fascicle_core::dti::splat::viridis;
+        let path = data("tracts/tracks300.trk");
+        let t = Tractogram::read(&path).unwrap();
+        // A ramp along x: value = (x mm) / 100, on a 2 mm grid covering the streamlines.
+        let ramp = std::env::temp_dir().join(format!("fascicle-ramp-{}.nii.gz", std::process::id()));
+        let affine = glam::DMat4::from_scale_rotation_translation(
+            glam::DVec3::splat(2.0),
+            glam::DQuat::IDENTITY,
+            glam::DVec3::new(40.0, 60.0, 40.0),
+        );
+        let mut vol = Volume::<f32>::zeros(&[50, 50, 40], affine);
+        for (i, v) in vol.data.iter_mut().enumerate() {
+            *v = (40.0 + 2.0 * (i % 50) as f32) / 100.0;
+        }
+        nifti::write(&ramp, &vol, nifti::WriteType::F32).unwrap();
+        let colours = |colouring: TractColouring| -> (Vec<[f32; 3]>, Vec<[f32; 4]>) {
+            let kind = LayerKind::Tracts {
+                source: TractSource::File { path: path.clone(), tensors: None },
+                mode: TractMode::Lines,
+                render: Default::default(),
+                rois: vec![],
+                colouring,
+            };
+            let Ok(Content::Tracts(p)) = build(&kind, &DataCache::default(), &JobProgress::default()) else {
+                panic!("no tracts")
+            };
+            let fascicle_tracts::PreparedGeometry::Mesh(mesh) = p.geometry else { panic!("not a mesh") };
+            let pos = match mesh.attribute(Mesh::ATTRIBUTE_POSITION) {
+                Some(VertexAttributeValues::Float32x3(v)) => v.clone(),
+                _ => panic!("positions"),
+            };
+            let col = match mesh.attribute(Mesh::ATTRIBUTE_COLOR) {
+                Some(VertexAttributeValues::Float32x4(v)) => v.clone(),
+                _ => panic!("colours"),
+            };
+            (pos, col)
+        };
+        // Which streamline each vertex belongs to: segments are emitted streamline by streamline.
+        let owners: Vec<usize> =
+            t.iter().enumerate().flat_map(|(i, s)| std::iter::repeat_n(i, 2 * s.len().saturating_sub(1))).collect();
+        let close = |a: [f32; 4], b: glam::Vec3| (glam::Vec3::new(a[0], a[1], a[2]) - b).abs().max_element() < 1e-5;
+
+        let (_, ends) = colours(TractColouring::Ends);
+        for (c, &s) in ends.iter().zip(&owners) {
+            let p = t.streamline(s);
+            assert!(close(*c, (p[p.len() - 1] - p[0]).normalize().abs()), "streamline {s}: {c:?}");
+        }
+        let (_, by_length) = colours(TractColouring::Length { max_mm: 120.0 });
+        for (c, &s) in by_length.iter().zip(&owners) {
+            let len: f64 = t.streamline(s).windows(2).map(|w| f64::from(w[0].distance(w[1]))).sum();
+            assert!(close(*c, viridis(len / 120.0).as_vec3()), "streamline {s}: {c:?}");
+        }
+        let source = VolumeSource::Nifti { path: ramp.clone(), volume: 0 };
+        let (pos, by_x) = colours(TractColouring::Scalar { source: source.clone(), window: (0.6, 1.2) });
+        for (c, p) in by_x.iter().zip(&pos) {
+            assert!(close(*c, viridis((f64::from(p[0]) / 100.0 - 0.6) / 0.6).as_vec3()), "at {p:?}: {c:?}");
+        }
+        // Hyperstreamlines: the tubelets' end colours (packed after the geometry) are the same function.
+        let colouring = TractColouring::Scalar { source, window: (0.6, 1.2) };
+        let c = point_colours(&colouring, &t, Some(&vol)).unwrap();
+        let tubes =
+            fascicle_tracts::PreparedTracts::tubes_coloured(Arc::new(t.clone()), None, &Default::default(), Some(&*c));
+        assert!(
+            matches!(tubes.geometry, fascicle_tracts::PreparedGeometry::Tubes { n_tubelets, .. } if n_tubelets > 1000)
+        );
+        std::fs::remove_file(ramp).ok();
     }
 
     /// A tensor file in FSL's or MRtrix3's element order reads as the same field as DIPY's.
@@ -1409,6 +1536,7 @@ mod tests {
             mode: Default::default(),
             render: Default::default(),
             rois: vec![],
+            colouring: Default::default(),
         };
         assert_eq!(build(&kind, &DataCache::default(), &p).err(), Some(CANCELLED.to_string()));
     }

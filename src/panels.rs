@@ -17,7 +17,7 @@ use fascicle_core::sh::glyph::{GlyphPlane, Lobes, Normalise, Sampling};
 use fascicle_sh_glyphs::{GlyphColour, GlyphMethod};
 use fascicle_tensors::TensorColour;
 
-use crate::scene::{LayerKind, ShSource, SliceAxis};
+use crate::scene::{LayerKind, ShSource, SliceAxis, TractColouring};
 
 /// One layer kind's controls: `show` edits the kind in place (an edit re-syncs the layer); `data` is what
 /// the layer's spawned entities report back (e.g. the samples' eigenvalues for a scattergram).
@@ -254,11 +254,63 @@ fn tensor_source_from_text(text: &str) -> Option<crate::scene::TensorSource> {
     }
 }
 
+/// How a tract layer is coloured: the style's own (direction, Westin, per streamline), endpoints, length or a
+/// scalar image sampled along the streamlines (a NIfTI or .mif path, one volume, a window).
+fn tract_colouring(ui: &mut egui::Ui, colouring: &mut TractColouring, render: &mut fascicle_tracts::TubeSettings) {
+    use fascicle_core::tubelet::TubeColour;
+    ui.horizontal(|ui| {
+        ui.label("colour");
+        for (c, name) in
+            [(TubeColour::Direction, "direction"), (TubeColour::Westin, "Westin"), (TubeColour::Streamline, "random")]
+        {
+            if ui.radio(*colouring == TractColouring::Style && render.colour == c, name).clicked() {
+                *colouring = TractColouring::Style;
+                render.colour = c;
+            }
+        }
+        if ui.radio(*colouring == TractColouring::Ends, "ends").clicked() {
+            *colouring = TractColouring::Ends;
+        }
+        if ui.radio(matches!(colouring, TractColouring::Length { .. }), "length").clicked()
+            && !matches!(colouring, TractColouring::Length { .. })
+        {
+            *colouring = TractColouring::Length { max_mm: 150.0 };
+        }
+        if ui.radio(matches!(colouring, TractColouring::Scalar { .. }), "scalar image").clicked()
+            && !matches!(colouring, TractColouring::Scalar { .. })
+        {
+            *colouring = TractColouring::Scalar {
+                source: crate::scene::VolumeSource::Nifti { path: Default::default(), volume: 0 },
+                window: (0.0, 1.0),
+            };
+        }
+    });
+    match colouring {
+        TractColouring::Length { max_mm } => {
+            ui.add(egui::Slider::new(max_mm, 5.0..=300.0).text("length at the top of the map (mm)"));
+        }
+        TractColouring::Scalar { source: crate::scene::VolumeSource::Nifti { path, volume }, window } => {
+            let mut text = path.display().to_string();
+            ui.horizontal(|ui| {
+                ui.label("image");
+                if ui.text_edit_singleline(&mut text).changed() {
+                    *path = text.into();
+                }
+            });
+            ui.add(egui::DragValue::new(volume).prefix("volume "));
+            ui.horizontal(|ui| {
+                ui.add(egui::DragValue::new(&mut window.0).speed(0.01).prefix("from "));
+                ui.add(egui::DragValue::new(&mut window.1).speed(0.01).prefix("to "));
+            });
+        }
+        _ => {}
+    }
+}
+
 fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     use crate::scene::TractMode;
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
-    use fascicle_core::tubelet::TubeColour;
-    let LayerKind::Tracts { source, mode, render, rois } = kind else { return };
+    let LayerKind::Tracts { source, mode, render, rois, colouring } = kind else { return };
     ui.horizontal(|ui| {
         ui.radio_value(mode, TractMode::Tubes, "hyperstreamlines");
         ui.radio_value(mode, TractMode::Polygon, "polygon tubes");
@@ -275,11 +327,7 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     }
     ui.add(egui::Slider::new(&mut render.scale, 0.2..=6.0).text("cross-section scale (mm)"));
     ui.add(egui::Slider::new(&mut render.iterations, 1..=32).text("iterations"));
-    ui.horizontal(|ui| {
-        ui.radio_value(&mut render.colour, TubeColour::Direction, "direction");
-        ui.radio_value(&mut render.colour, TubeColour::Westin, "Westin");
-        ui.radio_value(&mut render.colour, TubeColour::Streamline, "per streamline");
-    });
+    tract_colouring(ui, colouring, render);
     ui.label("ROIs (a streamline shows when it meets every include and no exclude)");
     let mut remove = None;
     for (i, roi) in rois.iter_mut().enumerate() {
@@ -675,6 +723,7 @@ mod tests {
                 mode: crate::scene::TractMode::Lines,
                 render: Default::default(),
                 rois: vec![],
+                colouring: Default::default(),
             },
         ];
         let before = kinds.clone();

@@ -112,6 +112,9 @@ pub enum LayerKind {
         /// Include/exclude regions (AND): editing them re-selects, nothing is rebuilt.
         #[serde(default)]
         rois: Vec<Roi>,
+        /// What colours the streamlines (tubes and lines; polygon tubes keep their direction colours).
+        #[serde(default)]
+        colouring: TractColouring,
     },
     /// Direct volume rendering of a scalar volume (ray casting or 3D-texture slicing), composited with the
     /// opaque layers by depth.
@@ -192,11 +195,12 @@ impl LayerKind {
                 },
             },
             // The ROIs and the per-pixel knobs are updated in place; sources, mode, scale and colour rebuild.
-            LayerKind::Tracts { source, mode, render, .. } => LayerKind::Tracts {
+            LayerKind::Tracts { source, mode, render, colouring, .. } => LayerKind::Tracts {
                 source: source.clone(),
                 mode: *mode,
                 render: TubeSettings { scale: render.scale, colour: render.colour, ..TubeSettings::default() },
                 rois: vec![],
+                colouring: colouring.clone(),
             },
             // Method and step change the mesh (slices) and the pre-integration table: rebuild. The transfer
             // function and the toggles are uniform and buffer updates.
@@ -240,6 +244,20 @@ pub enum TractSource {
         #[serde(default = "default_peak_length")]
         length: f32,
     },
+}
+
+/// What colours a tract layer's streamlines, as mrview's track colouring.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub enum TractColouring {
+    /// The style's own: local direction, Westin shape or one colour per streamline (`TubeSettings::colour`).
+    #[default]
+    Style,
+    /// Each streamline in the colour of the direction from its first to its last point (|x|, |y|, |z|).
+    Ends,
+    /// Each streamline by its length on viridis, 0 to `max_mm`.
+    Length { max_mm: f32 },
+    /// A scalar image (FA, MD, ...) sampled (trilinear) at every point, on viridis over `window`.
+    Scalar { source: VolumeSource, window: (f32, f32) },
 }
 
 /// Where tracking starts.
@@ -466,6 +484,7 @@ impl Scene {
                             shape: RoiShape::Sphere { centre: [0.0, 28.0, 1.0], radius: 4.0 },
                             mode: RoiMode::Include,
                         }],
+                        colouring: Default::default(),
                     },
                 },
                 LayerSpec {
@@ -548,6 +567,7 @@ pub fn layer_kind_for(path: &Path, kind: &ImageKind) -> LayerKind {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: Vec::new(),
+            colouring: Default::default(),
         },
         ImageKind::Sh { basis, .. } => LayerKind::ShGlyphs {
             source: ShSource::Nifti { path, basis: basis.unwrap_or_default() },

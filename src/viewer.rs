@@ -904,6 +904,7 @@ fn derived_layers(tensors: &crate::scene::TensorSource) -> Vec<(&'static str, La
                 mode: TractMode::Tubes,
                 render: Default::default(),
                 rois: vec![],
+                colouring: Default::default(),
             },
         ),
     ]
@@ -1026,6 +1027,7 @@ mod tests {
                 mode: crate::scene::TractMode::Tubes,
                 render: Default::default(),
                 rois: rois.into_iter().map(|shape| Roi { shape, mode: RoiMode::Include }).collect(),
+                colouring: Default::default(),
             },
         };
         let near = RoiShape::Sphere { centre: [0.0, 0.0, 10.0], radius: 2.0 };
@@ -1067,6 +1069,7 @@ mod tests {
                 mode: crate::scene::TractMode::Tubes,
                 render: Default::default(),
                 rois: vec![],
+                colouring: Default::default(),
             },
         };
         let sphere = Seeds::Sphere { centre: [28.0, 0.0, 0.0], radius: 6.0, per_voxel: 8 };
@@ -1112,6 +1115,7 @@ mod tests {
                 mode: crate::scene::TractMode::Lines,
                 render: Default::default(),
                 rois: rois.clone(),
+                colouring: Default::default(),
             },
         };
         let mut app = App::new();

@@ -411,6 +411,7 @@ fn rois_act_on_their_own_layer() {
             mode,
             render: Default::default(),
             rois,
+            colouring: Default::default(),
         },
     };
     let layers =
@@ -686,6 +687,7 @@ fn tracking_streams_into_its_layer() {
             mode: TractMode::Tubes,
             render: default(),
             rois: rois.clone(),
+            colouring: default(),
         },
     };
     let mut app = headless::headless_app();

@@ -287,6 +287,7 @@ fn large_scene(dir: &Path) -> Result<Scene, String> {
                     shape: RoiShape::Sphere { centre: [0.0, 0.0, 0.0], radius: 10.0 },
                     mode: RoiMode::Include,
                 }],
+                colouring: Default::default(),
             },
         ),
     ];
@@ -309,6 +310,7 @@ fn seeded_tracking() -> LayerSpec {
             mode: TractMode::Tubes,
             render: Default::default(),
             rois: vec![],
+            colouring: Default::default(),
         },
     }
 }

@@ -278,14 +278,33 @@ impl PreparedTracts {
 
     /// Hyperstreamlines (optional per-point world tensors give the sections).
     pub fn tubes(tractogram: Arc<Tractogram>, tensors: Option<&[[f32; 6]]>, settings: &TubeSettings) -> Self {
-        let tubes = tract_tubelets(&tractogram, tensors, settings);
+        PreparedTracts::tubes_coloured(tractogram, tensors, settings, None)
+    }
+
+    /// [`PreparedTracts::tubes`], each tubelet's two ends coloured by `colour` (when given) at the points where
+    /// its axis meets its cut planes, instead of the settings' colouring.
+    pub fn tubes_coloured(
+        tractogram: Arc<Tractogram>,
+        tensors: Option<&[[f32; 6]]>,
+        settings: &TubeSettings,
+        colour: Option<PointColour>,
+    ) -> Self {
+        let mut tubes = tract_tubelets(&tractogram, tensors, settings);
+        if let Some(colour) = colour {
+            recolour(&mut tubes, colour);
+        }
         let geometry = PreparedGeometry::Tubes { packed: pack(&tubes), n_tubelets: tubes.len(), settings: *settings };
         PreparedTracts::with(tractogram, geometry)
     }
 
     /// Lines coloured by segment direction ([`line_mesh`]).
     pub fn lines(tractogram: Arc<Tractogram>) -> Self {
-        let mesh = line_mesh(&tractogram);
+        PreparedTracts::lines_coloured(tractogram, None)
+    }
+
+    /// Lines coloured by `colour` at each vertex when given ([`line_mesh_coloured`]).
+    pub fn lines_coloured(tractogram: Arc<Tractogram>, colour: Option<PointColour>) -> Self {
+        let mesh = line_mesh_coloured(&tractogram, colour);
         PreparedTracts::with(tractogram, PreparedGeometry::Mesh(Box::new(mesh)))
     }
 
@@ -437,9 +456,27 @@ pub fn spawn_polygon_tubes(
     spawn_mesh_set(commands, meshes, materials, target, mesh, opacity)
 }
 
+/// A colour for a point of a streamline: (the streamline's index in its set, the world point) to linear RGB.
+pub type PointColour<'a> = &'a (dyn Fn(usize, Vec3) -> [f32; 3] + Sync);
+
+/// Colours each tubelet's two ends by `colour` at the points where its axis meets its cut planes (the
+/// streamline's points).
+pub fn recolour(tubes: &mut [fascicle_core::tubelet::Tubelet], colour: PointColour) {
+    for t in tubes {
+        let axis = t.rotation * glam::DVec3::X * t.half_length;
+        let at = |p: glam::DVec3| glam::DVec3::from(colour(t.streamline as usize, p.as_vec3()).map(f64::from));
+        t.colours = [at(t.centre - axis), at(t.centre + axis)];
+    }
+}
+
 /// Line segments of every streamline: positions, colours |direction| and UV x = the streamline's index
 /// (exact in f32 up to 2^24 streamlines), which the vertex shader looks up in the selection flags.
 pub fn line_mesh(t: &Tractogram) -> Mesh {
+    line_mesh_coloured(t, None)
+}
+
+/// [`line_mesh`] with each vertex coloured by `colour` when given.
+pub fn line_mesh_coloured(t: &Tractogram, colour: Option<PointColour>) -> Mesh {
     let n = t.points.len() * 2;
     let (mut pos, mut col, mut uv) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
     for (i, s) in t.iter().enumerate() {
@@ -447,7 +484,8 @@ pub fn line_mesh(t: &Tractogram) -> Mesh {
             let d = (w[1] - w[0]).normalize_or_zero().abs();
             for p in w {
                 pos.push(*p);
-                col.push([d.x, d.y, d.z, 1.0]);
+                let [r, g, b] = colour.map_or([d.x, d.y, d.z], |f| f(i, *p));
+                col.push([r, g, b, 1.0]);
                 uv.push([i as f32, 0.0]);
             }
         }
@@ -566,4 +604,28 @@ pub fn draw_rois(mut gizmos: Gizmos, rois: Query<&TractRoi>) {
 /// The selected streamlines of a set as a new tractogram (for saving as `.trk`/`.tck`).
 pub fn selected_tractogram(set: &TractSet, selection: &TractSelection) -> Tractogram {
     set.tractogram.subset(&selection.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tubelet's end colours are the colour function at its streamline's two points (here the colour is
+    /// the point itself and the streamline's index).
+    #[test]
+    fn tubelet_ends_take_the_colour_of_their_points() {
+        let mut t = Tractogram::new();
+        t.push(&[Vec3::new(0.0, 0.0, 0.0), Vec3::new(2.0, 1.0, 0.0), Vec3::new(3.0, 3.0, 1.0)]);
+        t.push(&[Vec3::new(5.0, 0.0, 0.0), Vec3::new(5.0, 0.0, 4.0)]);
+        let mut tubes = tract_tubelets(&t, None, &TubeSettings::default());
+        assert_eq!(tubes.len(), 3);
+        recolour(&mut tubes, &|s, p| [p.x, p.y, p.z + 10.0 * s as f32]);
+        for (tube, (s, k)) in tubes.iter().zip([(0, 0), (0, 1), (1, 0)]) {
+            let pts = t.streamline(s);
+            for (end, p) in tube.colours.iter().zip([pts[k], pts[k + 1]]) {
+                let want = glam::DVec3::new(p.x as f64, p.y as f64, p.z as f64 + 10.0 * s as f64);
+                assert!((*end - want).length() < 1e-5, "streamline {s} segment {k}: {end} vs {want}");
+            }
+        }
+    }
 }
