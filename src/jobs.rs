@@ -374,13 +374,20 @@ pub fn neighbour_slices(kind: &LayerKind, dims: [usize; 3]) -> Vec<LayerKind> {
 }
 
 /// Runs `f` (a layer's job) with its parallel work (fits, tracking, glyph placement) on the jobs' own rayon
-/// threads. The main thread's parallel work (ROI selection as tract parts arrive, as an ROI is dragged) uses the
-/// global pool: were the jobs there too, a frame would wait until their queued work was done (a 2.2 s frame
-/// while the large bench scene built). Without the pool (threads could not be made), `f` runs on the global one.
+/// threads, one fewer than the cores (at least one): a core stays for the frame. The main thread's parallel
+/// work (ROI selection as tract parts arrive, as an ROI is dragged) uses the global pool: were the jobs there
+/// too, a frame would wait until their queued work was done (a 2.2 s frame while the large bench scene built).
+/// Without the pool (threads could not be made), `f` runs on the global one.
 pub fn on_job_threads<T: Send>(f: impl FnOnce() -> T + Send) -> T {
     static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
-    let pool =
-        POOL.get_or_init(|| rayon::ThreadPoolBuilder::new().thread_name(|i| format!("fascicle-job-{i}")).build().ok());
+    let pool = POOL.get_or_init(|| {
+        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(cores.saturating_sub(1).max(1))
+            .thread_name(|i| format!("fascicle-job-{i}"))
+            .build()
+            .ok()
+    });
     match pool {
         Some(pool) => pool.install(f),
         None => f(),

@@ -265,8 +265,9 @@ pub struct PreparedTracts {
 
 /// The drawable part of [`PreparedTracts`].
 pub enum PreparedGeometry {
-    /// Hyperstreamlines: the packed tubelet buffer, their count and the settings they were made with.
-    Tubes { packed: Vec<u8>, n_tubelets: usize, settings: TubeSettings },
+    /// Hyperstreamlines: the packed tubelet buffer, their count, the settings they were made with, and the
+    /// proxy boxes (8 vertices each; built here, off the main thread, not at spawn).
+    Tubes { packed: Vec<u8>, n_tubelets: usize, settings: TubeSettings, boxes: Box<Mesh> },
     /// Lines or polygon tubes.
     Mesh(Box<Mesh>),
 }
@@ -293,7 +294,12 @@ impl PreparedTracts {
         if let Some(colour) = colour {
             recolour(&mut tubes, colour);
         }
-        let geometry = PreparedGeometry::Tubes { packed: pack(&tubes), n_tubelets: tubes.len(), settings: *settings };
+        let geometry = PreparedGeometry::Tubes {
+            packed: pack(&tubes),
+            n_tubelets: tubes.len(),
+            settings: *settings,
+            boxes: Box::new(boxes(tubes.len())),
+        };
         PreparedTracts::with(tractogram, geometry)
     }
 
@@ -346,8 +352,9 @@ pub fn spawn_prepared(
     let PreparedTracts { tractogram, grid, geometry } = prepared;
     let target = tract_set(buffers, tractogram, grid);
     match geometry {
-        PreparedGeometry::Tubes { packed, n_tubelets, settings } => {
-            spawn_tube_set(commands, meshes, tube_materials, buffers, target, &packed, n_tubelets, settings)
+        PreparedGeometry::Tubes { packed, n_tubelets, settings, boxes } => {
+            let tubes = (&packed[..], n_tubelets, *boxes);
+            spawn_tube_set(commands, meshes, tube_materials, buffers, target, tubes, settings)
         }
         PreparedGeometry::Mesh(mesh) => spawn_mesh_set(commands, meshes, mesh_materials, target, *mesh, opacity),
     }
@@ -361,8 +368,7 @@ fn spawn_tube_set(
     materials: &mut Assets<TubeletMaterial>,
     buffers: &mut Assets<ShaderBuffer>,
     (set, selection): (TractSet, TractSelection),
-    packed: &[u8],
-    n_tubelets: usize,
+    (packed, n_tubelets, proxies): (&[u8], usize, Mesh),
     settings: TubeSettings,
 ) -> Entity {
     let material = materials.add(TubeletMaterial {
@@ -378,7 +384,7 @@ fn spawn_tube_set(
         Visibility::default(),
     ));
     if n_tubelets > 0 {
-        e.insert((Mesh3d(meshes.add(boxes(n_tubelets))), MeshMaterial3d(material), NoFrustumCulling));
+        e.insert((Mesh3d(meshes.add(proxies)), MeshMaterial3d(material), NoFrustumCulling));
     }
     e.id()
 }
@@ -420,7 +426,8 @@ pub fn spawn_tubes(
 ) -> Entity {
     let tubes = tract_tubelets(&tractogram, tensors, settings);
     let target = tract_set(buffers, tractogram.clone(), segment_grid(&tractogram));
-    spawn_tube_set(commands, meshes, materials, buffers, target, &pack(&tubes), tubes.len(), *settings)
+    let proxies = (&pack(&tubes)[..], tubes.len(), boxes(tubes.len()));
+    spawn_tube_set(commands, meshes, materials, buffers, target, proxies, *settings)
 }
 
 /// Spawns a tractogram as lines coloured by segment direction; returns the set's entity (parent of its
