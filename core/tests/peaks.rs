@@ -274,3 +274,49 @@ fn peak_files_round_trip_in_both_layouts_through_an_oblique_frame() {
     assert!(e.contains("(X,Y,Z,3N)"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// FSL dtifit's eigenvector image (`PREFIX_V1`, 3 volumes, with `PREFIX_FA` beside) opens as a one-peak image:
+/// named so, it is classified as peaks whatever its content; its directions are read in the b-vectors' axes
+/// (as a fit gives its eigenvectors; not turned from world axes as MRtrix's peaks are) and its lengths are the
+/// FA beside it. Made here from the principal eigenvectors of `fascicle fit dti`'s tensors of `small_64D`.
+#[test]
+fn fsl_dtifit_v1_opens_as_one_peak_per_voxel() {
+    use fascicle_core::io::classify::{ImageKind, classify};
+    use fascicle_core::io::peaks;
+    let (tensors, _) = nifti::read::<f32>(data("dti/small_64D_tensor.nii.gz")).unwrap();
+    let (fa, _) = nifti::read::<f32>(data("dti/small_64D_fa.nii.gz")).unwrap();
+    let n = tensors.n_voxels();
+    let mut v1 = fascicle_core::Volume::<f32>::zeros(&[10, 10, 10, 3], tensors.world_from_voxel);
+    let mut e1 = vec![DVec3::ZERO; n];
+    for v in 0..n {
+        let t: [f64; 6] = std::array::from_fn(|c| tensors.data[v + n * c] as f64);
+        if let Some(e) = dti::eigh(&t).filter(|e| e.values[0] > 0.0) {
+            e1[v] = e.vectors[0];
+            for c in 0..3 {
+                v1.data[v + n * c] = e.vectors[0][c] as f32;
+            }
+        }
+    }
+    let dir = std::env::temp_dir().join(format!("fascicle-dtifit-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (v1_path, fa_path) = (dir.join("dti_V1.nii.gz"), dir.join("dti_FA.nii.gz"));
+    nifti::write(&v1_path, &v1, nifti::WriteType::F32).unwrap();
+    nifti::write(&fa_path, &fa, nifti::WriteType::F32).unwrap();
+    let c = classify(&v1_path).unwrap();
+    assert_eq!(c.kind, ImageKind::Peaks, "{}", c.reason);
+    let img = peaks::read(&v1_path).unwrap();
+    assert_eq!((img.npeaks, img.dims), (1, [10, 10, 10]));
+    let mut checked = 0;
+    for v in (0..n).filter(|&v| e1[v] != DVec3::ZERO) {
+        let d = DVec3::from(img.dirs[v].map(f64::from));
+        assert!(d.dot(e1[v]).abs() > 1.0 - 1e-6, "voxel {v}: {d} vs {}", e1[v]);
+        assert_eq!(img.amplitudes[v], fa.data[v].max(0.0));
+        checked += 1;
+    }
+    assert!(checked > 500, "{checked} voxels");
+    // Without the FA beside it, every peak has length 1.
+    std::fs::remove_file(&fa_path).unwrap();
+    let bare = peaks::read(&v1_path).unwrap();
+    assert!((0..n).filter(|&v| e1[v] != DVec3::ZERO).all(|v| bare.amplitudes[v] == 1.0));
+    std::fs::remove_dir_all(dir).ok();
+}

@@ -237,6 +237,9 @@ pub fn classify_with(path: &Path, h: &NiftiHeader, data: impl FnOnce() -> Result
         let (order, _) = best_tensor_order(&vol);
         return decided(ImageKind::Tensor { order }, "intent symmetric matrix (element order from the content)");
     }
+    if vols == 3 && super::peaks::fsl_eigenvector(path) {
+        return decided(ImageKind::Peaks, "FSL dtifit eigenvector (_V1, _V2, _V3)");
+    }
     let says_peaks = name.contains("peak") || h.intent_name.to_ascii_lowercase().contains("peak");
     if vols.is_multiple_of(3) && (says_peaks || h.intent_code == INTENT_VECTOR) {
         return decided(ImageKind::Peaks, "named or marked as peaks / vectors");

@@ -121,6 +121,29 @@ pub fn read(path: impl AsRef<Path>) -> Result<PeakImage> {
             path.display()
         ))
     };
+    if shape.len() == 4 && shape[3] == 3 && fsl_eigenvector(path) {
+        // FSL dtifit's eigenvector: in the b-vectors' axes (as Fascicle's and DIPY's fits give theirs), the
+        // length from the FA beside it (PREFIX_FA), 1 without.
+        let fa = beside_fa(path).and_then(|p| nifti::read::<f32>(p).ok()).map(|(v, _)| v).filter(|f| f.dims3() == dims);
+        let (mut dirs, mut amplitudes) = (vec![[0.0f32; 3]; n], vec![0.0f32; n]);
+        for v in 0..n {
+            let d = DVec3::from(std::array::from_fn(|c| f64::from(vol.data[v + n * c])));
+            let len = d.length();
+            if len.is_finite() && len > 0.0 {
+                let u = d / len;
+                dirs[v] = [u.x as f32, u.y as f32, u.z as f32];
+                amplitudes[v] = fa.as_ref().map_or(1.0, |f| f.data[v].max(0.0));
+            }
+        }
+        return Ok(PeakImage {
+            dims,
+            npeaks: 1,
+            dirs,
+            amplitudes,
+            world_from_voxel: vol.world_from_voxel,
+            layout: PeaksLayout::Mrtrix,
+        });
+    }
     if shape.len() == 4 && shape[3] % 3 == 0 && shape[3] > 0 {
         let k = shape[3] / 3;
         let (mut dirs, mut amplitudes) = (vec![[0.0f32; 3]; n * k], vec![0.0f32; n * k]);
@@ -169,6 +192,21 @@ pub fn read(path: impl AsRef<Path>) -> Result<PeakImage> {
         });
     }
     Err(bad())
+}
+
+/// Whether `path` is named as FSL dtifit names its eigenvectors: `PREFIX_V1.nii[.gz]` (or `_V2`, `_V3`).
+pub fn fsl_eigenvector(path: &Path) -> bool {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let stem = name.strip_suffix(".gz").unwrap_or(&name);
+    let stem = stem.strip_suffix(".nii").unwrap_or(stem);
+    ["_V1", "_V2", "_V3"].iter().any(|s| stem.ends_with(s))
+}
+
+/// `PREFIX_FA.nii.gz` (or `.nii`) beside `PREFIX_V1.nii.gz`, if it exists.
+fn beside_fa(v1: &Path) -> Option<std::path::PathBuf> {
+    let name = v1.file_name()?.to_string_lossy().into_owned();
+    let prefix = name.rsplit_once("_V")?.0.to_string();
+    ["_FA.nii.gz", "_FA.nii"].iter().map(|e| v1.with_file_name(format!("{prefix}{e}"))).find(|p| p.is_file())
 }
 
 /// `PREFIX_values.nii.gz` beside `PREFIX_dirs.nii.gz`, voxel-major, if it exists and fits.
