@@ -586,17 +586,10 @@ pub fn tensor_field(cache: &DataCache, source: &TensorSource, progress: &JobProg
         }
         TensorSource::Dwi { path } => {
             use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD};
-            let beside = fascicle_core::io::classify::gradients_beside(path);
-            let has_scheme = fascicle_core::io::mif::is_mif(path)
-                && fascicle_core::io::mif::read_dw_scheme(path).is_ok_and(|r| !r.is_empty());
-            if beside.is_none() && !has_scheme {
-                return Err(format!(
-                    "{}: no .bval/.bvec beside the image (nor a .mif dw_scheme): it cannot be fitted as a DWI",
-                    path.display()
-                ));
-            }
             let dwi = image(cache, path, progress)?;
             let key = format!("tensor:dwi:{path:?}");
+            // The cache stamps the gradient files beside the image too (a .mif carries its own).
+            let beside = fascicle_core::io::classify::gradients_beside(path);
             let mut files: Vec<&Path> = vec![path];
             if let Some((bval, bvec)) = &beside {
                 files.extend([bval.as_path(), bvec.as_path()]);
@@ -607,7 +600,12 @@ pub fn tensor_field(cache: &DataCache, source: &TensorSource, progress: &JobProg
                 |f: &TensorField| volume_bytes(&f.tensors),
                 || {
                     let gtab = GradientTable::of_image(path, dwi.world_from_voxel, DEFAULT_B0_THRESHOLD)
-                        .ok_or_else(|| format!("{}: no gradients", path.display()))?
+                        .ok_or_else(|| {
+                            format!(
+                                "{}: no .bval/.bvec beside the image (nor a .mif dw_scheme): it cannot be fitted as a DWI",
+                                path.display()
+                            )
+                        })?
                         .map_err(|e| e.to_string())?;
                     progress.stage("fitting tensors (WLS)", dwi.n_voxels())?;
                     let fit = fascicle_core::dti::fit_volume_with_progress(
@@ -764,12 +762,21 @@ pub fn split(data: &TractData, max_points: usize) -> Vec<TractData> {
 
 /// Streamlines `range` of `data`, with their tensors.
 fn streamlines_of(data: &TractData, range: std::ops::Range<usize>) -> TractData {
-    let t = &data.tractogram;
+    let mut out = (Tractogram::new(), vec![]);
+    append_streamlines(&mut out, data, range);
+    TractData { tractogram: Arc::new(out.0), tensors: data.tensors.as_ref().map(|_| Arc::new(out.1)) }
+}
+
+/// Appends streamlines `range` of `d` (and their tensors, when it has them) to `out`.
+fn append_streamlines(out: &mut (Tractogram, Vec<[f32; 6]>), d: &TractData, range: std::ops::Range<usize>) {
+    let t = &d.tractogram;
     let (a, b) = (t.offsets[range.start], t.offsets[range.end]);
-    let mut out = Tractogram::new();
-    out.points = t.points[a..b].to_vec();
-    out.offsets = t.offsets[range].iter().map(|o| o - a).chain([b - a]).collect();
-    TractData { tractogram: Arc::new(out), tensors: data.tensors.as_ref().map(|v| Arc::new(v[a..b].to_vec())) }
+    let base = out.0.points.len();
+    out.0.points.extend_from_slice(&t.points[a..b]);
+    out.0.offsets.extend(t.offsets[range.start + 1..=range.end].iter().map(|o| o - a + base));
+    if let Some(tensors) = &d.tensors {
+        out.1.extend_from_slice(&tensors[a..b]);
+    }
 }
 
 /// The last streamlines tracked through one field with one set of parameters, per seed: a new seed set
@@ -813,17 +820,7 @@ fn track<F: fascicle_core::tracking::DirectionField + Sync>(
     let old: Vec<Option<usize>> = seeds.iter().map(|s| index.get(&seed_bits(*s)).copied()).collect();
     let missing: Vec<usize> = (0..seeds.len()).filter(|&i| old[i].is_none()).collect();
     let tracker = Tracker::new(field, affine, params.clone()).map_err(|e| e.to_string())?;
-    // Streamlines of seed `i` from `d` (`first` its per-seed index), appended to `out`.
-    let copy = |out: &mut (Tractogram, Vec<[f32; 6]>), d: &TractData, range: std::ops::Range<usize>| {
-        let t = &d.tractogram;
-        let (a, b) = (t.offsets[range.start], t.offsets[range.end]);
-        let base = out.0.points.len();
-        out.0.points.extend_from_slice(&t.points[a..b]);
-        out.0.offsets.extend(t.offsets[range.start + 1..=range.end].iter().map(|o| o - a + base));
-        if let Some(tensors) = &d.tensors {
-            out.1.extend_from_slice(&tensors[a..b]);
-        }
-    };
+    let copy = append_streamlines;
     let finish = |(t, tensors): (Tractogram, Vec<[f32; 6]>)| TractData {
         tractogram: Arc::new(t),
         tensors: Some(Arc::new(tensors)),

@@ -450,8 +450,8 @@ fn spawn_rois(commands: &mut Commands, rois: &[fascicle_core::roi::Roi], index: 
     }
 }
 
-/// A tract set's entity, its tubes or mesh, and its layer.
-type TractParts = (Entity, Option<&'static TubeSet>, Option<&'static MeshSet>, &'static LayerEntity);
+/// A tract set's tubes or mesh, and its layer.
+type TractParts = (Option<&'static TubeSet>, Option<&'static MeshSet>, &'static LayerEntity);
 
 /// Settings edits of layers whose content stays: uniform writes, style buffers, ROI entities, opacity.
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
@@ -511,7 +511,7 @@ fn restyle_layers(
                 }
             }
             (LayerKind::Tracts { render: a, rois: ra, .. }, LayerKind::Tracts { render, rois: rb, .. }) => {
-                for (_, tubes, _, _) in tract_sets.iter().filter(|(.., le)| le.0 == i) {
+                for (tubes, _, _) in tract_sets.iter().filter(|(.., le)| le.0 == i) {
                     if a != render
                         && let Some(tubes) = tubes
                         && let Some(mut m) = tube_materials.get_mut(&tubes.material)
@@ -532,7 +532,7 @@ fn restyle_layers(
         }
         if before.opacity != after.opacity {
             let opacity = after.opacity.clamp(0.0, 1.0);
-            for (_, _, mesh, _) in tract_sets.iter().filter(|(.., le)| le.0 == i) {
+            for (_, mesh, _) in tract_sets.iter().filter(|(.., le)| le.0 == i) {
                 if let Some(mesh) = mesh
                     && let Some(mut m) = mesh_materials.get_mut(&mesh.material)
                 {

@@ -586,18 +586,9 @@ fn file_dialog(
     let Some(task) = dialog.0.as_mut() else { return };
     let Some(chosen) = bevy::tasks::futures::check_ready(task) else { return };
     dialog.0 = None;
+    // Scene files replace the scene, data files add layers (`Scene::open_file`), as when dropped.
     for path in chosen.unwrap_or_default() {
-        if path.extension().is_some_and(|e| e == "ron") {
-            match Scene::load(&path) {
-                Ok(s) => {
-                    *orbit = Orbit::from_spec(&s.camera);
-                    scene.0 = s;
-                }
-                Err(e) => ui.message = Some(e),
-            }
-        } else {
-            open_path(&path, &mut scene, &mut ui, &mut orbit, &mut recent);
-        }
+        open_path(&path, &mut scene, &mut ui, &mut orbit, &mut recent);
     }
 }
 
@@ -778,7 +769,7 @@ fn panel(
         if let Some(m) = &ui_state.message {
             ui.label(m);
         }
-        ui.label("Open or drop NIfTI, .mif, .trk/.tck or .ron files on the window.");
+        ui.label("Open or drop NIfTI, .mif, .trk/.tck/.trx or .ron files on the window.");
         ui.allocate_rect(ui.available_rect_before_wrap(), egui::Sense::hover());
     });
     if let Some((path, choices)) = ui_state.ask.clone() {

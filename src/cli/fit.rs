@@ -208,9 +208,10 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
     pb.finish_and_clear();
     // The fit follows the b-vectors, in voxel axes: MRtrix3's basis is written in scanner axes, as its own
     // programs write it.
-    let axes = sh::world_from_voxel_axes(coeffs.world_from_voxel);
-    if basis.frame() == sh::Frame::World && !axes.abs_diff_eq(glam::DMat3::IDENTITY, 1e-12) {
-        sh::frame::reorient_volume(&mut coeffs, &sh::reorientation(basis, a.lmax, axes)?)?;
+    if basis.frame() == sh::Frame::World
+        && let Some(t) = sh::frame::turning(basis, a.lmax, sh::world_from_voxel_axes(coeffs.world_from_voxel))?
+    {
+        sh::frame::reorient_volume(&mut coeffs, &t)?;
     }
     // The basis goes into the header (descrip), so that readers need not be told it.
     let meta = nifti::WriteMeta { descrip: sh_descrip(basis, a.lmax), ..Default::default() };

@@ -59,7 +59,7 @@ impl GradientTable {
     /// `world_from_voxel`: directions turned into the image's voxel axes (the transpose of the affine's
     /// rotation; a reflection where it flips), as b-vectors are.
     pub fn from_dw_scheme(rows: &[[f64; 4]], world_from_voxel: glam::DMat4, b0_threshold: f64) -> Result<Self> {
-        let m = crate::linalg::polar_rotation(glam::DMat3::from_mat4(world_from_voxel));
+        let m = crate::sh::world_from_voxel_axes(world_from_voxel);
         let bvecs = rows
             .iter()
             .map(|r| {

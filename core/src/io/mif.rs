@@ -45,28 +45,43 @@ pub fn read_dw_scheme(path: impl AsRef<Path>) -> Result<Vec<[f64; 4]>> {
         if gz { Box::new(flate2::read::MultiGzDecoder::new(reader)) } else { Box::new(reader) };
     let mut bytes = Vec::new();
     let mut chunk = [0u8; 4096];
-    let end = loop {
+    loop {
         let n = stream.read(&mut chunk).map_err(|e| Error::format(path, format!("reading the header: {e}")))?;
         bytes.extend_from_slice(&chunk[..n]);
-        if let Some(end) = find(&bytes, b"\nEND\n") {
-            break end;
+        if find(&bytes, b"\nEND\n").is_some() || n == 0 || bytes.len() > 64 << 20 {
+            break;
         }
-        if n == 0 || bytes.len() > 64 << 20 {
-            return Err(Error::format(path, "the header has no END line"));
-        }
-    };
-    if !bytes.starts_with(b"mrtrix image") {
-        return Err(Error::format(path, "not an MRtrix image: the first line is not 'mrtrix image'"));
     }
-    let text = std::str::from_utf8(&bytes[..end]).map_err(|_| Error::format(path, "the header is not text"))?;
-    text.lines()
+    header_text(&bytes, path)?
+        .lines()
         .filter_map(|l| l.split_once(':').filter(|(k, _)| k.trim() == "dw_scheme").map(|(_, v)| v.trim()))
-        .map(|v| {
-            let n: Vec<f64> = v.split(',').filter_map(|x| x.trim().parse().ok()).collect();
-            <[f64; 4]>::try_from(n)
-                .map_err(|_| Error::format(path, format!("dw_scheme row '{v}' does not have 4 values")))
+        .map(|v| dw_scheme_row(v, path))
+        .collect()
+}
+
+/// The header of a `.mif`'s (uncompressed) bytes, up to its END line, checked to start as MRtrix's do.
+fn header_text<'a>(bytes: &'a [u8], path: &Path) -> Result<&'a str> {
+    let bad = |m: &str| Error::format(path, m);
+    if !bytes.starts_with(b"mrtrix image") {
+        return Err(bad("not an MRtrix image: the first line is not 'mrtrix image'"));
+    }
+    let end = find(bytes, b"\nEND\n").ok_or_else(|| bad("the header has no END line"))?;
+    std::str::from_utf8(&bytes[..end]).map_err(|_| bad("the header is not text"))
+}
+
+/// The comma-separated numbers of header key `key`'s value `v`.
+fn numbers(key: &str, v: &str, path: &Path) -> Result<Vec<f64>> {
+    v.split(',')
+        .map(|x| {
+            x.trim().parse::<f64>().map_err(|_| Error::format(path, format!("'{key}: {v}' is not a list of numbers")))
         })
         .collect()
+}
+
+/// One `dw_scheme` row: x, y, z, b.
+fn dw_scheme_row(v: &str, path: &Path) -> Result<[f64; 4]> {
+    <[f64; 4]>::try_from(numbers("dw_scheme", v, path)?)
+        .map_err(|_| Error::format(path, format!("dw_scheme row '{v}' does not have 4 values")))
 }
 
 pub fn read<T: Scalar>(path: impl AsRef<Path>) -> Result<(Volume<T>, MifHeader)> {
@@ -87,21 +102,13 @@ pub fn read_bytes<T: Scalar>(raw: Vec<u8>, path: &Path) -> Result<(Volume<T>, Mi
         raw
     };
     let bad = |m: String| Error::format(path, m);
-    if !bytes.starts_with(b"mrtrix image") {
-        return Err(bad("not an MRtrix image: the first line is not 'mrtrix image'".into()));
-    }
-    let end = find(&bytes, b"\nEND\n").ok_or_else(|| bad("the header has no END line".into()))?;
-    let text = std::str::from_utf8(&bytes[..end]).map_err(|_| bad("the header is not text".into()))?;
+    let text = header_text(&bytes, path)?;
     let mut h = MifHeader::default();
     let (mut layout, mut rows, mut scaling, mut offset) = (None, Vec::new(), None, None);
     for line in text.lines().skip(1) {
         let Some((key, value)) = line.split_once(':') else { continue };
         let (key, value) = (key.trim(), value.trim());
-        let numbers = |v: &str| -> Result<Vec<f64>> {
-            v.split(',')
-                .map(|x| x.trim().parse::<f64>().map_err(|_| bad(format!("'{key}: {v}' is not a list of numbers"))))
-                .collect()
-        };
+        let numbers = |v: &str| numbers(key, v, path);
         match key {
             "dim" => h.dims = numbers(value)?.iter().map(|&d| d as usize).collect(),
             "vox" => h.vox = numbers(value)?,
@@ -109,13 +116,7 @@ pub fn read_bytes<T: Scalar>(raw: Vec<u8>, path: &Path) -> Result<(Volume<T>, Mi
             "datatype" => h.datatype = value.to_string(),
             "transform" => rows.push(numbers(value)?),
             "scaling" => scaling = Some(numbers(value)?),
-            "dw_scheme" => {
-                let v = numbers(value)?;
-                if v.len() != 4 {
-                    return Err(bad(format!("dw_scheme row '{value}' does not have 4 values")));
-                }
-                h.dw_scheme.push([v[0], v[1], v[2], v[3]]);
-            }
+            "dw_scheme" => h.dw_scheme.push(dw_scheme_row(value, path)?),
             "file" => {
                 let mut parts = value.split_whitespace();
                 if parts.next() != Some(".") {

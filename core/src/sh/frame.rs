@@ -66,15 +66,22 @@ pub fn reorientation(basis: ShBasis, l_max: usize, m: DMat3) -> Result<Vec<f64>>
     Ok(t)
 }
 
+/// [`reorientation`] for `m`, or None when `m` is the identity (nothing to turn).
+pub fn turning(basis: ShBasis, l_max: usize, m: DMat3) -> Result<Option<Vec<f64>>> {
+    if m.abs_diff_eq(DMat3::IDENTITY, 1e-12) {
+        return Ok(None);
+    }
+    reorientation(basis, l_max, m).map(Some)
+}
+
 /// The reorientation taking coefficients in `basis` (of order `l_max`, on an image with `affine`) into world
 /// axes, or None when they are in world axes already (MRtrix3's basis, or an affine without rotation or
 /// reflection). What the glyphs of a voxel-axis field need before they are placed in the world.
 pub fn to_world_axes(basis: ShBasis, l_max: usize, affine: DMat4) -> Result<Option<Vec<f64>>> {
-    let m = world_from_voxel_axes(affine);
-    if basis.frame() == Frame::World || m.abs_diff_eq(DMat3::IDENTITY, 1e-12) {
+    if basis.frame() == Frame::World {
         return Ok(None);
     }
-    reorientation(basis, l_max, m).map(Some)
+    turning(basis, l_max, world_from_voxel_axes(affine))
 }
 
 /// `t c` for a row-major `k x k` matrix `t` and `k` coefficients `c`.
@@ -129,8 +136,8 @@ pub fn convert_image(vol: &Volume<f32>, from: ShBasis, to: ShBasis) -> Result<Vo
         (Frame::World, Frame::Voxel) => Some(m.transpose()),
         _ => None,
     };
-    if let Some(turn) = turn.filter(|t| !t.abs_diff_eq(DMat3::IDENTITY, 1e-12)) {
-        reorient_volume(&mut out, &reorientation(to, l_max, turn)?)?;
+    if let Some(t) = turn.map(|m| turning(to, l_max, m)).transpose()?.flatten() {
+        reorient_volume(&mut out, &t)?;
     }
     Ok(out)
 }
