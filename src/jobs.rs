@@ -36,6 +36,8 @@ pub struct JobProgress {
     total: AtomicUsize,
     cancelled: AtomicBool,
     pub parts: Parts,
+    /// The voxel grid the content comes from, once read (the crosshair's voxel on it).
+    grid: Mutex<Option<crate::views::VoxelGrid>>,
 }
 
 /// Parts of a layer's content that its job delivers while it runs, oldest first: streamlines as they are
@@ -85,6 +87,16 @@ pub const PART_POINTS: usize = 250_000;
 pub const CANCELLED: &str = "cancelled";
 
 impl JobProgress {
+    /// Records the voxel grid the layer's content is cut from.
+    pub fn set_grid(&self, grid: crate::views::VoxelGrid) {
+        *self.grid.lock().unwrap_or_else(|e| e.into_inner()) = Some(grid);
+    }
+
+    /// The voxel grid the content is cut from, once the job has read it.
+    pub fn grid(&self) -> Option<crate::views::VoxelGrid> {
+        *self.grid.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
     /// Starts a stage of `total` units (0: unknown); fails when the job was cancelled.
     pub fn stage(&self, name: &'static str, total: usize) -> Result<(), String> {
         if self.is_cancelled() {
@@ -138,6 +150,8 @@ pub enum Content {
     Slice {
         image: Box<Image>,
         corners: [Vec3; 4],
+        /// The image it was cut from: window edits and the 2D views cut new slices from it.
+        source: crate::views::SliceSource,
     },
     /// A tractogram's line mesh (lines coloured by direction).
     Lines {
@@ -183,6 +197,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
     match kind {
         LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, full_volume, style, .. } => {
             let field = sh_field(cache, source, progress)?;
+            progress.set_grid(crate::views::VoxelGrid::of(&field.coeffs));
             // Placed glyphs are kept too (keyed by the layer's structure): stepping back to a slice, or onto
             // one that was prefetched (`prefetch_neighbours`), costs a copy.
             // A slice given as "the middle one" is keyed by its index, as its neighbours are.
@@ -267,7 +282,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             progress.stage("making the texture", 0)?;
             Ok(Content::Volume { texture: Box::new(fascicle_volume::volume_texture(&volume)), volume })
         }
-        LayerKind::Slice { source, axis, index } => {
+        LayerKind::Slice { source, axis, index, window: _ } => {
             let (vol, channel, window) = match source {
                 VolumeSource::PhantomFa => (phantom_fa(cache)?, Channels::One(0), Some((0.0, 1.0))),
                 VolumeSource::Nifti { path, volume } => {
@@ -277,8 +292,11 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 VolumeSource::Density { .. } => (scalar_volume(cache, source, progress)?, Channels::One(0), None),
             };
             progress.stage("slicing", 0)?;
-            let (image, corners) = slice_image(&vol, channel, *axis, *index, window)?;
-            Ok(Content::Slice { image: Box::new(image), corners })
+            progress.set_grid(crate::views::VoxelGrid::of(&vol));
+            let auto = window.unwrap_or_else(|| auto_window(&vol, channel));
+            let (image, corners) = slice_image(&vol, channel, *axis, *index, auto)?;
+            let source = crate::views::SliceSource { volume: vol, channels: channel, auto_window: auto };
+            Ok(Content::Slice { image: Box::new(image), corners, source })
         }
         LayerKind::Tractogram { path } => {
             // The same cached streamlines as a tract layer (or a density map) of this file.
@@ -675,6 +693,7 @@ pub fn tensor_glyphs(
         return Ok((glyphs, voxels));
     }
     let field = tensor_field(cache, source, progress)?;
+    progress.set_grid(crate::views::VoxelGrid::of(&field.tensors));
     progress.stage("placing glyphs", 0)?;
     let selection = Selection::Slice { axis, index, spacing };
     field_tensor_glyphs(&field, &selection, &TensorGlyphShape { size, min_fa, ..Default::default() })
@@ -703,6 +722,7 @@ pub fn slab_splats(
             .collect());
     }
     let field = tensor_field(cache, source, progress)?;
+    progress.set_grid(crate::views::VoxelGrid::of(&field.tensors));
     progress.stage("placing splats", 0)?;
     let selection = Selection::Slab { axis, index, thickness };
     field_splats(&field, &selection, &SplatShape { size, min_fa })
@@ -1062,14 +1082,37 @@ pub enum Channels {
     Rgb,
 }
 
-/// An image of one slice (values mapped from `window` or [min, 99.5th percentile]) and the world positions
-/// of its four outer voxel corners, counter-clockwise from voxel (0, 0).
+/// The window a slice shows when its layer sets none: the image's minimum and 99.5th percentile (of its
+/// finite values, over the channels shown).
+pub fn auto_window(vol: &Volume<f32>, channel: Channels) -> (f32, f32) {
+    let nvox = vol.n_voxels();
+    let channels: &[usize] = match channel {
+        Channels::One(c) => &[c],
+        Channels::Rgb => &[0, 1, 2],
+    };
+    let mut vals: Vec<f32> = channels
+        .iter()
+        .filter(|&&c| c < vol.n_channels())
+        .flat_map(|&c| vol.data[nvox * c..nvox * (c + 1)].iter().copied())
+        .filter(|x| x.is_finite())
+        .collect();
+    if vals.is_empty() {
+        return (0.0, 1.0);
+    }
+    let k = (vals.len() - 1) * 995 / 1000;
+    let (below, &mut hi, _) = vals.select_nth_unstable_by(k, f32::total_cmp);
+    let lo = below.iter().copied().fold(hi, f32::min);
+    (lo, if hi > lo { hi } else { lo + 1.0 })
+}
+
+/// An image of one slice (values mapped linearly from `window` to display black and white: stored as sRGB)
+/// and the world positions of its four outer voxel corners, counter-clockwise from voxel (0, 0).
 pub fn slice_image(
     vol: &Volume<f32>,
     channel: Channels,
     axis: SliceAxis,
     index: Option<usize>,
-    window: Option<(f32, f32)>,
+    window: (f32, f32),
 ) -> Result<(Image, [Vec3; 4]), String> {
     let d = vol.dims3();
     let (ax, u, v) = match axis {
@@ -1096,17 +1139,8 @@ pub fn slice_image(
     if let Some(c) = channels.iter().find(|&&c| c >= vol.n_channels()) {
         return Err(format!("volume {c} requested, the image has {}", vol.n_channels()));
     }
-    let (lo, hi) = window.unwrap_or_else(|| {
-        let mut vals: Vec<f32> = channels
-            .iter()
-            .flat_map(|&c| vol.data[nvox * c..nvox * (c + 1)].iter().copied())
-            .filter(|x| x.is_finite())
-            .collect();
-        vals.sort_by(f32::total_cmp);
-        let lo = vals.first().copied().unwrap_or(0.0);
-        let hi = vals.get((vals.len().saturating_sub(1)) * 995 / 1000).copied().unwrap_or(1.0);
-        (lo, if hi > lo { hi } else { lo + 1.0 })
-    });
+    let (lo, hi) = window;
+    let hi = if hi > lo { hi } else { lo + f32::EPSILON.max(lo.abs() * 1e-6) };
     let (w, h) = (d[u], d[v]);
     let level = |x: f32| {
         let g = if x.is_finite() { ((x - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
@@ -1130,7 +1164,7 @@ pub fn slice_image(
         Extent3d { width: w as u32, height: h as u32, depth_or_array_layers: 1 },
         TextureDimension::D2,
         px,
-        TextureFormat::Rgba8Unorm,
+        TextureFormat::Rgba8UnormSrgb,
         RenderAssetUsages::RENDER_WORLD,
     );
     image.sampler = ImageSampler::nearest();
@@ -1241,7 +1275,7 @@ mod tests {
         assert!((tdi.voxel_size() - glam::DVec3::splat(2.0)).length() < 1e-12);
         let max = tdi.data.iter().copied().fold(0.0, f32::max);
         assert!(max > 1.0 && max <= n && tdi.data.iter().sum::<f32>() >= n, "max {max} of {n} streamlines");
-        let slice = LayerKind::Slice { source, axis: SliceAxis::Z, index: None };
+        let slice = LayerKind::Slice { source, axis: SliceAxis::Z, index: None, window: None };
         assert!(matches!(build(&slice, &cache, &p), Ok(Content::Slice { .. })));
         let missing = VolumeSource::Density {
             tracts: TractSource::File { path: data("tracts/none.trk"), tensors: None },

@@ -140,6 +140,7 @@ impl Plugin for ScenePlugin {
         {
             s.large_threshold = s.large_threshold.min(4 << 20);
         }
+        app.add_plugins(crate::views::ViewsPlugin);
         app.init_resource::<LayerErrors>()
             .init_resource::<DataCache>()
             .init_resource::<RetryLayers>()
@@ -329,6 +330,9 @@ fn finish_jobs(
             }
         };
         commands.entity(e).remove::<LayerJob>();
+        if let Some(grid) = job.progress.grid() {
+            commands.entity(e).insert(grid);
+        }
         // Streamed content is in place already (its first part cleared the old); anything else replaces it.
         if !matches!(result, Ok(Content::Streamed { .. })) || job.parts_shown == 0 {
             clear_content(&mut commands, e, le.0, &layer.spec);
@@ -407,7 +411,8 @@ impl Uploads<'_> {
                 let (images, materials) = (&mut self.images, &mut self.volume_materials);
                 spawn_volume_texture(c, m, images, materials, b, depth, &volume, *texture, render)
             }
-            (Content::Slice { image, corners }, _) => {
+            (Content::Slice { image, corners, source }, _) => {
+                c.entity(layer).insert(source);
                 let mut mat = unlit(spec.opacity);
                 mat.base_color_texture = Some(self.images.add(*image));
                 c.spawn((Mesh3d(m.add(quad(corners))), MeshMaterial3d(self.materials.add(mat)))).id()
@@ -466,9 +471,11 @@ fn restyle_layers(
     layer_entities: Query<(Entity, &LayerEntity), With<SceneLayer>>,
     volume_sets: Query<(&VolumeSet, &LayerEntity)>,
     parts: Query<(&MeshMaterial3d<StandardMaterial>, &LayerEntity)>,
+    slice_sources: Query<(&crate::views::SliceSource, &LayerEntity)>,
     mut upload: Uploads,
 ) {
     let Uploads {
+        images,
         buffers,
         glyph_materials,
         tensor_materials,
@@ -508,6 +515,21 @@ fn restyle_layers(
                 for (set, _) in volume_sets.iter().filter(|(_, le)| le.0 == i) {
                     // The transfer function's table and pre-integration table, and the uniform.
                     set.write_style(render, true, volume_materials, buffers);
+                }
+            }
+            (LayerKind::Slice { window: a, .. }, LayerKind::Slice { window, axis, index, .. }) if a != window => {
+                // One slice cut again from the image in memory, into the texture it shows.
+                let cut = slice_sources.iter().find(|(_, le)| le.0 == i).and_then(|(source, _)| {
+                    let w = window.unwrap_or(source.auto_window);
+                    crate::jobs::slice_image(&source.volume, source.channels, *axis, *index, w).ok()
+                });
+                for (mat, _) in parts.iter().filter(|(_, le)| le.0 == i && cut.is_some()) {
+                    let Some((image, _)) = &cut else { continue };
+                    if let Some(texture) = materials.get(&mat.0).and_then(|m| m.base_color_texture.clone())
+                        && let Some(mut img) = images.get_mut(&texture)
+                    {
+                        *img = image.clone();
+                    }
                 }
             }
             (LayerKind::Tracts { render: a, rois: ra, .. }, LayerKind::Tracts { render, rois: rb, .. }) => {
@@ -590,19 +612,19 @@ fn report_layer_data(
     }
 }
 
-fn set_opacity(m: &mut StandardMaterial, opacity: f32) {
+pub(crate) fn set_opacity(m: &mut StandardMaterial, opacity: f32) {
     let a = opacity.clamp(0.0, 1.0);
     m.base_color.set_alpha(a);
     m.alpha_mode = if a < 1.0 { AlphaMode::Blend } else { AlphaMode::Opaque };
 }
 
-fn unlit(opacity: f32) -> StandardMaterial {
+pub(crate) fn unlit(opacity: f32) -> StandardMaterial {
     let mut m = StandardMaterial { base_color: Color::WHITE, unlit: true, cull_mode: None, ..default() };
     set_opacity(&mut m, opacity);
     m
 }
 
-fn quad(c: [Vec3; 4]) -> Mesh {
+pub(crate) fn quad(c: [Vec3; 4]) -> Mesh {
     let n = (c[1] - c[0]).cross(c[3] - c[0]).normalize_or_zero();
     Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, c.to_vec())

@@ -3,6 +3,7 @@
 
 pub mod cache;
 pub mod cli;
+pub mod colourbar;
 pub mod history;
 pub mod jobs;
 pub mod layers;
@@ -10,3 +11,4 @@ pub mod panels;
 pub mod render;
 pub mod scene;
 pub mod viewer;
+pub mod views;

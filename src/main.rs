@@ -25,9 +25,12 @@ fn main() -> std::process::ExitCode {
             cli::convert::run(&input, &output, sh_basis.map(Into::into)).map_err(|e| e.to_string())
         }
         Some(cli::Command::Info { file, json }) => cli::info::run(&file, json).map_err(|e| e.to_string()),
-        Some(cli::Command::Render { scene, out, size, depth }) => cli::check_output(&out)
-            .map_err(|e| e.to_string())
-            .and_then(|()| fascicle::render::run(scene.as_deref(), &out, &size, depth.as_deref())),
+        Some(cli::Command::Render { scene, out, size, depth, ortho, crosshair }) => {
+            cli::check_output(&out).map_err(|e| e.to_string()).and_then(|()| {
+                let views = fascicle::render::ViewOptions { ortho, crosshair: crosshair.as_deref() };
+                fascicle::render::run(scene.as_deref(), &out, &size, depth.as_deref(), views)
+            })
+        }
         Some(cli::Command::View { files, screenshot }) => {
             fascicle::viewer::run(files, screenshot);
             Ok(())

@@ -90,7 +90,24 @@ impl LayerPanels {
 }
 
 fn slice_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
-    let LayerKind::Slice { axis, index, .. } = kind else { return };
+    let LayerKind::Slice { axis, index, window, .. } = kind else { return };
+    slice_controls(ui, axis, index);
+    // Window/level: also a right-drag in a 2D view.
+    ui.horizontal(|ui| {
+        let mut auto = window.is_none();
+        if ui.checkbox(&mut auto, "auto window").changed() {
+            *window = if auto { None } else { Some((0.0, 1.0)) };
+        }
+        if let Some((lo, hi)) = window {
+            let speed = f64::from((*hi - *lo).abs().max(1e-6)) * 0.005;
+            ui.add(egui::DragValue::new(lo).speed(speed).prefix("black "));
+            ui.add(egui::DragValue::new(hi).speed(speed).prefix("white "));
+        }
+    });
+}
+
+/// The slice of a slice, glyph or tensor layer: its axis and index (the middle one when unset).
+fn slice_controls(ui: &mut egui::Ui, axis: &mut SliceAxis, index: &mut Option<usize>) {
     ui.horizontal(|ui| {
         for (a, label) in [(SliceAxis::X, "sagittal"), (SliceAxis::Y, "coronal"), (SliceAxis::Z, "axial")] {
             ui.radio_value(axis, a, label);
@@ -146,11 +163,7 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
             ui.radio_value(sampling, Sampling::Trilinear, "trilinear");
         });
     } else {
-        let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
-        slice_panel(ui, &mut slice, &LayerData::default());
-        if let LayerKind::Slice { axis: a, index: i, .. } = slice {
-            (*axis, *index) = (a, i);
-        }
+        slice_controls(ui, axis, index);
         ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
     }
     match &mut style.cell_fill {
@@ -198,11 +211,7 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
 /// Tensor splats: slab and size (rebuild), attenuation and opacity (uniform only).
 fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     let LayerKind::TensorSplats { axis, index, thickness, size, min_fa, render, .. } = kind else { return };
-    let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
-    slice_panel(ui, &mut slice, &LayerData::default());
-    if let LayerKind::Slice { axis: a, index: i, .. } = slice {
-        (*axis, *index) = (a, i);
-    }
+    slice_controls(ui, axis, index);
     ui.add(egui::Slider::new(thickness, 1..=15).text("slab (slices)"));
     ui.add(egui::Slider::new(size, 0.1..=2.0).text("size (voxels)"));
     ui.add(egui::Slider::new(min_fa, 0.0..=1.0).text("min FA"));
@@ -635,11 +644,7 @@ pub fn to_barycentric(q: [f32; 2]) -> [f64; 3] {
 /// Tensor glyphs: slice and size (rebuild), shape (rebuild), knobs and colour (uniform only).
 fn tensor_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     let LayerKind::TensorGlyphs { axis, index, spacing, size, min_fa, render, .. } = kind else { return };
-    let mut slice = LayerKind::Slice { source: crate::scene::VolumeSource::PhantomFa, axis: *axis, index: *index };
-    slice_panel(ui, &mut slice, &LayerData::default());
-    if let LayerKind::Slice { axis: a, index: i, .. } = slice {
-        (*axis, *index) = (a, i);
-    }
+    slice_controls(ui, axis, index);
     ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
     ui.add(egui::Slider::new(size, 0.1..=3.0).text("size (voxels)"));
     ui.add(egui::Slider::new(min_fa, 0.0..=1.0).text("min FA"));
@@ -681,7 +686,7 @@ mod tests {
     #[test]
     fn every_built_in_kind_has_a_panel_and_registration_overrides() {
         let kinds = [
-            LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Z, index: None },
+            LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Z, index: None, window: None },
             LayerKind::Tractogram { path: "x.trk".into() },
             LayerKind::Axes { length_mm: 1.0 },
             crate::scene::Scene::default_scene().layers[2].kind.clone(),
@@ -707,7 +712,7 @@ mod tests {
         let ctx = egui::Context::default();
         let panels = LayerPanels::default();
         let mut kinds = vec![
-            LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Y, index: Some(7) },
+            LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Y, index: Some(7), window: None },
             LayerKind::Axes { length_mm: 30.0 },
             crate::scene::Scene::default_scene().layers[2].kind.clone(),
             crate::scene::Scene::default_scene().layers[3].kind.clone(),

@@ -53,7 +53,34 @@ pub fn render_scene_with_depth(
     Ok(out)
 }
 
-pub fn run(scene: Option<&Path>, out: &Path, size: &str, depth_out: Option<&Path>) -> Result<(), String> {
+/// Layout options of `fascicle render` over the scene's own.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ViewOptions<'a> {
+    /// The four-view layout.
+    pub ortho: bool,
+    /// "X,Y,Z" in world mm.
+    pub crosshair: Option<&'a str>,
+}
+
+/// Parses "X,Y,Z" (mm).
+pub fn parse_point(s: &str) -> Result<[f32; 3], String> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f32>().map_err(|_| format!("'{p}' in '{s}' is not a number")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err(format!("a point is three finite numbers X,Y,Z (mm), not '{s}'")),
+    }
+}
+
+pub fn run(
+    scene: Option<&Path>,
+    out: &Path,
+    size: &str,
+    depth_out: Option<&Path>,
+    views: ViewOptions,
+) -> Result<(), String> {
     let (w, h) = crate::cli::parse_size(size)?;
     let depth_kind = depth_out.map(fascicle_core::io::tractogram::extension);
     if let Some(k) = &depth_kind
@@ -64,10 +91,14 @@ pub fn run(scene: Option<&Path>, out: &Path, size: &str, depth_out: Option<&Path
             "--depth file must end in .png (16-bit NDC depth) or .npy (float32 view depth), not '.{k}'"
         ));
     }
-    let scene = match scene {
+    let mut scene = match scene {
         Some(p) => Scene::load(p)?,
         None => Scene::default_scene(),
     };
+    scene.views.ortho |= views.ortho;
+    if let Some(c) = views.crosshair {
+        scene.views.crosshair = Some(parse_point(c)?);
+    }
     let (capture, depth) = render_scene_with_depth(&scene, w, h, depth_out.is_some())?;
     let png = capture.to_png()?;
     std::fs::write(out, png).map_err(|e| format!("{}: {e}", out.display()))?;

@@ -21,6 +21,9 @@ pub struct Scene {
     pub layers: Vec<LayerSpec>,
     #[serde(default)]
     pub camera: CameraSpec,
+    /// The layout (3D alone or with three orthogonal 2D views), the crosshair and the colour bars.
+    #[serde(default)]
+    pub views: crate::views::Views,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -55,6 +58,10 @@ pub enum LayerKind {
         /// The slice; the middle one when absent.
         #[serde(default)]
         index: Option<usize>,
+        /// The values shown black and white (window/level); the minimum and the 99.5th percentile when
+        /// absent. An edit re-cuts the slice from the image in memory; nothing is read again.
+        #[serde(default)]
+        window: Option<(f32, f32)>,
     },
     /// Streamlines as lines coloured by local direction.
     Tractogram { path: PathBuf },
@@ -208,6 +215,10 @@ impl LayerKind {
                 source: source.clone(),
                 render: VolumeSettings { method: render.method, step: render.step, ..VolumeSettings::default() },
             },
+            // The window is a restyle: the slice is cut again from the image the layer holds.
+            LayerKind::Slice { source, axis, index, .. } => {
+                LayerKind::Slice { source: source.clone(), axis: *axis, index: *index, window: None }
+            }
             other => other.clone(),
         }
     }
@@ -429,7 +440,7 @@ impl Scene {
             name: name.into(),
             visible: true,
             opacity: 1.0,
-            kind: LayerKind::Slice { source: VolumeSource::PhantomFa, axis, index: None },
+            kind: LayerKind::Slice { source: VolumeSource::PhantomFa, axis, index: None, window: None },
         };
         Self {
             layers: vec![
@@ -502,6 +513,7 @@ impl Scene {
             ],
             // Closer than the default camera: the phantom fills the view.
             camera: CameraSpec { eye: [-45.0, -80.0, 55.0], ..CameraSpec::default() },
+            views: Default::default(),
         }
     }
 
@@ -590,11 +602,16 @@ pub fn layer_kind_for(path: &Path, kind: &ImageKind) -> LayerKind {
             min_fa: 0.0,
             render: TensorGlyphSettings::default(),
         },
-        ImageKind::Rgb => LayerKind::Slice { source: VolumeSource::Rgb { path }, axis: SliceAxis::Z, index: None },
-        // A DWI shows its first volume (a b0); tensors fitted to it are a layer the panel adds.
-        ImageKind::Dwi { .. } | ImageKind::Scalar | ImageKind::Series => {
-            LayerKind::Slice { source: VolumeSource::Nifti { path, volume: 0 }, axis: SliceAxis::Z, index: None }
+        ImageKind::Rgb => {
+            LayerKind::Slice { source: VolumeSource::Rgb { path }, axis: SliceAxis::Z, index: None, window: None }
         }
+        // A DWI shows its first volume (a b0); tensors fitted to it are a layer the panel adds.
+        ImageKind::Dwi { .. } | ImageKind::Scalar | ImageKind::Series => LayerKind::Slice {
+            source: VolumeSource::Nifti { path, volume: 0 },
+            axis: SliceAxis::Z,
+            index: None,
+            window: None,
+        },
     }
 }
 

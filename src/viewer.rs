@@ -11,8 +11,8 @@
 
 use std::path::PathBuf;
 
+use bevy::camera::CameraOutputMode;
 use bevy::camera::visibility::RenderLayers;
-use bevy::camera::{CameraOutputMode, Viewport};
 use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
 use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
 use bevy::prelude::*;
@@ -20,9 +20,7 @@ use bevy::render::render_resource::BlendState;
 use bevy::render::view::screenshot::{Screenshot, save_to_disk};
 use bevy::window::{FileDragAndDrop, PrimaryWindow};
 use bevy_egui::input::{egui_wants_any_keyboard_input, egui_wants_any_pointer_input};
-use bevy_egui::{
-    EguiContext, EguiContexts, EguiGlobalSettings, EguiPlugin, EguiPrimaryContextPass, PrimaryEguiContext, egui,
-};
+use bevy_egui::{EguiContexts, EguiGlobalSettings, EguiPlugin, EguiPrimaryContextPass, PrimaryEguiContext, egui};
 use fascicle_render::FascicleRenderPlugin;
 
 use crate::history::{RecentFiles, SceneHistory};
@@ -30,6 +28,7 @@ use crate::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer,
 use crate::panels::LayerPanels;
 use crate::render::BACKGROUND;
 use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene, Seeds, TractSource};
+use crate::views::{Crosshair, MainView, OrthoView, SliceSource, ViewRegion, VoxelGrid, pick_in_view};
 use fascicle_core::roi::{RoiShape, SegmentGrid, select};
 use fascicle_render::layer::LayerStatus;
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
@@ -42,6 +41,7 @@ pub fn view_camera() -> impl Bundle {
         Camera { clear_color: ClearColorConfig::Custom(BACKGROUND), ..default() },
         Tonemapping::None,
         DebandDither::Disabled,
+        MainView,
     )
 }
 
@@ -107,7 +107,7 @@ fn initial_scene(files: &[PathBuf]) -> (Scene, Vec<String>) {
     if files.is_empty() {
         return (Scene::default_scene(), vec![]);
     }
-    let mut scene = Scene { layers: vec![], camera: CameraSpec::default() };
+    let mut scene = Scene { layers: vec![], camera: CameraSpec::default(), views: Default::default() };
     let mut errors = vec![];
     for f in files {
         if let Err(e) = scene.open_file(f) {
@@ -182,6 +182,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .init_resource::<RoiDrag>()
     .init_resource::<FileDialog>()
     .init_resource::<SceneHistory>()
+    .init_resource::<ViewPointer>()
     .insert_resource(RecentFiles::for_user())
     .insert_resource(orbit)
     .insert_resource(UiState {
@@ -199,7 +200,8 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             Camera2d,
             RenderLayers::none(),
             Camera {
-                order: 1,
+                // Over the 3D view, the 2D views and the colour bars' overlay (order 1).
+                order: 2,
                 output_mode: CameraOutputMode::Write {
                     blend_state: Some(BlendState::ALPHA_BLENDING),
                     clear_color: ClearColorConfig::None,
@@ -212,8 +214,9 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .add_systems(
         Update,
         (
-            (drag_roi, orbit_input).chain().run_if(not(egui_wants_any_pointer_input)),
-            pick_glyph.run_if(not(egui_wants_any_pointer_input)),
+            view_input.run_if(not(egui_wants_any_pointer_input)),
+            (drag_roi, orbit_input).chain().run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
+            pick_glyph.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
             keys.run_if(not(egui_wants_any_keyboard_input)),
             dropped_files,
             file_dialog,
@@ -253,6 +256,85 @@ fn orbit_input(
     }
     if scroll.delta.y != 0.0 {
         orbit.distance = (orbit.distance * (-0.1 * scroll.delta.y).exp()).clamp(1.0, 5000.0);
+    }
+}
+
+/// The 2D view under the pointer, and the one a drag began in (with its button).
+#[derive(Resource, Default, Debug)]
+struct ViewPointer {
+    hovered: Option<usize>,
+    dragging: Option<(usize, MouseButton)>,
+}
+
+fn pointer_in_3d_view(pointer: Res<ViewPointer>) -> bool {
+    pointer.hovered.is_none() && pointer.dragging.is_none()
+}
+
+/// Mouse input in the 2D views: a left click or drag moves the crosshair in the view's plane, the wheel steps
+/// it one voxel through the plane, a right drag sets the window of the top visible slice layer (horizontal:
+/// contrast, vertical: brightness).
+#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
+fn view_input(
+    buttons: Res<ButtonInput<MouseButton>>,
+    motion: Res<AccumulatedMouseMotion>,
+    scroll: Res<AccumulatedMouseScroll>,
+    window: Single<&Window, With<PrimaryWindow>>,
+    views: Query<(&Camera, &GlobalTransform, &OrthoView)>,
+    crosshair: Res<Crosshair>,
+    sources: Query<(&LayerEntity, &VoxelGrid, &SliceSource)>,
+    mut scene: ResMut<ActiveScene>,
+    mut pointer: ResMut<ViewPointer>,
+) {
+    let cursor = window.cursor_position();
+    let over = |c: Vec2| {
+        views.iter().find(|(cam, _, _)| cam.is_active && cam.logical_viewport_rect().is_some_and(|r| r.contains(c)))
+    };
+    pointer.hovered = cursor.and_then(over).map(|(.., v)| v.0);
+    for b in [MouseButton::Left, MouseButton::Right] {
+        if buttons.just_pressed(b) {
+            pointer.dragging = pointer.hovered.map(|a| (a, b));
+        }
+    }
+    if !buttons.pressed(MouseButton::Left) && !buttons.pressed(MouseButton::Right) {
+        pointer.dragging = None;
+    }
+    let mut views_edit = scene.0.views;
+    let mut at = crosshair.world;
+    if let Some(a) = pointer.hovered
+        && scroll.delta.y != 0.0
+    {
+        // One voxel of the first image along its axis nearest the view's.
+        let step = sources
+            .iter()
+            .next()
+            .map_or(1.0, |(_, g, _)| g.world_from_voxel.col(g.axis_along(a)).truncate().length() as f32);
+        at[a] += step * scroll.delta.y.signum();
+        views_edit.crosshair = Some(at.to_array());
+    }
+    match pointer.dragging {
+        Some((a, MouseButton::Left)) => {
+            if let Some(c) = cursor
+                && let Some((cam, tf, view)) = views.iter().find(|(.., v)| v.0 == a)
+                && let Some(p) = pick_in_view(cam, tf, *view, c, at)
+            {
+                views_edit.crosshair = Some(p.to_array());
+            }
+        }
+        Some((_, MouseButton::Right)) if motion.delta != Vec2::ZERO => {
+            let top = scene.0.layers.iter().enumerate().rev().find_map(|(i, l)| {
+                let source = sources.iter().find(|(le, ..)| le.0 == i).map(|(.., s)| s)?;
+                (l.visible && matches!(l.kind, LayerKind::Slice { .. })).then_some((i, source.auto_window))
+            });
+            if let Some((i, auto)) = top
+                && let LayerKind::Slice { window, .. } = &mut scene.0.layers[i].kind
+            {
+                *window = Some(crate::views::window_level(window.unwrap_or(auto), motion.delta));
+            }
+        }
+        _ => {}
+    }
+    if views_edit != scene.0.views {
+        scene.0.views = views_edit;
     }
 }
 
@@ -342,7 +424,7 @@ fn drag_roi(
     buttons: Res<ButtonInput<MouseButton>>,
     keys: Res<ButtonInput<KeyCode>>,
     window: Single<&Window, With<PrimaryWindow>>,
-    camera: Single<(&Camera, &GlobalTransform), With<Camera3d>>,
+    camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
     mut drag: ResMut<RoiDrag>,
     mut scene: ResMut<ActiveScene>,
 ) {
@@ -388,7 +470,7 @@ fn pick_glyph(
     motion: Res<AccumulatedMouseMotion>,
     mut dragged: Local<f32>,
     window: Single<&Window, With<PrimaryWindow>>,
-    camera: Single<(&Camera, &GlobalTransform), With<Camera3d>>,
+    camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
     sets: Query<(&ShGlyphSet, &Children)>,
     voxels: Query<(&ShVoxel, Has<Highlighted>)>,
     mut ui: ResMut<UiState>,
@@ -429,7 +511,7 @@ fn pick_glyph(
     }
 }
 
-fn apply_orbit(orbit: Res<Orbit>, mut cam: Query<(&mut Transform, &mut Projection), With<Camera3d>>) {
+fn apply_orbit(orbit: Res<Orbit>, mut cam: Query<(&mut Transform, &mut Projection), With<MainView>>) {
     let (tf, proj) = crate::layers::camera_from_spec(&orbit.spec());
     for (mut t, mut p) in &mut cam {
         *t = tf;
@@ -641,7 +723,7 @@ fn panel(
     mut ui_state: ResMut<UiState>,
     mut orbit: ResMut<Orbit>,
     time: Res<Time>,
-    mut camera: Single<&mut Camera, (With<Camera3d>, Without<EguiContext>)>,
+    (mut region, crosshair): (ResMut<ViewRegion>, Res<Crosshair>),
     window: Single<&Window, With<PrimaryWindow>>,
     (history, recent): (Res<SceneHistory>, Res<RecentFiles>),
 ) -> Result {
@@ -697,7 +779,7 @@ fn panel(
                 {
                     let name = format!("density ({})", layer.name);
                     let source = crate::scene::VolumeSource::Density { tracts, voxel_mm: 1.0 };
-                    let kind = LayerKind::Slice { source, axis: crate::scene::SliceAxis::Z, index: None };
+                    let kind = LayerKind::Slice { source, axis: crate::scene::SliceAxis::Z, index: None, window: None };
                     added.push(LayerSpec { name, visible: true, opacity: 1.0, kind });
                 }
                 if matches!(layer.kind, LayerKind::Tracts { .. }) {
@@ -733,6 +815,23 @@ fn panel(
             if ui.add_enabled(history.can_redo(), egui::Button::new("Redo (Ctrl+Shift+Z)")).clicked() {
                 ui_state.history_step = Some(false);
             }
+        });
+        ui.collapsing("Views", |ui| {
+            ui.checkbox(&mut edited.views.ortho, "orthogonal 2D views");
+            ui.checkbox(&mut edited.views.follow, "slices follow the crosshair");
+            ui.checkbox(&mut edited.views.colour_bars, "colour bars");
+            let mut c = crosshair.world.to_array();
+            let changed = ui
+                .horizontal(|ui| {
+                    ui.label("crosshair (mm)");
+                    // Every field is drawn, whichever changed.
+                    c.iter_mut().map(|v| ui.add(egui::DragValue::new(v).speed(0.5)).changed()).collect::<Vec<_>>().contains(&true)
+                })
+                .inner;
+            if changed {
+                edited.views.crosshair = Some(c);
+            }
+            ui.label("2D views: click or drag moves the crosshair, the wheel steps through slices, right-drag sets the top slice's window.");
         });
         if !recent.files.is_empty() {
             ui.collapsing("Recent files", |ui| {
@@ -791,17 +890,8 @@ fn panel(
         }
     }
     let left = (panel_width.response.rect.width() * window.scale_factor()) as u32;
-    let size = UVec2::new(window.physical_width().saturating_sub(left).max(1), window.physical_height().max(1));
-    let viewport = Viewport {
-        physical_position: UVec2::new(left.min(window.physical_width() - 1), 0),
-        physical_size: size,
-        ..default()
-    };
-    let same = camera.viewport.as_ref().is_some_and(|v| {
-        v.physical_position == viewport.physical_position && v.physical_size == viewport.physical_size
-    });
-    if !same {
-        camera.viewport = Some(viewport);
+    if region.left != left {
+        region.left = left;
     }
     if edited != scene.0 {
         scene.0 = edited;
@@ -1027,6 +1117,7 @@ mod tests {
         let scene = Scene {
             layers: vec![tracts(true, vec![far, near]), tracts(false, vec![hidden])],
             camera: CameraSpec::default(),
+            views: Default::default(),
         };
         // Looking down -z from z = 40: the hidden layer's sphere is first along the ray but not pickable.
         let (o, d) = (Vec3::new(0.0, 0.0, 40.0), -Vec3::Z);
@@ -1064,7 +1155,11 @@ mod tests {
             },
         };
         let sphere = Seeds::Sphere { centre: [28.0, 0.0, 0.0], radius: 6.0, per_voxel: 8 };
-        let mut scene = Scene { layers: vec![track(Seeds::default()), track(sphere)], camera: CameraSpec::default() };
+        let mut scene = Scene {
+            layers: vec![track(Seeds::default()), track(sphere)],
+            camera: CameraSpec::default(),
+            views: Default::default(),
+        };
         assert!(grips(&scene.layers[0].kind).is_empty());
         let (o, d) = (Vec3::new(28.0, 0.0, 40.0), -Vec3::Z);
         assert_eq!(pick_roi(&scene, o, d), Some((1, Grip::Seeds, 34.0)));
@@ -1111,7 +1206,11 @@ mod tests {
         };
         let mut app = App::new();
         app.add_plugins(MinimalPlugins)
-            .insert_resource(ActiveScene(Scene { layers: vec![layer], camera: CameraSpec::default() }))
+            .insert_resource(ActiveScene(Scene {
+                layers: vec![layer],
+                camera: CameraSpec::default(),
+                views: Default::default(),
+            }))
             .insert_resource(UiState::default())
             .init_resource::<crate::cache::DataCache>()
             .add_systems(Update, save_selection);

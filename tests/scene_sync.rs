@@ -118,6 +118,7 @@ fn oblique_glyph_plane_renders_on_the_plane() {
             },
         }],
         camera: CameraSpec { eye: [0.0, -60.0, 90.0], target: [0.0, 0.0, 0.0], up: [0.0, 0.0, 1.0], fov_y_deg: 45.0 },
+        views: Default::default(),
     };
     let field =
         fascicle::jobs::sh_field(&DataCache::default(), &ShSource::PhantomCsa { l_max: 4 }, &JobProgress::default())
@@ -169,6 +170,7 @@ fn sh_coefficient_file_renders_as_glyphs() {
             up: [0.0, 1.0, 0.0],
             fov_y_deg: 45.0,
         },
+        views: Default::default(),
     };
     let img = fascicle::render::render_scene(&scene, 96, 96).unwrap_or_else(|e| panic!("{e}"));
     let drawn = img.rgba.chunks(4).filter(|p| p[0].max(p[1]).max(p[2]) > 40).count();
@@ -201,7 +203,7 @@ fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
         },
     };
     let mut app = headless::headless_app();
-    let scene = Scene { layers: vec![layer], camera: Default::default() };
+    let scene = Scene { layers: vec![layer], camera: Default::default(), views: Default::default() };
     app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene));
     headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
     settle(&mut app);
@@ -416,7 +418,7 @@ fn rois_act_on_their_own_layer() {
     };
     let layers =
         vec![layer(vec![sphere], TractMode::Tubes), layer(vec![], TractMode::Lines), layer(vec![], TractMode::Polygon)];
-    let scene = Scene { layers, camera: CameraSpec::default() };
+    let scene = Scene { layers, camera: CameraSpec::default(), views: Default::default() };
     let Some(mut app) = scene_app(scene) else { return };
     settle(&mut app);
     let selected = |app: &mut App| {
@@ -547,6 +549,7 @@ fn failures_and_cancels_stay_on_their_layer() {
             source: VolumeSource::Nifti { path: missing, volume: 0 },
             axis: SliceAxis::Z,
             index: None,
+            window: None,
         },
     });
     let Some(mut app) = scene_app(scene) else { return };
@@ -636,8 +639,12 @@ fn track_density_slices_render() {
         t.points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(a, b), p| (a.min(*p), b.max(*p)));
     let c = (lo + hi) * 0.5;
     let tracts = TractSource::File { path, tensors: None };
-    let kind =
-        LayerKind::Slice { source: VolumeSource::Density { tracts, voxel_mm: 2.0 }, axis: SliceAxis::Z, index: None };
+    let kind = LayerKind::Slice {
+        source: VolumeSource::Density { tracts, voxel_mm: 2.0 },
+        axis: SliceAxis::Z,
+        index: None,
+        window: None,
+    };
     let extent = (hi - lo).max_element();
     let scene = Scene {
         layers: vec![LayerSpec { name: "tdi".into(), visible: true, opacity: 1.0, kind }],
@@ -647,14 +654,16 @@ fn track_density_slices_render() {
             up: [0.0, 1.0, 0.0],
             fov_y_deg: 45.0,
         },
+        views: Default::default(),
     };
     let img = fascicle::render::render_scene(&scene, 128, 128).unwrap_or_else(|e| panic!("{e}"));
-    // Voxels no streamline crosses are black (below the clear colour); crossed ones are brighter than it.
+    // Voxels no streamline crosses are black (below the clear colour); the denser ones are brighter than it
+    // (display grey is linear in the density, so the sparsest crossed voxels are dark too).
     let grey: Vec<u8> = img.rgba.chunks(4).map(|p| p[0]).collect();
     let background = grey[0];
     let (empty, bright) =
-        (grey.iter().filter(|g| **g < background / 2).count(), grey.iter().filter(|g| **g > 60).count());
-    assert!(background > 20 && empty > 200 && bright > 200, "background {background}: {empty} empty, {bright} bright");
+        (grey.iter().filter(|g| **g < background / 2).count(), grey.iter().filter(|g| **g > background + 20).count());
+    assert!(background > 20 && empty > 200 && bright > 100, "background {background}: {empty} empty, {bright} bright");
 }
 
 /// Tracking streams into its layer: the layer shows its first streamlines while the job still runs (one
@@ -691,7 +700,7 @@ fn tracking_streams_into_its_layer() {
         },
     };
     let mut app = headless::headless_app();
-    let empty = Scene { layers: vec![], camera: CameraSpec::default() };
+    let empty = Scene { layers: vec![], camera: CameraSpec::default(), views: Default::default() };
     app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(empty));
     headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
     let parts0 = app.world().resource::<LayerSyncCounts>().parts;

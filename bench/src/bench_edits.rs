@@ -158,6 +158,23 @@ fn measure(name: &'static str, scene: Scene, drags: usize) -> Result<Vec<Row>, S
             }
         })?;
     }
+    let slice = layer_of(&scene, |k| matches!(k, LayerKind::Slice { .. }));
+    if let Some(k) = slice {
+        // Window/level: the layer's slice cut again from the image in memory (no job).
+        time(&mut app, "slice_window", &|s| {
+            if let LayerKind::Slice { window, .. } = &mut s.layers[k].kind {
+                *window = Some(window.map_or((0.1, 0.9), |(lo, hi)| (lo, hi * 0.9)));
+            }
+        })?;
+        // The three 2D views on: a slice through the crosshair per view and slice layer.
+        time(&mut app, "ortho_views_on", &|s| s.views.ortho = true)?;
+        // The crosshair one voxel (of the first slice layer's image) along z: the axial views cut again.
+        time(&mut app, "crosshair_move", &|s| {
+            let c = s.views.crosshair.get_or_insert([0.0; 3]);
+            c[2] += 1.0;
+        })?;
+        time(&mut app, "ortho_views_off", &|s| s.views.ortho = false)?;
+    }
     let seeded = layer_of(&scene, |k| {
         matches!(k, LayerKind::Tracts { source: TractSource::Track { seeds: Seeds::Sphere { .. }, .. }, .. })
     });
@@ -261,7 +278,16 @@ fn large_scene(dir: &Path) -> Result<Scene, String> {
     scene.layers = vec![
         layer(
             "volume 256^3",
-            LayerKind::Volume { source: VolumeSource::Nifti { path: volume, volume: 0 }, render: Default::default() },
+            LayerKind::Volume { source: VolumeSource::Nifti { path: volume.clone(), volume: 0 }, render: Default::default() },
+        ),
+        layer(
+            "slice 256^3",
+            LayerKind::Slice {
+                source: VolumeSource::Nifti { path: volume.clone(), volume: 0 },
+                axis: SliceAxis::Z,
+                index: None,
+                window: None,
+            },
         ),
         layer(
             "SH 22.5k",

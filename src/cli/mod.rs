@@ -169,6 +169,13 @@ pub enum Command {
         /// distance along the view axis in mm, inf = background). Turns MSAA off.
         #[arg(long)]
         depth: Option<PathBuf>,
+        /// The four-view layout: sagittal, coronal and axial 2D views at the scene's crosshair beside the 3D
+        /// view (as the viewer's "orthogonal 2D views").
+        #[arg(long)]
+        ortho: bool,
+        /// The crosshair (world mm, RAS+), "X,Y,Z"; the images' centre when absent.
+        #[arg(long, allow_hyphen_values = true)]
+        crosshair: Option<String>,
     },
     /// Fit a model to a DWI.
     Fit {

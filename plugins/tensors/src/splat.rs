@@ -17,7 +17,7 @@ use std::time::Instant;
 
 use crate::shaders;
 use bevy::asset::RenderAssetUsages;
-use bevy::camera::visibility::NoFrustumCulling;
+use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
 use bevy::mesh::MeshVertexBufferLayoutRef;
 use bevy::pbr::{Material, MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
@@ -282,18 +282,27 @@ pub fn spawn_splats(
 }
 
 /// Re-sorts every splat set whose view direction changed since its last sort, for the active 3D camera
-/// drawn last (the viewer's or the headless renderer's).
+/// drawn last among those that see it (their render layers meet the set's): the viewer's or the headless
+/// renderer's, not an overlay or another view on other layers.
 pub fn sort_splats(
-    cameras: Query<(&Camera, &GlobalTransform), With<Camera3d>>,
-    mut sets: Query<(&mut SplatSet, &GlobalTransform)>,
+    cameras: Query<(&Camera, &GlobalTransform, Option<&RenderLayers>), With<Camera3d>>,
+    mut sets: Query<(&mut SplatSet, &GlobalTransform, Option<&RenderLayers>)>,
     materials: Res<Assets<SplatMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut stats: ResMut<SplatSortStats>,
 ) {
     let t0 = Instant::now();
-    let Some((_, cam)) = cameras.iter().filter(|(c, _)| c.is_active).max_by_key(|(c, _)| c.order) else { return };
-    let forward = cam.forward().as_vec3();
-    for (mut set, gt) in &mut sets {
+    let default_layers = RenderLayers::default();
+    for (mut set, gt, layers) in &mut sets {
+        let layers = layers.unwrap_or(&default_layers);
+        let Some((_, cam, _)) = cameras
+            .iter()
+            .filter(|(c, _, l)| c.is_active && l.unwrap_or(&default_layers).intersects(layers))
+            .max_by_key(|(c, ..)| c.order)
+        else {
+            continue;
+        };
+        let forward = cam.forward().as_vec3();
         // depth = dot(M c + t - eye, f) = dot(c, Mᵀ f) + const.
         let m = gt.affine().matrix3;
         let dir = Vec3::from(m.transpose() * bevy::math::Vec3A::from(forward));

@@ -1,0 +1,723 @@
+//! Orthogonal views: the 3D view and three 2D views (sagittal, coronal, axial) of the scalar images at a
+//! crosshair, as mrview's and FSLeyes' ortho layouts; and the colour bars of the 3D view. The same systems run
+//! in the viewer and in the headless renderer, so `fascicle render` shows what the window shows.
+//!
+//! - Every camera marked [`MainView`] gets three orthographic cameras ([`OrthoView`], each on its own render
+//!   layer) and an overlay camera for the colour bars ([`BarView`]), all drawing into its target. They are laid
+//!   out in [`ViewRegion`] (the target minus a side panel): with [`Views::ortho`] in a 2x2 grid (coronal,
+//!   sagittal / axial, 3D), without it the 3D view takes the region alone.
+//! - Each 2D view looks along a world axis (RAS+) in the neurological convention (the subject's right on the
+//!   screen's right; sagittal views from the subject's left, anterior to the left). For every visible slice
+//!   layer it shows the slice of that image through the crosshair, cut along the image's voxel axis closest to
+//!   the view's axis (so permuted or flipped images show the right plane), with the layer's window and
+//!   opacity. Two lines mark the crosshair.
+//! - A left click or drag in a 2D view moves the crosshair within that view's plane; the wheel steps it one
+//!   voxel through the plane; a right drag sets the window of the top slice layer (horizontal: width,
+//!   vertical: level), as in mrview. With [`Views::follow`], the slices of the slice, glyph and tensor layers
+//!   follow the crosshair.
+
+use std::sync::Arc;
+
+use bevy::camera::visibility::RenderLayers;
+use bevy::camera::{RenderTarget, ScalingMode, Viewport};
+use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
+use bevy::math::{DMat4, DVec3};
+use bevy::prelude::*;
+use fascicle_core::Volume;
+use serde::{Deserialize, Serialize};
+
+use crate::colourbar::{self, Bar};
+use crate::jobs::{Channels, slice_image};
+use crate::layers::{ActiveScene, LayerEntity, SceneLayer, SceneSystems};
+use crate::scene::{LayerKind, SliceAxis};
+
+/// The layout and crosshair of a scene: saved in its scene file.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Views {
+    /// Three orthogonal 2D views beside the 3D view.
+    pub ortho: bool,
+    /// The crosshair in world mm (RAS+); the centre of the images when absent.
+    pub crosshair: Option<[f32; 3]>,
+    /// The slices of slice, glyph and tensor layers follow the crosshair.
+    pub follow: bool,
+    /// A colour bar for every colour-mapped layer, in the 3D view.
+    pub colour_bars: bool,
+}
+
+impl Default for Views {
+    fn default() -> Self {
+        Self { ortho: false, crosshair: None, follow: false, colour_bars: true }
+    }
+}
+
+/// Render layers of the 2D views (index: the world axis a view looks along) and of the colour bars.
+pub const VIEW_LAYERS: [usize; 3] = [1, 2, 3];
+pub const BAR_LAYER: usize = 4;
+
+/// The scene's 3D camera: the viewer's orbit camera, or the headless renderer's.
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct MainView;
+
+/// A 2D view looking along world axis `.0` (0 sagittal, 1 coronal, 2 axial).
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OrthoView(pub usize);
+
+/// The camera drawing the colour bars over the 3D view.
+#[derive(Component, Clone, Copy, Debug)]
+pub struct BarView;
+
+/// The part of the target the views share (physical pixels): what a side panel leaves.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ViewRegion {
+    /// Pixels taken at the left.
+    pub left: u32,
+}
+
+/// The crosshair in world mm, resolved (the scene's, or the images' centre), and the box the 2D views frame.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct Crosshair {
+    pub world: Vec3,
+    pub lo: Vec3,
+    pub hi: Vec3,
+}
+
+impl Default for Crosshair {
+    fn default() -> Self {
+        Self { world: Vec3::ZERO, lo: Vec3::splat(-50.0), hi: Vec3::splat(50.0) }
+    }
+}
+
+/// The voxel grid a layer's content comes from (set by its job): the crosshair's voxel on it.
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct VoxelGrid {
+    pub world_from_voxel: DMat4,
+    pub dims: [usize; 3],
+}
+
+impl VoxelGrid {
+    pub fn of<T: fascicle_core::volume::Scalar>(v: &Volume<T>) -> Self {
+        Self { world_from_voxel: v.world_from_voxel, dims: v.dims3() }
+    }
+
+    /// The voxel axis most nearly along world axis `a`.
+    pub fn axis_along(&self, a: usize) -> usize {
+        let m = self.world_from_voxel;
+        let along = |k: usize| m.col(k).truncate().normalize_or_zero()[a].abs();
+        (0..3).max_by(|&i, &j| along(i).total_cmp(&along(j))).unwrap_or(a)
+    }
+
+    /// The voxel index along voxel axis `k` nearest to world point `p`, if inside the grid.
+    pub fn index_at(&self, p: Vec3, k: usize) -> Option<usize> {
+        let v = self.world_from_voxel.inverse().transform_point3(p.as_dvec3())[k].round();
+        (v >= 0.0 && v < self.dims[k] as f64).then_some(v as usize)
+    }
+
+    /// The world box of the voxels' outer corners.
+    pub fn world_box(&self) -> (Vec3, Vec3) {
+        let mut lo = DVec3::splat(f64::INFINITY);
+        let mut hi = DVec3::splat(f64::NEG_INFINITY);
+        for c in 0..8 {
+            let p = DVec3::from_array(std::array::from_fn(|k| {
+                if c & (1 << k) == 0 { -0.5 } else { self.dims[k] as f64 - 0.5 }
+            }));
+            let w = self.world_from_voxel.transform_point3(p);
+            lo = lo.min(w);
+            hi = hi.max(w);
+        }
+        (lo.as_vec3(), hi.as_vec3())
+    }
+}
+
+/// What a slice layer shows, kept on its entity: the 2D views and window edits cut new slices from it.
+#[derive(Component, Clone)]
+pub struct SliceSource {
+    pub volume: Arc<Volume<f32>>,
+    pub channels: Channels,
+    /// The window used when the layer sets none (its minimum and 99.5th percentile).
+    pub auto_window: (f32, f32),
+}
+
+/// The camera of a 2D view: where it looks from (unit vector from the crosshair to the eye) and its up.
+pub fn view_axes(a: usize) -> (Vec3, Vec3) {
+    match a {
+        0 => (Vec3::NEG_X, Vec3::Z),
+        1 => (Vec3::NEG_Y, Vec3::Z),
+        _ => (Vec3::Z, Vec3::Y),
+    }
+}
+
+/// The four cells of the ortho layout in `region` (physical pixels): sagittal, coronal, axial, 3D, as
+/// `[x, y, width, height]`. Coronal top left, sagittal top right, axial bottom left, 3D bottom right.
+pub fn cells(region: URect) -> [URect; 4] {
+    let mid = region.min + region.size() / 2;
+    let cell = |right: bool, bottom: bool| {
+        let (x0, x1) = if right { (mid.x, region.max.x) } else { (region.min.x, mid.x) };
+        let (y0, y1) = if bottom { (mid.y, region.max.y) } else { (region.min.y, mid.y) };
+        URect::new(x0, y0, x1, y1)
+    };
+    [cell(true, false), cell(false, false), cell(false, true), cell(true, true)]
+}
+
+pub struct ViewsPlugin;
+
+impl Plugin for ViewsPlugin {
+    fn build(&self, app: &mut App) {
+        app.init_resource::<ViewRegion>().init_resource::<Crosshair>().add_systems(
+            Update,
+            (
+                follow_crosshair.before(SceneSystems::Sync),
+                (
+                    spawn_view_cameras,
+                    layout_views,
+                    resolve_crosshair,
+                    spawn_view_marks,
+                    place_ortho_cameras,
+                    view_slices,
+                    bars,
+                )
+                    .chain()
+                    .after(SceneSystems::Finish),
+            ),
+        );
+    }
+}
+
+fn view_camera_bundle(order: isize, layer: usize) -> impl Bundle {
+    (
+        Camera3d::default(),
+        Camera {
+            order,
+            is_active: false,
+            clear_color: ClearColorConfig::Custom(crate::render::BACKGROUND),
+            ..default()
+        },
+        Tonemapping::None,
+        DebandDither::Disabled,
+        RenderLayers::layer(layer),
+    )
+}
+
+/// Gives every new main camera its 2D views and its colour-bar overlay, on the same target.
+fn spawn_view_cameras(mut commands: Commands, mains: Query<(Option<&RenderTarget>, Option<&Msaa>), Added<MainView>>) {
+    for (target, msaa) in &mains {
+        let msaa = msaa.copied().unwrap_or_default();
+        for a in 0..3 {
+            let mut e = commands.spawn((
+                view_camera_bundle(-3 + a as isize, VIEW_LAYERS[a]),
+                OrthoView(a),
+                Projection::Orthographic(OrthographicProjection::default_3d()),
+                msaa,
+            ));
+            if let Some(t) = target {
+                e.insert(t.clone());
+            }
+        }
+        let mut e = commands.spawn((
+            view_camera_bundle(1, BAR_LAYER),
+            BarView,
+            Projection::Orthographic(OrthographicProjection {
+                near: -10.0,
+                far: 10.0,
+                scaling_mode: ScalingMode::WindowSize,
+                ..OrthographicProjection::default_3d()
+            }),
+            msaa,
+        ));
+        e.entry::<Camera>().and_modify(|mut c| c.clear_color = ClearColorConfig::None);
+        if let Some(t) = target {
+            e.insert(t.clone());
+        }
+    }
+}
+
+fn viewport(r: URect) -> Viewport {
+    Viewport { physical_position: r.min, physical_size: r.size().max(UVec2::ONE), ..default() }
+}
+
+fn set_viewport(camera: &mut Camera, r: URect) {
+    let v = viewport(r);
+    let same = camera
+        .viewport
+        .as_ref()
+        .is_some_and(|o| o.physical_position == v.physical_position && o.physical_size == v.physical_size);
+    if !same {
+        camera.viewport = Some(v);
+    }
+}
+
+/// Lays the views out in the region and keeps their MSAA the main camera's (cameras sharing a target share
+/// its textures).
+#[allow(clippy::type_complexity, reason = "a Bevy system's queries")]
+fn layout_views(
+    mut commands: Commands,
+    scene: Res<ActiveScene>,
+    region: Res<ViewRegion>,
+    mut main: Query<(&mut Camera, Option<&Msaa>), With<MainView>>,
+    mut others: Query<(Entity, &mut Camera, Option<&OrthoView>, Option<&Msaa>), Without<MainView>>,
+) {
+    let Ok((mut main, msaa)) = main.single_mut() else { return };
+    let Some(size) = main.physical_target_size() else { return };
+    let left = region.left.min(size.x.saturating_sub(1));
+    let region = URect::new(left, 0, size.x, size.y.max(1));
+    let grid = cells(region);
+    let ortho = scene.0.views.ortho;
+    let main_rect = if ortho { grid[3] } else { region };
+    if region.min == UVec2::ZERO && region.size() == size && !ortho {
+        if main.viewport.is_some() {
+            main.viewport = None;
+        }
+    } else {
+        set_viewport(&mut main, main_rect);
+    }
+    let msaa = msaa.copied().unwrap_or_default();
+    for (e, mut cam, view, m) in &mut others {
+        let (active, rect) = match view {
+            Some(OrthoView(a)) => (ortho, grid[*a]),
+            None => (cam.is_active, main_rect),
+        };
+        if let Some(OrthoView(_)) = view
+            && cam.is_active != active
+        {
+            cam.is_active = active;
+        }
+        set_viewport(&mut cam, rect);
+        if m.copied().unwrap_or_default() != msaa {
+            commands.entity(e).insert(msaa);
+        }
+    }
+}
+
+/// The crosshair of the scene (or the middle of the slice layers' images) and the box the 2D views frame.
+fn resolve_crosshair(
+    scene: Res<ActiveScene>,
+    grids: Query<(&VoxelGrid, &SceneLayer), With<SliceSource>>,
+    mut crosshair: ResMut<Crosshair>,
+) {
+    let mut lo = Vec3::splat(f32::INFINITY);
+    let mut hi = Vec3::splat(f32::NEG_INFINITY);
+    for (g, _) in grids.iter().filter(|(_, l)| l.spec().visible) {
+        let (a, b) = g.world_box();
+        lo = lo.min(a);
+        hi = hi.max(b);
+    }
+    let world = scene.0.views.crosshair.map(Vec3::from_array);
+    let new = if lo.x.is_finite() {
+        Crosshair { world: world.unwrap_or((lo + hi) / 2.0), lo, hi }
+    } else {
+        let w = world.unwrap_or(Vec3::ZERO);
+        Crosshair { world: w, lo: w - 50.0, hi: w + 50.0 }
+    };
+    if *crosshair != new {
+        *crosshair = new;
+    }
+}
+
+/// Marks the two crosshair lines of 2D view `.0`: `.1` is 0 for the line along the screen's x, 1 along y.
+#[derive(Component, Clone, Copy, Debug)]
+struct CrosshairLine(usize, usize);
+
+/// An orientation letter at edge `.1` (0 right, 1 left, 2 top, 3 bottom) of 2D view `.0`.
+#[derive(Component, Clone, Copy, Debug)]
+struct ViewLabel(usize, usize, UVec2);
+
+/// The letters at the right, left, top and bottom edges of 2D view `a` (RAS+: the subject's right, left,
+/// anterior, posterior, superior, inferior).
+pub fn edge_letters(a: usize) -> [&'static str; 4] {
+    match a {
+        0 => ["P", "A", "S", "I"],
+        1 => ["R", "L", "S", "I"],
+        _ => ["R", "L", "A", "P"],
+    }
+}
+
+/// The crosshair lines' colour (linear).
+pub const CROSSHAIR: Color = Color::linear_rgb(1.0, 0.6, 0.0);
+
+/// The crosshair lines and orientation letters of the 2D views, made once.
+fn spawn_view_marks(
+    mut commands: Commands,
+    existing: Query<(), With<CrosshairLine>>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut materials: ResMut<Assets<StandardMaterial>>,
+    mut images: ResMut<Assets<Image>>,
+) {
+    if !existing.is_empty() {
+        return;
+    }
+    let mesh = meshes.add(Cuboid::from_length(1.0));
+    let mut m = StandardMaterial { base_color: CROSSHAIR, unlit: true, ..default() };
+    m.alpha_mode = AlphaMode::Opaque;
+    let material = materials.add(m);
+    for a in 0..3 {
+        for k in 0..2 {
+            commands.spawn((
+                CrosshairLine(a, k),
+                Mesh3d(mesh.clone()),
+                MeshMaterial3d(material.clone()),
+                RenderLayers::layer(VIEW_LAYERS[a]),
+                Transform::default(),
+            ));
+        }
+        let quad = meshes.add(Rectangle::new(1.0, 1.0));
+        for (edge, letter) in edge_letters(a).into_iter().enumerate() {
+            let image = crate::colourbar::text_image(letter);
+            let size = UVec2::new(image.width(), image.height());
+            let mut m = crate::layers::unlit(1.0);
+            m.alpha_mode = AlphaMode::Blend;
+            m.base_color_texture = Some(images.add(image));
+            commands.spawn((
+                ViewLabel(a, edge, size),
+                Mesh3d(quad.clone()),
+                MeshMaterial3d(materials.add(m)),
+                RenderLayers::layer(VIEW_LAYERS[a]),
+                Transform::default(),
+            ));
+        }
+    }
+}
+
+/// Puts each 2D camera on its axis through the crosshair, framing the images' box, and its crosshair lines.
+#[allow(clippy::type_complexity, reason = "a Bevy system's queries")]
+fn place_ortho_cameras(
+    crosshair: Res<Crosshair>,
+    mut cams: Query<(&OrthoView, &Camera, &mut Transform, &mut Projection), Without<CrosshairLine>>,
+    mut lines: Query<(&CrosshairLine, &mut Transform), (Without<OrthoView>, Without<ViewLabel>)>,
+    mut labels: Query<(&ViewLabel, &mut Transform), (Without<OrthoView>, Without<CrosshairLine>)>,
+) {
+    let c = *crosshair;
+    let extent = (c.hi - c.lo).max(Vec3::splat(1.0));
+    let reach = extent.max_element() * 2.0 + 10.0;
+    let mut pixel = [1.0f32; 3];
+    let mut centres = [Vec3::ZERO; 3];
+    let mut sizes = [UVec2::ONE; 3];
+    for (view, cam, mut tf, mut proj) in &mut cams {
+        let a = view.0;
+        let (from, up) = view_axes(a);
+        let right = (-from).cross(up);
+        // Centred on the images' box; the crosshair's depth only (the image does not move under a click).
+        let mut target = (c.lo + c.hi) / 2.0;
+        target[a] = c.world[a];
+        centres[a] = target;
+        let new_tf = Transform::from_translation(target + from * reach).looking_at(target, up);
+        if *tf != new_tf {
+            *tf = new_tf;
+        }
+        let (w, h) = (extent.dot(right.abs()) * 1.04, extent.dot(up.abs()) * 1.04);
+        let new_proj = Projection::Orthographic(OrthographicProjection {
+            near: 0.0,
+            far: reach * 2.0,
+            scaling_mode: ScalingMode::AutoMin { min_width: w, min_height: h },
+            ..OrthographicProjection::default_3d()
+        });
+        let same = matches!((&*proj, &new_proj), (Projection::Orthographic(p), Projection::Orthographic(q))
+            if p.near == q.near && p.far == q.far && format!("{:?}", p.scaling_mode) == format!("{:?}", q.scaling_mode));
+        if !same {
+            *proj = new_proj;
+        }
+        // World mm per pixel: the larger of the two fits.
+        if let Some(size) = cam.physical_viewport_size() {
+            pixel[a] = (w / size.x.max(1) as f32).max(h / size.y.max(1) as f32);
+            sizes[a] = size.max(UVec2::ONE);
+        }
+    }
+    for (label, mut tf) in &mut labels {
+        let ViewLabel(a, edge, px) = *label;
+        let (from, up) = view_axes(a);
+        let right = (-from).cross(up);
+        let mm = pixel[a];
+        // Pixel for pixel, 4 pixels in from the edge's middle.
+        let half = sizes[a].as_vec2() / 2.0 - px.as_vec2() / 2.0 - 4.0;
+        let offset = match edge {
+            0 => right * half.x,
+            1 => -right * half.x,
+            2 => up * half.y,
+            _ => -up * half.y,
+        };
+        let new = Transform {
+            translation: centres[a] + offset * mm + from * reach * 0.6,
+            rotation: Transform::IDENTITY.looking_at(-from, up).rotation,
+            scale: Vec3::new(px.x as f32 * mm, px.y as f32 * mm, 1.0),
+        };
+        if *tf != new {
+            *tf = new;
+        }
+    }
+    for (line, mut tf) in &mut lines {
+        let (from, up) = view_axes(line.0);
+        let rot = Transform::IDENTITY.looking_at(-from, up).rotation;
+        let thick = pixel[line.0] * 1.5;
+        let long = reach * 2.0;
+        let scale = if line.1 == 0 { Vec3::new(long, thick, thick) } else { Vec3::new(thick, long, thick) };
+        // In front of every slice: halfway to the eye.
+        let new = Transform { translation: c.world + from * reach * 0.5, rotation: rot, scale };
+        if *tf != new {
+            *tf = new;
+        }
+    }
+}
+
+/// A layer's slice in 2D view `axis`, and what it was cut with.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct ViewSlice {
+    pub axis: usize,
+    /// The voxel axis and index of the slice.
+    pub voxel_axis: usize,
+    pub index: usize,
+    pub window: (f32, f32),
+    pub opacity: f32,
+}
+
+/// Keeps, under every slice layer, its slice through the crosshair in each 2D view.
+#[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's queries and data")]
+fn view_slices(
+    mut commands: Commands,
+    scene: Res<ActiveScene>,
+    crosshair: Res<Crosshair>,
+    layers: Query<(Entity, &LayerEntity, &SceneLayer, &SliceSource, &VoxelGrid)>,
+    slices: Query<(Entity, &ViewSlice, &ChildOf, &Mesh3d, &MeshMaterial3d<StandardMaterial>)>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut images: ResMut<Assets<Image>>,
+    mut materials: ResMut<Assets<StandardMaterial>>,
+) {
+    if !scene.0.views.ortho {
+        for (e, ..) in &slices {
+            commands.entity(e).despawn();
+        }
+        return;
+    }
+    for (layer, le, sl, source, grid) in &layers {
+        let LayerKind::Slice { window, .. } = &sl.spec().kind else { continue };
+        let window = window.unwrap_or(source.auto_window);
+        for a in 0..3 {
+            let existing = slices.iter().find(|(_, v, parent, ..)| parent.parent() == layer && v.axis == a);
+            let k = grid.axis_along(a);
+            let Some(index) = grid.index_at(crosshair.world, k) else {
+                if let Some((e, ..)) = existing {
+                    commands.entity(e).despawn();
+                }
+                continue;
+            };
+            let want = ViewSlice { axis: a, voxel_axis: k, index, window, opacity: sl.spec().opacity };
+            if existing.is_some_and(|(_, v, ..)| *v == want) {
+                continue;
+            }
+            let axis = [SliceAxis::X, SliceAxis::Y, SliceAxis::Z][k];
+            let Ok((image, corners)) = slice_image(&source.volume, source.channels, axis, Some(index), window) else {
+                continue;
+            };
+            // Later layers over earlier ones: a small step towards the eye per layer.
+            let (from, _) = view_axes(a);
+            let corners = corners.map(|p| p + from * 0.01 * le.0 as f32);
+            let mesh = crate::layers::quad(corners);
+            match existing {
+                Some((e, _, _, mesh3d, mat)) => {
+                    if let Some(mut m) = meshes.get_mut(&mesh3d.0) {
+                        *m = mesh;
+                    }
+                    if let Some(mut m) = materials.get_mut(&mat.0) {
+                        crate::layers::set_opacity(&mut m, want.opacity);
+                        m.base_color_texture = Some(images.add(image));
+                    }
+                    commands.entity(e).insert(want);
+                }
+                None => {
+                    let mut m = crate::layers::unlit(want.opacity);
+                    m.base_color_texture = Some(images.add(image));
+                    commands.spawn((
+                        want,
+                        Mesh3d(meshes.add(mesh)),
+                        MeshMaterial3d(materials.add(m)),
+                        RenderLayers::layer(VIEW_LAYERS[a]),
+                        ChildOf(layer),
+                    ));
+                }
+            }
+        }
+    }
+}
+
+/// One colour bar on the overlay.
+#[derive(Component, Clone, Copy, Debug)]
+struct BarQuad;
+
+/// The colour bars now shown.
+#[derive(Default)]
+struct ShownBars {
+    bars: Vec<Bar>,
+    size: UVec2,
+}
+
+/// Shows the scene's colour bars over the 3D view (bottom right, stacked upwards).
+#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
+fn bars(
+    mut commands: Commands,
+    scene: Res<ActiveScene>,
+    sources: Query<(&LayerEntity, &SliceSource)>,
+    mut overlay: Query<&mut Camera, With<BarView>>,
+    quads: Query<Entity, With<BarQuad>>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut images: ResMut<Assets<Image>>,
+    mut materials: ResMut<Assets<StandardMaterial>>,
+    mut shown: Local<ShownBars>,
+) {
+    let Ok(mut cam) = overlay.single_mut() else { return };
+    let bars = if scene.0.views.colour_bars {
+        colourbar::scene_bars(&scene.0, |i| sources.iter().find(|(le, _)| le.0 == i).map(|(_, s)| s.auto_window))
+    } else {
+        vec![]
+    };
+    let active = !bars.is_empty();
+    if cam.is_active != active {
+        cam.is_active = active;
+    }
+    let size = cam.physical_viewport_size().unwrap_or_default();
+    if bars == shown.bars && size == shown.size {
+        return;
+    }
+    for e in &quads {
+        commands.entity(e).despawn();
+    }
+    for (i, bar) in bars.iter().enumerate() {
+        let Some(r) = colourbar::bar_rect(size, i as u32) else { break };
+        // The overlay's camera sits at the view's centre, one world unit per pixel, y up.
+        let half = size.as_vec2() / 2.0;
+        let at = |x: u32, y: u32| Vec3::new(x as f32 - half.x, half.y - y as f32, 0.0);
+        let corners = [at(r.min.x, r.max.y), at(r.max.x, r.max.y), at(r.max.x, r.min.y), at(r.min.x, r.min.y)];
+        let mut mesh = crate::layers::quad(corners);
+        // The image's first row is its top.
+        mesh.insert_attribute(Mesh::ATTRIBUTE_UV_0, vec![[0.0f32, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]]);
+        let mut m = crate::layers::unlit(1.0);
+        m.alpha_mode = AlphaMode::Blend;
+        m.base_color_texture = Some(images.add(colourbar::bar_image(bar)));
+        commands.spawn((
+            BarQuad,
+            Mesh3d(meshes.add(mesh)),
+            MeshMaterial3d(materials.add(m)),
+            RenderLayers::layer(BAR_LAYER),
+        ));
+    }
+    *shown = ShownBars { bars, size };
+}
+
+/// With [`Views::follow`], moves the slice of every slice, glyph and tensor layer to the crosshair's voxel
+/// (on the layer's own grid, along its own axis).
+fn follow_crosshair(
+    mut scene: ResMut<ActiveScene>,
+    grids: Query<(&LayerEntity, &VoxelGrid)>,
+    mut last: Local<Option<Vec3>>,
+) {
+    let views = scene.0.views;
+    let Some(world) = views.crosshair.map(Vec3::from_array).filter(|_| views.follow) else {
+        *last = None;
+        return;
+    };
+    if *last == Some(world) {
+        return;
+    }
+    *last = Some(world);
+    let mut edited = scene.0.layers.clone();
+    for (le, grid) in &grids {
+        let Some(layer) = edited.get_mut(le.0) else { continue };
+        let (axis, index) = match &mut layer.kind {
+            LayerKind::Slice { axis, index, .. }
+            | LayerKind::ShGlyphs { axis, index, plane: None, full_volume: false, .. }
+            | LayerKind::TensorGlyphs { axis, index, .. }
+            | LayerKind::TensorSplats { axis, index, .. } => (*axis, index),
+            _ => continue,
+        };
+        let k = axis.index();
+        if let Some(i) = grid.index_at(world, k)
+            && *index != Some(i)
+        {
+            *index = Some(i);
+        }
+    }
+    if edited != scene.0.layers {
+        scene.0.layers = edited;
+    }
+}
+
+/// A window after a right drag of `delta` pixels: right widens it (less contrast), up lowers its centre
+/// (brighter), each by 0.5 % of its width per pixel, as mrview's window/level drag.
+pub fn window_level((lo, hi): (f32, f32), delta: Vec2) -> (f32, f32) {
+    let width = (hi - lo).abs().max(1e-6);
+    let centre = (lo + hi) / 2.0 + delta.y * width * 0.005;
+    let width = width * (delta.x * 0.005).exp();
+    (centre - width / 2.0, centre + width / 2.0)
+}
+
+/// The world point a cursor position (logical pixels in the window) picks in a 2D view, on the plane through
+/// `crosshair`: the crosshair's new place after a click there.
+pub fn pick_in_view(
+    camera: &Camera,
+    tf: &GlobalTransform,
+    view: OrthoView,
+    cursor: Vec2,
+    crosshair: Vec3,
+) -> Option<Vec3> {
+    let rect = camera.logical_viewport_rect()?;
+    if !rect.contains(cursor) {
+        return None;
+    }
+    let ray = camera.viewport_to_world(tf, cursor).ok()?;
+    let mut p = ray.origin;
+    p[view.0] = crosshair[view.0];
+    Some(p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_grid_splits_the_region_into_four_cells() {
+        let c = cells(URect::new(300, 0, 1301, 801));
+        // Coronal top left, sagittal top right, axial bottom left, 3D bottom right; nothing overlaps or is lost.
+        assert_eq!(c[1], URect::new(300, 0, 800, 400));
+        assert_eq!(c[0], URect::new(800, 0, 1301, 400));
+        assert_eq!(c[2], URect::new(300, 400, 800, 801));
+        assert_eq!(c[3], URect::new(800, 400, 1301, 801));
+    }
+
+    #[test]
+    fn a_right_drag_sets_contrast_and_brightness() {
+        let (lo, hi) = window_level((0.0, 1.0), Vec2::new(200.0, 0.0));
+        assert!((hi - lo - 1f32.exp()).abs() < 1e-5 && ((lo + hi) / 2.0 - 0.5).abs() < 1e-6);
+        let (lo, hi) = window_level((0.0, 1.0), Vec2::new(0.0, -100.0));
+        assert!((hi - lo - 1.0).abs() < 1e-6 && ((lo + hi) / 2.0 - 0.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn views_are_neurological() {
+        // The screen's right (forward x up) is the subject's right in axial and coronal views and anterior
+        // is on the left of the sagittal view.
+        let right = |a| {
+            let (from, up) = view_axes(a);
+            (-from).cross(up)
+        };
+        assert_eq!(right(2), Vec3::X);
+        assert_eq!(right(1), Vec3::X);
+        assert_eq!(right(0), Vec3::NEG_Y);
+    }
+
+    #[test]
+    fn a_permuted_flipped_grid_cuts_along_its_own_axes() {
+        // Voxel x runs along world -y, voxel y along world z, voxel z along world x (2 mm).
+        let m = DMat4::from_cols(
+            glam::DVec4::new(0.0, -1.0, 0.0, 0.0),
+            glam::DVec4::new(0.0, 0.0, 1.0, 0.0),
+            glam::DVec4::new(2.0, 0.0, 0.0, 0.0),
+            glam::DVec4::new(-10.0, 20.0, 0.0, 1.0),
+        );
+        let g = VoxelGrid { world_from_voxel: m, dims: [30, 40, 10] };
+        assert_eq!([g.axis_along(0), g.axis_along(1), g.axis_along(2)], [2, 0, 1]);
+        // World (-4, 15, 7) is voxel (5, 7, 3).
+        let p = Vec3::new(-4.0, 15.0, 7.0);
+        assert_eq!([g.index_at(p, 0), g.index_at(p, 1), g.index_at(p, 2)], [Some(5), Some(7), Some(3)]);
+        assert_eq!(g.index_at(Vec3::new(30.0, 0.0, 0.0), 2), None);
+        let (lo, hi) = g.world_box();
+        assert_eq!(lo, Vec3::new(-11.0, -9.5, -0.5));
+        assert_eq!(hi, Vec3::new(9.0, 20.5, 39.5));
+    }
+}
