@@ -278,7 +278,10 @@ fn large_scene(dir: &Path) -> Result<Scene, String> {
     scene.layers = vec![
         layer(
             "volume 256^3",
-            LayerKind::Volume { source: VolumeSource::Nifti { path: volume.clone(), volume: 0 }, render: Default::default() },
+            LayerKind::Volume {
+                source: VolumeSource::Nifti { path: volume.clone(), volume: 0 },
+                render: Default::default(),
+            },
         ),
         layer(
             "slice 256^3",
