@@ -4,7 +4,7 @@
 //!
 //! Error (tubes): over 4,000 rays aimed at random segments, the mean of `min(|t - t_exact| / r, 1)` against
 //! the exact surface (`Tubelet::intersect_exact`), r the tube's largest radius, a ray that only one of the
-//! two hits counting 1. Tubelets are tested with their f64 twin (`Tubelet::sphere_trace`, the shader's algorithm); the
+//! two hits counting 1. Tubelets are tested with their f64 twin (`Tubelet::trace`, the shader's algorithms); the
 //! polygon tubes by intersecting the rays with the same triangles the GPU draws. Lines have no surface:
 //! their error column is empty; their rows give load (tractogram to first frame), frame and ROI
 //! re-selection times.
@@ -22,7 +22,9 @@ use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
 use fascicle_core::tubelet::{Tubelet, polygon_rings};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
-use fascicle_tracts::{TractPlugin, TubeSettings, TubeletMaterial, polygon_tube_mesh, spawn_tubes, tract_tubelets};
+use fascicle_tracts::{
+    TractPlugin, TubeMethod, TubeSettings, TubeletMaterial, polygon_tube_mesh, spawn_tubes, tract_tubelets,
+};
 use glam::{DQuat, DVec3, Vec3};
 use rand::{RngExt, SeedableRng};
 
@@ -58,7 +60,7 @@ fn bundle(n_segments: usize, points: usize, seed: u64) -> (Tractogram, Vec<[f32;
 
 #[derive(Clone, Copy, PartialEq)]
 enum Method {
-    Tubes { iterations: u32 },
+    Tubes { method: TubeMethod, iterations: u32 },
     Polygon { sides: usize },
     Lines,
 }
@@ -78,8 +80,8 @@ fn render(t: &Tractogram, tensors: &[[f32; 6]], method: Method, size: (u32, u32)
               mut materials: ResMut<Assets<TubeletMaterial>>,
               mut std_mats: ResMut<Assets<StandardMaterial>>,
               mut buffers: ResMut<Assets<ShaderBuffer>>| match method {
-            Method::Tubes { iterations } => {
-                let s = TubeSettings { scale: SCALE, iterations, ..default() };
+            Method::Tubes { method, iterations } => {
+                let s = TubeSettings { scale: SCALE, iterations, method, ..default() };
                 spawn_tubes(&mut commands, &mut meshes, &mut materials, &mut buffers, t.clone(), Some(&tensors), &s);
             }
             Method::Polygon { sides } => {
@@ -171,9 +173,10 @@ fn error(t: &Tractogram, tensors: &[[f32; 6]], method: Method) -> f64 {
         let near = k.saturating_sub(2)..(k + 3).min(tubes.len());
         let exact = tubes[near.clone()].iter().filter_map(|x| x.intersect_exact(o, d, 800)).min_by(f64::total_cmp);
         let got = match method {
-            Method::Tubes { iterations } => {
-                tubes[near.clone()].iter().filter_map(|x| x.sphere_trace(o, d, iterations, 1e-3)).min_by(f64::total_cmp)
-            }
+            Method::Tubes { method, iterations } => tubes[near.clone()]
+                .iter()
+                .filter_map(|x| x.trace(method, o, d, iterations, 1e-3))
+                .min_by(f64::total_cmp),
             Method::Polygon { sides } => {
                 let mut best: Option<f64> = None;
                 for ring in near.start..(near.end).min(tubes.len()) {
@@ -207,6 +210,7 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
     let sizes: &[usize] = if quick { &[18_681] } else { &[18_681, 34_778, 226_032] };
     let resolutions: &[(u32, u32)] = if quick { &[(434, 673)] } else { &[(434, 673), (1560, 1051)] };
     let iterations: &[u32] = if quick { &[8] } else { &[4, 8, 16] };
+    let sphere_iterations: &[u32] = if quick { &[8] } else { &[8, 16, 32] };
     let sides: &[usize] = if quick { &[16] } else { &[8, 16, 32] };
     let adapter = std::env::var("VK_ICD_FILENAMES").unwrap_or_else(|_| "default Vulkan adapter".into());
     println!("## Tracts: hyperstreamlines vs polygon tubes vs lines ({adapter})\n");
@@ -221,7 +225,13 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
         let n_seg = t.points.len() - t.n_streamlines();
         let mut settings: Vec<(Method, &str, String)> = Vec::new();
         for &it in iterations {
-            settings.push((Method::Tubes { iterations: it }, "sphere-trace", format!("iterations={it}")));
+            let m = Method::Tubes { method: TubeMethod::Bracketed, iterations: it };
+            settings.push((m, "bracketed", format!("iterations={it}")));
+        }
+        // The seed's sphere tracing, the baseline (8 iterations in the seed).
+        for &it in sphere_iterations {
+            let m = Method::Tubes { method: TubeMethod::Sphere, iterations: it };
+            settings.push((m, "sphere", format!("iterations={it}")));
         }
         for &s in sides {
             settings.push((Method::Polygon { sides: s }, "polygon", format!("sides={s}")));

@@ -177,9 +177,9 @@ impl Tubelet {
     /// - inside (`f < 0`, the surface was crossed): by regula falsi in the bracket.
     ///
     /// A hit when `|f| < eps · rmax` between the cut planes; at most `iterations` evaluations. (The seed's
-    /// sphere tracing, steps of the in-plane radial gap, tunnelled through or stalled short of 18-33 % of
-    /// the silhouette of flattened tubelets at 8-16 iterations in `core/tests/tubelet.rs`.)
-    pub fn sphere_trace(&self, o: DVec3, d: DVec3, iterations: u32, eps: f64) -> Option<f64> {
+    /// sphere tracing, [`Tubelet::trace_sphere`], tunnels through or stalls short of part of the silhouette
+    /// of flattened tubelets at 8-16 iterations: `core/tests/tubelet.rs`, `fascicle-bench tracts`.)
+    pub fn trace_bracketed(&self, o: DVec3, d: DVec3, iterations: u32, eps: f64) -> Option<f64> {
         let (lo, ld) = (self.to_local(o), self.rotation.inverse() * d);
         let (t0, t1) = self.cylinder_interval(lo, ld)?;
         let tol = eps * self.rmax();
@@ -243,6 +243,84 @@ impl Tubelet {
         let p = lo + ld * t;
         (self.f(p).abs() < tol && self.between_cuts(p)).then_some(t)
     }
+}
+
+impl Tubelet {
+    /// The first hit by `method` (the shader's twin), at most `iterations` evaluations of `f`.
+    pub fn trace(&self, method: TubeMethod, o: DVec3, d: DVec3, iterations: u32, eps: f64) -> Option<f64> {
+        match method {
+            TubeMethod::Bracketed => self.trace_bracketed(o, d, iterations, eps),
+            TubeMethod::Sphere => self.trace_sphere(o, d, iterations, eps),
+        }
+    }
+
+    /// The seed's sphere tracing (SEEDS.md §3, after Hart 1996): start midway between where the ray enters
+    /// the two frustums through the major and through the minor semi-axes (the outer entry alone when it
+    /// misses the inner one), then step by the signed in-plane radial gap `f` (back when negative); a hit when
+    /// `|f| < eps · rmax` within `iterations` steps, inside the box and between the cut planes. The seed also
+    /// scales steps by `(1 - cos) + 1` for near-axis rays; that is left out: read as the angle to the axis, it
+    /// doubles the steps of rays across the tube, which then oscillate about the surface without converging.
+    pub fn trace_sphere(&self, o: DVec3, d: DVec3, iterations: u32, eps: f64) -> Option<f64> {
+        let (lo, ld) = (self.to_local(o), self.rotation.inverse() * d);
+        let (t0, t1) = self.box_interval(lo, ld)?;
+        let [ry_l, rz_l, ry_r, rz_r] = self.radii;
+        let outer = self.frustum_entry(lo, ld, (t0, t1), ry_l.max(rz_l), ry_r.max(rz_r))?;
+        let mut t = match self.frustum_entry(lo, ld, (t0, t1), ry_l.min(rz_l), ry_r.min(rz_r)) {
+            Some(inner) => 0.5 * (outer + inner),
+            None => outer,
+        };
+        let tol = eps * self.rmax();
+        for _ in 0..iterations {
+            let p = lo + ld * t;
+            let v = self.f(p);
+            if v.abs() < tol {
+                return (t >= t0 && t <= t1 && self.between_cuts(p)).then_some(t);
+            }
+            t += v;
+        }
+        None
+    }
+
+    /// Where the local ray first enters, within `span`, the frustum about x whose radius goes linearly from
+    /// `r_l` at x = -h to `r_r` at x = h (`span.0` when it starts inside).
+    fn frustum_entry(&self, o: DVec3, d: DVec3, span: (f64, f64), r_l: f64, r_r: f64) -> Option<f64> {
+        let h = self.half_length;
+        let slope = if h > 0.0 { (r_r - r_l) / (2.0 * h) } else { 0.0 };
+        // The radius along the ray: ra + rb t.
+        let (ra, rb) = (0.5 * (r_l + r_r) + slope * o.x, slope * d.x);
+        let inside = |t: f64| {
+            let p = o + d * t;
+            (p.y * p.y + p.z * p.z).sqrt() <= ra + rb * t
+        };
+        if inside(span.0) {
+            return Some(span.0);
+        }
+        let qa = d.y * d.y + d.z * d.z - rb * rb;
+        let qb = o.y * d.y + o.z * d.z - ra * rb;
+        let qc = o.y * o.y + o.z * o.z - ra * ra;
+        let roots = if qa.abs() < 1e-12 {
+            if qb.abs() < 1e-300 { vec![] } else { vec![-qc / (2.0 * qb)] }
+        } else {
+            let disc = qb * qb - qa * qc;
+            if disc < 0.0 {
+                return None;
+            }
+            let q = disc.sqrt();
+            let (a, b) = ((-qb - q) / qa, (-qb + q) / qa);
+            vec![a.min(b), a.max(b)]
+        };
+        roots.into_iter().find(|&t| t >= span.0 && t <= span.1 && ra + rb * t >= 0.0)
+    }
+}
+
+/// How the tubelet shader finds a ray's first hit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum TubeMethod {
+    /// Frozen-section quadratic steps, then regula falsi in the bracket ([`Tubelet::trace_bracketed`]).
+    #[default]
+    Bracketed,
+    /// The seed's sphere tracing ([`Tubelet::trace_sphere`]): the baseline.
+    Sphere,
 }
 
 /// The ellipse frame at a point: eigen-system rotated so e1 lies on `axis`; returns (y, z, ry, rz) with
@@ -395,7 +473,7 @@ mod tests {
         // A ray along -z from above hits the cylinder r = 1 at z = 1.
         let hit = k.intersect_exact(DVec3::new(2.5, 0.3, 10.0), -DVec3::Z, 20_000).unwrap();
         assert!((hit - (10.0 - (1.0f64 - 0.09).sqrt())).abs() < 1e-9, "{hit}");
-        let st = k.sphere_trace(DVec3::new(2.5, 0.3, 10.0), -DVec3::Z, 8, 1e-4).unwrap();
+        let st = k.trace_bracketed(DVec3::new(2.5, 0.3, 10.0), -DVec3::Z, 8, 1e-4).unwrap();
         assert!((st - hit).abs() < 1e-3);
         // Beyond the cut plane at x = 4: nothing.
         assert!(k.intersect_exact(DVec3::new(4.2, 0.0, 10.0), -DVec3::Z, 20_000).is_none());

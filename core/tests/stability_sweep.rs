@@ -90,7 +90,7 @@ fn stability_sweep() {
                 let q = DQuat::from_rotation_z(k as f64 * 0.3) * DQuat::from_rotation_y(0.02 + k as f64 * 0.01);
                 let d = (tb.rotation * (q * DVec3::X)).normalize();
                 let o = tb.centre - d * 5.0 + tb.rotation * DVec3::new(0.0, 0.3 * (k as f64 * 0.1).sin(), 0.0);
-                let traced = tb.sphere_trace(o, d, 16, 1e-3);
+                let traced = tb.trace_bracketed(o, d, 16, 1e-3);
                 if let (Some(t), Some(e)) = (traced, tb.intersect_exact(o, d, 4000)) {
                     hits += 1;
                     bad += usize::from(!t.is_finite());

@@ -2,9 +2,9 @@
 // from the tensors) ray cast per pixel on its bounding box: from where the ray enters the bounding
 // cylinder, step to the elliptic cylinder whose section is frozen at the current point (a quadratic; else a
 // secant or linear step), then regula falsi once the surface is bracketed (`iterations` evaluations at
-// most), discard outside the cut planes,
-// normal from the implicit function's gradient, headlight Phong, true fragment depth. The f64 twin is
-// `fascicle_core::tubelet` (`Tubelet::sphere_trace`); keep `TubeParams` in sync with `TubeUniform` in
+// most; or, as the baseline, the seed's sphere tracing), discard outside the cut planes,
+// normal from the implicit function's gradient, headlight Phong, true fragment depth. The f64 twins are
+// `fascicle_core::tubelet::Tubelet::{trace_bracketed, trace_sphere}`; keep `TubeParams` in sync with `TubeUniform` in
 // `plugins/tracts/src/lib.rs`. One draw per set: the mesh holds 8 vertices per tubelet, (slot, corner, 0).
 
 #import bevy_pbr::mesh_view_bindings::view
@@ -16,6 +16,8 @@ struct TubeParams {
     ambient: f32,
     specular: f32,
     shininess: f32,
+    // 0: frozen-section steps and regula falsi; 1: the seed's sphere tracing.
+    method: u32,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: TubeParams;
@@ -96,6 +98,8 @@ struct TubeVertexOutput {
     // `params.iterations`, flat: the fragment stage must not bound its loop by a uniform (the rule in
     // `fascicle::ray`).
     @location(2) @interpolate(flat) iterations: u32,
+    // `params.method`, flat for the same reason.
+    @location(3) @interpolate(flat) method: u32,
 };
 
 @vertex
@@ -115,7 +119,67 @@ fn vertex(v: TubeVertex) -> TubeVertexOutput {
     out.clip_position = select(view.clip_from_world * vec4<f32>(w, 1.0), vec4<f32>(2.0, 2.0, 2.0, 1.0), hidden);
     out.slot = slot;
     out.iterations = params.iterations;
+    out.method = params.method;
     return out;
+}
+
+// Where the local ray first enters, within [t0, t1], the frustum about x whose radius goes linearly from r_l
+// at x = -h to r_r at x = h (t0 when it starts inside); -1 when it does not.
+fn frustum_entry(t: Tube, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32, r_l: f32, r_r: f32) -> f32 {
+    let slope = select(0.0, (r_r - r_l) / (2.0 * t.h), t.h > 0.0);
+    let ra = 0.5 * (r_l + r_r) + slope * o.x;
+    let rb = slope * d.x;
+    let p0 = o + d * t0;
+    if length(p0.yz) <= ra + rb * t0 {
+        return t0;
+    }
+    let qa = d.y * d.y + d.z * d.z - rb * rb;
+    let qb = o.y * d.y + o.z * d.z - ra * rb;
+    let qc = o.y * o.y + o.z * o.z - ra * ra;
+    var r0 = -1.0;
+    var r1 = -1.0;
+    if abs(qa) < 1e-12 {
+        if abs(qb) > 1e-30 {
+            r0 = -qc / (2.0 * qb);
+            r1 = r0;
+        }
+    } else {
+        let disc = qb * qb - qa * qc;
+        if disc < 0.0 {
+            return -1.0;
+        }
+        let q = sqrt(disc);
+        let a = (-qb - q) / qa;
+        let b = (-qb + q) / qa;
+        r0 = min(a, b);
+        r1 = max(a, b);
+    }
+    if r0 >= t0 && r0 <= t1 && ra + rb * r0 >= 0.0 {
+        return r0;
+    }
+    if r1 >= t0 && r1 <= t1 && ra + rb * r1 >= 0.0 {
+        return r1;
+    }
+    return -1.0;
+}
+
+// The seed's sphere tracing (twin: `Tubelet::trace_sphere`): from midway between the entries into the
+// frustums through the major and the minor semi-axes, steps of the signed in-plane gap f. (t, 1) on a hit.
+fn trace_sphere(t: Tube, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32, iterations: u32, tol: f32) -> vec2<f32> {
+    let outer = frustum_entry(t, o, d, t0, t1, max(t.radii.x, t.radii.y), max(t.radii.z, t.radii.w));
+    if outer < 0.0 {
+        return vec2<f32>(0.0, 0.0);
+    }
+    let inner = frustum_entry(t, o, d, t0, t1, min(t.radii.x, t.radii.y), min(t.radii.z, t.radii.w));
+    var tt = select(outer, 0.5 * (outer + inner), inner >= 0.0);
+    for (var k = 0u; k < iterations; k++) {
+        let v = f(t, o + d * tt);
+        if abs(v) < tol {
+            return vec2<f32>(tt, select(0.0, 1.0, tt >= t0 && tt <= t1));
+        }
+        tt += v;
+    }
+    return vec2<f32>(tt, 0.0);
 }
 
 struct FragmentOutput {
@@ -123,38 +187,8 @@ struct FragmentOutput {
     @builtin(frag_depth) depth: f32,
 };
 
-@fragment
-fn fragment(in: TubeVertexOutput) -> FragmentOutput {
-    let t = load(in.slot);
-    let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
-    let o = unrotate(t.q, ray.origin - t.centre);
-    let d = unrotate(t.q, ray.dir);
-    // Bounding box, then bounding cylinder.
-    let hi = half_extents(t);
-    let inv = 1.0 / d;
-    let a = (-hi - o) * inv;
-    let b = (hi - o) * inv;
-    var t0 = max(max(min(a.x, b.x), min(a.y, b.y)), max(min(a.z, b.z), 0.0));
-    var t1 = min(min(max(a.x, b.x), max(a.y, b.y)), max(a.z, b.z));
-    let r = hi.y;
-    let qa = d.y * d.y + d.z * d.z;
-    let qb = o.y * d.y + o.z * d.z;
-    let qc = o.y * o.y + o.z * o.z - r * r;
-    if qa >= 1e-12 {
-        let disc = qb * qb - qa * qc;
-        if disc < 0.0 {
-            discard;
-        }
-        let sq = sqrt(disc);
-        t0 = max(t0, (-qb - sq) / qa);
-        t1 = min(t1, (-qb + sq) / qa);
-    } else if qc > 0.0 {
-        discard;
-    }
-    if t0 >= t1 {
-        discard;
-    }
-    let tol = params.eps * rmax(t);
+// Frozen-section steps, then regula falsi in the bracket (twin: `Tubelet::trace_bracketed`). (t, 1) on a hit.
+fn trace_bracketed(t: Tube, o: vec3<f32>, d: vec3<f32>, t0: f32, t1: f32, iterations: u32, tol: f32) -> vec2<f32> {
     // A twisted section turns by at most TWIST_STEP radians per step (thin sections are not stepped over).
     var max_step = 1e30;
     if abs(t.twist) > 1e-6 {
@@ -166,7 +200,7 @@ fn fragment(in: TubeVertexOutput) -> FragmentOutput {
     var out_s = vec2<f32>(t0, -1.0);
     var in_s = vec2<f32>(0.0, 1.0);
     var prev = vec2<f32>(0.0, -1.0);
-    for (var k = 0u; k < in.iterations; k++) {
+    for (var k = 0u; k < iterations; k++) {
         let p = o + d * tt;
         let v = f(t, p);
         if abs(v) < tol {
@@ -200,7 +234,7 @@ fn fragment(in: TubeVertexOutput) -> FragmentOutput {
                 if prev.y > v {
                     secant = v * (tt - prev.x) / (prev.y - v);
                 }
-                var step = (t1 - t0) / f32(in.iterations);
+                var step = (t1 - t0) / f32(iterations);
                 if frozen >= 0.0 && tt + frozen <= t1 {
                     step = frozen;
                 } else if secant > 0.0 && tt + secant <= t1 {
@@ -219,10 +253,59 @@ fn fragment(in: TubeVertexOutput) -> FragmentOutput {
             break;
         }
     }
-    let p = o + d * tt;
     if !hit {
-        hit = abs(f(t, p)) < tol && tt <= t1;
+        hit = abs(f(t, o + d * tt)) < tol && tt <= t1;
     }
+    return vec2<f32>(tt, select(0.0, 1.0, hit));
+}
+
+@fragment
+fn fragment(in: TubeVertexOutput) -> FragmentOutput {
+    let t = load(in.slot);
+    let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
+    let o = unrotate(t.q, ray.origin - t.centre);
+    let d = unrotate(t.q, ray.dir);
+    // Bounding box, then bounding cylinder.
+    let hi = half_extents(t);
+    let inv = 1.0 / d;
+    let a = (-hi - o) * inv;
+    let b = (hi - o) * inv;
+    var t0 = max(max(min(a.x, b.x), min(a.y, b.y)), max(min(a.z, b.z), 0.0));
+    var t1 = min(min(max(a.x, b.x), max(a.y, b.y)), max(a.z, b.z));
+    // The box interval: the sphere tracer's range (its twin has no bounding cylinder).
+    let box0 = t0;
+    let box1 = t1;
+    let r = hi.y;
+    let qa = d.y * d.y + d.z * d.z;
+    let qb = o.y * d.y + o.z * d.z;
+    let qc = o.y * o.y + o.z * o.z - r * r;
+    if qa >= 1e-12 {
+        let disc = qb * qb - qa * qc;
+        if disc < 0.0 {
+            discard;
+        }
+        let sq = sqrt(disc);
+        t0 = max(t0, (-qb - sq) / qa);
+        t1 = min(t1, (-qb + sq) / qa);
+    } else if qc > 0.0 {
+        discard;
+    }
+    if t0 >= t1 {
+        discard;
+    }
+    let tol = params.eps * rmax(t);
+    var tt = t0;
+    var hit = false;
+    if in.method == 1u {
+        let found = trace_sphere(t, o, d, box0, box1, in.iterations, tol);
+        tt = found.x;
+        hit = found.y > 0.0;
+    } else {
+        let found = trace_bracketed(t, o, d, t0, t1, in.iterations, tol);
+        tt = found.x;
+        hit = found.y > 0.0;
+    }
+    let p = o + d * tt;
     if !hit || !between_cuts(t, p) {
         discard;
     }

@@ -21,6 +21,7 @@ use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, SegmentGrid, select};
+pub use fascicle_core::tubelet::TubeMethod;
 use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
 
 pub mod layer;
@@ -36,6 +37,8 @@ pub struct TubeSettings {
     /// Cross-section scale (mm): a semi-axis is `scale · l_k / l1` (at least 5 % of it).
     pub scale: f64,
     pub colour: TubeColour,
+    /// How a pixel's ray finds the surface: the bracketed tracer, or the seed's sphere tracing (the baseline).
+    pub method: TubeMethod,
     /// Iteration cap of the per-pixel intersection.
     pub iterations: u32,
     /// Convergence tolerance, in units of the tubelet's largest radius.
@@ -50,6 +53,7 @@ impl Default for TubeSettings {
         Self {
             scale: 4.0,
             colour: TubeColour::Direction,
+            method: TubeMethod::Bracketed,
             iterations: 8,
             eps: 1e-3,
             ambient: 0.3,
@@ -67,6 +71,8 @@ pub struct TubeUniform {
     pub ambient: f32,
     pub specular: f32,
     pub shininess: f32,
+    /// 0 bracketed, 1 sphere tracing.
+    pub method: u32,
 }
 
 impl From<&TubeSettings> for TubeUniform {
@@ -77,6 +83,10 @@ impl From<&TubeSettings> for TubeUniform {
             ambient: s.ambient,
             specular: s.specular,
             shininess: s.shininess,
+            method: match s.method {
+                TubeMethod::Bracketed => 0,
+                TubeMethod::Sphere => 1,
+            },
         }
     }
 }
