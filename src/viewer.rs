@@ -34,7 +34,8 @@ use fascicle_render::layer::LayerStatus;
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
 use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
 
-/// Camera components shared by viewer and headless renderer, so both produce the same image.
+/// Camera components shared by viewer and headless renderer, so both produce the same image: no tone mapping
+/// or dithering, and blending in a float target (rounded to 8 bits once, at the end).
 pub fn view_camera() -> impl Bundle {
     (
         Camera3d::default(),
@@ -42,6 +43,8 @@ pub fn view_camera() -> impl Bundle {
         Tonemapping::None,
         DebandDither::Disabled,
         MainView,
+        // A float (f16) target: slices, splats and glyph layers blend without 8-bit banding.
+        bevy::camera::Hdr,
     )
 }
 

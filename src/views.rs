@@ -194,6 +194,7 @@ fn view_camera_bundle(order: isize, layer: usize) -> impl Bundle {
         },
         Tonemapping::None,
         DebandDither::Disabled,
+        bevy::camera::Hdr,
         RenderLayers::layer(layer),
     )
 }

@@ -218,6 +218,87 @@ fn slicing_agrees_with_raycasting() {
     assert!(p99 <= 8.0, "99th percentile {p99} levels");
 }
 
+/// A smooth, faint ramp (a volume whose value rises along x and is constant along z; opacity 0.01 per 0.5 mm,
+/// 80 slices composited in the framebuffer), seen face on through an orthographic camera so that every pixel
+/// crosses the same slices: slicing into a float (HDR, f16) target equals ray casting (which composites in the
+/// shader in f32 and rounds once) to 1 level of 255 at every pixel across the ramp; into an 8-bit target each
+/// slice's contribution (under 1 level) is rounded, and the ramp comes out visibly off (more than 3 levels:
+/// the check sees what it is there to catch).
+#[test]
+fn float_compositing_removes_8_bit_banding() {
+    let ramp = |method: VolumeMethod, hdr: bool| {
+        let (mut app, target) = headless::gpu_test_app(W, H)?;
+        app.add_plugins(VolumePlugin);
+        app.add_systems(
+            PostStartup,
+            move |mut commands: Commands,
+                  mut meshes: ResMut<Assets<Mesh>>,
+                  mut images: ResMut<Assets<Image>>,
+                  mut materials: ResMut<Assets<VolumeMaterial>>,
+                  mut buffers: ResMut<Assets<ShaderBuffer>>,
+                  depth: Res<OpaqueDepth>| {
+                let dims = [64usize, 8, 8];
+                let affine = DMat4::from_translation(DVec3::new(-32.0, -20.0, -20.0))
+                    * DMat4::from_scale(DVec3::new(1.0, 5.0, 5.0));
+                let mut v = Volume::zeros(&dims, affine);
+                for (i, x) in v.data.iter_mut().enumerate() {
+                    *x = (i % dims[0]) as f32 / (dims[0] - 1) as f32;
+                }
+                let s = VolumeSettings {
+                    method,
+                    tf: TransferFunction {
+                        range: [0.0, 1.0],
+                        points: vec![
+                            TfPoint { x: 0.0, rgba: [0.0, 0.0, 0.0, 0.01] },
+                            TfPoint { x: 1.0, rgba: [0.6, 0.6, 0.6, 0.01] },
+                        ],
+                    },
+                    step: 0.5,
+                    termination: 2.0,
+                    jitter: false,
+                    ..settings(method)
+                };
+                spawn_volume(&mut commands, &mut meshes, &mut images, &mut materials, &mut buffers, &depth, &v, &s);
+            },
+        );
+        let cam = headless::spawn_test_camera(&mut app, target.clone(), Vec3::new(0.0, 0.0, 60.0), Vec3::ZERO);
+        app.world_mut().entity_mut(cam).insert(Projection::Orthographic(OrthographicProjection {
+            scaling_mode: bevy::camera::ScalingMode::FixedVertical { viewport_height: 60.0 },
+            near: 0.0,
+            far: 200.0,
+            ..OrthographicProjection::default_3d()
+        }));
+        if hdr {
+            app.world_mut().entity_mut(cam).insert(bevy::camera::Hdr);
+        }
+        Some(headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}")))
+    };
+    let (Some(reference), Some(float), Some(bytes)) =
+        (ramp(VolumeMethod::Raycast, true), ramp(VolumeMethod::Slicing, true), ramp(VolumeMethod::Slicing, false))
+    else {
+        return;
+    };
+    // Rows across the middle of the volume (it spans x -32..32 mm of the 80 mm wide view).
+    let row = |img: &Capture, y: u32| -> Vec<i32> {
+        (W / 2 - 40..W / 2 + 40).map(|x| i32::from(img.pixel(x, y)[1])).collect()
+    };
+    let worst = |img: &Capture| {
+        (H / 2 - 8..H / 2 + 8)
+            .flat_map(|y| {
+                row(img, y).into_iter().zip(row(&reference, y)).map(|(a, b)| (a - b).abs()).collect::<Vec<_>>()
+            })
+            .max()
+            .unwrap_or(0)
+    };
+    let (r, f, b) = (row(&reference, H / 2), row(&float, H / 2), row(&bytes, H / 2));
+    println!("ray cast: {r:?}\nsliced, float target: {f:?}\nsliced, 8-bit target: {b:?}");
+    let (float_err, byte_err) = (worst(&float), worst(&bytes));
+    println!("largest difference from ray casting: float {float_err}, 8-bit {byte_err} levels");
+    assert!(r.last().unwrap() - r.first().unwrap() > 30, "the ramp rises: {r:?}");
+    assert!(float_err <= 1, "float compositing is off by {float_err} levels");
+    assert!(byte_err > 3, "the 8-bit target came within {byte_err} levels: the check would not see banding");
+}
+
 #[test]
 fn clipped_and_shaded_raycast_matches_the_f64_marcher() {
     let clip = ClipBox { min: [0.15, 0.0, 0.3], max: [0.8, 0.55, 1.0] };
