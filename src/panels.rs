@@ -438,6 +438,7 @@ fn volume_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     ui.horizontal(|ui| {
         ui.radio_value(&mut render.method, VolumeMethod::Raycast, "ray casting");
         ui.radio_value(&mut render.method, VolumeMethod::Slicing, "3D-texture slicing");
+        ui.radio_value(&mut render.method, VolumeMethod::Slicing2d, "2D slicing (voxel planes)");
     });
     ui.add(egui::Slider::new(&mut render.step, 0.05..=4.0).logarithmic(true).text("step / slice spacing (mm)"));
     let mut early = render.termination <= 1.0;

@@ -162,9 +162,12 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
             settings.push((
                 "slicing",
                 format!("spacing={step}"),
-                VolumeSettings { method: VolumeMethod::Slicing, ..base },
+                VolumeSettings { method: VolumeMethod::Slicing, ..base.clone() },
             ));
         }
+        // 2D slicing has no spacing knob: one plane per voxel of the stack the view picks.
+        let base = VolumeSettings { tf: tf(), jitter: false, ..VolumeSettings::default() };
+        settings.push(("slice2d", "voxel planes".into(), VolumeSettings { method: VolumeMethod::Slicing2d, ..base }));
         for (name, param, s) in settings {
             let (ms, img) = render(&vol, n, &s, image)?;
             let err = error(&img, &want, image);

@@ -5,7 +5,7 @@
 //!
 //! The files are DIPY's `small_64D` DWI fitted with `fascicle fit dti` (tensors and FA). Keys: `W`/`Q`
 //! widen and narrow the window (the transfer function's range: two small tables and a uniform), `M`
-//! switches ray casting and 3D-texture slicing (the proxy mesh only).
+//! cycles ray casting, 3D-texture slicing and 2D slicing (the proxy mesh only).
 //!
 //! Run: `cargo run --release -p fascicle-volume --example dvr [-- --headless out.png]`
 
@@ -64,7 +64,8 @@ fn keys(input: Res<ButtonInput<KeyCode>>, mut layers: Query<&mut VolumeSettings>
         if input.just_pressed(KeyCode::KeyM) {
             s.method = match s.method {
                 VolumeMethod::Raycast => VolumeMethod::Slicing,
-                VolumeMethod::Slicing => VolumeMethod::Raycast,
+                VolumeMethod::Slicing => VolumeMethod::Slicing2d,
+                VolumeMethod::Slicing2d => VolumeMethod::Raycast,
             };
         }
     }

@@ -1,6 +1,7 @@
 // Volume context (SEEDS.md section 2): direct volume rendering of a scalar 3D texture, by GPU ray casting
 // (front to back, early termination, jittered start, post-classified or pre-integrated) or by
-// view-aligned 3D-texture slicing (Cabral et al.: planes facing the camera, blended back to front). Both
+// view-aligned 3D-texture slicing (Cabral et al.: planes facing the camera, blended back to front), or by
+// 2D-texture slicing (the voxel planes of the axis nearest the view direction, back to front). All
 // stop at the depth of the opaque layers (a copy of the depth buffer taken after the opaque pass), so
 // glyphs inside the volume hide what lies behind them and are tinted by what lies in front.
 // The f64 reference is `fascicle_core::dvr`; keep `VolumeParams` in sync with `VolumeUniform` in
@@ -11,7 +12,8 @@
 
 struct VolumeParams {
     voxel_from_world: mat4x4<f32>,
-    // xyz: dimensions (voxels); w: method (0 ray casting, 1 slicing).
+    world_from_voxel: mat4x4<f32>,
+    // xyz: dimensions (voxels); w: method (0 ray casting, 1 slicing, 2 2D slicing).
     dims: vec4<f32>,
     // World bounding sphere of the volume: centre, radius.
     sphere: vec4<f32>,
@@ -49,8 +51,8 @@ struct VolumeVertex {
 struct VolumeVertexOutput {
     @builtin(position) clip_position: vec4<f32>,
     @location(0) world_position: vec3<f32>,
-    // (slicing, jitter, shading, pre-integrated), flat: the fragment stage branches on these, never on the
-    // uniform (the rule in `fascicle::ray`).
+    // (slicing: 0 none, 1 view-aligned, 2 + k voxel planes of axis k; jitter, shading, pre-integrated), flat:
+    // the fragment stage branches on these, never on the uniform (the rule in `fascicle::ray`).
     @location(1) @interpolate(flat) modes: vec4<u32>,
 };
 
@@ -66,10 +68,40 @@ fn vertex(v: VolumeVertex) -> VolumeVertexOutput {
     let offset = r - (v.position.z + 0.5) * spacing;
     let sliced = params.sphere.xyz + r * (v.position.x * right + v.position.y * up) + offset * forward;
     let slicing = params.dims.w == 1.0;
-    let p = select(v.position, sliced, slicing);
-    out.modes = vec4<u32>(u32(slicing), params.jitter, params.shading, params.preintegrated);
+    // 2D slicing (method 2): the axis whose planes face the view most, planes far to near. Computed always and
+    // chosen by `select`: no branch on the uniform.
+    let m = params.voxel_from_world;
+    var rows = array<vec3<f32>, 3>(
+        vec3<f32>(m[0].x, m[1].x, m[2].x),
+        vec3<f32>(m[0].y, m[1].y, m[2].y),
+        vec3<f32>(m[0].z, m[1].z, m[2].z),
+    );
+    let c0 = abs(dot(forward, normalize(rows[0])));
+    let c1 = abs(dot(forward, normalize(rows[1])));
+    let c2 = abs(dot(forward, normalize(rows[2])));
+    let k = select(select(2u, 1u, c1 >= c2), 0u, c0 >= max(c1, c2));
+    let dk = max(u32(params.dims[k]), 1u);
+    let slot = u32(v.position.z);
+    // Voxel coordinate k grows away from the eye: draw its high planes first.
+    let index = select(min(slot, dk - 1u), dk - 1u - min(slot, dk - 1u), dot(forward, rows[k]) > 0.0);
+    let u = (k + 1u) % 3u;
+    let w = (k + 2u) % 3u;
+    // Wound to face the camera (back faces are culled): mirror the quad when its normal points away.
+    let wm = params.world_from_voxel;
+    let away = dot(cross(wm[u].xyz, wm[w].xyz), forward) > 0.0;
+    let cx = select(v.position.x, -v.position.x, away);
+    var q = vec3<f32>(0.0);
+    q[k] = f32(index);
+    q[u] = mix(-0.5, params.dims[u] - 0.5, 0.5 * (cx + 1.0));
+    q[w] = mix(-0.5, params.dims[w] - 0.5, 0.5 * (v.position.y + 1.0));
+    let planes = params.dims.w == 2.0;
+    let p = select(select(v.position, sliced, slicing), (params.world_from_voxel * vec4<f32>(q, 1.0)).xyz, planes);
+    let mode = select(u32(slicing), 2u + k, planes);
+    // Planes beyond the stack's depth collapse outside the view.
+    let folded = planes && slot >= dk;
+    out.modes = vec4<u32>(mode, params.jitter, params.shading, params.preintegrated);
     out.world_position = p;
-    out.clip_position = view.clip_from_world * vec4<f32>(p, 1.0);
+    out.clip_position = select(view.clip_from_world * vec4<f32>(p, 1.0), vec4<f32>(2.0, 2.0, 2.0, 1.0), folded);
     return out;
 }
 
@@ -173,6 +205,18 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
         let spacing = 2.0 * params.sphere.w / f32(params.n_slices);
         let c = shade(segment(sample_volume(q), spacing / max(dot(r.dir, forward), 1e-3)), q, d, in.modes.z);
         return c;
+    }
+    if in.modes.x >= 2u {
+        // One voxel plane of axis k, sampled where this fragment lies on it; the planes are 1 / |d_k| apart
+        // along the ray (d in voxels per mm).
+        let k = in.modes.x - 2u;
+        let t = dot(in.world_position - r.origin, r.dir);
+        var q = (params.voxel_from_world * vec4<f32>(in.world_position, 1.0)).xyz;
+        q[k] = round(q[k]);
+        if t >= t_stop || any(q < lo) || any(q > hi) {
+            discard;
+        }
+        return shade(segment(sample_volume(q), 1.0 / max(abs(d[k]), 1e-6)), q, d, in.modes.z);
     }
     let inv = 1.0 / d;
     let a = (lo - o) * inv;

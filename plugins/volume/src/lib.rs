@@ -50,6 +50,10 @@ pub enum VolumeMethod {
     Raycast,
     /// Object order: view-aligned planes through a 3D texture, back to front.
     Slicing,
+    /// Object order, 2D-texture slicing: the voxel planes of the axis nearest the view direction (one of
+    /// three stacks, switched as the view turns), back to front, each sampled bilinearly in its plane, opacity
+    /// corrected for the distance between planes along each ray.
+    Slicing2d,
 }
 
 /// Drawing options of a volume layer (a component of [`VolumeLayer`]; see [`layer`] for what each edit costs).
@@ -104,6 +108,7 @@ impl VolumeSettings {
 #[derive(Clone, Copy, Debug, ShaderType)]
 pub struct VolumeUniform {
     pub voxel_from_world: Mat4,
+    pub world_from_voxel: Mat4,
     pub dims: Vec4,
     pub sphere: Vec4,
     /// The clip box in voxel coordinates (xyz; w unused).
@@ -403,9 +408,11 @@ impl VolumeUniform {
         let method = match s.method {
             VolumeMethod::Raycast => 0.0,
             VolumeMethod::Slicing => 1.0,
+            VolumeMethod::Slicing2d => 2.0,
         };
         Self {
             voxel_from_world: world_from_voxel.inverse().as_mat4(),
+            world_from_voxel: world_from_voxel.as_mat4(),
             dims: Vec4::new(dims[0] as f32, dims[1] as f32, dims[2] as f32, method),
             sphere: Vec4::new(centre.x as f32, centre.y as f32, centre.z as f32, r as f32),
             clip_lo: lo.as_vec3().extend(0.0),
@@ -436,7 +443,8 @@ pub fn tf_buffers(s: &VolumeSettings) -> (Vec<u8>, Vec<u8>) {
     (lut.to_bytes(), tb)
 }
 
-/// The proxy geometry of a method: the volume's box (ray casting) or the view-aligned slices (slicing).
+/// The proxy geometry of a method: the volume's box (ray casting), the view-aligned slices (slicing) or the
+/// voxel planes (2D slicing).
 pub fn proxy_mesh(dims: [usize; 3], world_from_voxel: glam::DMat4, settings: &VolumeSettings) -> Mesh {
     match settings.method {
         VolumeMethod::Raycast => box_mesh(dims, world_from_voxel),
@@ -444,6 +452,8 @@ pub fn proxy_mesh(dims: [usize; 3], world_from_voxel: glam::DMat4, settings: &Vo
             let (_, r) = bounding_sphere(dims, world_from_voxel);
             fascicle_render::meshes::slot_quads(slices(r, settings.step) as usize)
         }
+        // One quad per voxel plane of the longest axis; the vertex stage picks the stack and folds the rest.
+        VolumeMethod::Slicing2d => fascicle_render::meshes::slot_quads(dims.into_iter().max().unwrap_or(1)),
     }
 }
 

@@ -64,6 +64,10 @@ fn settings(method: VolumeMethod) -> VolumeSettings {
 }
 
 fn render(settings: VolumeSettings, cube: bool) -> Option<Capture> {
+    render_from(settings, cube, EYE)
+}
+
+fn render_from(settings: VolumeSettings, cube: bool, eye: Vec3) -> Option<Capture> {
     let (mut app, target) = headless::gpu_test_app(W, H)?;
     app.add_plugins(VolumePlugin);
     app.add_systems(
@@ -100,17 +104,21 @@ fn render(settings: VolumeSettings, cube: bool) -> Option<Capture> {
             }
         },
     );
-    let cam = headless::spawn_test_camera(&mut app, target.clone(), EYE, Vec3::ZERO);
+    let cam = headless::spawn_test_camera(&mut app, target.clone(), eye, Vec3::ZERO);
     app.world_mut().entity_mut(cam).insert(bevy::camera::Hdr);
     Some(headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}")))
 }
 
 /// The f64 reference image (linear RGB), with the cube when `cube`.
 fn reference(settings: &VolumeSettings, cube: bool) -> Vec<DVec3> {
+    reference_from(settings, cube, EYE)
+}
+
+fn reference_from(settings: &VolumeSettings, cube: bool, eye: Vec3) -> Vec<DVec3> {
     let vol = phantom();
     let lut = settings.tf.lut();
     let cam = PinholeCamera {
-        eye: EYE.as_dvec3(),
+        eye: eye.as_dvec3(),
         target: DVec3::ZERO,
         up: DVec3::Y,
         fov_y: std::f64::consts::FRAC_PI_4,
@@ -297,6 +305,22 @@ fn float_compositing_removes_8_bit_banding() {
     assert!(r.last().unwrap() - r.first().unwrap() > 30, "the ramp rises: {r:?}");
     assert!(float_err <= 1, "float compositing is off by {float_err} levels");
     assert!(byte_err > 3, "the 8-bit target came within {byte_err} levels: the check would not see banding");
+}
+
+/// 2D slicing (the voxel planes of the axis nearest the view, one of three stacks) against the f64 marcher,
+/// from two views whose nearest axes differ (the stack switches). It integrates at the voxel planes, 1.8-2 mm
+/// apart and further along oblique rays in this oblique, anisotropic volume, against the marcher's 0.5 mm, and
+/// samples bilinearly within each plane: measured 99th percentiles 5.3 and 4.7 levels (3D slicing at 2 mm:
+/// 1.8 and 1.6), bound 6.
+#[test]
+fn slicing_2d_agrees_with_the_f64_marcher_from_either_stack() {
+    for eye in [EYE, Vec3::new(-75.0, 10.0, -20.0)] {
+        let Some(img) = render_from(settings(VolumeMethod::Slicing2d), false, eye) else { return };
+        let want = reference_from(&settings(VolumeMethod::Raycast), false, eye);
+        let (p99, lit) = compare(&img, &want, &format!("slicing2d from {eye}"));
+        assert!(lit > 1000, "{lit} coloured pixels");
+        assert!(p99 <= 6.0, "2D slicing from {eye}: 99th percentile {p99} levels");
+    }
 }
 
 #[test]
