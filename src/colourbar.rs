@@ -129,15 +129,7 @@ pub fn bar_image(bar: &Bar) -> Image {
     let (lo, hi) = (number(bar.range.0), number(bar.range.1));
     text(&lo, 2, 33);
     text(&hi, w.saturating_sub(2 + text_width(&hi)), 33);
-    let mut image = Image::new(
-        Extent3d { width: BAR_W, height: BAR_H, depth_or_array_layers: 1 },
-        TextureDimension::D2,
-        px,
-        TextureFormat::Rgba8UnormSrgb,
-        RenderAssetUsages::RENDER_WORLD,
-    );
-    image.sampler = ImageSampler::nearest();
-    image
+    srgb_image(BAR_W, BAR_H, px)
 }
 
 /// A line of text in the bar's font (white on a dark, half-transparent backing), as an sRGB image one font
@@ -146,8 +138,14 @@ pub fn text_image(s: &str) -> Image {
     let (w, h) = (text_width(s) + 2, 7 * SCALE + 4);
     let mut px: Vec<u8> = [0u8, 0, 0, 128].repeat(w * h);
     draw_text(&mut px, w, h, s, 2, 2);
+    srgb_image(w as u32, h as u32, px)
+}
+
+/// An sRGB RGBA8 image of `width x height` pixels, sampled nearest (shown pixel for pixel), for the render
+/// world only.
+pub fn srgb_image(width: u32, height: u32, px: Vec<u8>) -> Image {
     let mut image = Image::new(
-        Extent3d { width: w as u32, height: h as u32, depth_or_array_layers: 1 },
+        Extent3d { width, height, depth_or_array_layers: 1 },
         TextureDimension::D2,
         px,
         TextureFormat::Rgba8UnormSrgb,

@@ -7,10 +7,8 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
-use bevy::asset::RenderAssetUsages;
-use bevy::image::{Image, ImageSampler};
+use bevy::image::Image;
 use bevy::math::Vec3;
-use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
 use fascicle_core::Volume;
 use fascicle_core::dti::glyph::TensorGlyph;
 use fascicle_core::dti::splat::Splat;
@@ -1160,14 +1158,7 @@ pub fn slice_image(
             }
         }
     }
-    let mut image = Image::new(
-        Extent3d { width: w as u32, height: h as u32, depth_or_array_layers: 1 },
-        TextureDimension::D2,
-        px,
-        TextureFormat::Rgba8UnormSrgb,
-        RenderAssetUsages::RENDER_WORLD,
-    );
-    image.sampler = ImageSampler::nearest();
+    let image = crate::colourbar::srgb_image(w as u32, h as u32, px);
     let corner = |a: f64, b: f64| {
         let mut p = [0f64; 3];
         p[ax] = k as f64;

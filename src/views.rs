@@ -255,7 +255,10 @@ fn layout_views(
     scene: Res<ActiveScene>,
     region: Res<ViewRegion>,
     mut main: Query<(&mut Camera, Option<&Msaa>), With<MainView>>,
-    mut others: Query<(Entity, &mut Camera, Option<&OrthoView>, Option<&Msaa>), Without<MainView>>,
+    mut others: Query<
+        (Entity, &mut Camera, Option<&OrthoView>, Option<&Msaa>),
+        (Without<MainView>, Or<(With<OrthoView>, With<BarView>)>),
+    >,
 ) {
     let Ok((mut main, msaa)) = main.single_mut() else { return };
     let Some(size) = main.physical_target_size() else { return };

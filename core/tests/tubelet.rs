@@ -47,21 +47,7 @@ fn sphere_tracing_against_exact_intersection() {
         for chain in &chains {
             for tb in chain {
                 for k in 0..200 {
-                    // Rays aimed near the tubelet, from random directions; every 10th nearly along the axis.
-                    let mut d =
-                        DVec3::new(rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5)
-                            .normalize();
-                    if k % 10 == 0 {
-                        d = (tb.rotation * DVec3::X + d * 0.05).normalize();
-                    }
-                    let aim = tb.centre
-                        + tb.rotation
-                            * DVec3::new(
-                                (rng.random::<f64>() - 0.5) * 2.0 * tb.half_length,
-                                (rng.random::<f64>() - 0.5) * 2.0 * tb.rmax(),
-                                (rng.random::<f64>() - 0.5) * 2.0 * tb.rmax(),
-                            );
-                    let o = aim - d * 10.0;
+                    let (o, d) = ray_near(&mut rng, tb, k);
                     let exact = tb.intersect_exact(o, d, 4000);
                     let traced = tb.trace_bracketed(o, d, iterations, 1e-3);
                     total += 1;
@@ -92,6 +78,23 @@ fn sphere_tracing_against_exact_intersection() {
     }
 }
 
+/// A ray aimed near the tubelet (within its length and twice its largest radius) from a random direction, from
+/// 10 mm away; every 10th (`k % 10 == 0`) nearly along its axis.
+fn ray_near(rng: &mut rand_pcg::Pcg64, tb: &Tubelet, k: usize) -> (DVec3, DVec3) {
+    let mut d = DVec3::new(rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5).normalize();
+    if k.is_multiple_of(10) {
+        d = (tb.rotation * DVec3::X + d * 0.05).normalize();
+    }
+    let aim = tb.centre
+        + tb.rotation
+            * DVec3::new(
+                (rng.random::<f64>() - 0.5) * 2.0 * tb.half_length,
+                (rng.random::<f64>() - 0.5) * 2.0 * tb.rmax(),
+                (rng.random::<f64>() - 0.5) * 2.0 * tb.rmax(),
+            );
+    (aim - d * 10.0, d)
+}
+
 /// Hit/miss agreement with exact intersection and the share of common hits within 1 % of rmax in depth, for
 /// `method` at `iterations` over rays aimed near each tubelet (every 10th nearly along its axis).
 fn agreement(chains: &[Vec<Tubelet>], method: TubeMethod, iterations: u32) -> (f64, f64) {
@@ -99,19 +102,7 @@ fn agreement(chains: &[Vec<Tubelet>], method: TubeMethod, iterations: u32) -> (f
     let (mut agree, mut total, mut hits, mut depth_ok) = (0usize, 0usize, 0usize, 0usize);
     for tb in chains.iter().flatten() {
         for k in 0..100 {
-            let mut d =
-                DVec3::new(rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5).normalize();
-            if k % 10 == 0 {
-                d = (tb.rotation * DVec3::X + d * 0.05).normalize();
-            }
-            let aim = tb.centre
-                + tb.rotation
-                    * DVec3::new(
-                        (rng.random::<f64>() - 0.5) * 2.0 * tb.half_length,
-                        (rng.random::<f64>() - 0.5) * 2.0 * tb.rmax(),
-                        (rng.random::<f64>() - 0.5) * 2.0 * tb.rmax(),
-                    );
-            let o = aim - d * 10.0;
+            let (o, d) = ray_near(&mut rng, tb, k);
             let (exact, got) = (tb.intersect_exact(o, d, 4000), tb.trace(method, o, d, iterations, 1e-3));
             total += 1;
             match (exact, got) {

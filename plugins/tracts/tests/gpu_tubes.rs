@@ -84,18 +84,23 @@ fn render_with(eye: Vec3, roi: Option<Roi>, method: TubeMethod) -> Option<(Depth
     Some((depth.expect("depth"), img, ms))
 }
 
-fn check(eye: Vec3, label: &str, max_mismatch: f64) {
-    let Some((depth, _, _)) = render(eye, None) else { return };
-    let (t, tensors) = tracts();
-    let tubes = tract_tubelets(&t, Some(&tensors), &TubeSettings { scale: 1.2, ..default() });
-    let cam = PinholeCamera {
+/// The f64 twin of the test camera at `eye` looking at the origin, +Z up.
+fn pinhole(eye: Vec3) -> PinholeCamera {
+    PinholeCamera {
         eye: eye.as_dvec3(),
         target: DVec3::ZERO,
         up: DVec3::Z,
         fov_y: std::f64::consts::FRAC_PI_4,
         width: W,
         height: H,
-    };
+    }
+}
+
+fn check(eye: Vec3, label: &str, max_mismatch: f64) {
+    let Some((depth, _, _)) = render(eye, None) else { return };
+    let (t, tensors) = tracts();
+    let tubes = tract_tubelets(&t, Some(&tensors), &TubeSettings { scale: 1.2, ..default() });
+    let cam = pinhole(eye);
     let forward = (cam.target - cam.eye).normalize();
     let (mut both, mut mismatch, mut covered, mut good) = (0usize, 0usize, 0usize, 0usize);
     let (mut gpu_missed, mut twin_missed) = (0usize, 0usize);
@@ -161,14 +166,7 @@ fn sphere_traced_tubelets_match_their_f64_twin() {
     let Some((depth, _, _)) = render_with(eye, None, TubeMethod::Sphere) else { return };
     let (t, tensors) = tracts();
     let tubes = tract_tubelets(&t, Some(&tensors), &TubeSettings { scale: 1.2, ..default() });
-    let cam = PinholeCamera {
-        eye: eye.as_dvec3(),
-        target: DVec3::ZERO,
-        up: DVec3::Z,
-        fov_y: std::f64::consts::FRAC_PI_4,
-        width: W,
-        height: H,
-    };
+    let cam = pinhole(eye);
     let forward = (cam.target - cam.eye).normalize();
     let (mut covered, mut mismatch, mut both, mut good, mut exact_covered) = (0usize, 0usize, 0usize, 0usize, 0usize);
     for y in 0..H {
