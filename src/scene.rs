@@ -688,6 +688,18 @@ mod tests {
         std::fs::remove_file(mif).ok();
     }
 
+    /// The example scene of the four-view layout loads with its views, and a scene without views has the
+    /// 3D view alone, with colour bars.
+    #[test]
+    fn scene_files_carry_their_views() {
+        let s = Scene::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/ortho.ron"))).unwrap();
+        assert!(s.views.ortho && s.views.follow && s.views.colour_bars);
+        assert_eq!(s.views.crosshair, Some([5.0, -8.0, 2.0]));
+        let plain = Scene::load(Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/spiral50.ron"))).unwrap();
+        assert_eq!(plain.views, crate::views::Views::default());
+        assert!(!plain.views.ortho && plain.views.colour_bars);
+    }
+
     /// A scene sets only what it changes: every settings struct and layer field has a default.
     #[test]
     fn minimal_scenes_load_with_defaults() {
