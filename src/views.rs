@@ -408,16 +408,23 @@ fn place_ortho_cameras(
             *tf = new_tf;
         }
         let (w, h) = (extent.dot(right.abs()) * 1.04, extent.dot(up.abs()) * 1.04);
-        let new_proj = Projection::Orthographic(OrthographicProjection {
-            near: 0.0,
-            far: reach * 2.0,
-            scaling_mode: ScalingMode::AutoMin { min_width: w, min_height: h },
-            ..OrthographicProjection::default_3d()
-        });
-        let same = matches!((&*proj, &new_proj), (Projection::Orthographic(p), Projection::Orthographic(q))
-            if p.near == q.near && p.far == q.far && format!("{:?}", p.scaling_mode) == format!("{:?}", q.scaling_mode));
-        if !same {
-            *proj = new_proj;
+        // Written only when the framing changes (a projection change recomputes the camera's matrices).
+        let framed = match &*proj {
+            Projection::Orthographic(p) => match p.scaling_mode {
+                ScalingMode::AutoMin { min_width, min_height } => {
+                    p.far == reach * 2.0 && min_width == w && min_height == h
+                }
+                _ => false,
+            },
+            _ => false,
+        };
+        if !framed {
+            *proj = Projection::Orthographic(OrthographicProjection {
+                near: 0.0,
+                far: reach * 2.0,
+                scaling_mode: ScalingMode::AutoMin { min_width: w, min_height: h },
+                ..OrthographicProjection::default_3d()
+            });
         }
         // World mm per pixel: the larger of the two fits.
         if let Some(size) = cam.physical_viewport_size() {
