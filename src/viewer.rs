@@ -4,7 +4,7 @@
 //! own camera on top), so the panel never hides the scene.
 //!
 //! Mouse: left-drag orbits, right-drag pans, wheel zooms, a left click on an SH glyph highlights it and
-//! reports its voxel, Shift + left-drag on a tract ROI moves it. Keys: R resets the view, F12 saves a
+//! reports its voxel, Shift + left-drag on a tract ROI, a seed sphere or a glyph plane's handle moves it (the plane's normal handle tilts it). Keys: R resets the view, F12 saves a
 //! screenshot (`fascicle-YYYYMMDD-HHMMSS.png`, never overwriting).
 //! Files dropped on the window are added as layers; a file that fails to load shows an error and the
 //! viewer keeps running.
@@ -349,26 +349,63 @@ fn cursor_ray(window: &Window, (cam, tf): (&Camera, &GlobalTransform)) -> Option
     cam.viewport_to_world(tf, cursor - offset).ok()
 }
 
-/// What a Shift + left-drag can hold in a tract layer: one of its ROIs, or the sphere its tracking is seeded
-/// from.
+/// What a Shift + left-drag can hold: one of a tract layer's ROIs, the sphere its tracking is seeded from, or
+/// the free plane of an ODF glyph layer (its centre handle moves it, its normal handle tilts it).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Grip {
     Roi(usize),
     Seeds,
+    PlaneCentre,
+    PlaneNormal,
 }
 
-/// The shapes a tract layer offers to a drag.
+/// The glyph plane's two handles: the centre and the tip of the normal, half the plane's half size out.
+fn plane_handles(p: &fascicle_core::sh::glyph::GlyphPlane) -> [(Grip, RoiShape); 2] {
+    let c = glam::DVec3::from(p.centre);
+    let n = glam::DVec3::from(p.normal).normalize_or(glam::DVec3::Z);
+    let radius = (p.half_size * 0.06).max(1.0) as f32;
+    let tip = c + n * (0.5 * p.half_size);
+    [
+        (Grip::PlaneCentre, RoiShape::Sphere { centre: c.as_vec3().to_array(), radius }),
+        (Grip::PlaneNormal, RoiShape::Sphere { centre: tip.as_vec3().to_array(), radius }),
+    ]
+}
+
+/// The shapes a layer offers to a drag.
 fn grips(kind: &LayerKind) -> Vec<(Grip, RoiShape)> {
-    let LayerKind::Tracts { rois, source, .. } = kind else { return vec![] };
-    let mut out: Vec<(Grip, RoiShape)> = rois.iter().enumerate().map(|(k, r)| (Grip::Roi(k), r.shape)).collect();
-    if let TractSource::Track { seeds: Seeds::Sphere { centre, radius, .. }, .. } = source {
-        out.push((Grip::Seeds, RoiShape::Sphere { centre: *centre, radius: *radius }));
+    match kind {
+        LayerKind::Tracts { rois, source, .. } => {
+            let mut out: Vec<(Grip, RoiShape)> =
+                rois.iter().enumerate().map(|(k, r)| (Grip::Roi(k), r.shape)).collect();
+            if let TractSource::Track { seeds: Seeds::Sphere { centre, radius, .. }, .. } = source {
+                out.push((Grip::Seeds, RoiShape::Sphere { centre: *centre, radius: *radius }));
+            }
+            out
+        }
+        LayerKind::ShGlyphs { plane: Some(p), full_volume: false, .. } => plane_handles(p).to_vec(),
+        _ => vec![],
     }
-    out
 }
 
-/// Moves the gripped shape of a tract layer to `shape`; false when the layer has no such grip.
+/// Moves the gripped shape of a layer to `shape` (a plane handle: the plane's centre moves with it, or its
+/// normal turns towards it); false when the layer has no such grip.
 fn set_grip(kind: &mut LayerKind, grip: Grip, shape: RoiShape) -> bool {
+    if let LayerKind::ShGlyphs { plane: Some(p), full_volume: false, .. } = kind {
+        let RoiShape::Sphere { centre: c, .. } = shape else { return false };
+        let c = glam::Vec3::from(c).as_dvec3();
+        match grip {
+            Grip::PlaneCentre => p.centre = c.to_array(),
+            Grip::PlaneNormal => {
+                let n = (c - glam::DVec3::from(p.centre)).normalize_or_zero();
+                if n == glam::DVec3::ZERO {
+                    return false;
+                }
+                p.normal = n.to_array();
+            }
+            _ => return false,
+        }
+        return true;
+    }
     let LayerKind::Tracts { rois, source, .. } = kind else { return false };
     match (grip, source, shape) {
         (Grip::Roi(k), _, _) => rois.get_mut(k).map(|r| r.shape = shape).is_some(),
@@ -451,9 +488,30 @@ fn drag_roi(
     }
 }
 
-/// Outlines the seed spheres of visible tracking layers (yellow; ROIs are drawn by the tracts plugin).
+/// Outlines the seed spheres of visible tracking layers (yellow; ROIs are drawn by the tracts plugin) and the
+/// free planes of glyph layers (cyan: the plane's square, its normal and the two handles).
 fn draw_seed_spheres(mut gizmos: Gizmos, scene: Res<ActiveScene>) {
     for l in scene.0.layers.iter().filter(|l| l.visible) {
+        if let LayerKind::ShGlyphs { plane: Some(p), full_volume: false, .. } = &l.kind {
+            let colour = Color::linear_rgb(0.1, 0.85, 1.0);
+            let c = glam::DVec3::from(p.centre).as_vec3();
+            let n = glam::DVec3::from(p.normal).normalize_or(glam::DVec3::Z).as_vec3();
+            let (u, v) = n.any_orthonormal_pair();
+            let h = p.half_size as f32;
+            let corners = [c + (u + v) * h, c + (u - v) * h, c - (u + v) * h, c - (u - v) * h];
+            for k in 0..4 {
+                gizmos.line(corners[k], corners[(k + 1) % 4], colour);
+            }
+            let handles = plane_handles(p);
+            if let RoiShape::Sphere { centre: tip, .. } = handles[1].1 {
+                gizmos.line(c, Vec3::from(tip), colour);
+            }
+            for (_, shape) in handles {
+                if let RoiShape::Sphere { centre, radius } = shape {
+                    gizmos.sphere(Isometry3d::from_translation(Vec3::from(centre)), radius, colour);
+                }
+            }
+        }
         for (grip, shape) in grips(&l.kind) {
             if let (Grip::Seeds, RoiShape::Sphere { centre, radius }) = (grip, shape) {
                 gizmos.sphere(
@@ -1178,6 +1236,55 @@ mod tests {
         assert!((Vec3::from(*centre) - Vec3::new(30.0, 4.0, 0.0)).length() < 1e-4, "{centre:?}");
         assert_eq!((*radius, *per_voxel), (6.0, 8));
         assert!(!set_grip(&mut scene.layers[0].kind, Grip::Seeds, moved), "grid seeds have no sphere");
+    }
+
+    /// A free glyph plane's handles: Shift + drag on the centre moves the plane, on the normal's tip tilts it.
+    #[test]
+    fn glyph_planes_are_moved_and_tilted_by_their_handles() {
+        use fascicle_core::sh::glyph::GlyphPlane;
+        let plane = GlyphPlane { centre: [0.0, 0.0, 1.0], normal: [0.0, 0.0, 1.0], half_size: 40.0, spacing: 2.0 };
+        let glyphs = |plane| LayerKind::ShGlyphs {
+            source: crate::scene::ShSource::PhantomCsa { l_max: 4 },
+            axis: crate::scene::SliceAxis::Z,
+            index: None,
+            spacing: 1,
+            plane,
+            sampling: Default::default(),
+            full_volume: false,
+            style: Default::default(),
+            render: Default::default(),
+        };
+        let mut kind = glyphs(Some(plane));
+        let mut scene = Scene {
+            layers: vec![LayerSpec { name: "odf".into(), visible: true, opacity: 1.0, kind: kind.clone() }],
+            camera: CameraSpec::default(),
+            views: Default::default(),
+        };
+        // From above: the normal's tip (z = 21) comes before the centre (z = 1).
+        let (o, d) = (Vec3::new(0.0, 0.0, 60.0), -Vec3::Z);
+        let radius = 40.0 * 0.06;
+        assert_eq!(pick_roi(&scene, o, d), Some((0, Grip::PlaneNormal, 60.0 - 21.0 - radius)));
+        // The centre, seen from the side.
+        let (o2, d2) = (Vec3::new(-60.0, 0.0, 1.0), Vec3::X);
+        assert_eq!(pick_roi(&scene, o2, d2), Some((0, Grip::PlaneCentre, 60.0 - radius)));
+        let centre = grips(&kind)[0].1;
+        let g =
+            RoiGrab { layer: 0, grip: Grip::PlaneCentre, hit: o2 + d2 * (60.0 - radius), normal: d2, shape: centre };
+        // The cursor now points at (y 5, z 9) on the grab plane (through the handle's front, facing the view).
+        let moved = dragged_shape(&g, o2, (Vec3::new(-radius, 5.0, 9.0) - o2).normalize()).unwrap();
+        assert!(set_grip(&mut kind, Grip::PlaneCentre, moved));
+        let LayerKind::ShGlyphs { plane: Some(p), .. } = &kind else { unreachable!() };
+        assert!((glam::DVec3::from(p.centre) - glam::DVec3::new(0.0, 5.0, 9.0)).length() < 1e-4, "{p:?}");
+        // The tip dragged sideways: the normal turns towards it, the centre stays.
+        let tip = RoiShape::Sphere { centre: [20.0, 5.0, 9.0], radius };
+        assert!(set_grip(&mut kind, Grip::PlaneNormal, tip));
+        let LayerKind::ShGlyphs { plane: Some(p), .. } = &kind else { unreachable!() };
+        assert!((glam::DVec3::from(p.normal) - glam::DVec3::X).length() < 1e-9, "{p:?}");
+        assert_eq!(p.centre, [0.0, 5.0, 9.0]);
+        // A hidden layer's handles are not picked; a slice-placed layer has none.
+        scene.layers[0].visible = false;
+        assert_eq!(pick_roi(&scene, o, d), None);
+        assert!(grips(&glyphs(None)).is_empty());
     }
 
     /// "Save selection" writes what the ROIs select: from a tract set's own selection flags, or, for a layer
