@@ -4,8 +4,9 @@
 //! own camera on top), so the panel never hides the scene.
 //!
 //! Mouse: left-drag orbits, right-drag pans, wheel zooms, a left click on an SH glyph highlights it and
-//! reports its voxel, Shift + left-drag on a tract ROI, a seed sphere or a glyph plane's handle moves it (the plane's normal handle tilts it). Keys: R resets the view, F12 saves a
-//! screenshot (`fascicle-YYYYMMDD-HHMMSS.png`, never overwriting).
+//! reports its voxel, Shift + left-drag on a tract ROI, a seed sphere or a glyph plane's handle moves it (the
+//! plane's normal handle tilts it). Keys: R resets the view, F12 saves a screenshot
+//! (`fascicle-YYYYMMDD-HHMMSS.png`, never overwriting).
 //! Files dropped on the window are added as layers; a file that fails to load shows an error and the
 //! viewer keeps running.
 
