@@ -301,7 +301,8 @@ fn stream_parts(
 /// Removes what layer `e` shows and, for a tract layer, gives it its ROIs again (children of the layer: they
 /// act on all its tract sets).
 fn clear_content(commands: &mut Commands, e: Entity, index: usize, spec: &LayerSpec) {
-    commands.entity(e).despawn_related::<Children>();
+    // The image a slice was cut from goes with it (new slice content brings its own).
+    commands.entity(e).despawn_related::<Children>().remove::<crate::views::SliceSource>();
     if let LayerKind::Tracts { rois, .. } = &spec.kind {
         spawn_rois(commands, rois, index, e);
     }
@@ -330,9 +331,11 @@ fn finish_jobs(
             }
         };
         commands.entity(e).remove::<LayerJob>();
-        if let Some(grid) = job.progress.grid() {
-            commands.entity(e).insert(grid);
-        }
+        // The grid of the new content, or none (a rebuilt layer of another kind keeps no stale grid).
+        match job.progress.grid() {
+            Some(grid) => commands.entity(e).insert(grid),
+            None => commands.entity(e).remove::<crate::views::VoxelGrid>(),
+        };
         // Streamed content is in place already (its first part cleared the old); anything else replaces it.
         if !matches!(result, Ok(Content::Streamed { .. })) || job.parts_shown == 0 {
             clear_content(&mut commands, e, le.0, &layer.spec);

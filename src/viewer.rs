@@ -342,12 +342,10 @@ fn view_input(
     }
 }
 
-/// A click (press and release without dragging) on an SH glyph toggles its highlight and reports its voxel.
-/// The world ray under the cursor (the 3D camera's viewport starts beside the panel).
+/// The world ray under the window's cursor through the 3D camera (its viewport beside the panel or in the
+/// four-view grid).
 fn cursor_ray(window: &Window, (cam, tf): (&Camera, &GlobalTransform)) -> Option<Ray3d> {
-    let cursor = window.cursor_position()?;
-    let offset = cam.viewport.as_ref().map_or(Vec2::ZERO, |v| v.physical_position.as_vec2() / window.scale_factor());
-    cam.viewport_to_world(tf, cursor - offset).ok()
+    crate::views::cursor_ray(cam, tf, window.cursor_position()?)
 }
 
 /// What a Shift + left-drag can hold: one of a tract layer's ROIs, the sphere its tracking is seeded from, or
@@ -525,6 +523,7 @@ fn draw_seed_spheres(mut gizmos: Gizmos, scene: Res<ActiveScene>) {
     }
 }
 
+/// A click (press and release without dragging) on an SH glyph toggles its highlight and reports its voxel.
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
 fn pick_glyph(
     mut commands: Commands,

@@ -658,6 +658,12 @@ pub fn window_level((lo, hi): (f32, f32), delta: Vec2) -> (f32, f32) {
     (centre - width / 2.0, centre + width / 2.0)
 }
 
+/// The world ray under a cursor position (logical pixels in the window). Bevy's `viewport_to_world` takes
+/// window positions and subtracts the camera's viewport itself.
+pub fn cursor_ray(camera: &Camera, tf: &GlobalTransform, cursor: Vec2) -> Option<Ray3d> {
+    camera.viewport_to_world(tf, cursor).ok()
+}
+
 /// The world point a cursor position (logical pixels in the window) picks in a 2D view, on the plane through
 /// `crosshair`: the crosshair's new place after a click there.
 pub fn pick_in_view(
@@ -671,8 +677,7 @@ pub fn pick_in_view(
     if !rect.contains(cursor) {
         return None;
     }
-    let ray = camera.viewport_to_world(tf, cursor).ok()?;
-    let mut p = ray.origin;
+    let mut p = cursor_ray(camera, tf, cursor)?.origin;
     p[view.0] = crosshair[view.0];
     Some(p)
 }

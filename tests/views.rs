@@ -196,6 +196,14 @@ fn a_click_moves_the_crosshair_and_the_slices_follow() {
     let want = (gt.affine().matrix3.transpose() * bevy::math::Vec3A::from(forward)).into();
     assert!(sorted_for.distance(want) < 1e-5, "sorted for {sorted_for}, the 3D camera looks along {want}");
 
+    // The 3D view sits in the bottom-right cell: the window position of that cell's centre looks along the
+    // camera's axis (no second subtraction of the viewport's offset).
+    let world = app.world_mut();
+    let mut q = world.query_filtered::<(&Camera, &GlobalTransform), With<fascicle::views::MainView>>();
+    let (cam, tf) = q.single(world).unwrap();
+    let ray = fascicle::views::cursor_ray(cam, tf, Vec2::new(480.0, 360.0)).unwrap();
+    assert!(ray.direction.as_vec3().angle_between(tf.forward().as_vec3()) < 1e-3, "{ray:?}");
+
     // 40 px right of and 30 px above the axial view's centre.
     let cursor = Vec2::new(160.0 + 40.0, 240.0 + 120.0 - 30.0);
     let world = app.world_mut();
