@@ -522,16 +522,17 @@ fn restyle_layers(
             }
             (LayerKind::Slice { window: a, .. }, LayerKind::Slice { window, axis, index, .. }) if a != window => {
                 // One slice cut again from the image in memory, into the texture it shows.
-                let cut = slice_sources.iter().find(|(_, le)| le.0 == i).and_then(|(source, _)| {
-                    let w = window.unwrap_or(source.auto_window);
-                    crate::jobs::slice_image(&source.volume, source.channels, *axis, *index, w).ok()
-                });
-                for (mat, _) in parts.iter().filter(|(_, le)| le.0 == i && cut.is_some()) {
-                    let Some((image, _)) = &cut else { continue };
-                    if let Some(texture) = materials.get(&mat.0).and_then(|m| m.base_color_texture.clone())
-                        && let Some(mut img) = images.get_mut(&texture)
-                    {
-                        *img = image.clone();
+                let cut = slice_sources
+                    .iter()
+                    .find(|(_, le)| le.0 == i)
+                    .and_then(|(source, _)| source.cut(*axis, *index, source.window(*window)).ok());
+                if let Some((image, _)) = cut {
+                    for (mat, _) in parts.iter().filter(|(_, le)| le.0 == i) {
+                        if let Some(texture) = materials.get(&mat.0).and_then(|m| m.base_color_texture.clone())
+                            && let Some(mut img) = images.get_mut(&texture)
+                        {
+                            *img = image.clone();
+                        }
                     }
                 }
             }

@@ -14,7 +14,6 @@ use std::path::PathBuf;
 
 use bevy::camera::CameraOutputMode;
 use bevy::camera::visibility::RenderLayers;
-use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
 use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
 use bevy::prelude::*;
 use bevy::render::render_resource::BlendState;
@@ -41,11 +40,9 @@ pub fn view_camera() -> impl Bundle {
     (
         Camera3d::default(),
         Camera { clear_color: ClearColorConfig::Custom(BACKGROUND), ..default() },
-        Tonemapping::None,
-        DebandDither::Disabled,
-        MainView,
         // A float (f16) target: slices, splats and glyph layers blend without 8-bit banding.
-        bevy::camera::Hdr,
+        crate::views::exact_output(),
+        MainView,
     )
 }
 
@@ -327,12 +324,12 @@ fn view_input(
         Some((_, MouseButton::Right)) if motion.delta != Vec2::ZERO => {
             let top = scene.0.layers.iter().enumerate().rev().find_map(|(i, l)| {
                 let source = sources.iter().find(|(le, ..)| le.0 == i).map(|(.., s)| s)?;
-                (l.visible && matches!(l.kind, LayerKind::Slice { .. })).then_some((i, source.auto_window))
+                (l.visible && matches!(l.kind, LayerKind::Slice { .. })).then_some((i, source))
             });
-            if let Some((i, auto)) = top
+            if let Some((i, source)) = top
                 && let LayerKind::Slice { window, .. } = &mut scene.0.layers[i].kind
             {
-                *window = Some(crate::views::window_level(window.unwrap_or(auto), motion.delta));
+                *window = Some(crate::views::window_level(source.window(*window), motion.delta));
             }
         }
         _ => {}

@@ -138,6 +138,18 @@ pub struct SliceSource {
     pub auto_window: (f32, f32),
 }
 
+impl SliceSource {
+    /// The window shown: the layer's own, or the automatic one.
+    pub fn window(&self, set: Option<(f32, f32)>) -> (f32, f32) {
+        set.unwrap_or(self.auto_window)
+    }
+
+    /// Slice `index` along voxel axis `axis` in `window`: its image and world corners.
+    pub fn cut(&self, axis: SliceAxis, index: Option<usize>, window: (f32, f32)) -> Result<(Image, [Vec3; 4]), String> {
+        slice_image(&self.volume, self.channels, axis, index, window)
+    }
+}
+
 /// The camera of a 2D view: where it looks from (unit vector from the crosshair to the eye) and its up.
 pub fn view_axes(a: usize) -> (Vec3, Vec3) {
     match a {
@@ -148,7 +160,7 @@ pub fn view_axes(a: usize) -> (Vec3, Vec3) {
 }
 
 /// The four cells of the ortho layout in `region` (physical pixels): sagittal, coronal, axial, 3D, as
-/// `[x, y, width, height]`. Coronal top left, sagittal top right, axial bottom left, 3D bottom right.
+/// rectangles. Coronal top left, sagittal top right, axial bottom left, 3D bottom right.
 pub fn cells(region: URect) -> [URect; 4] {
     let mid = region.min + region.size() / 2;
     let cell = |right: bool, bottom: bool| {
@@ -183,18 +195,17 @@ impl Plugin for ViewsPlugin {
     }
 }
 
-fn view_camera_bundle(order: isize, layer: usize) -> impl Bundle {
+/// What every camera drawing into the scene's target shares, so that they share its textures and write exact
+/// colours: no tone mapping or dithering, blending in a float (f16) target, rounded to 8 bits once.
+pub fn exact_output() -> impl Bundle {
+    (Tonemapping::None, DebandDither::Disabled, bevy::camera::Hdr)
+}
+
+fn view_camera_bundle(order: isize, layer: usize, clear_color: ClearColorConfig) -> impl Bundle {
     (
         Camera3d::default(),
-        Camera {
-            order,
-            is_active: false,
-            clear_color: ClearColorConfig::Custom(crate::render::BACKGROUND),
-            ..default()
-        },
-        Tonemapping::None,
-        DebandDither::Disabled,
-        bevy::camera::Hdr,
+        Camera { order, is_active: false, clear_color, ..default() },
+        exact_output(),
         RenderLayers::layer(layer),
     )
 }
@@ -205,7 +216,11 @@ fn spawn_view_cameras(mut commands: Commands, mains: Query<(Option<&RenderTarget
         let msaa = msaa.copied().unwrap_or_default();
         for a in 0..3 {
             let mut e = commands.spawn((
-                view_camera_bundle(-3 + a as isize, VIEW_LAYERS[a]),
+                view_camera_bundle(
+                    -3 + a as isize,
+                    VIEW_LAYERS[a],
+                    ClearColorConfig::Custom(crate::render::BACKGROUND),
+                ),
                 OrthoView(a),
                 Projection::Orthographic(OrthographicProjection::default_3d()),
                 msaa,
@@ -215,7 +230,7 @@ fn spawn_view_cameras(mut commands: Commands, mains: Query<(Option<&RenderTarget
             }
         }
         let mut e = commands.spawn((
-            view_camera_bundle(1, BAR_LAYER),
+            view_camera_bundle(1, BAR_LAYER, ClearColorConfig::None),
             BarView,
             Projection::Orthographic(OrthographicProjection {
                 near: -10.0,
@@ -225,7 +240,6 @@ fn spawn_view_cameras(mut commands: Commands, mains: Query<(Option<&RenderTarget
             }),
             msaa,
         ));
-        e.entry::<Camera>().and_modify(|mut c| c.clear_color = ClearColorConfig::None);
         if let Some(t) = target {
             e.insert(t.clone());
         }
@@ -276,15 +290,16 @@ fn layout_views(
     }
     let msaa = msaa.copied().unwrap_or_default();
     for (e, mut cam, view, m) in &mut others {
-        let (active, rect) = match view {
-            Some(OrthoView(a)) => (ortho, grid[*a]),
-            None => (cam.is_active, main_rect),
+        // A 2D view is on with the layout; the bar overlay (`bars` turns it on) covers the 3D view.
+        let rect = match view {
+            Some(OrthoView(a)) => {
+                if cam.is_active != ortho {
+                    cam.is_active = ortho;
+                }
+                grid[*a]
+            }
+            None => main_rect,
         };
-        if let Some(OrthoView(_)) = view
-            && cam.is_active != active
-        {
-            cam.is_active = active;
-        }
         set_viewport(&mut cam, rect);
         if m.copied().unwrap_or_default() != msaa {
             commands.entity(e).insert(msaa);
@@ -350,9 +365,8 @@ fn spawn_view_marks(
         return;
     }
     let mesh = meshes.add(Cuboid::from_length(1.0));
-    let mut m = StandardMaterial { base_color: CROSSHAIR, unlit: true, ..default() };
-    m.alpha_mode = AlphaMode::Opaque;
-    let material = materials.add(m);
+    let material = materials.add(StandardMaterial { base_color: CROSSHAIR, unlit: true, ..default() });
+    let quad = meshes.add(Rectangle::new(1.0, 1.0));
     for a in 0..3 {
         for k in 0..2 {
             commands.spawn((
@@ -363,7 +377,6 @@ fn spawn_view_marks(
                 Transform::default(),
             ));
         }
-        let quad = meshes.add(Rectangle::new(1.0, 1.0));
         for (edge, letter) in edge_letters(a).into_iter().enumerate() {
             let image = crate::colourbar::text_image(letter);
             let size = UVec2::new(image.width(), image.height());
@@ -499,7 +512,7 @@ fn view_slices(
     }
     for (layer, le, sl, source, grid) in &layers {
         let LayerKind::Slice { window, .. } = &sl.spec().kind else { continue };
-        let window = window.unwrap_or(source.auto_window);
+        let window = source.window(*window);
         for a in 0..3 {
             let existing = slices.iter().find(|(_, v, parent, ..)| parent.parent() == layer && v.axis == a);
             let k = grid.axis_along(a);
@@ -514,7 +527,7 @@ fn view_slices(
                 continue;
             }
             let axis = [SliceAxis::X, SliceAxis::Y, SliceAxis::Z][k];
-            let Ok((image, corners)) = slice_image(&source.volume, source.channels, axis, Some(index), window) else {
+            let Ok((image, corners)) = source.cut(axis, Some(index), window) else {
                 continue;
             };
             // Later layers over earlier ones: a small step towards the eye per layer.
@@ -565,6 +578,7 @@ fn bars(
     mut commands: Commands,
     scene: Res<ActiveScene>,
     sources: Query<(&LayerEntity, &SliceSource)>,
+    new_sources: Query<(), Changed<SliceSource>>,
     mut overlay: Query<&mut Camera, With<BarView>>,
     quads: Query<Entity, With<BarQuad>>,
     mut meshes: ResMut<Assets<Mesh>>,
@@ -573,6 +587,11 @@ fn bars(
     mut shown: Local<ShownBars>,
 ) {
     let Ok(mut cam) = overlay.single_mut() else { return };
+    let size = cam.physical_viewport_size().unwrap_or_default();
+    // The bars follow the scene, the slices' automatic windows and the view's size.
+    if !scene.is_changed() && new_sources.is_empty() && size == shown.size {
+        return;
+    }
     let bars = if scene.0.views.colour_bars {
         colourbar::scene_bars(&scene.0, |i| sources.iter().find(|(le, _)| le.0 == i).map(|(_, s)| s.auto_window))
     } else {
@@ -582,18 +601,17 @@ fn bars(
     if cam.is_active != active {
         cam.is_active = active;
     }
-    let size = cam.physical_viewport_size().unwrap_or_default();
     if bars == shown.bars && size == shown.size {
         return;
     }
     for e in &quads {
         commands.entity(e).despawn();
     }
+    // The overlay's camera sits at the view's centre, one world unit per pixel, y up.
+    let half = size.as_vec2() / 2.0;
+    let at = |x: u32, y: u32| Vec3::new(x as f32 - half.x, half.y - y as f32, 0.0);
     for (i, bar) in bars.iter().enumerate() {
         let Some(r) = colourbar::bar_rect(size, i as u32) else { break };
-        // The overlay's camera sits at the view's centre, one world unit per pixel, y up.
-        let half = size.as_vec2() / 2.0;
-        let at = |x: u32, y: u32| Vec3::new(x as f32 - half.x, half.y - y as f32, 0.0);
         let corners = [at(r.min.x, r.max.y), at(r.max.x, r.max.y), at(r.max.x, r.min.y), at(r.min.x, r.min.y)];
         let mut mesh = crate::layers::quad(corners);
         // The image's first row is its top.
@@ -638,9 +656,7 @@ fn follow_crosshair(
             _ => continue,
         };
         let k = axis.index();
-        if let Some(i) = grid.index_at(world, k)
-            && *index != Some(i)
-        {
+        if let Some(i) = grid.index_at(world, k) {
             *index = Some(i);
         }
     }
