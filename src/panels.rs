@@ -440,11 +440,32 @@ fn volume_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
         ui.radio_value(&mut render.method, VolumeMethod::Slicing, "3D-texture slicing");
         ui.radio_value(&mut render.method, VolumeMethod::Slicing2d, "2D slicing (voxel planes)");
     });
+    ui.horizontal(|ui| {
+        ui.radio_value(&mut render.method, VolumeMethod::Splatting, "voxel splatting");
+        ui.radio_value(&mut render.method, VolumeMethod::Tetrahedra, "cell projection (tetrahedra)");
+        ui.radio_value(&mut render.method, VolumeMethod::ShearWarp, "shear-warp");
+    });
+    match render.method {
+        VolumeMethod::Splatting => {
+            ui.add(egui::Slider::new(&mut render.kernel, 0.2..=2.0).text("kernel sigma (voxels)"));
+        }
+        VolumeMethod::Tetrahedra => {
+            ui.add(egui::Slider::new(&mut render.cell, 1..=8).text("cell (voxels, 6 tetrahedra each)"));
+        }
+        VolumeMethod::ShearWarp => {
+            ui.add(
+                egui::Slider::new(&mut render.intermediate, 0.25..=4.0)
+                    .logarithmic(true)
+                    .text("intermediate image (pixels per voxel)"),
+            );
+        }
+        _ => {}
+    }
     ui.add(egui::Slider::new(&mut render.step, 0.05..=4.0).logarithmic(true).text("step / slice spacing (mm)"));
     let mut early = render.termination <= 1.0;
     ui.horizontal(|ui| {
         ui.checkbox(&mut early, "early termination");
-        ui.checkbox(&mut render.jitter, "jitter");
+        ui.checkbox(&mut render.jitter, "jitter / dither");
     });
     render.termination = if early { render.termination.min(0.99) } else { 2.0 };
     ui.horizontal(|ui| {

@@ -84,6 +84,13 @@ pub fn run(quick: bool, csv: Option<&Path>, write_dir: Option<&Path>) -> Result<
     let ols = dti::fit_volume(&dwi, &gtab, FitMethod::Ols, None)?;
     let ms = t.elapsed().as_secs_f64() * 1e3;
     row("dti-ols", nvox, "whole volume", ms, format!("{:.3}", e1_error(&ols, &ph)));
+    // Seed 000's DWI input: 5 central slices (of the repository's phantom; its own gradient table).
+    let (slab, slab_gtab) = crate::seed::five_slice_dwi()?;
+    let t = Instant::now();
+    let fit5 = dti::fit_volume(&slab, &slab_gtab, FitMethod::Wls, None)?;
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    let fitted = (0..slab.n_voxels()).filter(|v| fit5.fit_at(*v).is_some()).count();
+    row("dti-wls", slab.n_voxels(), "5-slice DWI (seed 000)", ms, format!("{fitted} fitted"));
     let t = Instant::now();
     let model = OdfModel::new(&gtab, OdfKind::Csa, 6, 0.006, ShBasis::default())?;
     let _ = sh::fit_odf_volume(&dwi, &model, None)?;

@@ -2,7 +2,8 @@
 //! superquadric glyphs, rendered offscreen (lavapipe without a GPU).
 //!
 //! Scene: `n` tensors (random orientation and shape, deterministic) on a cubic grid of unit spacing, splat
-//! size 0.5, seen along a diagonal so the whole cube fills the image. Columns:
+//! size 0.5, seen along a diagonal so the whole cube fills the image; then seed 000's inputs (its 64³
+//! structure-tensor field, and the tensors of a 5-slice DWI: `seed_inputs`), named in the `n` column. Columns:
 //! - `frame_ms`: a frame with nothing moving (no re-sort, nothing uploaded);
 //! - `orbit_ms`: a frame while the camera orbits (CPU re-sort + 4 bytes per splat uploaded + draw);
 //! - `sort_ms`: the re-sort on the CPU (keys + O(n) radix argsort), with a parallel comparison sort
@@ -70,6 +71,30 @@ fn field(n: usize) -> (Vec<(DVec3, [f64; 6])>, f64) {
         })
         .collect();
     (out, side as f64)
+}
+
+/// Tensors at their centres.
+type Tensors = Vec<(DVec3, [f64; 6])>;
+
+/// Seed 000's two inputs: its 64³ structure-tensor field (cube, sphere, spikes;
+/// `fascicle_core::phantom::structure_tensor_field`) and a 5-slice DWI (the 5 central axial slices of the
+/// repository's ring/cross phantom, 48x48x5 x 65 volumes, WLS tensors), each on unit voxel spacing centred on
+/// the origin as the random fields: (name, tensors, side).
+fn seed_inputs() -> Result<Vec<(&'static str, Tensors, f64)>, String> {
+    let structure = fascicle_core::phantom::structure_tensor_field(64);
+    let dwi = crate::seed::five_slice_dwi().map_err(|e| e.to_string())?;
+    let fit = fascicle_core::dti::fit_volume(&dwi.0, &dwi.1, fascicle_core::dti::FitMethod::Wls, None)
+        .map_err(|e| e.to_string())?;
+    let d = dwi.0.dims3();
+    let half = DVec3::new(d[0] as f64 - 1.0, d[1] as f64 - 1.0, d[2] as f64 - 1.0) / 2.0;
+    let slices = (0..d[0] * d[1] * d[2])
+        .filter_map(|v| {
+            let f = fit.fit_at(v)?;
+            let c = DVec3::new((v % d[0]) as f64, ((v / d[0]) % d[1]) as f64, (v / (d[0] * d[1])) as f64);
+            Some((c - half, from_eigen(&f.eigen)))
+        })
+        .collect();
+    Ok(vec![("structure64", structure, 64.0), ("dwi5", slices, d[0] as f64)])
 }
 
 fn eye(side: f64, angle: f64) -> DVec3 {
@@ -192,14 +217,22 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
     );
     println!("|---|---|---|---|---|---|---|---|");
     let mut rows = Vec::new();
-    for &n in sizes {
-        let (items, side) = field(n);
+    let mut inputs: Vec<(String, Tensors, f64)> = sizes
+        .iter()
+        .map(|&n| {
+            let (items, side) = field(n);
+            (n.to_string(), items, side)
+        })
+        .collect();
+    inputs
+        .extend(seed_inputs()?.into_iter().map(|(name, items, side)| (format!("{} {name}", items.len()), items, side)));
+    for (n, items, side) in inputs {
         let mut splats: Vec<Splat> =
             items.iter().filter_map(|(c, t)| tensor_splat(*c, t, 0.5, DVec3::ONE, 1.0)).collect();
         SplatColouring::default().apply(&mut splats);
         let (radix, comparison) = sort_times(&splats);
         for method in [Method::Splat, Method::Ellipsoid, Method::Superquadric] {
-            if method != Method::Splat && n > 100_000 {
+            if method != Method::Splat && items.len() > 100_000 {
                 continue; // one entity per glyph: 1M glyph entities are out of this machine's budget
             }
             let t = render(&items, &splats, side, image, method)?;

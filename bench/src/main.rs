@@ -10,6 +10,7 @@ mod bench_splats;
 mod bench_tracking;
 mod bench_tracts;
 mod bench_volume;
+mod seed;
 mod soak;
 mod suites;
 

@@ -37,13 +37,14 @@ pub enum BenchCommand {
         #[arg(long)]
         csv: Option<PathBuf>,
     },
-    /// Volume rendering: ray casting (early termination on/off, pre-integrated) and 3D-texture slicing of
-    /// 128³ and 256³ volumes over the step, frame time and error against the f64 marcher.
+    /// Volume rendering: every method (ray casting, 3D and 2D slicing, splatting, cell projection) over its
+    /// knob, on the phantom's FA map and a CT-like head (128³, and 256³ in the full run), frame time and error
+    /// against the f64 marcher.
     Volume {
-        /// 128³ at 128x128, two steps (under 2 minutes here).
+        /// 128x128 images, the FA map and the 128³ head, two steps.
         #[arg(long)]
         quick: bool,
-        /// Also write the rows as CSV (method,n,param,frame_ms,error).
+        /// Also write the rows as CSV (method,n,param,frame_ms,error,width,height,volume).
         #[arg(long)]
         csv: Option<PathBuf>,
     },

@@ -3,6 +3,7 @@
 //! without noise, so the viewer and `fascicle render` need no files.
 
 use glam::{DMat4, DVec3, DVec4};
+use rayon::prelude::*;
 
 use crate::dti::eigen::{Eigen, LowerTri, from_eigen};
 use crate::dti::metrics;
@@ -191,6 +192,201 @@ pub fn add_rician_noise(vol: &mut Volume<f32>, snr: f64, seed: u64) {
     for s in vol.data.iter_mut() {
         let (a, b) = (*s as f64 + sigma * normal(), sigma * normal());
         *s = (a * a + b * b).sqrt() as f32;
+    }
+}
+
+/// The ellipsoids of the 3D Shepp-Logan head phantom (Kak and Slaney's, with Toft's higher-contrast
+/// intensities): intensity added inside, semi-axes, centre (all in [-1, 1]³ units), rotation about z (degrees).
+const SHEPP_LOGAN: [(f64, [f64; 3], [f64; 3], f64); 10] = [
+    (1.0, [0.69, 0.92, 0.81], [0.0, 0.0, 0.0], 0.0),
+    (-0.8, [0.6624, 0.874, 0.78], [0.0, -0.0184, 0.0], 0.0),
+    (-0.2, [0.11, 0.31, 0.22], [0.22, 0.0, 0.0], -18.0),
+    (-0.2, [0.16, 0.41, 0.28], [-0.22, 0.0, 0.0], 18.0),
+    (0.1, [0.21, 0.25, 0.41], [0.0, 0.35, -0.15], 0.0),
+    (0.1, [0.046, 0.046, 0.05], [0.0, 0.1, 0.25], 0.0),
+    (0.1, [0.046, 0.046, 0.05], [0.0, -0.1, 0.25], 0.0),
+    (0.1, [0.046, 0.023, 0.05], [-0.08, -0.605, 0.0], 0.0),
+    (0.1, [0.023, 0.023, 0.02], [0.0, -0.606, 0.0], 0.0),
+    (0.1, [0.023, 0.046, 0.02], [0.06, -0.605, 0.0], 0.0),
+];
+
+/// The 3D Shepp-Logan phantom at `p` ([-1, 1]³): 1 in the skull, 0.2 in the brain, 0 in the ventricles, 0.3
+/// in the small lesions, 0 outside.
+pub fn shepp_logan_at(p: DVec3) -> f64 {
+    SHEPP_LOGAN
+        .iter()
+        .filter(|(_, axes, centre, phi)| {
+            let q = p - DVec3::from(*centre);
+            let (s, c) = phi.to_radians().sin_cos();
+            let r = DVec3::new(c * q.x + s * q.y, -s * q.x + c * q.y, q.z) / DVec3::from(*axes);
+            r.length_squared() <= 1.0
+        })
+        .map(|(a, ..)| a)
+        .sum()
+}
+
+/// A CT-like test volume: the 3D Shepp-Logan head on an `n`³ grid spanning 200 mm, each voxel the mean of 2³
+/// point samples (partial volume at the boundaries, as a scanner's), values in [0, 1]: sharp material edges
+/// and a thin bright shell, what object-order volume methods find hardest.
+pub fn ct_head(n: usize) -> Volume<f32> {
+    let n = n.max(2);
+    let mm = 200.0 / n as f64;
+    let h = (n as f64 - 1.0) / 2.0;
+    let affine = DMat4::from_scale(DVec3::splat(mm)) * DMat4::from_translation(DVec3::splat(-h));
+    let mut vol = Volume::zeros(&[n, n, n], affine);
+    vol.data.par_chunks_mut(n * n).enumerate().for_each(|(z, plane)| {
+        for (i, v) in plane.iter_mut().enumerate() {
+            let (x, y) = (i % n, i / n);
+            let mut acc = 0.0;
+            for s in 0..8 {
+                let o = DVec3::new((s & 1) as f64, ((s >> 1) & 1) as f64, ((s >> 2) & 1) as f64) * 0.5 - 0.25;
+                let p = (DVec3::new(x as f64, y as f64, z as f64) + o - h) / (n as f64 / 2.0);
+                acc += shepp_logan_at(p);
+            }
+            *v = (acc / 8.0).clamp(0.0, 1.0) as f32;
+        }
+    });
+    vol
+}
+
+/// The scalar scene of seed 000's structure-tensor figures at `p` ([-1, 1]³): a cube, a sphere and a star of
+/// six spikes (thin rods along the axes from a small ball), 1 inside and 0 outside.
+pub fn cube_sphere_spikes_at(p: DVec3) -> f64 {
+    let cube = (p - DVec3::new(-0.45, -0.45, 0.0)).abs().max_element() <= 0.28;
+    let sphere = (p - DVec3::new(0.45, 0.4, 0.0)).length() <= 0.32;
+    let q = p - DVec3::new(-0.4, 0.45, 0.0);
+    let spikes = q.length() <= 0.1
+        || (0..3).any(|k| {
+            let mut off = q;
+            off[k] = 0.0;
+            q[k].abs() <= 0.4 && off.length() <= 0.035
+        });
+    f64::from(u8::from(cube || sphere || spikes))
+}
+
+/// Seed 000's 64³ structure-tensor field (Kindlmann's test scene): the scalar scene
+/// ([`cube_sphere_spikes_at`], each voxel the mean of 2³ samples) on an `n`³ grid of unit voxels, its
+/// gradient g by central differences, and at each voxel the structure tensor `J = w * (g gᵀ)` smoothed with the
+/// binomial kernel [1, 2, 1] / 4 along each axis. Returned for the voxels where `tr J` is at least 1 % of its
+/// largest value (elsewhere the field is flat): (voxel centre, centred on the origin; tensor as
+/// lower-triangular `[xx, xy, yy, xz, yz, zz]`, scaled so the largest eigenvalue in the field is 1e-3, the
+/// size of a diffusion tensor in mm²/s).
+pub fn structure_tensor_field(n: usize) -> Vec<(DVec3, [f64; 6])> {
+    let n = n.max(4);
+    let h = (n as f64 - 1.0) / 2.0;
+    let idx = |x: usize, y: usize, z: usize| x + n * (y + n * z);
+    let f: Vec<f64> = (0..n * n * n)
+        .into_par_iter()
+        .map(|i| {
+            let c = DVec3::new((i % n) as f64, ((i / n) % n) as f64, (i / (n * n)) as f64);
+            (0..8)
+                .map(|s| {
+                    let o = DVec3::new((s & 1) as f64, ((s >> 1) & 1) as f64, ((s >> 2) & 1) as f64) * 0.5 - 0.25;
+                    cube_sphere_spikes_at((c + o - h) / (n as f64 / 2.0))
+                })
+                .sum::<f64>()
+                / 8.0
+        })
+        .collect();
+    let at = |x: isize, y: isize, z: isize| {
+        let c = |v: isize| v.clamp(0, n as isize - 1) as usize;
+        f[idx(c(x), c(y), c(z))]
+    };
+    let mut j: Vec<[f64; 6]> = (0..n * n * n)
+        .into_par_iter()
+        .map(|i| {
+            let (x, y, z) = ((i % n) as isize, ((i / n) % n) as isize, (i / (n * n)) as isize);
+            let g = DVec3::new(
+                at(x + 1, y, z) - at(x - 1, y, z),
+                at(x, y + 1, z) - at(x, y - 1, z),
+                at(x, y, z + 1) - at(x, y, z - 1),
+            ) / 2.0;
+            [g.x * g.x, g.x * g.y, g.y * g.y, g.x * g.z, g.y * g.z, g.z * g.z]
+        })
+        .collect();
+    // Separable binomial smoothing, one axis at a time.
+    for axis in 0..3 {
+        let stride = [1, n, n * n][axis];
+        let prev = j.clone();
+        j.par_iter_mut().enumerate().for_each(|(i, t)| {
+            let c = [i % n, (i / n) % n, i / (n * n)][axis];
+            let lo = if c > 0 { i - stride } else { i };
+            let hi = if c + 1 < n { i + stride } else { i };
+            for k in 0..6 {
+                t[k] = 0.25 * prev[lo][k] + 0.5 * prev[i][k] + 0.25 * prev[hi][k];
+            }
+        });
+    }
+    let trace = |t: &[f64; 6]| t[0] + t[2] + t[5];
+    let max_trace = j.iter().map(trace).fold(0.0, f64::max);
+    if max_trace <= 0.0 {
+        return Vec::new();
+    }
+    let largest = j
+        .iter()
+        .filter(|t| trace(t) >= 0.01 * max_trace)
+        .filter_map(|t| crate::dti::eigen::eigh(t).map(|e| e.values[0]))
+        .fold(0.0, f64::max);
+    let scale = 1e-3 / largest.max(f64::MIN_POSITIVE);
+    j.iter()
+        .enumerate()
+        .filter(|(_, t)| trace(t) >= 0.01 * max_trace)
+        .map(|(i, t)| {
+            let c = DVec3::new((i % n) as f64, ((i / n) % n) as f64, (i / (n * n)) as f64) - h;
+            (c, t.map(|v| v * scale))
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod ct_tests {
+    use glam::DVec3;
+
+    #[test]
+    fn structure_tensors_are_planar_on_faces_and_linear_along_spikes() {
+        use crate::dti::metrics::{WestinDenominator, westin};
+        let field = super::structure_tensor_field(64);
+        assert!(field.len() > 5_000 && field.len() < 64 * 64 * 64 / 2, "{} tensors", field.len());
+        let near = |p: DVec3| {
+            field.iter().min_by(|a, b| (a.0 - p).length().total_cmp(&(b.0 - p).length())).map(|(c, t)| (*c, *t))
+        };
+        // Units: [-1, 1]³ maps to voxel centres -31.5..31.5 (32 voxels per unit).
+        let vox = |p: DVec3| p * 32.0;
+        // On the cube's +x face (x = -0.45 + 0.28), away from its edges: the gradient is along x, so the
+        // tensor is a stick (one large eigenvalue, e1 along x): linear in Westin's terms, a disc as a splat.
+        let (_, t) = near(vox(DVec3::new(-0.17, -0.45, 0.0))).unwrap();
+        let e = crate::dti::eigen::eigh(&t).unwrap();
+        let [cl, _, _] = westin(&e.values, WestinDenominator::Trace);
+        assert!(cl > 0.8 && e.vectors[0].x.abs() > 0.95, "cube face: cl {cl}, e1 {}", e.vectors[0]);
+        // Along a spike (the rod along x from the ball at (-0.4, 0.45, 0)), gradients point around the rod's
+        // axis: two equal large eigenvalues across it (planar), the smallest along the rod.
+        let (_, t) = near(vox(DVec3::new(-0.15, 0.45, 0.035))).unwrap();
+        let e = crate::dti::eigen::eigh(&t).unwrap();
+        let [_, cp, _] = westin(&e.values, WestinDenominator::Trace);
+        assert!(cp > 0.3 && e.vectors[2].x.abs() > 0.9, "spike: cp {cp}, e3 {}", e.vectors[2]);
+        // Scaled: the largest eigenvalue is 1e-3.
+        let top = field.iter().filter_map(|(_, t)| crate::dti::eigen::eigh(t)).map(|e| e.values[0]).fold(0.0, f64::max);
+        assert!((top - 1e-3).abs() < 1e-12, "{top}");
+    }
+
+    #[test]
+    fn ct_head_has_the_shepp_logan_materials() {
+        let n = 64;
+        let v = super::ct_head(n);
+        let at = |x: usize, y: usize, z: usize| v.data[x + n * (y + n * z)];
+        // Centre: brain (1 - 0.8); a point in the left ventricle (ellipsoid 4 at x = -0.22): 0; the skull on
+        // the x axis (between the semi-axes 0.6624 and 0.69 of the two outer ellipsoids): 1; outside: 0.
+        let vox = |p: f64| ((p * n as f64 / 2.0) + (n as f64 - 1.0) / 2.0).round() as usize;
+        assert!((at(vox(0.0), vox(0.0), vox(0.0)) - 0.2).abs() < 1e-6);
+        assert!(at(vox(-0.22), vox(0.0), vox(0.0)).abs() < 1e-6);
+        assert_eq!(super::shepp_logan_at(DVec3::new(0.675, 0.0, 0.0)), 1.0);
+        assert_eq!(at(0, 0, 0), 0.0);
+        // Partial volume: some voxels between the materials' values.
+        let mixed = v.data.iter().filter(|x| **x > 0.02 && (**x - 0.2).abs() > 0.02 && **x < 0.98).count();
+        assert!(mixed > 1000 && v.data.iter().all(|x| (0.0..=1.0).contains(x)), "{mixed} mixed voxels");
+        // 200 mm across.
+        let p = v.world_from_voxel.transform_point3(DVec3::splat(n as f64 - 0.5));
+        assert!((p.x - 100.0).abs() < 1e-9, "{p}");
     }
 }
 

@@ -56,6 +56,27 @@ impl<T: Scalar> Volume<T> {
         self.shape.iter().skip(3).product()
     }
 
+    /// The axial slab of `n` slices from slice `z0` (all channels), its affine moved so each voxel keeps its
+    /// world position. Slices past the end are left out.
+    pub fn z_slab(&self, z0: usize, n: usize) -> Self {
+        let d = self.dims3();
+        let z0 = z0.min(d[2]);
+        let n = n.min(d[2] - z0);
+        let mut shape = self.shape.clone();
+        if shape.len() < 3 {
+            shape.resize(3, 1);
+        }
+        shape[2] = n;
+        let plane = d[0] * d[1];
+        let mut data = Vec::with_capacity(plane * n * self.n_channels());
+        for c in 0..self.n_channels() {
+            let start = self.n_voxels() * c + plane * z0;
+            data.extend_from_slice(&self.data[start..start + plane * n]);
+        }
+        let world_from_voxel = self.world_from_voxel * DMat4::from_translation(DVec3::new(0.0, 0.0, z0 as f64));
+        Self { shape, data, world_from_voxel }
+    }
+
     /// Value at spatial voxel index `v` (flat) and channel `c`.
     #[inline]
     pub fn at(&self, v: usize, c: usize) -> T {
@@ -96,4 +117,28 @@ pub fn voxel_size(world_from_voxel: glam::DMat4) -> DVec3 {
 #[inline]
 pub fn flat_index(dims: [usize; 3], x: usize, y: usize, z: usize) -> usize {
     x + dims[0] * (y + dims[1] * z)
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{DMat4, DVec3};
+
+    #[test]
+    fn a_z_slab_keeps_values_and_world_positions() {
+        let aff = DMat4::from_translation(DVec3::new(5.0, -3.0, 2.0)) * DMat4::from_scale(DVec3::new(2.0, 2.0, 3.0));
+        let mut v = super::Volume::<f32>::zeros(&[3, 2, 6, 2], aff);
+        v.data.iter_mut().enumerate().for_each(|(i, x)| *x = i as f32);
+        let s = v.z_slab(2, 3);
+        assert_eq!(s.shape, vec![3, 2, 3, 2]);
+        for c in 0..2 {
+            for z in 0..3 {
+                for i in 0..6 {
+                    assert_eq!(s.at(i + 6 * z, c), v.at(i + 6 * (z + 2), c));
+                }
+            }
+        }
+        let p = DVec3::new(1.0, 1.0, 0.0);
+        assert_eq!(s.world_from_voxel.transform_point3(p), aff.transform_point3(p + DVec3::Z * 2.0));
+        assert_eq!(v.z_slab(5, 4).shape[2], 1);
+    }
 }

@@ -5,7 +5,7 @@
 //!
 //! The files are DIPY's `small_64D` DWI fitted with `fascicle fit dti` (tensors and FA). Keys: `W`/`Q`
 //! widen and narrow the window (the transfer function's range: two small tables and a uniform), `M`
-//! cycles ray casting, 3D-texture slicing and 2D slicing (the proxy mesh only).
+//! cycles the methods (ray casting, 3D and 2D slicing, splatting, cell projection; the proxy mesh only).
 //!
 //! Run: `cargo run --release -p fascicle-volume --example dvr [-- --headless out.png]`
 
@@ -62,11 +62,9 @@ fn keys(input: Res<ButtonInput<KeyCode>>, mut layers: Query<&mut VolumeSettings>
             *r = [(r[0] - d).clamp(0.0, 0.45), (r[1] + d).clamp(0.55, 1.0)];
         }
         if input.just_pressed(KeyCode::KeyM) {
-            s.method = match s.method {
-                VolumeMethod::Raycast => VolumeMethod::Slicing,
-                VolumeMethod::Slicing => VolumeMethod::Slicing2d,
-                VolumeMethod::Slicing2d => VolumeMethod::Raycast,
-            };
+            let all = VolumeMethod::ALL;
+            let i = all.iter().position(|m| *m == s.method).unwrap_or(0);
+            s.method = all[(i + 1) % all.len()];
         }
     }
 }

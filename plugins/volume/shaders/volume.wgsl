@@ -1,7 +1,9 @@
 // Volume context (SEEDS.md section 2): direct volume rendering of a scalar 3D texture, by GPU ray casting
-// (front to back, early termination, jittered start, post-classified or pre-integrated) or by
-// view-aligned 3D-texture slicing (Cabral et al.: planes facing the camera, blended back to front), or by
-// 2D-texture slicing (the voxel planes of the axis nearest the view direction, back to front). All
+// (front to back, early termination, jittered start, post-classified or pre-integrated) or by one of the
+// object-order methods, blended back to front: view-aligned 3D-texture slicing (Cabral et al.: planes facing
+// the camera), 2D-texture slicing (the voxel planes of the axis nearest the view direction), voxel splatting
+// (Westover's sheet buffer: Gaussian footprints summed per voxel plane) and cell projection (Shirley-Tuchman:
+// six tetrahedra per cell in a per-view visibility order, pre-integrated). All
 // stop at the depth of the opaque layers (a copy of the depth buffer taken after the opaque pass), so
 // glyphs inside the volume hide what lies behind them and are tinted by what lies in front.
 // The f64 reference is `fascicle_core::dvr`; keep `VolumeParams` in sync with `VolumeUniform` in
@@ -13,13 +15,15 @@
 struct VolumeParams {
     voxel_from_world: mat4x4<f32>,
     world_from_voxel: mat4x4<f32>,
-    // xyz: dimensions (voxels); w: method (0 ray casting, 1 slicing, 2 2D slicing).
+    // xyz: dimensions (voxels); w: method (0 ray casting, 1 slicing, 2 2D slicing, 3 splatting, 4 tetrahedra).
     dims: vec4<f32>,
     // World bounding sphere of the volume: centre, radius.
     sphere: vec4<f32>,
     // The clip box in voxel coordinates (xyz): what is drawn of the volume.
     clip_lo: vec4<f32>,
     clip_hi: vec4<f32>,
+    // Cell projection: cells per voxel axis.
+    cells: vec4<u32>,
     range: vec2<f32>,
     step: f32,
     termination: f32,
@@ -29,6 +33,9 @@ struct VolumeParams {
     n_slices: u32,
     table_n: u32,
     ambient: f32,
+    // Splatting: the kernel's standard deviation (voxels). Cell projection: cell edge (voxels).
+    kernel: f32,
+    cell: u32,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: VolumeParams;
@@ -38,6 +45,16 @@ struct VolumeParams {
 // table_n x table_n pre-integrated segments (front value major), premultiplied.
 @group(#{MATERIAL_BIND_GROUP}) @binding(3) var<storage, read> table: array<vec4<f32>>;
 @group(#{MATERIAL_BIND_GROUP}) @binding(4) var opaque_depth: texture_depth_2d;
+// Shear-warp: the intermediate image its compute pass wrote (`shear_warp.wgsl`), and where it lies.
+@group(#{MATERIAL_BIND_GROUP}) @binding(5) var intermediate: texture_2d<f32>;
+struct Warp {
+    axis: u32,
+    base: f32,
+    size: vec2<u32>,
+    origin: vec2<f32>,
+    spacing: vec2<f32>,
+};
+@group(#{MATERIAL_BIND_GROUP}) @binding(6) var<storage, read> warp: Warp;
 
 const LUT_N: u32 = 256u;
 const UNIT_MM: f32 = 1.0;
@@ -51,10 +68,146 @@ struct VolumeVertex {
 struct VolumeVertexOutput {
     @builtin(position) clip_position: vec4<f32>,
     @location(0) world_position: vec3<f32>,
-    // (slicing: 0 none, 1 view-aligned, 2 + k voxel planes of axis k; jitter, shading, pre-integrated), flat:
-    // the fragment stage branches on these, never on the uniform (the rule in `fascicle::ray`).
+    // (0 ray casting, 1 view-aligned slices, 2 + k voxel planes of axis k, 5 + k splatting's sheets of axis k,
+    // 8 tetrahedra; jitter, shading, pre-integrated), flat: the fragment stage branches on these, never on the
+    // uniform (the rule in `fascicle::ray`).
     @location(1) @interpolate(flat) modes: vec4<u32>,
+    // Tetrahedra: the cell's low corner and size (voxels); the tetrahedron's axes (x_a >= x_b >= x_c inside
+    // the cell) and splatting's kernel radius (voxels); the field at its four corners.
+    @location(2) @interpolate(flat) cell_lo: vec4<f32>,
+    @location(3) @interpolate(flat) cell_size: vec4<f32>,
+    @location(4) @interpolate(flat) tet: vec4<u32>,
+    @location(5) @interpolate(flat) corners: vec4<f32>,
 };
+
+// Lattice line j of an axis of d voxels in the tetrahedral grid: -0.5, 0, cell, 2 cell, ..., d - 1, d - 0.5
+// (`tet_cells` in `plugins/volume/src/lib.rs`); n: cells on the axis.
+fn lattice(j: u32, d: f32, n: u32) -> f32 {
+    let inner = min((f32(j) - 1.0) * f32(params.cell), d - 1.0);
+    return select(select(inner, d - 0.5, j >= n), -0.5, j == 0u);
+}
+
+// The cell of the axis (n cells) that holds voxel coordinate x.
+fn lattice_cell(x: f32, d: f32, n: u32) -> u32 {
+    let inner = min(1u + u32(max(floor(x / f32(params.cell)), 0.0)), max(n - 2u, 1u));
+    return select(select(inner, n - 1u, x >= d - 1.0), 0u, x < 0.0);
+}
+
+// Position p of an axis' visibility order (n cells, the eye in cell e): the cells beyond the eye from the far
+// end inwards, then those before it from the far end inwards, the eye's cell last. A ray from the eye moves
+// away from it on every axis, so the nested order of the three axes draws every cell after those it hides.
+fn far_to_near(p: u32, n: u32, e: u32) -> u32 {
+    let above = n - 1u - e;
+    return select(select(e, p - above, p < above + e), n - 1u - p, p < above);
+}
+
+// Orders of the three axes within a cell for the six tetrahedra, back to front: the tetrahedron x_a >= x_b
+// >= x_c is on the eye's side of as many of the planes x_i = x_j as its order of the axes agrees with the
+// eye's, and a ray crossing such a plane leaves the eye's side; so the tetrahedra are drawn in decreasing
+// number of inversions from the eye's order.
+const TET_ORDER = array<vec3<u32>, 6>(
+    vec3<u32>(2u, 1u, 0u), vec3<u32>(1u, 2u, 0u), vec3<u32>(2u, 0u, 1u),
+    vec3<u32>(0u, 2u, 1u), vec3<u32>(1u, 0u, 2u), vec3<u32>(0u, 1u, 2u),
+);
+
+struct TetQuad {
+    clip: vec4<f32>,
+    world: vec3<f32>,
+    lo: vec3<f32>,
+    size: vec3<f32>,
+    axes: vec3<u32>,
+    corners: vec4<f32>,
+};
+
+// The tetrahedron drawn in slot `slot` for this view, and corner `c` (0..3, counter-clockwise) of a quad over
+// its projection: the convex hull of its four projected corners (a triangle when one falls inside the others,
+// one corner then doubled). A tetrahedron reaching behind the eye's plane covers the whole view instead.
+fn tet_quad(slot: u32, c: u32, forward: vec3<f32>) -> TetQuad {
+    var out: TetQuad;
+    let n = params.cells.xyz;
+    let cell_slot = slot / 6u;
+    let p = vec3<u32>(cell_slot % n.x, (cell_slot / n.x) % n.y, cell_slot / (n.x * n.y));
+    let ortho = view.clip_from_view[3].w == 1.0;
+    let eye = (params.voxel_from_world * vec4<f32>(view.world_position, 1.0)).xyz;
+    let fwd = (params.voxel_from_world * vec4<f32>(forward, 0.0)).xyz;
+    var cell = vec3<u32>(0u);
+    var lo = vec3<f32>(0.0);
+    var hi = vec3<f32>(0.0);
+    for (var i = 0u; i < 3u; i++) {
+        let e = select(lattice_cell(eye[i], params.dims[i], n[i]), select(n[i] - 1u, 0u, fwd[i] > 0.0), ortho);
+        cell[i] = far_to_near(p[i], n[i], e);
+        lo[i] = lattice(cell[i], params.dims[i], n[i]);
+        hi[i] = lattice(cell[i] + 1u, params.dims[i], n[i]);
+    }
+    let size = hi - lo;
+    // The eye in the cell's unit coordinates (orthographic: where the rays come from).
+    let l = select((eye - lo) / size, -fwd / size, ortho);
+    // The eye's order of the axes (largest coordinate first).
+    var o = vec3<u32>(0u, 1u, 2u);
+    if l[o.x] < l[o.y] { o = o.yxz; }
+    if l[o.y] < l[o.z] { o = o.xzy; }
+    if l[o.x] < l[o.y] { o = o.yxz; }
+    var order = TET_ORDER;
+    let tau = order[slot % 6u];
+    let axes = vec3<u32>(o[tau.x], o[tau.y], o[tau.z]);
+    var unit = array<vec3<f32>, 4>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(1.0));
+    unit[1][axes.x] = 1.0;
+    unit[2] = unit[1];
+    unit[2][axes.y] = 1.0;
+    var clip: array<vec4<f32>, 4>;
+    var world: array<vec3<f32>, 4>;
+    var behind = false;
+    let top = params.dims.xyz - vec3<f32>(1.0);
+    for (var i = 0u; i < 4u; i++) {
+        let q = lo + unit[i] * size;
+        out.corners[i] = voxel(vec3<i32>(round(clamp(q, vec3<f32>(0.0), top))));
+        world[i] = (params.world_from_voxel * vec4<f32>(q, 1.0)).xyz;
+        clip[i] = view.clip_from_world * vec4<f32>(world[i], 1.0);
+        behind = behind || clip[i].w <= 1e-4;
+    }
+    // Hull: the corners sorted by angle about their centroid (counter-clockwise), then a reflex corner (one
+    // inside the triangle of the others) moved onto its successor.
+    var ndc: array<vec2<f32>, 4>;
+    var ang: array<f32, 4>;
+    var idx = array<u32, 4>(0u, 1u, 2u, 3u);
+    var m = vec2<f32>(0.0);
+    for (var i = 0u; i < 4u; i++) {
+        ndc[i] = clip[i].xy / max(clip[i].w, 1e-4);
+        m += 0.25 * ndc[i];
+    }
+    for (var i = 0u; i < 4u; i++) {
+        ang[i] = atan2(ndc[i].y - m.y, ndc[i].x - m.x);
+    }
+    for (var sweep = 0u; sweep < 3u; sweep++) {
+        for (var i = 0u; i < 3u; i++) {
+            if ang[idx[i]] > ang[idx[i + 1u]] {
+                let t = idx[i];
+                idx[i] = idx[i + 1u];
+                idx[i + 1u] = t;
+            }
+        }
+    }
+    var hull = idx;
+    for (var i = 0u; i < 4u; i++) {
+        let a = ndc[idx[(i + 3u) % 4u]];
+        let b = ndc[idx[i]];
+        let d = ndc[idx[(i + 1u) % 4u]];
+        let e1 = b - a;
+        let e2 = d - b;
+        if e1.x * e2.y - e1.y * e2.x < 0.0 {
+            hull[i] = idx[(i + 1u) % 4u];
+        }
+    }
+    let k = hull[c];
+    let corner = vec2<f32>(select(-1.0, 1.0, c == 1u || c == 2u), select(-1.0, 1.0, c >= 2u));
+    let screen = view.world_from_clip * vec4<f32>(corner, 0.5, 1.0);
+    out.clip = select(clip[k], vec4<f32>(corner, 0.5, 1.0), behind);
+    out.world = select(world[k], screen.xyz / screen.w, behind);
+    out.lo = lo;
+    out.size = size;
+    out.axes = axes;
+    return out;
+}
 
 @vertex
 fn vertex(v: VolumeVertex) -> VolumeVertexOutput {
@@ -94,14 +247,27 @@ fn vertex(v: VolumeVertex) -> VolumeVertexOutput {
     q[k] = f32(index);
     q[u] = mix(-0.5, params.dims[u] - 0.5, 0.5 * (cx + 1.0));
     q[w] = mix(-0.5, params.dims[w] - 0.5, 0.5 * (v.position.y + 1.0));
-    let planes = params.dims.w == 2.0;
+    let planes = params.dims.w == 2.0 || params.dims.w == 3.0;
     let p = select(select(v.position, sliced, slicing), (params.world_from_voxel * vec4<f32>(q, 1.0)).xyz, planes);
-    let mode = select(u32(slicing), 2u + k, planes);
+    let mode = select(select(u32(slicing), 2u + k, planes), 5u + k, params.dims.w == 3.0);
     // Planes beyond the stack's depth collapse outside the view.
     let folded = planes && slot >= dk;
-    out.modes = vec4<u32>(mode, params.jitter, params.shading, params.preintegrated);
-    out.world_position = p;
-    out.clip_position = select(view.clip_from_world * vec4<f32>(p, 1.0), vec4<f32>(2.0, 2.0, 2.0, 1.0), folded);
+    // Cell projection: corner c of the quad over tetrahedron `slot` (computed always, chosen by `select`).
+    let c = select(select(0u, 3u, v.position.y > 0.0), select(1u, 2u, v.position.y > 0.0), v.position.x > 0.0);
+    let tq = tet_quad(slot, c, forward);
+    let tets = params.dims.w == 4.0;
+    // Splatting's kernel radius in voxels: three standard deviations, stretched by up to 1.8 in a plane the ray
+    // crosses obliquely, at most 3 (a 7 x 7 neighbourhood).
+    let radius = u32(clamp(ceil(3.0 * 1.8 * params.kernel), 1.0, 3.0));
+    let modes = select(select(mode, 8u, tets), 9u, params.dims.w == 5.0);
+    out.modes = vec4<u32>(modes, params.jitter, params.shading, params.preintegrated);
+    out.world_position = select(p, tq.world, tets);
+    let clip = select(view.clip_from_world * vec4<f32>(p, 1.0), vec4<f32>(2.0, 2.0, 2.0, 1.0), folded);
+    out.clip_position = select(clip, tq.clip, tets);
+    out.cell_lo = vec4<f32>(tq.lo, 0.0);
+    out.cell_size = vec4<f32>(tq.size, 0.0);
+    out.tet = vec4<u32>(tq.axes, radius);
+    out.corners = tq.corners;
     return out;
 }
 
@@ -186,6 +352,125 @@ fn jitter(frag: vec2<f32>) -> f32 {
     return fract(52.9829189 * fract(dot(frag, vec2<f32>(0.06711056, 0.00583715))));
 }
 
+// Slicing's dither: an offset in [-0.5, 0.5) of the spacing, per pixel, when jitter is on.
+fn dither(in: VolumeVertexOutput) -> f32 {
+    return select(0.0, jitter(in.clip_position.xy) - 0.5, in.modes.y == 1u);
+}
+
+// One sheet of voxel splatting: the voxels of plane k nearest the ray, each classified (pre-classification)
+// and weighted by its Gaussian kernel's integral along the ray (a function of its distance to the ray in voxel
+// space), summed into the sheet's extinction and colour (normalised by the weights: a constant field gives
+// its own value at any kernel size) over the planes' spacing along the ray.
+fn splat_sheet(in: VolumeVertexOutput, r: Ray, o: vec3<f32>, d: vec3<f32>, t_stop: f32) -> vec4<f32> {
+    let k = in.modes.x - 5u;
+    let u = (k + 1u) % 3u;
+    let w = (k + 2u) % 3u;
+    var q = (params.voxel_from_world * vec4<f32>(in.world_position, 1.0)).xyz;
+    q[k] = round(q[k]);
+    let t = dot(in.world_position - r.origin, r.dir);
+    if t >= t_stop || any(q < params.clip_lo.xyz) || any(q > params.clip_hi.xyz) {
+        discard;
+    }
+    let dn = normalize(d);
+    let inv2s2 = 0.5 / (params.kernel * params.kernel);
+    let radius = i32(in.tet.w);
+    let cu = round(q[u]);
+    let cw = round(q[w]);
+    var tau = 0.0;
+    var rgb = vec3<f32>(0.0);
+    var weight = 0.0;
+    for (var i = -radius; i <= radius; i++) {
+        for (var j = -radius; j <= radius; j++) {
+            var v = q;
+            v[u] = cu + f32(i);
+            v[w] = cw + f32(j);
+            if v[u] < 0.0 || v[w] < 0.0 || v[u] > params.dims[u] - 1.0 || v[w] > params.dims[w] - 1.0 {
+                continue;
+            }
+            let rel = v - q;
+            let along = dot(rel, dn);
+            let f = exp(-(dot(rel, rel) - along * along) * inv2s2);
+            let c = classify(voxel(vec3<i32>(v)));
+            let e = -log(1.0 - min(c.a, 0.999999)) / UNIT_MM;
+            tau += f * e;
+            rgb += f * e * c.rgb;
+            weight += f;
+        }
+    }
+    if weight <= 0.0 || tau <= 0.0 {
+        discard;
+    }
+    let alpha = 1.0 - exp(-(tau / weight) / max(abs(d[k]), 1e-6));
+    return shade(vec4<f32>(rgb / tau * alpha, alpha), q, d, in.modes.z);
+}
+
+// One tetrahedron of cell projection: the ray's exact entry and exit (the four faces x_a = 1, x_a = x_b,
+// x_b = x_c, x_c = 0 of the Kuhn tetrahedron x_a >= x_b >= x_c in the cell's unit coordinates), within the
+// clip box and before the opaque surface; the field is linear inside, so each piece of at most one step is
+// looked up in the pre-integrated table by its two ends, its opacity corrected to its length.
+fn tetrahedron(in: VolumeVertexOutput, o: vec3<f32>, d: vec3<f32>, t_lo: f32, t_hi: f32) -> vec4<f32> {
+    let lo = in.cell_lo.xyz;
+    let size = in.cell_size.xyz;
+    let ax = in.tet.xyz;
+    let ol = (o - lo) / size;
+    let dl = d / size;
+    // Half-spaces f0 + t f1 >= 0.
+    let f0 = vec4<f32>(1.0 - ol[ax.x], ol[ax.x] - ol[ax.y], ol[ax.y] - ol[ax.z], ol[ax.z]);
+    let f1 = vec4<f32>(-dl[ax.x], dl[ax.x] - dl[ax.y], dl[ax.y] - dl[ax.z], dl[ax.z]);
+    var t0 = t_lo;
+    var t1 = t_hi;
+    for (var i = 0u; i < 4u; i++) {
+        let h = -f0[i] / f1[i];
+        if f1[i] > 0.0 {
+            t0 = max(t0, h);
+        } else if f1[i] < 0.0 {
+            t1 = min(t1, h);
+        } else if f0[i] < 0.0 {
+            discard;
+        }
+    }
+    if t0 >= t1 {
+        discard;
+    }
+    let v = in.corners;
+    let grad = vec3<f32>(v.y - v.x, v.z - v.y, v.w - v.z);
+    let s0 = v.x + grad.x * (ol[ax.x] + t0 * dl[ax.x]) + grad.y * (ol[ax.y] + t0 * dl[ax.y]) + grad.z * (ol[ax.z] + t0 * dl[ax.z]);
+    let slope = grad.x * dl[ax.x] + grad.y * dl[ax.y] + grad.z * dl[ax.z];
+    let step = max(params.step, 1e-4);
+    let n = u32(clamp(ceil((t1 - t0) / step), 1.0, 64.0));
+    let dt = (t1 - t0) / f32(n);
+    var acc = vec4<f32>(0.0);
+    for (var i = 0u; i < n; i++) {
+        let ta = t0 + f32(i) * dt;
+        var seg = preintegrated(s0 + slope * (ta - t0), s0 + slope * (ta + dt - t0));
+        let a2 = 1.0 - pow(1.0 - min(seg.a, 0.999999), dt / step);
+        seg = select(vec4<f32>(0.0), vec4<f32>(seg.rgb * (a2 / seg.a), a2), seg.a > 0.0);
+        acc += (1.0 - acc.a) * shade(seg, o + d * (ta + 0.5 * dt), d, in.modes.z);
+    }
+    return acc;
+}
+
+// Shear-warp's warp: the intermediate image read bilinearly where the ray meets its plane (transparent off
+// the image). The pass already stopped each ray at the opaque depth.
+fn warped(o: vec3<f32>, d: vec3<f32>) -> vec4<f32> {
+    let k = warp.axis;
+    let u = (k + 1u) % 3u;
+    let w = (k + 2u) % 3u;
+    let b = o + d * ((warp.base - o[k]) / d[k]);
+    let x = (b[u] - warp.origin.x) / warp.spacing.x - 0.5;
+    let y = (b[w] - warp.origin.y) / warp.spacing.y - 0.5;
+    let s = vec2<f32>(warp.size);
+    let off = warp.size.x == 0u || abs(d[k]) < 1e-12 || x < -0.5 || y < -0.5 || x > s.x - 0.5 || y > s.y - 0.5;
+    let x0 = floor(x);
+    let y0 = floor(y);
+    let hi = vec2<i32>(warp.size) - vec2<i32>(1);
+    let i0 = clamp(vec2<i32>(i32(x0), i32(y0)), vec2<i32>(0), hi);
+    let i1 = clamp(vec2<i32>(i32(x0) + 1, i32(y0) + 1), vec2<i32>(0), hi);
+    let top = mix(textureLoad(intermediate, i0, 0), textureLoad(intermediate, vec2<i32>(i1.x, i0.y), 0), x - x0);
+    let bottom = mix(textureLoad(intermediate, vec2<i32>(i0.x, i1.y), 0), textureLoad(intermediate, i1, 0), x - x0);
+    return select(mix(top, bottom, y - y0), vec4<f32>(0.0), off);
+}
+
 @fragment
 fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     let r = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
@@ -194,30 +479,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     let t_stop = opaque_distance(in.clip_position, r);
     let lo = params.clip_lo.xyz;
     let hi = params.clip_hi.xyz;
-    if in.modes.x == 1u {
-        // One slice: the sample where the plane meets this ray.
-        let t = dot(in.world_position - r.origin, r.dir);
-        let q = o + d * t;
-        if t >= t_stop || any(q < lo) || any(q > hi) {
-            discard;
-        }
-        let forward = -view.world_from_view[2].xyz;
-        let spacing = 2.0 * params.sphere.w / f32(params.n_slices);
-        let c = shade(segment(sample_volume(q), spacing / max(dot(r.dir, forward), 1e-3)), q, d, in.modes.z);
-        return c;
-    }
-    if in.modes.x >= 2u {
-        // One voxel plane of axis k, sampled where this fragment lies on it; the planes are 1 / |d_k| apart
-        // along the ray (d in voxels per mm).
-        let k = in.modes.x - 2u;
-        let t = dot(in.world_position - r.origin, r.dir);
-        var q = (params.voxel_from_world * vec4<f32>(in.world_position, 1.0)).xyz;
-        q[k] = round(q[k]);
-        if t >= t_stop || any(q < lo) || any(q > hi) {
-            discard;
-        }
-        return shade(segment(sample_volume(q), 1.0 / max(abs(d[k]), 1e-6)), q, d, in.modes.z);
-    }
+    // The ray's interval in the clip box (voxel coordinates), up to the opaque surface.
     let inv = 1.0 / d;
     let a = (lo - o) * inv;
     let b = (hi - o) * inv;
@@ -225,6 +487,42 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     let tmax = max(a, b);
     let t0 = max(max(tmin.x, tmin.y), max(tmin.z, 0.0));
     let t1 = min(min(min(tmax.x, tmax.y), tmax.z), t_stop);
+    if in.modes.x == 1u {
+        // One slice: the sample where the plane meets this ray (dithered: moved along the ray by up to half the
+        // spacing, a per-pixel fraction: interleaved sampling).
+        let forward = -view.world_from_view[2].xyz;
+        let spacing = 2.0 * params.sphere.w / f32(params.n_slices);
+        let along = spacing / max(dot(r.dir, forward), 1e-3);
+        let t = dot(in.world_position - r.origin, r.dir) + dither(in) * along;
+        let q = o + d * t;
+        if t >= t_stop || any(q < lo) || any(q > hi) {
+            discard;
+        }
+        return shade(segment(sample_volume(q), along), q, d, in.modes.z);
+    }
+    if in.modes.x >= 2u && in.modes.x < 5u {
+        // One voxel plane of axis k, sampled where this fragment lies on it; the planes are 1 / |d_k| apart
+        // along the ray (d in voxels per mm). Dithered: the sample moved along the ray as for slices.
+        let k = in.modes.x - 2u;
+        let along = 1.0 / max(abs(d[k]), 1e-6);
+        var q = (params.voxel_from_world * vec4<f32>(in.world_position, 1.0)).xyz;
+        q[k] = round(q[k]);
+        let t = dot(in.world_position - r.origin, r.dir) + dither(in) * along;
+        q += d * dither(in) * along;
+        if t >= t_stop || any(q < lo) || any(q > hi) {
+            discard;
+        }
+        return shade(segment(sample_volume(q), along), q, d, in.modes.z);
+    }
+    if in.modes.x >= 5u && in.modes.x < 8u {
+        return splat_sheet(in, r, o, d, t_stop);
+    }
+    if in.modes.x == 8u {
+        return tetrahedron(in, o, d, t0, t1);
+    }
+    if in.modes.x == 9u {
+        return warped(o, d);
+    }
     if t0 >= t1 {
         discard;
     }

@@ -5,9 +5,9 @@
 //! | change | cost |
 //! |---|---|
 //! | the data (handle swapped, asset modified) | texture rebuilt and uploaded |
-//! | `VolumeSettings::method` | the proxy mesh swapped (box or slices); the texture stays |
+//! | `VolumeSettings::method`, slicing's step, cell projection's cell, shear-warp's intermediate size | the proxy mesh or shear-warp's intermediate image swapped; the volume's texture stays |
 //! | the transfer function (window/level is its `range`) | its two small tables and the uniform rewritten |
-//! | step, termination, jitter, shading, clip | one uniform write |
+//! | step, termination, jitter, shading, clip, kernel | one uniform write |
 //!
 //! The drawn [`VolumeSet`] is a child of the layer entity and carries the layer's `RenderLayers`, so only
 //! cameras that see it lose their MSAA (see the crate doc).
@@ -187,9 +187,13 @@ fn sync_layers(
         let before = std::mem::replace(&mut set.settings, (*settings).clone());
         if before.method != settings.method
             || (settings.method == VolumeMethod::Slicing && before.step != settings.step)
+            || (settings.method == VolumeMethod::Tetrahedra && before.cell != settings.cell)
         {
-            // The number of slices follows the step.
+            // The number of slices follows the step, the number of tetrahedra the cell size.
             mesh.0 = meshes.add(proxy_mesh(set.dims, set.world_from_voxel, &settings));
+            counts.0.repacks += 1;
+        }
+        if set.fit_intermediate(&settings, &mut materials, &mut images) {
             counts.0.repacks += 1;
         }
         let tables = before.tf != settings.tf || before.step != settings.step;

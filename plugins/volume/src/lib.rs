@@ -32,6 +32,7 @@ use fascicle_core::dvr::{ClipBox, MarchParams, TransferFunction, preintegrate};
 
 pub mod layer;
 pub mod shaders;
+pub mod shear_warp;
 
 pub use fascicle_render::layer::LayerStatus;
 pub use layer::{ScalarVolume, ScalarVolumeLoader, ScalarVolumeSettings, VolumeCounts, VolumeLayer, VolumeSystems};
@@ -54,6 +55,56 @@ pub enum VolumeMethod {
     /// three stacks, switched as the view turns), back to front, each sampled bilinearly in its plane, opacity
     /// corrected for the distance between planes along each ray.
     Slicing2d,
+    /// Object order, voxel splatting (Westover's sheet buffer): every voxel is classified and spread by a
+    /// Gaussian kernel ([`VolumeSettings::kernel`]); the footprints of one voxel plane of the axis nearest the
+    /// view are summed into a sheet (each voxel weighted by its kernel's line integral along the pixel's ray),
+    /// and the sheets are composited back to front, so no footprint pops as the view turns.
+    Splatting,
+    /// Object order, cell projection: the grid cut into cells of [`VolumeSettings::cell`] voxels, each cell into
+    /// six tetrahedra (Kuhn), projected and composited back to front in a visibility order computed per view
+    /// (Shirley-Tuchman); each pixel of a tetrahedron integrates the linear field between its exact entry and
+    /// exit through the pre-integrated table (Röttger et al.).
+    Tetrahedra,
+    /// Object order, shear-warp (Lacroute and Levoy): per view, a compute pass composites the voxel planes of
+    /// the axis nearest the view into an intermediate image on the front plane (each plane resampled where
+    /// the pixel's ray crosses it: the shear), at [`VolumeSettings::intermediate`] pixels per voxel; the
+    /// volume's box then warps that image onto the screen ([`shear_warp`]).
+    ShearWarp,
+}
+
+impl VolumeMethod {
+    pub const ALL: [VolumeMethod; 6] = [
+        VolumeMethod::Raycast,
+        VolumeMethod::Slicing,
+        VolumeMethod::Slicing2d,
+        VolumeMethod::Splatting,
+        VolumeMethod::Tetrahedra,
+        VolumeMethod::ShearWarp,
+    ];
+
+    /// Short name (the `method` column of `bench volume`).
+    pub fn name(self) -> &'static str {
+        match self {
+            VolumeMethod::Raycast => "raycast",
+            VolumeMethod::Slicing => "slice3d",
+            VolumeMethod::Slicing2d => "slice2d",
+            VolumeMethod::Splatting => "splat",
+            VolumeMethod::Tetrahedra => "tetra",
+            VolumeMethod::ShearWarp => "shearwarp",
+        }
+    }
+
+    /// The code the shader branches on (`dims.w`).
+    fn code(self) -> f32 {
+        match self {
+            VolumeMethod::Raycast => 0.0,
+            VolumeMethod::Slicing => 1.0,
+            VolumeMethod::Slicing2d => 2.0,
+            VolumeMethod::Splatting => 3.0,
+            VolumeMethod::Tetrahedra => 4.0,
+            VolumeMethod::ShearWarp => 5.0,
+        }
+    }
 }
 
 /// Drawing options of a volume layer (a component of [`VolumeLayer`]; see [`layer`] for what each edit costs).
@@ -66,7 +117,8 @@ pub struct VolumeSettings {
     pub step: f64,
     /// Early ray termination at this accumulated opacity (> 1: off).
     pub termination: f64,
-    /// Jittered ray start (against wood-grain artefacts).
+    /// Dithering against wood-grain artefacts: a jittered ray start (ray casting), or each plane's sample moved
+    /// along the ray by a per-pixel fraction of the spacing (slicing: interleaved sampling).
     pub jitter: bool,
     /// Gradient (Lambert headlight) shading.
     pub shading: bool,
@@ -75,6 +127,12 @@ pub struct VolumeSettings {
     /// The part of the volume drawn (fractions of its extent per voxel axis).
     #[serde(default)]
     pub clip: ClipBox,
+    /// Splatting: standard deviation of the Gaussian kernel, voxels.
+    pub kernel: f64,
+    /// Cell projection: edge of a cell, voxels (six tetrahedra per cell).
+    pub cell: u32,
+    /// Shear-warp: pixels of the intermediate image per voxel.
+    pub intermediate: f64,
 }
 
 impl Default for VolumeSettings {
@@ -88,6 +146,9 @@ impl Default for VolumeSettings {
             shading: false,
             preintegrated: false,
             clip: ClipBox::default(),
+            kernel: 0.6,
+            cell: 2,
+            intermediate: 1.0,
         }
     }
 }
@@ -100,6 +161,7 @@ impl VolumeSettings {
             preintegrated: self.preintegrated,
             clip: self.clip,
             shading: self.shading.then_some(AMBIENT),
+            tetrahedra: (self.method == VolumeMethod::Tetrahedra).then_some(self.cell.max(1) as usize),
         }
     }
 }
@@ -114,6 +176,8 @@ pub struct VolumeUniform {
     /// The clip box in voxel coordinates (xyz; w unused).
     pub clip_lo: Vec4,
     pub clip_hi: Vec4,
+    /// Cell projection: cells per voxel axis (xyz; w unused).
+    pub cells: UVec4,
     pub range: Vec2,
     pub step: f32,
     pub termination: f32,
@@ -123,6 +187,8 @@ pub struct VolumeUniform {
     pub n_slices: u32,
     pub table_n: u32,
     pub ambient: f32,
+    pub kernel: f32,
+    pub cell: u32,
 }
 
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
@@ -137,6 +203,12 @@ pub struct VolumeMaterial {
     pub table: Handle<ShaderBuffer>,
     #[texture(4, sample_type = "depth")]
     pub opaque_depth: Handle<Image>,
+    /// Shear-warp's intermediate image (written by its compute pass; 1x1 for other methods).
+    #[texture(5, sample_type = "float", filterable = false)]
+    pub intermediate: Handle<Image>,
+    /// Where the warp finds that image: axis, base plane, placement (written by the same pass).
+    #[storage(6, read_only)]
+    pub warp: Handle<ShaderBuffer>,
 }
 
 impl Material for VolumeMaterial {
@@ -211,6 +283,38 @@ impl VolumeSet {
         m.params = VolumeUniform::new(self.dims, self.world_from_voxel, settings);
         true
     }
+
+    /// Gives the material an intermediate image of the size `settings` need (shear-warp's, or 1x1); false
+    /// when it already had it.
+    pub fn fit_intermediate(
+        &self,
+        settings: &VolumeSettings,
+        materials: &mut Assets<VolumeMaterial>,
+        images: &mut Assets<Image>,
+    ) -> bool {
+        let edge = shear_warp::image_edge(self.dims, settings.intermediate, settings.method);
+        let Some(m) = materials.get(&self.material) else { return false };
+        if images.get(&m.intermediate).is_some_and(|img| img.width() == edge) {
+            return false;
+        }
+        let image = images.add(intermediate_image(edge));
+        if let Some(mut m) = materials.get_mut(&self.material) {
+            m.intermediate = image;
+        }
+        true
+    }
+}
+
+/// An `edge`² intermediate image for shear-warp (storage-written, sampled by the warp).
+fn intermediate_image(edge: u32) -> Image {
+    let mut img = Image::new_uninit(
+        Extent3d { width: edge, height: edge, depth_or_array_layers: 1 },
+        TextureDimension::D2,
+        shear_warp::IMAGE_FORMAT,
+        RenderAssetUsages::RENDER_WORLD,
+    );
+    img.texture_descriptor.usage = TextureUsages::STORAGE_BINDING | TextureUsages::TEXTURE_BINDING;
+    img
 }
 
 /// Bins of a volume's histogram (for the transfer-function editor).
@@ -236,9 +340,15 @@ impl Plugin for VolumePlugin {
             .add_systems(Startup, create_opaque_depth)
             .add_systems(PostUpdate, (prepare_cameras, fit_opaque_depth));
         layer::build(app);
+        shear_warp::build(app);
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
-            render_app
-                .add_systems(Core3d, copy_opaque_depth.after(main_opaque_pass_3d).before(main_transparent_pass_3d));
+            render_app.add_systems(
+                Core3d,
+                (copy_opaque_depth, shear_warp::composite)
+                    .chain()
+                    .after(main_opaque_pass_3d)
+                    .before(main_transparent_pass_3d),
+            );
         }
     }
 }
@@ -405,11 +515,8 @@ impl VolumeUniform {
     pub fn new(dims: [usize; 3], world_from_voxel: glam::DMat4, s: &VolumeSettings) -> Self {
         let (centre, r) = bounding_sphere(dims, world_from_voxel);
         let (lo, hi) = s.clip.voxel_bounds(dims);
-        let method = match s.method {
-            VolumeMethod::Raycast => 0.0,
-            VolumeMethod::Slicing => 1.0,
-            VolumeMethod::Slicing2d => 2.0,
-        };
+        let method = s.method.code();
+        let cells = tet_cells(dims, s.cell);
         Self {
             voxel_from_world: world_from_voxel.inverse().as_mat4(),
             world_from_voxel: world_from_voxel.as_mat4(),
@@ -417,6 +524,7 @@ impl VolumeUniform {
             sphere: Vec4::new(centre.x as f32, centre.y as f32, centre.z as f32, r as f32),
             clip_lo: lo.as_vec3().extend(0.0),
             clip_hi: hi.as_vec3().extend(0.0),
+            cells: UVec4::new(cells[0], cells[1], cells[2], 0),
             range: Vec2::new(s.tf.range[0] as f32, s.tf.range[1] as f32),
             step: s.step as f32,
             termination: s.termination as f32,
@@ -426,6 +534,8 @@ impl VolumeUniform {
             n_slices: slices(r, s.step),
             table_n: TABLE_N as u32,
             ambient: AMBIENT as f32,
+            kernel: s.kernel.clamp(0.05, 4.0) as f32,
+            cell: s.cell.max(1),
         }
     }
 }
@@ -443,18 +553,35 @@ pub fn tf_buffers(s: &VolumeSettings) -> (Vec<u8>, Vec<u8>) {
     (lut.to_bytes(), tb)
 }
 
-/// The proxy geometry of a method: the volume's box (ray casting), the view-aligned slices (slicing) or the
-/// voxel planes (2D slicing).
+/// The proxy geometry of a method: the volume's box (ray casting, shear-warp's warp), the view-aligned slices (slicing), the
+/// voxel planes (2D slicing, splatting's sheets) or the tetrahedra (cell projection).
 pub fn proxy_mesh(dims: [usize; 3], world_from_voxel: glam::DMat4, settings: &VolumeSettings) -> Mesh {
     match settings.method {
-        VolumeMethod::Raycast => box_mesh(dims, world_from_voxel),
+        VolumeMethod::Raycast | VolumeMethod::ShearWarp => box_mesh(dims, world_from_voxel),
         VolumeMethod::Slicing => {
             let (_, r) = bounding_sphere(dims, world_from_voxel);
             fascicle_render::meshes::slot_quads(slices(r, settings.step) as usize)
         }
         // One quad per voxel plane of the longest axis; the vertex stage picks the stack and folds the rest.
-        VolumeMethod::Slicing2d => fascicle_render::meshes::slot_quads(dims.into_iter().max().unwrap_or(1)),
+        VolumeMethod::Slicing2d | VolumeMethod::Splatting => {
+            fascicle_render::meshes::slot_quads(dims.into_iter().max().unwrap_or(1))
+        }
+        // One quad per tetrahedron (six per cell), in drawing order: the vertex stage maps each slot to the
+        // tetrahedron that order puts there for the current view, and spans the quad over its projection.
+        VolumeMethod::Tetrahedra => {
+            let c = tet_cells(dims, settings.cell);
+            fascicle_render::meshes::slot_quads(6 * (c[0] * c[1] * c[2]) as usize)
+        }
     }
+}
+
+/// Cells per voxel axis of the tetrahedral grid at cell edge `cell` voxels: the grid's lattice lines are the
+/// voxel centres 0, cell, 2 cell, ..., the last voxel's centre, plus the volume's faces half a voxel beyond
+/// the first and last centres (there the field is the edge voxel's value, as the ray caster's clamped
+/// sampling), so the cells cover exactly the box the other methods draw.
+pub fn tet_cells(dims: [usize; 3], cell: u32) -> [u32; 3] {
+    let s = cell.max(1) as usize;
+    dims.map(|d| (d.max(1) - 1).div_ceil(s) as u32 + 2)
 }
 
 /// Spawns a volume layer (a 3D scalar image) drawn with `settings`; returns its entity.
@@ -514,6 +641,8 @@ pub fn spawn_volume_texture(
         lut: buffers.add(ShaderBuffer::new(&lut, RenderAssetUsages::default())),
         table: buffers.add(ShaderBuffer::new(&table, RenderAssetUsages::default())),
         opaque_depth: depth.0.clone(),
+        intermediate: images.add(intermediate_image(shear_warp::image_edge(d, settings.intermediate, settings.method))),
+        warp: buffers.add(ShaderBuffer::new(&[0u8; 32], RenderAssetUsages::default())),
     });
     let mesh = proxy_mesh(d, vol.world_from_voxel, settings);
     commands

@@ -7,7 +7,12 @@ use fascicle_render::shaders::ShaderSource;
 
 pub const VOLUME: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0a");
 
-pub const SOURCES: [ShaderSource; 1] = [(VOLUME, "volume.wgsl", include_str!("../shaders/volume.wgsl"))];
+pub const SHEAR_WARP: Handle<Shader> = uuid_handle!("0b1f5c2e-7d4a-4c61-8f3e-5a2d9e6c1b47");
+
+pub const SOURCES: [ShaderSource; 2] = [
+    (VOLUME, "volume.wgsl", include_str!("../shaders/volume.wgsl")),
+    (SHEAR_WARP, "shear_warp.wgsl", include_str!("../shaders/shear_warp.wgsl")),
+];
 
 pub(crate) fn register(app: &mut App) {
     app.add_plugins(fascicle_render::FascicleRenderPlugin);
