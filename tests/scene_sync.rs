@@ -268,7 +268,9 @@ fn splat_recolouring_rewrites_only_the_styles() {
     let scene = Scene::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/spiral50.ron")))
         .expect("spiral scene");
     let Some(mut app) = scene_app(scene) else { return };
-    app.world_mut().spawn((Camera3d::default(), Transform::from_xyz(0.0, -90.0, 40.0).looking_at(Vec3::ZERO, Vec3::Z)));
+    // A camera that renders (the splats are sorted on the GPU, per view drawn).
+    let target = headless::add_target_image(&mut app, 64, 48);
+    headless::spawn_test_camera(&mut app, target, Vec3::new(0.0, -90.0, 40.0), Vec3::ZERO);
     settle(&mut app);
     let snapshot = |app: &mut App| {
         let mut q = app.world_mut().query::<(Entity, &SplatSet)>();

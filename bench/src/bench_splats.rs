@@ -5,9 +5,12 @@
 //! size 0.5, seen along a diagonal so the whole cube fills the image; then seed 000's inputs (its 64³
 //! structure-tensor field, and the tensors of a 5-slice DWI: `seed_inputs`), named in the `n` column. Columns:
 //! - `frame_ms`: a frame with nothing moving (no re-sort, nothing uploaded);
-//! - `orbit_ms`: a frame while the camera orbits (CPU re-sort + 4 bytes per splat uploaded + draw);
+//! - `sort`: where the splats are sorted: `gpu` (the default: a compute pass per view, nothing uploaded) or
+//!   `cpu` (the fallback);
+//! - `orbit_ms`: a frame while the camera orbits (the GPU sort, or the CPU re-sort + 4 bytes per splat
+//!   uploaded, + draw);
 //! - `sort_ms`: the re-sort on the CPU (keys + O(n) radix argsort), with a parallel comparison sort
-//!   (`rayon::par_sort_unstable_by`) of the same keys for comparison;
+//!   (`rayon::par_sort_unstable_by`) of the same keys for comparison (cpu rows);
 //! - `static_us`: the CPU cost per frame of the splat systems when nothing changes;
 //! - `error` (splats): mean over pixels of the largest channel difference, in 8-bit levels, from the f64
 //!   reference compositor (`fascicle_core::dti::splat::composite`: same footprints, exact sort), and its
@@ -28,6 +31,7 @@ use fascicle_core::dti::splat::{
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture};
 use fascicle_render::reference::srgb8;
+use fascicle_tensors::gpu_sort::SplatSortMode;
 use fascicle_tensors::splat::{SplatMaterial, SplatSettings, SplatSortStats, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSettings, spawn_tensor_glyphs};
 use glam::{DMat3, DQuat, DVec3};
@@ -115,9 +119,11 @@ fn render(
     side: f64,
     size: u32,
     method: Method,
+    sort: SplatSortMode,
 ) -> Result<Timing, String> {
     let mut app = headless::headless_app();
     app.add_plugins((FascicleRenderPlugin, TensorGlyphPlugin));
+    app.insert_resource(sort);
     let target = headless::add_target_image(&mut app, size, size);
     let splats = splats.to_vec();
     let glyphs: Vec<_> = match method {
@@ -213,9 +219,9 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
         "error = splats: mean |RGB - f64 reference| in 8-bit levels (99th percentile); glyphs: not measured here\n"
     );
     println!(
-        "| method | n | param | frame (ms) | orbit frame (ms) | sort radix / rayon (ms) | static CPU (us) | error |"
+        "| method | n | param | sort | frame (ms) | orbit frame (ms) | CPU sort radix / rayon (ms) | static CPU (us) | error |"
     );
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let mut rows = Vec::new();
     let mut inputs: Vec<(String, Tensors, f64)> = sizes
         .iter()
@@ -231,14 +237,27 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
             items.iter().filter_map(|(c, t)| tensor_splat(*c, t, 0.5, DVec3::ONE, 1.0)).collect();
         SplatColouring::default().apply(&mut splats);
         let (radix, comparison) = sort_times(&splats);
-        for method in [Method::Splat, Method::Ellipsoid, Method::Superquadric] {
+        let runs = [
+            (Method::Splat, SplatSortMode::Gpu),
+            (Method::Splat, SplatSortMode::Cpu),
+            (Method::Ellipsoid, SplatSortMode::Gpu),
+            (Method::Superquadric, SplatSortMode::Gpu),
+        ];
+        for (method, sort_mode) in runs {
             if method != Method::Splat && items.len() > 100_000 {
                 continue; // one entity per glyph: 1M glyph entities are out of this machine's budget
             }
-            let t = render(&items, &splats, side, image, method)?;
-            let (err, p99, sort) = if method == Method::Splat {
+            let t = render(&items, &splats, side, image, method, sort_mode)?;
+            let sort = match (method, sort_mode) {
+                (Method::Splat, SplatSortMode::Gpu) => "gpu",
+                (Method::Splat, SplatSortMode::Cpu) => "cpu",
+                _ => "",
+            };
+            let (err, p99, sort_ms) = if method == Method::Splat {
                 let (m, p) = error(&t.capture, &splats, side, image);
-                (format!("{m:.3} ({p:.1})"), m.to_string(), format!("{radix:.1} / {comparison:.1}"))
+                let cpu_ms =
+                    if sort_mode == SplatSortMode::Cpu { format!("{radix:.1} / {comparison:.1}") } else { "-".into() };
+                (format!("{m:.3} ({p:.1})"), m.to_string(), cpu_ms)
             } else {
                 ("-".into(), String::new(), "-".into())
             };
@@ -248,26 +267,27 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
                 Method::Superquadric => "gamma=3 h=0.02 refine=5".into(),
             };
             println!(
-                "| {} | {n} | {param} | {:.1} | {:.1} | {sort} | {:.0} | {err} |",
+                "| {} | {n} | {param} | {sort} | {:.1} | {:.1} | {sort_ms} | {:.0} | {err} |",
                 method.name(),
                 t.frame_ms,
                 t.orbit_ms,
                 t.static_us
             );
+            let cpu = method == Method::Splat && sort_mode == SplatSortMode::Cpu;
             rows.push(format!(
-                "{},{n},{param},{:.2},{:.2},{},{},{:.1},{p99}",
+                "{},{n},{param},{:.2},{:.2},{},{},{:.1},{p99},{sort}",
                 method.name(),
                 t.frame_ms,
                 t.orbit_ms,
-                if method == Method::Splat { format!("{radix:.2}") } else { String::new() },
-                if method == Method::Splat { format!("{comparison:.2}") } else { String::new() },
+                if cpu { format!("{radix:.2}") } else { String::new() },
+                if cpu { format!("{comparison:.2}") } else { String::new() },
                 t.static_us
             ));
         }
     }
     if let Some(path) = csv {
         let mut f = std::fs::File::create(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        writeln!(f, "method,n,param,frame_ms,orbit_ms,sort_radix_ms,sort_rayon_ms,static_us,error")
+        writeln!(f, "method,n,param,frame_ms,orbit_ms,sort_radix_ms,sort_rayon_ms,static_us,error,sort")
             .map_err(|e| e.to_string())?;
         for r in rows {
             writeln!(f, "{r}").map_err(|e| e.to_string())?;

@@ -141,16 +141,17 @@ pub enum BenchCommand {
         /// Write the samples (every 100 frames) as CSV.
         #[arg(long)]
         csv: Option<PathBuf>,
-        /// Resident-memory growth (MiB) allowed over the second half of the run.
-        #[arg(long, default_value_t = 32.0)]
-        tolerance_mib: f64,
+        /// Resident-memory growth allowed over the second half of the run, MiB per 10,000 frames (the
+        /// least-squares slope of the curve).
+        #[arg(long, default_value_t = 1.0)]
+        max_growth: f64,
     },
 }
 
 pub fn run(cmd: BenchCommand) -> Result<(), Error> {
     match cmd {
-        BenchCommand::Soak { frames, size, csv, tolerance_mib } => {
-            crate::soak::run(frames, &size, csv.as_deref(), tolerance_mib).map_err(Error::Param)
+        BenchCommand::Soak { frames, size, csv, max_growth } => {
+            crate::soak::run(frames, &size, csv.as_deref(), max_growth).map_err(Error::Param)
         }
         BenchCommand::Edits { quick, csv, data } => {
             crate::bench_edits::run(quick, csv.as_deref(), data).map_err(Error::Param)

@@ -1,7 +1,9 @@
 //! `fascicle-bench soak` end to end, short: the default scene (every layer: slice, splats, SH glyphs,
 //! hyperstreamlines, DVR, axes) drawn 600 frames while each layer is hidden and shown again and the tract
 //! ROI moves. The soak fails when a layer reports an error or the second half of the run grows (resident
-//! memory beyond 32 MiB, or any asset or pipeline count).
+//! memory faster than the bound, or any asset or pipeline count). Over 300 frames allocator noise alone is a
+//! few MiB, so this short run's bound is 500 MiB per 10k frames (15 MiB over its second half); the 10k-frame
+//! soak (`./run bench soak`) is held to the default, 1 MiB per 10k frames.
 //!
 //! This is the regression test of a real leak: on Mesa 22.3's lavapipe, shaders that branched on uniform
 //! values alone were recompiled at every pipeline bind and never freed, 2-3 MB a frame per layer (the rule
@@ -16,7 +18,7 @@ fn default_scene_soak_is_bounded() {
         return;
     }
     let out = Command::new(env!("CARGO_BIN_EXE_fascicle-bench"))
-        .args(["soak", "--frames", "600", "--size", "64x48"])
+        .args(["soak", "--frames", "600", "--size", "64x48", "--max-growth", "500"])
         .output()
         .expect("run fascicle-bench soak");
     let stdout = String::from_utf8_lossy(&out.stdout);

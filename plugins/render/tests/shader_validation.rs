@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use naga_oil::compose::{ComposableModuleDescriptor, Composer, NagaModuleDescriptor, ShaderDefValue, ShaderLanguage};
 
-const BEVY_STUBS: [(&str, &str); 4] = [
+const BEVY_STUBS: [(&str, &str); 5] = [
     (
         "stub/mesh_functions.wgsl",
         "#define_import_path bevy_pbr::mesh_functions
@@ -38,10 +38,20 @@ struct View {
     view_from_world: mat4x4<f32>,
     clip_from_view: mat4x4<f32>,
     view_from_clip: mat4x4<f32>,
+    world_from_clip: mat4x4<f32>,
     world_position: vec3<f32>,
     viewport: vec4<f32>,
 };
 @group(0) @binding(0) var<uniform> view: View;",
+    ),
+    (
+        "stub/view.wgsl",
+        "#define_import_path bevy_render::view
+struct View {
+    clip_from_world: mat4x4<f32>,
+    world_from_view: mat4x4<f32>,
+    world_position: vec3<f32>,
+};",
     ),
 ];
 

@@ -11,6 +11,7 @@ use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::dti::glyph::{MIN_EXPONENT, TensorGlyph, TensorShape};
 
+pub mod gpu_sort;
 pub mod layer;
 pub mod shaders;
 pub mod splat;
@@ -35,7 +36,15 @@ impl Plugin for TensorGlyphPlugin {
         ))
         .init_resource::<splat::SplatSortStats>();
         layer::build(app);
+        gpu_sort::build(app);
         app.add_systems(PostUpdate, splat::sort_splats.in_set(TensorSystems::Sort));
+        if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
+            use bevy::core_pipeline::core_3d::{main_opaque_pass_3d, main_transparent_pass_3d};
+            render_app.add_systems(
+                bevy::core_pipeline::schedule::Core3d,
+                gpu_sort::sort.after(main_opaque_pass_3d).before(main_transparent_pass_3d),
+            );
+        }
     }
 }
 

@@ -8,9 +8,12 @@ use fascicle_render::shaders::ShaderSource;
 pub const TENSOR_GLYPH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a07");
 pub const TENSOR_SPLAT: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a09");
 
-pub const SOURCES: [ShaderSource; 2] = [
+pub const SPLAT_SORT: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0d");
+
+pub const SOURCES: [ShaderSource; 3] = [
     (TENSOR_GLYPH, "tensor_glyph.wgsl", include_str!("../shaders/tensor_glyph.wgsl")),
     (TENSOR_SPLAT, "tensor_splat.wgsl", include_str!("../shaders/tensor_splat.wgsl")),
+    (SPLAT_SORT, "splat_sort.wgsl", include_str!("../shaders/splat_sort.wgsl")),
 ];
 
 pub(crate) fn register(app: &mut App) {

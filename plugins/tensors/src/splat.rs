@@ -3,9 +3,11 @@
 //! (written once), their colours and opacities (rewritten alone when the colouring or the barycentric
 //! transfer function changes: no re-projection, no re-sort) and the far-to-near order of the slots.
 //!
-//! [`sort_splats`] re-sorts a set only when the view direction relative to the set changes (the order of
-//! `dot(centre, forward)` does not depend on where the camera is, only where it looks), with the O(n)
-//! radix argsort of `fascicle_core::dti::splat::argsort_desc`, and uploads 4 bytes per splat. Quads are
+//! The order is sorted on the GPU by default ([`crate::gpu_sort`]: per view, nothing uploaded). With
+//! [`SplatSortMode::Cpu`], or without compute shaders, [`sort_splats`] re-sorts a set only when the view
+//! direction relative to the set changes (the order of `dot(centre, forward)` does not depend on where the
+//! camera is, only where it looks), with the O(n) radix argsort of `fascicle_core::dti::splat::argsort_desc`,
+//! and uploads 4 bytes per splat. Quads are
 //! rasterised and blended in primitive order, so one draw composites them in that order; the set is drawn
 //! in Bevy's transparent phase, after the opaque layers, tested against their depth without writing it.
 //!
@@ -15,6 +17,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use crate::gpu_sort::{GpuSortStats, SplatSortMode, padded_len};
 use crate::shaders;
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
@@ -106,7 +109,7 @@ pub struct SplatMaterial {
     /// One `vec4` per splat: linear RGB, opacity.
     #[storage(2, read_only)]
     pub styles: Handle<ShaderBuffer>,
-    /// One `u32` per slot: the splat drawn there, far to near.
+    /// One `u32` per slot: the splat drawn there, far to near (padded to [`padded_len`] for the GPU sort).
     #[storage(3, read_only)]
     pub order: Handle<ShaderBuffer>,
 }
@@ -182,8 +185,10 @@ impl SplatSet {
 /// Costs of the last frames' sorting, for benchmarks and the viewer's status line.
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct SplatSortStats {
-    /// Sorts done so far.
+    /// Sorts done so far, on the CPU and the GPU (the GPU's counted as of the last frame's `PostUpdate`).
     pub sorts: u64,
+    /// Of which on the CPU.
+    pub cpu_sorts: u64,
     /// Wall time of the last sort (keys, argsort, packing), ms.
     pub last_sort_ms: f64,
     /// Bytes uploaded by the last sort.
@@ -263,7 +268,7 @@ pub fn spawn_splats(
         // The two rewritable buffers stay in the main world too: rewriting a render-world-only buffer
         // reached the GPU once and then never again (Bevy 0.19.1, seen in `gpu_splats`).
         styles: buffers.add(ShaderBuffer::new(&pad(pack_styles(&splats)), RenderAssetUsages::default())),
-        order: buffers.add(ShaderBuffer::new(&vec![0u8; 4 * n.max(1)], RenderAssetUsages::default())),
+        order: buffers.add(ShaderBuffer::new(&vec![0u8; 4 * padded_len(n)], RenderAssetUsages::default())),
     });
     let mut e = commands.spawn((
         SplatSet { material: material.clone(), splats: Arc::new(splats), sorted_for: None },
@@ -281,17 +286,26 @@ pub fn spawn_splats(
     e.id()
 }
 
-/// Re-sorts every splat set whose view direction changed since its last sort, for the active 3D camera
-/// drawn last among those that see it (their render layers meet the set's): the viewer's or the headless
-/// renderer's, not an overlay or another view on other layers.
+/// The CPU sort ([`SplatSortMode::Cpu`], or the GPU's fallback): re-sorts every splat set whose view
+/// direction changed since its last sort, for the active 3D camera drawn last among those that see it (their
+/// render layers meet the set's): the viewer's or the headless renderer's, not an overlay or another view on
+/// other layers.
+#[allow(clippy::too_many_arguments, reason = "the sort's inputs, outputs and mode")]
 pub fn sort_splats(
     cameras: Query<(&Camera, &GlobalTransform, Option<&RenderLayers>), With<Camera3d>>,
     mut sets: Query<(&mut SplatSet, &GlobalTransform, Option<&RenderLayers>)>,
     materials: Res<Assets<SplatMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut stats: ResMut<SplatSortStats>,
+    mode: Res<SplatSortMode>,
+    gpu: Res<GpuSortStats>,
 ) {
     let t0 = Instant::now();
+    stats.sorts = stats.cpu_sorts + gpu.sorts();
+    if *mode == SplatSortMode::Gpu && !gpu.compute_unavailable() {
+        stats.last_system_ms = t0.elapsed().as_secs_f64() * 1e3;
+        return;
+    }
     let default_layers = RenderLayers::default();
     for (mut set, gt, layers) in &mut sets {
         let layers = layers.unwrap_or(&default_layers);
@@ -311,7 +325,9 @@ pub fn sort_splats(
         }
         let s0 = Instant::now();
         let keys = depth_keys(set.splats.iter().map(|s| s.centre.as_vec3().to_array()), dir.to_array());
-        let order = argsort_desc(&keys);
+        let mut order = argsort_desc(&keys);
+        // The slots past the splats (the GPU sort's padding) name themselves; the draw never reads them.
+        order.extend(order.len() as u32..padded_len(order.len()) as u32);
         let bytes: Vec<u8> = order.iter().flat_map(|i| i.to_le_bytes()).collect();
         stats.last_upload_bytes = bytes.len();
         if let Some(mat) = materials.get(&set.material)
@@ -320,6 +336,7 @@ pub fn sort_splats(
             b.data = Some(bytes);
         }
         set.sorted_for = Some(dir);
+        stats.cpu_sorts += 1;
         stats.sorts += 1;
         stats.last_sort_ms = s0.elapsed().as_secs_f64() * 1e3;
     }
