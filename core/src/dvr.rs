@@ -363,15 +363,14 @@ impl ShearWarpView {
 /// The f64 twin of shear-warp's compositing pass: the intermediate image (premultiplied RGBA, row major,
 /// `view.size`), each pixel's ray crossing the planes front to back, each plane sampled bilinearly in its
 /// plane (clamped to the edge voxels), post-classified over the planes' spacing along the ray, stopping at
-/// `termination` or at the first sample `hidden` says is behind an opaque surface (world point); samples
-/// outside `clip` are skipped.
+/// `termination`; samples outside `clip` are skipped. Whole rays: opaque surfaces are the warp's business
+/// (a pixel whose ray meets one inside the volume is marched instead of warped).
 pub fn shear_warp_image(
     vol: &Volume<f32>,
     lut: &Lut,
     view: &ShearWarpView,
     clip: (DVec3, DVec3),
     termination: f64,
-    hidden: impl Fn(DVec3) -> bool,
 ) -> Vec<DVec4> {
     let dims = vol.dims3();
     let k = view.axis;
@@ -397,9 +396,6 @@ pub fn shear_warp_image(
             let p = b + per_plane * (c - view.base) * d[k].signum();
             if p.cmplt(clip.0).any() || p.cmpgt(clip.1).any() {
                 continue;
-            }
-            if hidden(mm.transform_point3(p)) {
-                break;
             }
             let fu = p[u].clamp(0.0, dims[u] as f64 - 1.0);
             let fw = p[w].clamp(0.0, dims[w] as f64 - 1.0);

@@ -3,8 +3,9 @@
 //! (written once), their colours and opacities (rewritten alone when the colouring or the barycentric
 //! transfer function changes: no re-projection, no re-sort) and the far-to-near order of the slots.
 //!
-//! The order is sorted on the GPU by default ([`crate::gpu_sort`]: per view, nothing uploaded). With
-//! [`SplatSortMode::Cpu`], or without compute shaders, [`sort_splats`] re-sorts a set only when the view
+//! The order is sorted on the GPU ([`crate::gpu_sort`]: per view, nothing uploaded) on hardware adapters.
+//! With [`SplatSortMode::Cpu`], without compute shaders, or on a software rasteriser (by default),
+//! [`sort_splats`] re-sorts a set only when the view
 //! direction relative to the set changes (the order of `dot(centre, forward)` does not depend on where the
 //! camera is, only where it looks), with the O(n) radix argsort of `fascicle_core::dti::splat::argsort_desc`,
 //! and uploads 4 bytes per splat. Quads are
@@ -302,7 +303,7 @@ pub fn sort_splats(
 ) {
     let t0 = Instant::now();
     stats.sorts = stats.cpu_sorts + gpu.sorts();
-    if *mode == SplatSortMode::Gpu && !gpu.compute_unavailable() {
+    if gpu.uses_gpu(*mode) {
         stats.last_system_ms = t0.elapsed().as_secs_f64() * 1e3;
         return;
     }

@@ -2,7 +2,7 @@
 //! exact (far to near) where depths differ, and the splats' index order where they tie, as the CPU's stable
 //! radix argsort; across the padding and the global merge steps (thousands of splats); and camera motion over
 //! 1M splats uploads nothing (no order buffer written from the CPU, no CPU sort), while the GPU re-sorts per
-//! new view direction.
+//! new view direction. (`SplatSortMode::Gpu`: the default, `Auto`, sorts on the CPU on lavapipe.)
 
 use std::sync::{Arc, Mutex};
 
@@ -13,7 +13,7 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::dti::splat::{Splat, argsort_desc, tensor_splat};
 use fascicle_render::headless;
 use fascicle_tensors::TensorGlyphPlugin;
-use fascicle_tensors::gpu_sort::{GpuSortStats, padded_len};
+use fascicle_tensors::gpu_sort::{GpuSortStats, SplatSortMode, padded_len};
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, SplatSettings, SplatSortStats, spawn_splats};
 use glam::DVec3;
 
@@ -26,7 +26,7 @@ fn splat_at(c: DVec3) -> Splat {
 /// Renders `splats` from `eye` (looking at the origin) and reads back the set's order buffer.
 fn gpu_order(splats: Vec<Splat>, eye: Vec3) -> Option<(Vec<u32>, GpuSortStats)> {
     let (mut app, target) = headless::gpu_test_app(64, 48)?;
-    app.add_plugins(TensorGlyphPlugin);
+    app.add_plugins(TensorGlyphPlugin).insert_resource(SplatSortMode::Gpu);
     let out: Arc<Mutex<Vec<u32>>> = Arc::default();
     let sink = out.clone();
     app.add_systems(
@@ -121,7 +121,7 @@ fn orbiting_a_million_splats_uploads_nothing() {
         })
         .collect();
     let Some((mut app, target)) = headless::gpu_test_app(32, 32) else { return };
-    app.add_plugins(TensorGlyphPlugin);
+    app.add_plugins(TensorGlyphPlugin).insert_resource(SplatSortMode::Gpu);
     app.add_systems(
         Startup,
         move |mut commands: Commands,

@@ -2,9 +2,10 @@
 // the intermediate image, which lies on the voxel plane `base` of the principal axis k (the axis whose planes
 // face the view most). Its ray (through the eye in perspective, along the view in orthographic) crosses the
 // voxel planes of k in order, front to back; each plane is resampled bilinearly where the ray crosses it (the
-// shear: with the eye's projection fixed, the planes slide and scale against each other) and composited. The
-// ray stops at the opaque layers' depth: its one screen pixel (every intermediate ray is a pixel ray) is
-// looked up once. The warp half is `volume.wgsl`'s method 5: the 2D image resampled onto the screen.
+// shear: with the eye's projection fixed, the planes slide and scale against each other) and composited,
+// whole: pixels whose ray meets an opaque surface inside the volume are marched by the warp instead (a ray
+// stopped here would darken its neighbours through the warp's resampling). Intermediate pixels off the view
+// (each intermediate ray is a pixel ray) are skipped. The warp half is `volume.wgsl`'s method 5.
 // The f64 twin is `fascicle_core::dvr::shear_warp_march`; keep `ShearWarpParams` in sync with
 // `ShearWarpUniform` in `plugins/volume/src/shear_warp.rs`.
 
@@ -48,9 +49,8 @@ struct Warp {
 @group(0) @binding(0) var<uniform> params: ShearWarpParams;
 @group(0) @binding(1) var volume: texture_3d<f32>;
 @group(0) @binding(2) var<storage, read> lut: array<vec4<f32>>;
-@group(0) @binding(3) var opaque_depth: texture_depth_2d;
-@group(0) @binding(4) var image: texture_storage_2d<rgba16float, write>;
-@group(0) @binding(5) var<storage, read_write> warp: Warp;
+@group(0) @binding(3) var image: texture_storage_2d<rgba16float, write>;
+@group(0) @binding(4) var<storage, read_write> warp: Warp;
 
 const LUT_N: u32 = 256u;
 
@@ -90,7 +90,7 @@ fn composite(@builtin(global_invocation_id) id: vec3<u32>) {
     // The ray's direction with a unit step along k (from one plane to the next).
     let d = select(e, b - e, perspective);
     let per_plane = d / abs(d[k]);
-    // Its screen pixel and the opaque depth there: planes beyond it are not composited.
+    // Its screen pixel: off the view, nothing to composite.
     let wb = params.world_from_voxel * vec4<f32>(b, 1.0);
     let cb = params.clip_from_world * wb;
     let ndc = cb.xyz / cb.w;
@@ -98,7 +98,6 @@ fn composite(@builtin(global_invocation_id) id: vec3<u32>) {
     let inside = all(px >= params.viewport.xy) && all(px < params.viewport.xy + params.viewport.zw) && cb.w > 0.0;
     var acc = vec4<f32>(0.0);
     if inside {
-        let z_opaque = textureLoad(opaque_depth, vec2<i32>(floor(px)), 0);
         // Step length in mm between planes along this ray.
         let mm = length((params.world_from_voxel * vec4<f32>(per_plane, 0.0)).xyz);
         for (var i = 0u; i < params.planes; i++) {
@@ -106,10 +105,6 @@ fn composite(@builtin(global_invocation_id) id: vec3<u32>) {
             let p = b + per_plane * (c - params.base) * sign(d[k]);
             if any(p < params.clip_lo.xyz) || any(p > params.clip_hi.xyz) {
                 continue;
-            }
-            let cp = params.clip_from_world * (params.world_from_voxel * vec4<f32>(p, 1.0));
-            if z_opaque > 0.0 && cp.z / cp.w < z_opaque {
-                break;
             }
             // Bilinear within plane c.
             let fu = clamp(p[u], 0.0, params.dims[u] - 1.0);

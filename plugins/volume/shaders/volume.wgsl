@@ -451,7 +451,7 @@ fn tetrahedron(in: VolumeVertexOutput, o: vec3<f32>, d: vec3<f32>, t_lo: f32, t_
 }
 
 // Shear-warp's warp: the intermediate image read bilinearly where the ray meets its plane (transparent off
-// the image). The pass already stopped each ray at the opaque depth.
+// the image).
 fn warped(o: vec3<f32>, d: vec3<f32>) -> vec4<f32> {
     let k = warp.axis;
     let u = (k + 1u) % 3u;
@@ -520,7 +520,10 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     if in.modes.x == 8u {
         return tetrahedron(in, o, d, t0, t1);
     }
-    if in.modes.x == 9u {
+    // Shear-warp: the intermediate image composited whole rays; where an opaque surface lies inside the
+    // volume on this pixel's ray, the pixel is marched up to it instead (below), so small opaque objects
+    // neither darken their neighbours through the warp's resampling nor show what lies behind them.
+    if in.modes.x == 9u && t_stop >= min(min(tmax.x, tmax.y), tmax.z) {
         return warped(o, d);
     }
     if t0 >= t1 {

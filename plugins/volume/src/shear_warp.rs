@@ -1,12 +1,13 @@
 //! Shear-warp (Lacroute and Levoy 1994) on the GPU: per view, a compute pass composites the voxel planes of
 //! the principal axis into an intermediate image lying on the front plane (`shaders/shear_warp.wgsl`: each
-//! plane resampled bilinearly where the intermediate pixel's ray crosses it, front to back, stopping at the
-//! opaque depth); then the volume's box is drawn and each fragment warps, reading the intermediate image
-//! bilinearly where its ray meets that plane (`shaders/volume.wgsl`, method 5). Compositing happens at the
+//! plane resampled bilinearly where the intermediate pixel's ray crosses it, front to back); then the
+//! volume's box is drawn and each fragment warps, reading the intermediate image bilinearly where its ray
+//! meets that plane (`shaders/volume.wgsl`, method 5). A pixel whose ray meets an opaque surface inside the
+//! volume is ray-marched up to it instead (a few pixels: glyphs inside the volume). Compositing happens at the
 //! volume's resolution ([`VolumeSettings::intermediate`] pixels per voxel), not the screen's: that is the
 //! method's speed and its blur.
 //!
-//! The pass runs in `Core3d` after the opaque depth is copied and before the transparent pass, once per view
+//! The pass runs in `Core3d` before the transparent pass, once per view
 //! that sees the volume; the warp's parameters (axis, plane, the image's placement) are written by the pass
 //! itself into a small buffer the warp reads, so each view warps its own image.
 
@@ -14,8 +15,7 @@ use bevy::camera::visibility::RenderLayers;
 use bevy::prelude::*;
 use bevy::render::render_asset::RenderAssets;
 use bevy::render::render_resource::binding_types::{
-    storage_buffer_read_only_sized, storage_buffer_sized, texture_3d, texture_depth_2d, texture_storage_2d,
-    uniform_buffer,
+    storage_buffer_read_only_sized, storage_buffer_sized, texture_3d, texture_storage_2d, uniform_buffer,
 };
 use bevy::render::render_resource::{
     BindGroupEntries, BindGroupLayoutDescriptor, BindGroupLayoutEntries, BufferUsages, CachedComputePipelineId,
@@ -30,7 +30,7 @@ use bevy::render::{Extract, RenderApp, RenderStartup};
 use fascicle_core::dvr::{ShearWarpView, shear_warp_view};
 use glam::DMat4;
 
-use crate::{OpaqueDepth, VolumeMaterial, VolumeMethod, VolumeSet, shaders};
+use crate::{VolumeMaterial, VolumeMethod, VolumeSet, shaders};
 
 /// The intermediate image's format (written by the pass, read by the warp).
 pub const IMAGE_FORMAT: TextureFormat = TextureFormat::Rgba16Float;
@@ -109,7 +109,6 @@ fn init_pipeline(mut commands: Commands, cache: Res<PipelineCache>) {
                 uniform_buffer::<ShearWarpUniform>(false),
                 texture_3d(TextureSampleType::Float { filterable: false }),
                 storage_buffer_read_only_sized(false, None),
-                texture_depth_2d(),
                 texture_storage_2d(IMAGE_FORMAT, StorageTextureAccess::WriteOnly),
                 storage_buffer_sized(false, None),
             ),
@@ -164,16 +163,14 @@ pub(crate) fn composite(
     cache: Res<PipelineCache>,
     images: Res<RenderAssets<GpuImage>>,
     buffers: Res<RenderAssets<GpuShaderBuffer>>,
-    depth: Option<Res<OpaqueDepth>>,
     device: Res<RenderDevice>,
     mut ctx: RenderContext,
 ) {
     if jobs.0.is_empty() {
         return;
     }
-    let (Some(pipeline), Some(depth)) = (pipeline, depth) else { return };
+    let Some(pipeline) = pipeline else { return };
     let Some(compute) = cache.get_compute_pipeline(pipeline.id) else { return };
-    let Some(depth) = images.get(depth.0.id()) else { return };
     let (view, view_layers) = view.into_inner();
     let view_layers = view_layers.cloned().unwrap_or_default();
     let world_from_view = view.world_from_view.to_matrix();
@@ -220,7 +217,6 @@ pub(crate) fn composite(
                 params.as_entire_binding(),
                 &volume.texture_view,
                 lut.buffer.as_entire_binding(),
-                &depth.texture_view,
                 &image.texture_view,
                 warp.buffer.as_entire_binding(),
             )),
