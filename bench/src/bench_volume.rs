@@ -97,11 +97,11 @@ fn camera(vol: &Volume<f32>, size: u32) -> PinholeCamera {
     }
 }
 
-fn render(vol: &Volume<f32>, settings: &VolumeSettings, size: u32) -> Result<(f64, Capture), String> {
+fn render(vol: &Volume<f32>, cam: &PinholeCamera, settings: &VolumeSettings) -> Result<(f64, Capture), String> {
+    let size = cam.width;
     let mut app = headless::headless_app();
     app.add_plugins((FascicleRenderPlugin, VolumePlugin));
     let target = headless::add_target_image(&mut app, size, size);
-    let cam = camera(vol, size);
     let (vol, s) = (vol.clone(), settings.clone());
     app.add_systems(
         PostStartup,
@@ -129,8 +129,8 @@ fn render(vol: &Volume<f32>, settings: &VolumeSettings, size: u32) -> Result<(f6
     Ok((t.elapsed().as_secs_f64() * 1e3 / FRAMES as f64, capture))
 }
 
-fn reference(vol: &Volume<f32>, tf: &TransferFunction, size: u32) -> Vec<DVec3> {
-    let cam = camera(vol, size);
+fn reference(vol: &Volume<f32>, cam: &PinholeCamera, tf: &TransferFunction) -> Vec<DVec3> {
+    let size = cam.width;
     let lut = tf.lut();
     let inv = vol.world_from_voxel.inverse();
     let p = MarchParams { step: 0.1, termination: 2.0, ..MarchParams::default() };
@@ -217,10 +217,12 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
     for (name, vol, tf) in volumes {
         let d = vol.dims3();
         let t = Instant::now();
-        let want = reference(&vol, &tf, image);
+        // The camera frames the volume's content: found once per volume (a scan of every voxel).
+        let cam = camera(&vol, image);
+        let want = reference(&vol, &cam, &tf);
         eprintln!("reference for {name} {d:?}: {:.1} s", t.elapsed().as_secs_f64());
         for (method, param, s) in method_rows(&vol, &tf, quick) {
-            let (ms, img) = render(&vol, &s, image)?;
+            let (ms, img) = render(&vol, &cam, &s)?;
             let err = error(&img, &want, image);
             if let Ok(dir) = std::env::var("FASCICLE_BENCH_OUT") {
                 let png = img.to_png().unwrap_or_default();
