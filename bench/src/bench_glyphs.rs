@@ -36,7 +36,7 @@ fn frames(w: u32, h: u32) -> u32 {
     if w * h > 1 << 20 { 1 } else { 3 }
 }
 /// Mesh settings above this many vertices are skipped (memory).
-const MAX_MESH_VERTICES: usize = 24_000_000;
+const MAX_MESH_VERTICES: usize = 48_000_000;
 
 #[derive(Clone, Copy)]
 enum Method {
@@ -204,7 +204,7 @@ fn sweep(quick: bool) -> Vec<Method> {
         .collect();
     let hs: &[f32] = if quick { &[0.08, 0.02] } else { &[0.08, 0.04, 0.02] };
     m.extend(hs.iter().map(|&h| Method::Linear { h, refine: 4 }));
-    let orders: &[u32] = if quick { &[2, 3, 4] } else { &[3, 4] };
+    let orders: &[u32] = if quick { &[2, 3, 4, 5] } else { &[3, 4, 5] };
     m.extend(orders.iter().map(|&order| Method::Mesh { order }));
     m
 }

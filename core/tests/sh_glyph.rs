@@ -1,10 +1,11 @@
-//! The glyph ray caster's math (the f64 twin of `plugins/sh_glyphs/shaders/lib/sh.wgsl` and `plugins/sh_glyphs/shaders/sh_glyph.wgsl`) against
+//! The glyph ray caster's math (the f64 twin of `plugins/sh_glyphs/shaders/sh_glyph.wgsl`) against
 //! the core's trigonometric SH evaluation, closed forms, and its own bracketing bound.
 
 mod common;
 
 use fascicle_core::sh::glyph::{
-    GLYPH_BASIS, Glyph, GlyphStyle, Lobes, Normalise, cast, cast_exact, eval_cartesian, make_glyphs,
+    GLYPH_BASIS, Glyph, GlyphStyle, Lobes, Normalise, cast, cast_exact, chebyshev_form, eval_cartesian,
+    eval_chebyshev_form, make_glyphs,
 };
 use fascicle_core::sh::{self, ShBasis, n_coeffs};
 use glam::DVec3;
@@ -50,6 +51,31 @@ fn cartesian_evaluation_matches_the_trigonometric_basis() {
         }
     }
     println!("Cartesian vs trigonometric SH: value {:.1e}, gradient {:.1e} (relative)", worst.0, worst.1);
+}
+
+#[test]
+fn chebyshev_form_is_the_same_polynomial_as_the_legendre_recurrence() {
+    // The shader's internal form (made on upload) against the recurrence it replaced: value and the whole
+    // gradient of the extension (the same polynomial off the sphere too), poles included, l 0-16.
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    for l_max in (0usize..=16).step_by(2) {
+        let c = random_coeffs(&mut rng, l_max);
+        let f = chebyshev_form(&c, l_max);
+        assert_eq!(f.len(), n_coeffs(l_max), "l {l_max}: one number per coefficient");
+        let scale = c.iter().map(|x| x.abs()).sum::<f64>() * (l_max as f64 + 1.0).powi(2);
+        for k in 0..200 {
+            let u = match k {
+                0 => DVec3::Z,
+                1 => -DVec3::Z,
+                2 => DVec3::X,
+                _ => random_dir(&mut rng),
+            };
+            let (v_ref, g_ref) = eval_cartesian(&c, l_max, u);
+            let (v, g) = eval_chebyshev_form(&f, l_max, u);
+            assert!((v - v_ref).abs() < 1e-12 * scale, "l {l_max} u {u}: {v} vs {v_ref}");
+            assert!((g - g_ref).length() < 1e-11 * scale, "l {l_max} u {u}: {g} vs {g_ref}");
+        }
+    }
 }
 
 #[test]

@@ -30,7 +30,7 @@ pub const GLYPH_BASIS: ShBasis = ShBasis::Tournier07 { legacy: false };
 pub const MAX_GLYPH_L: usize = 16;
 
 /// ψ at unit `u` and the Cartesian gradient of its polynomial extension; `c` in [`GLYPH_BASIS`].
-/// Mirrors `sh_eval` in `plugins/sh_glyphs/shaders/lib/sh.wgsl` term by term.
+/// Mirrors `sh_value` in `plugins/sh_glyphs/shaders/sh_glyph.wgsl` term by term.
 pub fn eval_cartesian(c: &[f64], l_max: usize, u: DVec3) -> (f64, DVec3) {
     let (x, y, z) = (u.x, u.y, u.z);
     let inv4pi = 1.0 / (4.0 * std::f64::consts::PI);
@@ -80,6 +80,132 @@ pub fn eval_cartesian(c: &[f64], l_max: usize, u: DVec3) -> (f64, DVec3) {
                 grad.z += dq * (kc * cm + ks * sm);
             }
         }
+    }
+    (val, grad)
+}
+
+/// `Q_lm(z)` for `l = m..=l_max`: the orthonormal associated Legendre function (Condon-Shortley phase) over
+/// `sin^m θ`, a polynomial in `z = cos θ`, by the recurrence of [`eval_cartesian`].
+fn legendre_q(l_max: usize, m: usize, z: f64) -> Vec<f64> {
+    let prod: f64 = (1..=m).map(|k| (2 * k - 1) as f64 / (2 * k) as f64).product();
+    let sign = if m.is_multiple_of(2) { 1.0 } else { -1.0 };
+    let mut q = Vec::with_capacity(l_max + 1 - m);
+    q.push(sign * ((2 * m + 1) as f64 / (4.0 * std::f64::consts::PI) * prod).sqrt());
+    let mf = m as f64;
+    for l in m + 1..=l_max {
+        let lf = l as f64;
+        let next = if l == m + 1 {
+            ((2 * m + 3) as f64).sqrt() * z * q[0]
+        } else {
+            let a = ((4.0 * lf * lf - 1.0) / (lf * lf - mf * mf)).sqrt();
+            let b = (((lf - 1.0).powi(2) - mf * mf) / (4.0 * (lf - 1.0).powi(2) - 1.0)).sqrt();
+            a * (z * q[l - m - 1] - b * q[l - m - 2])
+        };
+        q.push(next);
+    }
+    q
+}
+
+/// Terms of each Chebyshev series of band `m` in the [`chebyshev_form`] of an even order `l_max`.
+pub fn chebyshev_terms(l_max: usize, m: usize) -> usize {
+    (l_max - m) / 2 + 1
+}
+
+/// The glyph shader's internal form of coefficients `c` (in [`GLYPH_BASIS`], even `l_max`), made once per
+/// glyph on upload. ψ(u) = Σ_m Re((x + iy)^m) A_m(z) + Im((x + iy)^m) B_m(z) (the extension of
+/// [`eval_cartesian`]); A_m and B_m are polynomials in z of degree `l_max - m` with the parity of m, so
+/// `z^(m mod 2) g(w)` with `w = 2z² - 1`, and each `g` is stored as its Chebyshev series in w
+/// ([`chebyshev_terms`] coefficients, from its values at the Chebyshev nodes: exact for its degree). Band by
+/// band, A then B (B absent for m = 0): [`n_coeffs`]`(l_max)` numbers, as many as the coefficients.
+/// Evaluated by Clenshaw's recurrence ([`eval_chebyshev_form`], the shader's `sh_value`): a few operations
+/// per coefficient instead of the Legendre recurrence over every (l, m), and well conditioned in f32
+/// (a power basis in z loses 4 digits at l_max 12).
+pub fn chebyshev_form(c: &[f64], l_max: usize) -> Vec<f64> {
+    let sqrt2 = std::f64::consts::SQRT_2;
+    let mut out = Vec::with_capacity(n_coeffs(l_max));
+    for m in 0..=l_max {
+        let nt = chebyshev_terms(l_max, m);
+        let nodes: Vec<(f64, Vec<f64>)> = (0..nt)
+            .map(|i| {
+                let w = (std::f64::consts::PI * (i as f64 + 0.5) / nt as f64).cos();
+                let z = ((w + 1.0) / 2.0).sqrt();
+                (z, legendre_q(l_max, m, z))
+            })
+            .collect();
+        for part in 0..if m == 0 { 1 } else { 2 } {
+            let g: Vec<f64> = nodes
+                .iter()
+                .map(|(z, q)| {
+                    let a: f64 = (m..=l_max)
+                        .filter(|l| l % 2 == 0)
+                        .map(|l| {
+                            let base = l * (l + 1) / 2;
+                            let k = match (m, part) {
+                                (0, _) => c[base],
+                                (_, 0) => sqrt2 * c[base + m],
+                                _ => sqrt2 * c[base - m],
+                            };
+                            k * q[l - m]
+                        })
+                        .sum();
+                    if m % 2 == 1 { a / z } else { a }
+                })
+                .collect();
+            for j in 0..nt {
+                let s: f64 = (0..nt)
+                    .map(|i| g[i] * (std::f64::consts::PI * (j * (2 * i + 1)) as f64 / (2 * nt) as f64).cos())
+                    .sum();
+                out.push(s * if j == 0 { 1.0 } else { 2.0 } / nt as f64);
+            }
+        }
+    }
+    out
+}
+
+/// `z^odd g(w)` and its derivative in z, `g` the Chebyshev series `c` in `w = 2z² - 1` (Clenshaw; g' as the
+/// series Σ j c_j U_{j-1}).
+fn chebyshev_series(c: &[f64], z: f64, odd: bool) -> (f64, f64) {
+    let w = 2.0 * z * z - 1.0;
+    let (mut b1, mut b2) = (0.0, 0.0);
+    for j in (1..c.len()).rev() {
+        (b1, b2) = (2.0 * w * b1 - b2 + c[j], b1);
+    }
+    let g = w * b1 - b2 + c[0];
+    let (mut d1, mut d2) = (0.0, 0.0);
+    for j in (1..c.len()).rev() {
+        (d1, d2) = (2.0 * w * d1 - d2 + j as f64 * c[j], d1);
+    }
+    // dg/dz = g'(w) 4z.
+    let dg = d1 * 4.0 * z;
+    if odd { (z * g, g + z * dg) } else { (g, dg) }
+}
+
+/// ψ at unit `u` and the Cartesian gradient of its extension, from the [`chebyshev_form`] `f`: equal to
+/// [`eval_cartesian`] (the same polynomial). Mirrors `sh_value_grad` in
+/// `plugins/sh_glyphs/shaders/sh_glyph.wgsl` term by term.
+pub fn eval_chebyshev_form(f: &[f64], l_max: usize, u: DVec3) -> (f64, DVec3) {
+    let (mut val, mut grad) = (0.0, DVec3::ZERO);
+    let (mut cm, mut sm, mut cm1, mut sm1) = (1.0f64, 0.0f64, 0.0f64, 0.0f64);
+    let mut at = 0;
+    for m in 0..=l_max {
+        if m > 0 {
+            let (c_new, s_new) = (cm * u.x - sm * u.y, cm * u.y + sm * u.x);
+            (cm1, sm1, cm, sm) = (cm, sm, c_new, s_new);
+        }
+        let nt = chebyshev_terms(l_max, m);
+        let (a, da) = chebyshev_series(&f[at..at + nt], u.z, m % 2 == 1);
+        at += nt;
+        let (b, db) = if m == 0 {
+            (0.0, 0.0)
+        } else {
+            at += nt;
+            chebyshev_series(&f[at - nt..at], u.z, m % 2 == 1)
+        };
+        let mf = m as f64;
+        val += cm * a + sm * b;
+        grad.x += mf * (a * cm1 + b * sm1);
+        grad.y += mf * (b * cm1 - a * sm1);
+        grad.z += cm * da + sm * db;
     }
     (val, grad)
 }

@@ -20,7 +20,6 @@
 #import fascicle::ray::{Ray, view_ray, depth_of, sphere_interval}
 #import fascicle::lighting::headlight
 #import fascicle::colormap::viridis
-#import fascicle::sh::{sh_value, sh_value_grad}
 
 struct GlyphParams {
     l_max: u32,
@@ -48,6 +47,151 @@ struct GlyphParams {
 // Per glyph, `stride` coefficients in the glyph basis.
 @group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> coeffs: array<f32>;
 
+// psi on the sphere from the glyph's internal form (`fascicle_core::sh::glyph::chebyshev_form`, made on
+// upload): psi(u) = sum over m of Re((x + iy)^m) A_m(z) + Im((x + iy)^m) B_m(z), where A_m and B_m are
+// z^(m mod 2) times a Chebyshev series in w = 2z^2 - 1 of (l_max - m) / 2 + 1 terms, band by band, A then B
+// (no B for m = 0). Clenshaw's recurrence costs two operations per stored number; the Legendre recurrence
+// it replaced cost a dozen per (l, m), and the form stays accurate in f32 (a power basis would not). The
+// numbers are read from the glyph's slice of `coeffs` where used: no per-fragment copy into a private
+// array, which a software rasteriser keeps in memory. f64 twin: `eval_chebyshev_form`.
+
+// Twelve directions at once, as three vec4 (the exact method's samples): each stored number is read once
+// for all twelve. Arrays indexed only in loops of fixed length (unrolled: registers).
+struct Dirs {
+    x: array<vec4<f32>, 3>,
+    y: array<vec4<f32>, 3>,
+    z: array<vec4<f32>, 3>,
+};
+
+// The Chebyshev series at `at`, `nt` terms, at the twelve w.
+fn clenshaw12(at: u32, nt: u32, w: array<vec4<f32>, 3>) -> array<vec4<f32>, 3> {
+    var b1 = array<vec4<f32>, 3>(vec4<f32>(0.0), vec4<f32>(0.0), vec4<f32>(0.0));
+    var b2 = b1;
+    for (var j = nt - 1u; j > 0u; j--) {
+        let cj = coeffs[at + j];
+        for (var g = 0u; g < 3u; g++) {
+            let b0 = 2.0 * w[g] * b1[g] - b2[g] + cj;
+            b2[g] = b1[g];
+            b1[g] = b0;
+        }
+    }
+    let c0 = coeffs[at];
+    var out: array<vec4<f32>, 3>;
+    for (var g = 0u; g < 3u; g++) {
+        out[g] = w[g] * b1[g] - b2[g] + c0;
+    }
+    return out;
+}
+
+// psi at twelve unit directions, the glyph's form from `first`.
+fn sh_value12(first: u32, l_max: u32, d: Dirs) -> array<vec4<f32>, 3> {
+    var w: array<vec4<f32>, 3>;
+    var cm: array<vec4<f32>, 3>;
+    var sm: array<vec4<f32>, 3>;
+    for (var g = 0u; g < 3u; g++) {
+        w[g] = 2.0 * d.z[g] * d.z[g] - 1.0;
+        cm[g] = vec4<f32>(1.0);
+        sm[g] = vec4<f32>(0.0);
+    }
+    var val = clenshaw12(first, l_max / 2u + 1u, w);
+    var at = first + l_max / 2u + 1u;
+    for (var m = 1u; m <= l_max; m++) {
+        let nt = (l_max - m) / 2u + 1u;
+        let a = clenshaw12(at, nt, w);
+        let b = clenshaw12(at + nt, nt, w);
+        at += 2u * nt;
+        for (var g = 0u; g < 3u; g++) {
+            let c_new = cm[g] * d.x[g] - sm[g] * d.y[g];
+            sm[g] = cm[g] * d.y[g] + sm[g] * d.x[g];
+            cm[g] = c_new;
+            let odd = select(vec4<f32>(1.0), d.z[g], m % 2u == 1u);
+            val[g] += odd * (cm[g] * a[g] + sm[g] * b[g]);
+        }
+    }
+    return val;
+}
+
+// The Chebyshev series at `at`, `nt` terms, at w (one direction).
+fn clenshaw(at: u32, nt: u32, w: f32) -> f32 {
+    var b1 = 0.0;
+    var b2 = 0.0;
+    for (var j = nt - 1u; j > 0u; j--) {
+        let b0 = 2.0 * w * b1 - b2 + coeffs[at + j];
+        b2 = b1;
+        b1 = b0;
+    }
+    return w * b1 - b2 + coeffs[at];
+}
+
+// psi(u) for unit u (one direction: the linear search's step), as `sh_value12`.
+fn sh_value(first: u32, l_max: u32, u: vec3<f32>) -> f32 {
+    let w = 2.0 * u.z * u.z - 1.0;
+    var val = clenshaw(first, l_max / 2u + 1u, w);
+    var at = first + l_max / 2u + 1u;
+    var cm = 1.0;
+    var sm = 0.0;
+    for (var m = 1u; m <= l_max; m++) {
+        let c_new = cm * u.x - sm * u.y;
+        sm = cm * u.y + sm * u.x;
+        cm = c_new;
+        let nt = (l_max - m) / 2u + 1u;
+        let odd = select(1.0, u.z, m % 2u == 1u);
+        val += odd * (cm * clenshaw(at, nt, w) + sm * clenshaw(at + nt, nt, w));
+        at += 2u * nt;
+    }
+    return val;
+}
+
+// The Chebyshev series at `at` (nt terms) in w = 2z^2 - 1 times z^odd, and its derivative in z (g' as the
+// series sum j c_j U_{j-1}(w)).
+fn clenshaw_grad(at: u32, nt: u32, z: f32, odd: bool) -> vec2<f32> {
+    let w = 2.0 * z * z - 1.0;
+    var b1 = 0.0;
+    var b2 = 0.0;
+    var d1 = 0.0;
+    var d2 = 0.0;
+    for (var j = nt - 1u; j > 0u; j--) {
+        let cj = coeffs[at + j];
+        let b0 = 2.0 * w * b1 - b2 + cj;
+        b2 = b1;
+        b1 = b0;
+        let d0 = 2.0 * w * d1 - d2 + f32(j) * cj;
+        d2 = d1;
+        d1 = d0;
+    }
+    let g = w * b1 - b2 + coeffs[at];
+    let dg = d1 * 4.0 * z;
+    return select(vec2<f32>(g, dg), vec2<f32>(z * g, g + z * dg), odd);
+}
+
+// (psi(u), gradient of the extension of psi at u). The surface gradient is the tangential part,
+// grad - dot(grad, u) u.
+fn sh_value_grad(first: u32, l_max: u32, u: vec3<f32>) -> vec4<f32> {
+    let a0 = clenshaw_grad(first, l_max / 2u + 1u, u.z, false);
+    var val = a0.x;
+    var grad = vec3<f32>(0.0, 0.0, a0.y);
+    var at = first + l_max / 2u + 1u;
+    var cm = 1.0;
+    var sm = 0.0;
+    for (var m = 1u; m <= l_max; m++) {
+        let cm1 = cm;
+        let sm1 = sm;
+        cm = cm1 * u.x - sm1 * u.y;
+        sm = cm1 * u.y + sm1 * u.x;
+        let nt = (l_max - m) / 2u + 1u;
+        let odd = m % 2u == 1u;
+        let a = clenshaw_grad(at, nt, u.z, odd);
+        let b = clenshaw_grad(at + nt, nt, u.z, odd);
+        at += 2u * nt;
+        let mf = f32(m);
+        val += cm * a.x + sm * b.x;
+        grad.x += mf * (a.x * cm1 + b.x * sm1);
+        grad.y += mf * (b.x * cm1 - a.x * sm1);
+        grad.z += cm * a.y + sm * b.y;
+    }
+    return vec4<f32>(val, grad);
+}
+
 @vertex
 fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
     // Loop counts and modes reach the fragment stage flat (the rule in `fascicle::ray`); `Knobs` unpacks them.
@@ -74,7 +218,10 @@ fn knobs(k: vec4<u32>) -> Knobs {
 
 // The glyph's section by the plane through its centre and the ray: psi(theta) on that great circle as a
 // trigonometric polynomial in phi = 2 theta (degree k / 2; even orders have only even frequencies), from
-// k + 1 samples by a discrete Fourier transform. Twin of `fascicle_core::sh::exact::RayPlane`.
+// k + 1 samples by a discrete Fourier transform. Twin of `fascicle_core::sh::exact::RayPlane`. The arrays
+// hold the largest order's 9 frequencies and are only ever indexed by constants (loops of fixed length,
+// zeros past `terms`), so that they live in registers: a software rasteriser runs every dynamically
+// indexed private array through memory, one lane at a time.
 struct RayPlane {
     b: f32,
     tc: f32,
@@ -83,8 +230,9 @@ struct RayPlane {
     sn: array<f32, 9>,
 };
 
-// `tc` and `foot`: the parameter of the ray's closest point to the centre, and that point.
-fn ray_plane(c: ptr<function, array<f32, 153>>, k: u32, dir: vec3<f32>, tc: f32, foot: vec3<f32>) -> RayPlane {
+// `tc` and `foot`: the parameter of the ray's closest point to the centre, and that point. The k + 1
+// samples are evaluated twelve at a time (`sh_value12`: each stored number read once per twelve samples).
+fn ray_plane(first: u32, scale: f32, k: u32, dir: vec3<f32>, tc: f32, foot: vec3<f32>) -> RayPlane {
     var rp: RayPlane;
     rp.tc = tc;
     rp.b = length(foot);
@@ -94,25 +242,59 @@ fn ray_plane(c: ptr<function, array<f32, 153>>, k: u32, dir: vec3<f32>, tc: f32,
     }
     let n = k + 1u;
     rp.terms = k / 2u + 1u;
-    for (var m = 0u; m < rp.terms; m++) {
+    for (var m = 0u; m < 9u; m++) {
         rp.cs[m] = 0.0;
         rp.sn[m] = 0.0;
     }
-    for (var j = 0u; j < n; j++) {
-        let th = 3.14159265358979 * f32(j) / f32(n);
-        let v = sh_value(c, k, cos(th) * e + sin(th) * dir) / f32(n);
-        // cos(m phi), sin(m phi) by the angle-addition recurrence, phi = 2 theta.
-        let c1 = cos(2.0 * th);
-        let s1 = sin(2.0 * th);
-        var cm = 1.0;
-        var sm = 0.0;
-        rp.cs[0] += v;
-        for (var m = 1u; m < rp.terms; m++) {
-            let cn = cm * c1 - sm * s1;
-            sm = sm * c1 + cm * s1;
-            cm = cn;
-            rp.cs[m] += 2.0 * v * cm;
-            rp.sn[m] += 2.0 * v * sm;
+    let w = scale / f32(n);
+    // Sample j at theta = j pi / n: four consecutive angles from a group's first by the angle-addition
+    // formula, the first advanced by 4 pi / n per group (no trigonometry per sample).
+    let delta = 3.14159265358979 / f32(n);
+    let offsets = vec4<f32>(0.0, 1.0, 2.0, 3.0) * delta;
+    let ck = cos(offsets);
+    let sk = sin(offsets);
+    let c4 = cos(4.0 * delta);
+    let s4 = sin(4.0 * delta);
+    var ca = 1.0;
+    var sa = 0.0;
+    for (var j0 = 0u; j0 < n; j0 += 12u) {
+        var d: Dirs;
+        var cts: array<vec4<f32>, 3>;
+        var sts: array<vec4<f32>, 3>;
+        for (var g = 0u; g < 3u; g++) {
+            let ct = ca * ck - sa * sk;
+            let st = sa * ck + ca * sk;
+            let next = ca * c4 - sa * s4;
+            sa = sa * c4 + ca * s4;
+            ca = next;
+            cts[g] = ct;
+            sts[g] = st;
+            d.x[g] = ct * e.x + st * dir.x;
+            d.y[g] = ct * e.y + st * dir.y;
+            d.z[g] = ct * e.z + st * dir.z;
+        }
+        let vals = sh_value12(first, k, d);
+        for (var g = 0u; g < 3u; g++) {
+            // Samples past k + 1 get weight 0.
+            let j = vec4<u32>(j0 + 4u * g) + vec4<u32>(0u, 1u, 2u, 3u);
+            let v = vals[g] * w * vec4<f32>(j < vec4<u32>(n));
+            // cos(m phi), sin(m phi) by the angle-addition recurrence, phi = 2 theta.
+            let ct = cts[g];
+            let st = sts[g];
+            let c1 = ct * ct - st * st;
+            let s1 = 2.0 * st * ct;
+            var cm = vec4<f32>(1.0);
+            var sm = vec4<f32>(0.0);
+            rp.cs[0] += v.x + v.y + v.z + v.w;
+            for (var m = 1u; m < 9u; m++) {
+                let cn = cm * c1 - sm * s1;
+                sm = sm * c1 + cm * s1;
+                cm = cn;
+                // Frequencies past k / 2 are zero (exactly so for the samples of a degree-k polynomial).
+                let keep = select(0.0, 2.0, m < rp.terms);
+                rp.cs[m] += keep * dot(v, cm);
+                rp.sn[m] += keep * dot(v, sm);
+            }
         }
     }
     return rp;
@@ -123,7 +305,7 @@ fn plane_psi(rp: ptr<function, RayPlane>, c1: f32, s1: f32) -> f32 {
     var cm = 1.0;
     var sm = 0.0;
     var psi = (*rp).cs[0];
-    for (var m = 1u; m < (*rp).terms; m++) {
+    for (var m = 1u; m < 9u; m++) {
         let cn = cm * c1 - sm * s1;
         sm = sm * c1 + cm * s1;
         cm = cn;
@@ -156,7 +338,7 @@ fn plane_section(rp: ptr<function, RayPlane>, theta: f32, lobes: u32) -> f32 {
 // A Lipschitz constant of g in theta: |psi| + |dpsi/dtheta| <= sum (1 + 2m)(|a_m| + |b_m|).
 fn plane_lipschitz(rp: ptr<function, RayPlane>) -> f32 {
     var l = 0.0;
-    for (var m = 0u; m < (*rp).terms; m++) {
+    for (var m = 0u; m < 9u; m++) {
         l += (1.0 + 2.0 * f32(m)) * (abs((*rp).cs[m]) + abs((*rp).sn[m]));
     }
     return l;
@@ -177,7 +359,7 @@ fn box_interval(oc: vec3<f32>, dir: vec3<f32>, half: vec3<f32>) -> vec2<f32> {
 }
 
 // The exact method: the first hit's distance along the ray (in the units of `oc`), or -1.
-fn first_hit_exact(c: ptr<function, array<f32, 153>>, oc: vec3<f32>, dir: vec3<f32>, half: vec3<f32>, cfg: Knobs) -> f32 {
+fn first_hit_exact(first: u32, scale: f32, oc: vec3<f32>, dir: vec3<f32>, half: vec3<f32>, cfg: Knobs) -> f32 {
     let span = box_interval(oc, dir, half);
     if span.y <= span.x {
         return -1.0;
@@ -188,7 +370,7 @@ fn first_hit_exact(c: ptr<function, array<f32, 153>>, oc: vec3<f32>, dir: vec3<f
     if dot(foot, foot) > 1.0 {
         return -1.0;
     }
-    var rp = ray_plane(c, cfg.l_max, dir, tc, foot);
+    var rp = ray_plane(first, scale, cfg.l_max, dir, tc, foot);
     let n = max(cfg.max_steps, 1u);
     var lo = span.x;
     var hi = span.x;
@@ -262,12 +444,12 @@ fn shape(psi: f32, lobes: u32) -> f32 {
 }
 
 // F(p) < 0 inside the glyph.
-fn implicit(c: ptr<function, array<f32, 153>>, v: vec3<f32>, cfg: Knobs) -> f32 {
+fn implicit(first: u32, scale: f32, v: vec3<f32>, cfg: Knobs) -> f32 {
     let r = length(v);
     if r <= 0.0 {
         return -1.0;
     }
-    return r - shape(sh_value(c, cfg.l_max, v / r), cfg.lobes);
+    return r - shape(scale * sh_value(first, cfg.l_max, v / r), cfg.lobes);
 }
 
 @fragment
@@ -278,18 +460,16 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     let rmax = g.w * params.size;
     // Exact: coefficients and coordinates in units of the render bound (|x| <= sqrt 3 in the box).
     let unit = select(1.0, 1.0 / rmax, cfg.method == 1u);
-    var c: array<f32, 153>;
+    // The coefficients are read where used, scaled by `scale` (psi is linear in them).
     let first = in.tag * cfg.stride;
-    for (var j = 0u; j < cfg.stride; j++) {
-        c[j] = coeffs[first + j] * params.size * unit;
-    }
+    let scale = params.size * unit;
     let ray = view_ray(in.world_position, view.world_position, view.world_from_view, view.clip_from_view);
     // Work relative to the centre: the glyph is small next to its distance from the camera.
     let oc = ray.origin - centre;
     var hi = 0.0;
     if cfg.method == 1u {
         let half = glyphs[3u * in.tag + 2u].xyz * params.size * unit;
-        let t = first_hit_exact(&c, oc * unit, ray.dir, half, cfg);
+        let t = first_hit_exact(first, scale, oc * unit, ray.dir, half, cfg);
         if t < 0.0 {
             discard;
         }
@@ -306,7 +486,7 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
         var t = t0;
         var inside = false;
         for (var i = 0u; i < cfg.max_steps; i++) {
-            if implicit(&c, oc + t * ray.dir, cfg) < 0.0 {
+            if implicit(first, scale, oc + t * ray.dir, cfg) < 0.0 {
                 inside = true;
                 break;
             }
@@ -322,7 +502,7 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
         hi = t;
         for (var k = 0u; k < cfg.refine; k++) {
             let mid = 0.5 * (lo + hi);
-            if implicit(&c, oc + mid * ray.dir, cfg) < 0.0 {
+            if implicit(first, scale, oc + mid * ray.dir, cfg) < 0.0 {
                 hi = mid;
             } else {
                 lo = mid;
@@ -333,7 +513,7 @@ fn fragment(in: ProxyVertexOutput) -> FragmentOutput {
     let r = max(length(v), 1e-20);
     let u = v / r;
     // The normal's tangential term is psi's gradient over r, r in world units: undo the exact method's unit.
-    let pg = sh_value_grad(&c, cfg.l_max, u) / vec4<f32>(1.0, unit, unit, unit);
+    let pg = scale * sh_value_grad(first, cfg.l_max, u) / vec4<f32>(1.0, unit, unit, unit);
     let sgn = select(1.0, sign(pg.x), cfg.lobes == 1u);
     let tangential = pg.yzw - dot(pg.yzw, u) * u;
     var n = u - sgn * tangential / r;

@@ -192,7 +192,8 @@ pub struct ShGlyphMaterial {
     /// `(gfa, highlighted, 0, 0)` and `(half extents of the glyph's box, 0)`.
     #[storage(1, read_only)]
     pub glyphs: Handle<ShaderBuffer>,
-    /// `stride` f32 coefficients per glyph, in `fascicle_core::sh::glyph::GLYPH_BASIS`.
+    /// `stride` f32 numbers per glyph: its coefficients (in `fascicle_core::sh::glyph::GLYPH_BASIS`) in the
+    /// shader's form, `fascicle_core::sh::glyph::chebyshev_form`.
     #[storage(2, read_only)]
     pub coeffs: Handle<ShaderBuffer>,
 }
@@ -274,7 +275,7 @@ fn apply_highlights(
 }
 
 /// Packs glyphs into the two storage buffers' bytes (f32): `vec4(centre, rbound), vec4(gfa, 0, 0, 0),
-/// vec4(half, 0)` and the coefficients.
+/// vec4(half, 0)` and the coefficients in the shader's form (`chebyshev_form`).
 pub fn pack(glyphs: &[Glyph], l_max: usize) -> (Vec<u8>, Vec<u8>) {
     pack_with(glyphs, l_max, &[], true)
 }
@@ -294,8 +295,10 @@ fn pack_with(glyphs: &[Glyph], l_max: usize, highlighted: &[u32], with_coeffs: b
         if !with_coeffs {
             continue;
         }
-        for j in 0..stride {
-            coeffs.extend_from_slice(&(g.coeffs.get(j).copied().unwrap_or(0.0) as f32).to_le_bytes());
+        // The shader's internal form (Chebyshev series per band), made here once per glyph.
+        let padded: Vec<f64> = (0..stride).map(|j| g.coeffs.get(j).copied().unwrap_or(0.0)).collect();
+        for v in fascicle_core::sh::glyph::chebyshev_form(&padded, l_max) {
+            coeffs.extend_from_slice(&(v as f32).to_le_bytes());
         }
     }
     (head, coeffs)

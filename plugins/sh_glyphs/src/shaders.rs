@@ -5,13 +5,9 @@ use bevy::asset::uuid_handle;
 use bevy::prelude::*;
 use fascicle_render::shaders::ShaderSource;
 
-pub const SH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a05");
 pub const SH_GLYPH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a06");
 
-pub const SOURCES: [ShaderSource; 2] = [
-    (SH, "lib/sh.wgsl", include_str!("../shaders/lib/sh.wgsl")),
-    (SH_GLYPH, "sh_glyph.wgsl", include_str!("../shaders/sh_glyph.wgsl")),
-];
+pub const SOURCES: [ShaderSource; 1] = [(SH_GLYPH, "sh_glyph.wgsl", include_str!("../shaders/sh_glyph.wgsl"))];
 
 pub(crate) fn register(app: &mut App) {
     app.add_plugins(fascicle_render::FascicleRenderPlugin);
