@@ -258,16 +258,26 @@ pub fn headless_app_with_assets(asset_root: Option<&str>) -> App {
     } else {
         app.add_plugins(plugins.disable::<bevy::log::LogPlugin>());
     }
-    // Without a window nothing presents, and wgpu reclaims the resources of finished submissions only when
-    // the device is polled: without this, a long headless run grows by megabytes a frame (the soak test).
     if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
-        render_app.add_systems(bevy::render::Render, poll_device.in_set(bevy::render::RenderSystems::Cleanup));
+        render_app.add_systems(bevy::render::Render, finish_frame.in_set(bevy::render::RenderSystems::Cleanup));
     }
     app
 }
 
-fn poll_device(device: Res<bevy::render::renderer::RenderDevice>) {
-    let _ = device.poll(bevy::render::render_resource::PollType::Poll);
+/// Ends each headless frame when the GPU has finished it. Without a window nothing presents, so nothing else
+/// holds the CPU back: on a hardware GPU, `app.update()` returns as soon as the frame is submitted, frames
+/// queue up without bound (memory grows with the submissions in flight, and frame times measure the CPU
+/// alone), and dropping the app then waits at most 6.3 s in wgpu's `Queue::drop` before it panics ("timed out
+/// while waiting on the last successful submission"), which is how `bench volume` and `bench tracts` stopped
+/// on an H100. Waiting also lets wgpu reclaim finished submissions' resources (without a poll a long headless
+/// run grows by megabytes a frame). On lavapipe a frame already took its whole time inside `app.update()`
+/// (bench frame times follow the shaders' cost), so there the wait finds little or nothing left.
+fn finish_frame(device: Res<bevy::render::renderer::RenderDevice>, mut reported: Local<bool>) {
+    if let Err(e) = device.poll(bevy::render::render_resource::PollType::wait_indefinitely())
+        && !std::mem::replace(&mut *reported, true)
+    {
+        error!("waiting for the GPU to finish a headless frame failed: {e}");
+    }
 }
 
 /// A render-target image of `width x height` that can be read back.
