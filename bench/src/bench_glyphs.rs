@@ -204,7 +204,7 @@ fn sweep(quick: bool) -> Vec<Method> {
         .collect();
     let hs: &[f32] = if quick { &[0.08, 0.02] } else { &[0.08, 0.04, 0.02] };
     m.extend(hs.iter().map(|&h| Method::Linear { h, refine: 4 }));
-    let orders: &[u32] = if quick { &[2, 3, 4, 5] } else { &[3, 4] };
+    let orders: &[u32] = if quick { &[2, 3, 4, 5] } else { &[3, 4, 5] };
     m.extend(orders.iter().map(|&order| Method::Mesh { order }));
     m
 }
