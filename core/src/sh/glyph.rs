@@ -84,28 +84,6 @@ pub fn eval_cartesian(c: &[f64], l_max: usize, u: DVec3) -> (f64, DVec3) {
     (val, grad)
 }
 
-/// `Q_lm(z)` for `l = m..=l_max`: the orthonormal associated Legendre function (Condon-Shortley phase) over
-/// `sin^m θ`, a polynomial in `z = cos θ`, by the recurrence of [`eval_cartesian`].
-fn legendre_q(l_max: usize, m: usize, z: f64) -> Vec<f64> {
-    let prod: f64 = (1..=m).map(|k| (2 * k - 1) as f64 / (2 * k) as f64).product();
-    let sign = if m.is_multiple_of(2) { 1.0 } else { -1.0 };
-    let mut q = Vec::with_capacity(l_max + 1 - m);
-    q.push(sign * ((2 * m + 1) as f64 / (4.0 * std::f64::consts::PI) * prod).sqrt());
-    let mf = m as f64;
-    for l in m + 1..=l_max {
-        let lf = l as f64;
-        let next = if l == m + 1 {
-            ((2 * m + 3) as f64).sqrt() * z * q[0]
-        } else {
-            let a = ((4.0 * lf * lf - 1.0) / (lf * lf - mf * mf)).sqrt();
-            let b = (((lf - 1.0).powi(2) - mf * mf) / (4.0 * (lf - 1.0).powi(2) - 1.0)).sqrt();
-            a * (z * q[l - m - 1] - b * q[l - m - 2])
-        };
-        q.push(next);
-    }
-    q
-}
-
 /// Terms of each Chebyshev series of band `m` in the [`chebyshev_form`] of an even order `l_max`.
 pub fn chebyshev_terms(l_max: usize, m: usize) -> usize {
     (l_max - m) / 2 + 1
@@ -119,47 +97,68 @@ pub fn chebyshev_terms(l_max: usize, m: usize) -> usize {
 /// band, A then B (B absent for m = 0): [`n_coeffs`]`(l_max)` numbers, as many as the coefficients.
 /// Evaluated by Clenshaw's recurrence ([`eval_chebyshev_form`], the shader's `sh_value`): a few operations
 /// per coefficient instead of the Legendre recurrence over every (l, m), and well conditioned in f32
-/// (a power basis in z loses 4 digits at l_max 12).
+/// (a power basis in z loses 4 digits at l_max 12). For many glyphs of one order, build a
+/// [`ChebyshevForm`] once.
 pub fn chebyshev_form(c: &[f64], l_max: usize) -> Vec<f64> {
-    let sqrt2 = std::f64::consts::SQRT_2;
     let mut out = Vec::with_capacity(n_coeffs(l_max));
-    for m in 0..=l_max {
-        let nt = chebyshev_terms(l_max, m);
-        let nodes: Vec<(f64, Vec<f64>)> = (0..nt)
-            .map(|i| {
-                let w = (std::f64::consts::PI * (i as f64 + 0.5) / nt as f64).cos();
-                let z = ((w + 1.0) / 2.0).sqrt();
-                (z, legendre_q(l_max, m, z))
+    ChebyshevForm::new(l_max).apply(c, &mut out);
+    out
+}
+
+/// The [`chebyshev_form`] of order `l_max` as the linear map it is: per band m, one square matrix from the
+/// coefficients of the even orders l >= m to the Chebyshev terms (the same for A_m and B_m).
+pub struct ChebyshevForm {
+    l_max: usize,
+    /// Band m's matrix, row-major: row j the Chebyshev term, column i the order `m + m mod 2 + 2i`.
+    bands: Vec<Vec<f64>>,
+}
+
+impl ChebyshevForm {
+    pub fn new(l_max: usize) -> Self {
+        use super::legendre::{legendre_table, tri};
+        use std::f64::consts::{PI, SQRT_2};
+        let mut p = vec![0.0; tri(l_max, l_max) + 1];
+        let mut q = p.clone();
+        let bands = (0..=l_max)
+            .map(|m| {
+                let nt = chebyshev_terms(l_max, m);
+                let norm = if m == 0 { 1.0 } else { SQRT_2 };
+                let mut k = vec![0.0; nt * nt];
+                for node in 0..nt {
+                    let w = (PI * (node as f64 + 0.5) / nt as f64).cos();
+                    let z = ((w + 1.0) / 2.0).sqrt();
+                    // With sin θ set to 1 the table holds the polynomial parts P̄_l^m / sin^m θ.
+                    legendre_table(l_max, z, 1.0, &mut p, &mut q);
+                    let parity = if m % 2 == 1 { z } else { 1.0 };
+                    for i in 0..nt {
+                        let g = norm * p[tri(m + m % 2 + 2 * i, m)] / parity;
+                        for j in 0..nt {
+                            let weight = if j == 0 { 1.0 } else { 2.0 } / nt as f64;
+                            k[j * nt + i] += weight * g * (PI * (j * (2 * node + 1)) as f64 / (2 * nt) as f64).cos();
+                        }
+                    }
+                }
+                k
             })
             .collect();
-        for part in 0..if m == 0 { 1 } else { 2 } {
-            let g: Vec<f64> = nodes
-                .iter()
-                .map(|(z, q)| {
-                    let a: f64 = (m..=l_max)
-                        .filter(|l| l % 2 == 0)
-                        .map(|l| {
-                            let base = l * (l + 1) / 2;
-                            let k = match (m, part) {
-                                (0, _) => c[base],
-                                (_, 0) => sqrt2 * c[base + m],
-                                _ => sqrt2 * c[base - m],
-                            };
-                            k * q[l - m]
-                        })
-                        .sum();
-                    if m % 2 == 1 { a / z } else { a }
-                })
-                .collect();
-            for j in 0..nt {
-                let s: f64 = (0..nt)
-                    .map(|i| g[i] * (std::f64::consts::PI * (j * (2 * i + 1)) as f64 / (2 * nt) as f64).cos())
-                    .sum();
-                out.push(s * if j == 0 { 1.0 } else { 2.0 } / nt as f64);
+        Self { l_max, bands }
+    }
+
+    /// Appends the form of `c` (at least [`n_coeffs`]`(l_max)` coefficients) to `out`.
+    pub fn apply(&self, c: &[f64], out: &mut Vec<f64>) {
+        for (m, k) in self.bands.iter().enumerate() {
+            let nt = chebyshev_terms(self.l_max, m);
+            let parts: &[bool] = if m == 0 { &[true] } else { &[true, false] };
+            for &cosine in parts {
+                let coeff = |i: usize| {
+                    let l = m + m % 2 + 2 * i;
+                    let base = l * (l + 1) / 2;
+                    if cosine { c[base + m] } else { c[base - m] }
+                };
+                out.extend((0..nt).map(|j| (0..nt).map(|i| k[j * nt + i] * coeff(i)).sum::<f64>()));
             }
         }
     }
-    out
 }
 
 /// `z^odd g(w)` and its derivative in z, `g` the Chebyshev series `c` in `w = 2z² - 1` (Clenshaw; g' as the

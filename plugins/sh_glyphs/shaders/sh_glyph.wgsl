@@ -44,7 +44,7 @@ struct GlyphParams {
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: GlyphParams;
 // Per glyph, three entries: (centre (world, mm), render bound), (GFA, highlighted, 0, 0), (box half extents, 0).
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> glyphs: array<vec4<f32>>;
-// Per glyph, `stride` coefficients in the glyph basis.
+// Per glyph, `stride` numbers: its coefficients (glyph basis) in the Chebyshev form described below.
 @group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> coeffs: array<f32>;
 
 // psi on the sphere from the glyph's internal form (`fascicle_core::sh::glyph::chebyshev_form`, made on

@@ -286,19 +286,23 @@ fn pack_with(glyphs: &[Glyph], l_max: usize, highlighted: &[u32], with_coeffs: b
     let stride = fascicle_core::sh::n_coeffs(l_max);
     let mut head = Vec::with_capacity(glyphs.len() * 48);
     let mut coeffs = Vec::with_capacity(glyphs.len() * stride * 4);
+    // The shader's internal form (Chebyshev series per band): one linear map for the set, applied per glyph.
+    let form = with_coeffs.then(|| fascicle_core::sh::glyph::ChebyshevForm::new(l_max));
+    let (mut padded, mut formed) = (vec![0.0; stride], Vec::with_capacity(stride));
     for (i, g) in glyphs.iter().enumerate() {
         let lit = if highlighted.contains(&(i as u32)) { 1.0 } else { 0.0 };
         let h = g.half;
         for v in [g.centre.x, g.centre.y, g.centre.z, g.rbound, g.gfa, lit, 0.0, 0.0, h.x, h.y, h.z, 0.0] {
             head.extend_from_slice(&(v as f32).to_le_bytes());
         }
-        if !with_coeffs {
-            continue;
+        let Some(form) = &form else { continue };
+        for (j, v) in padded.iter_mut().enumerate() {
+            *v = g.coeffs.get(j).copied().unwrap_or(0.0);
         }
-        // The shader's internal form (Chebyshev series per band), made here once per glyph.
-        let padded: Vec<f64> = (0..stride).map(|j| g.coeffs.get(j).copied().unwrap_or(0.0)).collect();
-        for v in fascicle_core::sh::glyph::chebyshev_form(&padded, l_max) {
-            coeffs.extend_from_slice(&(v as f32).to_le_bytes());
+        formed.clear();
+        form.apply(&padded, &mut formed);
+        for v in &formed {
+            coeffs.extend_from_slice(&(*v as f32).to_le_bytes());
         }
     }
     (head, coeffs)
