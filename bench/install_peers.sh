@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs the tools `fascicle bench tracking` compares against (never needed by `./run test`):
+# Installs the tools `fascicle bench tracking` and `scale` compare against (never needed by `./run test`):
 #   MRtrix3 3.0.3 (Debian package mrtrix3: tckgen, tckinfo, mrinfo, ...) and DIPY 1.12.1 in a virtual environment.
 # Usage: bench/install_peers.sh [VENV_DIR]   (default ~/.cache/fascicle/dipy-venv); prints the Python to pass as --python.
 set -euo pipefail
@@ -16,4 +16,6 @@ if [ ! -x "$venv/bin/python" ]; then
 fi
 "$venv/bin/python" -c 'import dipy, sys; sys.exit(dipy.__version__ != "1.12.1")' 2>/dev/null \
   || "$venv/bin/pip" install -q 'dipy==1.12.1' >&2
+# nibabel (with DIPY) and trx-python: the loaders `fascicle-bench scale` compares against.
+"$venv/bin/python" -c 'import nibabel, trx.trx_file_memmap' 2>/dev/null || "$venv/bin/pip" install -q nibabel trx-python >&2
 echo "$venv/bin/python"

@@ -404,6 +404,11 @@ pub fn file_bounds(path: &Path) -> Option<(glam::DVec3, glam::DVec3)> {
         Some((v.shape, v.world_from_voxel))
     } else if lower.ends_with(".nii") || lower.ends_with(".nii.gz") {
         fascicle_core::io::nifti::read_header(path).ok().map(|h| (h.shape, h.world_from_voxel))
+    } else if lower.ends_with(".trx") {
+        // A TRX frames its reference grid (its header only: the positions are not read); without one, its points.
+        let reader = fascicle_core::io::stream::TractogramReader::open(path).ok()?;
+        let h = reader.header().trx.as_ref().filter(|h| h.dims.iter().all(|d| *d > 1));
+        h.map(|h| (h.dims.to_vec(), h.voxel_to_rasmm))
     } else {
         None
     };
@@ -419,10 +424,10 @@ pub fn file_bounds(path: &Path) -> Option<(glam::DVec3, glam::DVec3)> {
             (lo, hi) = (lo.min(p), hi.max(p));
         }
     } else {
-        let t = fascicle_core::io::Tractogram::read(path).ok()?;
-        for p in &t.points {
-            (lo, hi) = (lo.min(p.as_dvec3()), hi.max(p.as_dvec3()));
-        }
+        // Streamed in bounded memory (a whole-brain tractogram is gigabytes).
+        let mut reader = fascicle_core::io::stream::TractogramReader::open(path).ok()?;
+        let (a, b) = fascicle_core::io::stream::scan(&mut reader, |_| {}).ok()?.bounds?;
+        (lo, hi) = (a.as_dvec3(), b.as_dvec3());
     }
     (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
 }

@@ -293,3 +293,67 @@ fn dwi_mif_from_mrtrix_fits_as_its_nifti() {
     assert!(worst_fa < 1e-4, "FA differs by {worst_fa}");
     assert!(compared > 50 && worst_dir < 1e-4, "principal directions differ: 1 - |cos| = {worst_dir}");
 }
+
+/// `fascicle select` keeps exactly the streamlines MRtrix3's `tckedit` keeps, on a generated whole-brain-like
+/// tractogram (20,000 streamlines of 40-160 points): include spheres, an exclude sphere, `-ends_only`, and mask
+/// images (an oblique, flipped grid) as include and exclude regions. Same streamlines, same points, same order.
+#[test]
+fn select_keeps_what_tckedit_keeps() {
+    if !mrtrix() {
+        return;
+    }
+    let input = scratch("brain20k.tck");
+    fascicle_core::phantom::write_whole_brain(&input, 20_000, 7).unwrap();
+    // A mask on a 2.5 mm grid, flipped in x and turned about z by 10 degrees: two blobs.
+    let affine = glam::DMat4::from_rotation_z(10f64.to_radians())
+        * glam::DMat4::from_translation(glam::DVec3::new(60.0, -80.0, -55.0))
+        * glam::DMat4::from_scale(glam::DVec3::new(-2.5, 2.5, 2.5));
+    let mut mask = Volume::<f32>::zeros(&[48, 64, 44], affine);
+    let inv = affine.inverse();
+    for (k, c) in [glam::DVec3::new(20.0, -10.0, 5.0), glam::DVec3::new(-30.0, 25.0, -10.0)].iter().enumerate() {
+        let v = inv.transform_point3(*c);
+        for z in 0..44 {
+            for y in 0..64 {
+                for x in 0..48 {
+                    let d = glam::DVec3::new(x as f64, y as f64, z as f64) - v;
+                    if d.length() <= 3.0 + k as f64 {
+                        mask.data[x + 48 * (y + 64 * z)] = 1.0;
+                    }
+                }
+            }
+        }
+    }
+    let mask_path = scratch("blobs.nii.gz");
+    nifti::write(&mask_path, &mask, nifti::WriteType::F32).unwrap();
+    let m = mask_path.to_str().unwrap();
+    let cases: [(&[&str], &[&str]); 6] = [
+        (&["--include", "0,0,0,10"], &["-include", "0,0,0,10"]),
+        (
+            &["--include", "12.5,-20.3,4.1,16.7", "--include", "-20,10,0,15"],
+            &["-include", "12.5,-20.3,4.1,16.7", "-include", "-20,10,0,15"],
+        ),
+        (&["--include", "0,0,0,25", "--exclude", "10,10,10,12"], &["-include", "0,0,0,25", "-exclude", "10,10,10,12"]),
+        (&["--include", "30,-40,10,15", "--ends-only"], &["-include", "30,-40,10,15", "-ends_only"]),
+        (&["--include", m], &["-include", m]),
+        (&["--include", "0,0,0,30", "--exclude", m], &["-include", "0,0,0,30", "-exclude", m]),
+    ];
+    for (k, (ours, theirs)) in cases.iter().enumerate() {
+        let (a, b) = (scratch(&format!("sel{k}_fascicle.tck")), scratch(&format!("sel{k}_mrtrix.tck")));
+        let mut args = vec!["select", input.to_str().unwrap(), "--out", a.to_str().unwrap(), "--force", "--quiet"];
+        args.extend_from_slice(ours);
+        fascicle(&args);
+        let mut args = vec!["-quiet", "-force"];
+        args.extend_from_slice(theirs);
+        args.extend_from_slice(&[input.to_str().unwrap(), b.to_str().unwrap()]);
+        run("tckedit", &args);
+        let (x, y) = (Tractogram::read(&a).unwrap(), Tractogram::read(&b).unwrap());
+        eprintln!("case {k}: tckedit keeps {}, Fascicle {}", y.n_streamlines(), x.n_streamlines());
+        assert!(y.n_streamlines() > 20 && y.n_streamlines() < 19_000, "case {k}: {} kept", y.n_streamlines());
+        assert_eq!(
+            x.n_streamlines(),
+            y.n_streamlines(),
+            "case {k} {ours:?}: Fascicle and tckedit keep different counts"
+        );
+        assert_eq!((x.offsets, x.points), (y.offsets, y.points), "case {k} {ours:?}");
+    }
+}

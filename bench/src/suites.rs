@@ -127,6 +127,26 @@ pub enum BenchCommand {
         #[arg(long)]
         data: Option<PathBuf>,
     },
+    /// Whole-brain-sized tractograms (1M and 10M streamlines as .tck, .trk, .trx, made once in --dir): `info`,
+    /// `select`, `convert` as whole processes with peak memory, beside tckinfo, tckedit, nibabel and trx-python
+    /// (when installed: bench/install_peers.sh), and an ROI drag step.
+    Scale {
+        /// Sizes in streamlines, comma-separated.
+        #[arg(long, default_value = "1000000,10000000", value_delimiter = ',')]
+        sizes: Vec<usize>,
+        /// Where the generated tractograms are kept (12.5 GB per format at 10M).
+        #[arg(long, default_value = "/tmp/fascicle-scale")]
+        dir: PathBuf,
+        /// A Python with nibabel and trx-python, for their rows.
+        #[arg(long)]
+        python: Option<PathBuf>,
+        /// Also write the rows as CSV (streamlines,format,task,tool,wall_s,peak_mib,result).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// The largest size whose ROI drag step is measured (the tractogram held in memory).
+        #[arg(long, default_value_t = 1_000_000)]
+        drag_max: usize,
+    },
     /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory and
     /// asset counts (the soak test). Fails when a layer reports an error or the second half of the run grows:
     /// resident memory by more than the tolerance, or any asset or pipeline count beyond the first half's
@@ -150,6 +170,9 @@ pub enum BenchCommand {
 
 pub fn run(cmd: BenchCommand) -> Result<(), Error> {
     match cmd {
+        BenchCommand::Scale { sizes, dir, python, csv, drag_max } => {
+            crate::bench_scale::run(&sizes, &dir, python.as_deref(), csv.as_deref(), drag_max)
+        }
         BenchCommand::Soak { frames, size, csv, max_growth } => {
             crate::soak::run(frames, &size, csv.as_deref(), max_growth).map_err(Error::Param)
         }

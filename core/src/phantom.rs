@@ -457,3 +457,76 @@ mod spiral_tests {
         }
     }
 }
+
+/// Half-axes of the brain-sized ellipsoid that [`whole_brain_streamlines`] fills (mm, x y z, centred at 0).
+pub const BRAIN_HALF_AXES: [f32; 3] = [65.0, 80.0, 55.0];
+
+/// Streamlines `first..first + n` of a deterministic whole-brain-sized tractogram: smooth random curves at
+/// 1 mm steps, 40 to 160 points each (mean 100, as `tckgen` makes them at whole-brain scale), inside an
+/// ellipsoid of a brain's size ([`BRAIN_HALF_AXES`]), reflected at its surface. Each streamline depends only on
+/// `seed` and its index, so any range can be made on its own, in parallel, in bounded memory: a file of
+/// 1M or 10M streamlines is written chunk by chunk.
+pub fn whole_brain_streamlines(seed: u64, first: usize, n: usize) -> crate::io::Tractogram {
+    use glam::Vec3;
+    let half = Vec3::from(BRAIN_HALF_AXES);
+    let lines: Vec<Vec<Vec3>> = (first..first + n)
+        .into_par_iter()
+        .map(|i| {
+            let mut state = seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
+            let mut next = move || {
+                // splitmix64
+                state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+                let mut z = state;
+                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+                ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+            };
+            let unit = |next: &mut dyn FnMut() -> f32| loop {
+                let v = Vec3::new(next(), next(), next()) * 2.0 - 1.0;
+                let l = v.length_squared();
+                if l > 1e-4 && l <= 1.0 {
+                    break v / l.sqrt();
+                }
+            };
+            let len = 40 + (next() * 121.0) as usize;
+            let r = next().cbrt() * 0.95;
+            let mut p = unit(&mut next) * r * half;
+            let mut d = unit(&mut next);
+            let mut pts = Vec::with_capacity(len.min(160));
+            for _ in 0..len.min(160) {
+                pts.push(p);
+                d = (d + unit(&mut next) * 0.08).normalize();
+                let q = p + d;
+                let s = q / half;
+                if s.length_squared() > 1.0 {
+                    // Reflect off the ellipsoid: its normal there is the gradient of |x / half|².
+                    let normal = (s / half).normalize();
+                    d = (d - 2.0 * d.dot(normal) * normal).normalize();
+                }
+                p += d;
+            }
+            pts
+        })
+        .collect();
+    let mut t = crate::io::Tractogram::new();
+    t.points.reserve(lines.iter().map(Vec::len).sum());
+    for l in &lines {
+        t.push(l);
+    }
+    t
+}
+
+/// Writes [`whole_brain_streamlines`]`(seed, 0, n)` to `path` (`.tck`, `.trk`, `.trx`, by the name), 20,000
+/// streamlines at a time; a `.trk` in a 1 mm grid over the ellipsoid. The streamlines written.
+pub fn write_whole_brain(path: &std::path::Path, n: usize, seed: u64) -> crate::Result<usize> {
+    use crate::io::stream::{TractogramWriter, WriteOptions};
+    let half = DVec3::new(BRAIN_HALF_AXES[0] as f64, BRAIN_HALF_AXES[1] as f64, BRAIN_HALF_AXES[2] as f64);
+    let dims = (half * 2.0 + 1.0).to_array().map(|v| v as usize);
+    let options = WriteOptions { trk_space: Some((DMat4::from_translation(-half), dims)), ..Default::default() };
+    let mut w = TractogramWriter::create(path, &options)?;
+    const BLOCK: usize = 20_000;
+    for first in (0..n).step_by(BLOCK) {
+        w.write_chunk(&whole_brain_streamlines(seed, first, BLOCK.min(n - first)))?;
+    }
+    w.finish()
+}

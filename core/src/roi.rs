@@ -2,10 +2,14 @@
 //! planes, each an *include* (a streamline must pass through it) or an *exclude* (it must not); a
 //! streamline is selected when it meets every include and no exclude (AND semantics).
 //!
-//! "Passes through" is exact for the polyline, not only its vertices: a segment meets a sphere when its
-//! closest point is within the radius, a box when the slab test finds an overlap, a plane when its ends lie
-//! on both sides (or on it). Selection is parallel over streamlines and uses a uniform grid of segment
-//! bounding boxes, so a small ROI only tests the segments near it.
+//! "Passes through" is defined as MRtrix3's `tckedit` defines it, so that a selection here keeps exactly the
+//! streamlines `tckedit` keeps: a streamline meets a sphere, a box or a mask when one of its *points* lies in
+//! it ([`RoiShape::contains`], evaluated in f32 in `tckedit`'s order of operations; the segments between
+//! points are not tested, so a streamline whose steps jump over a small region misses it, in both tools). A
+//! plane (which `tckedit` has not) is met by a segment whose ends lie on both sides of it, or on it.
+//! [`RoiShape::meets_segment`] is the exact geometric test of a segment, for picking and drawing.
+//! [`select`] is parallel over streamlines and uses a uniform grid of segments, so a small ROI only tests
+//! the streamlines near it; [`Criteria`] tests one streamline at a time, for streams of any length.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -123,7 +127,44 @@ impl RoiShape {
         }
     }
 
-    /// Whether the segment `a`-`b` meets the region.
+    /// Whether point `p` lies in the region, as `tckedit` decides it for a sphere (`|c - p|² <= r²`, in f32,
+    /// summed as Eigen sums three squares); a box holds its faces; a plane holds nothing (it is met by
+    /// crossing it, [`Self::meets_step`]).
+    #[inline]
+    pub fn contains(&self, p: Vec3) -> bool {
+        match *self {
+            RoiShape::Sphere { centre, radius } => {
+                let d = Vec3::from(centre) - p;
+                d.x * d.x + (d.y * d.y + d.z * d.z) <= radius * radius
+            }
+            RoiShape::Box { min, max } => p.cmpge(Vec3::from(min)).all() && p.cmple(Vec3::from(max)).all(),
+            RoiShape::Plane { .. } => false,
+        }
+    }
+
+    /// Whether the step `a`-`b` of a streamline meets the region under the selection rule (module
+    /// documentation): an end in a sphere or box, the two ends on both sides of a plane (or one on it).
+    #[inline]
+    pub fn meets_step(&self, a: Vec3, b: Vec3) -> bool {
+        match *self {
+            RoiShape::Plane { .. } => self.meets_segment(a, b),
+            _ => self.contains(a) || self.contains(b),
+        }
+    }
+
+    /// Whether a streamline meets the region under the selection rule (a single point: whether it lies in it;
+    /// on a plane when exactly on it).
+    pub fn meets_streamline(&self, pts: &[Vec3]) -> bool {
+        match (pts, self) {
+            ([], _) => false,
+            ([p], _) => self.meets_step(*p, *p),
+            (_, RoiShape::Plane { .. }) => pts.windows(2).any(|w| self.meets_segment(w[0], w[1])),
+            _ => pts.iter().any(|p| self.contains(*p)),
+        }
+    }
+
+    /// Whether the segment `a`-`b` meets the region (exact geometry: the segment's closest point to a sphere's
+    /// centre, the slab test of a box, a sign change across a plane).
     pub fn meets_segment(&self, a: Vec3, b: Vec3) -> bool {
         match *self {
             RoiShape::Sphere { centre, radius } => {
@@ -313,7 +354,7 @@ impl SegmentGrid {
                         if s < n
                             && candidates[s]
                             && !marks[s].load(Ordering::Relaxed)
-                            && shape.meets_segment(points[i], points[i + 1])
+                            && shape.meets_step(points[i], points[i + 1])
                         {
                             marks[s].store(true, Ordering::Relaxed);
                         }
@@ -350,7 +391,7 @@ pub fn select(points: &[Vec3], offsets: &[usize], grid: &SegmentGrid, rois: &[Ro
             let mut m = grid.meeting_mask_among(points, &r.shape, &alive);
             // Single-point streamlines have no segment in the grid.
             for s in (0..n).filter(|&s| alive[s] && offsets[s + 1] - offsets[s] == 1) {
-                m[s] = r.shape.meets_segment(points[offsets[s]], points[offsets[s]]);
+                m[s] = r.shape.meets_step(points[offsets[s]], points[offsets[s]]);
             }
             m
         };
@@ -362,11 +403,136 @@ pub fn select(points: &[Vec3], offsets: &[usize], grid: &SegmentGrid, rois: &[Ro
     alive
 }
 
-/// Whether a polyline meets a region (a single point: whether it lies in it).
+/// Whether a polyline meets a region under the selection rule.
 fn streamline_meets(pts: &[Vec3], shape: &RoiShape) -> bool {
-    match pts {
-        [] => false,
-        [p] => shape.meets_segment(*p, *p),
-        _ => pts.windows(2).any(|w| w[0].is_finite() && w[1].is_finite() && shape.meets_segment(w[0], w[1])),
+    shape.meets_streamline(pts)
+}
+
+/// A mask image as a region: the voxels whose value is not zero (NaN counts as set, as in a C++ cast to
+/// bool). A point meets it when the voxel nearest to it (each voxel coordinate rounded half away from zero, as
+/// `tckedit` rounds) is set; points outside the image meet nothing.
+#[derive(Clone, Debug)]
+pub struct MaskRegion {
+    dims: [usize; 3],
+    set: Vec<bool>,
+    /// World to voxel, rows of a 3x4 affine in f32 (as `tckedit` casts it).
+    voxel_from_world: [[f32; 4]; 3],
+}
+
+impl MaskRegion {
+    /// The region of a volume's first channel.
+    pub fn new(volume: &crate::Volume<f32>) -> Self {
+        let dims = volume.dims3();
+        let n = dims.iter().product::<usize>();
+        let set = (0..n).map(|v| volume.at(v, 0) != 0.0).collect();
+        let m = volume.world_from_voxel.inverse();
+        let voxel_from_world = std::array::from_fn(|r| std::array::from_fn(|c| m.col(c)[r] as f32));
+        Self { dims, set, voxel_from_world }
+    }
+
+    /// Voxels set.
+    pub fn count(&self) -> usize {
+        self.set.iter().filter(|s| **s).count()
+    }
+
+    /// Whether `p` (RAS+ mm) falls in a set voxel.
+    #[inline]
+    pub fn contains(&self, p: Vec3) -> bool {
+        let mut flat = 0usize;
+        let mut stride = 1usize;
+        for k in 0..3 {
+            let m = &self.voxel_from_world[k];
+            // In f32, summed as Eigen sums a 3-vector product, then the translation.
+            let v = (m[0] * p.x + (m[1] * p.y + m[2] * p.z)) + m[3];
+            let i = v.round();
+            if !(i >= 0.0 && i < self.dims[k] as f32) {
+                return false;
+            }
+            flat += i as usize * stride;
+            stride *= self.dims[k];
+        }
+        self.set[flat]
+    }
+}
+
+/// A region of a [`Criteria`]: a shape, or a mask image.
+#[derive(Clone, Debug)]
+pub enum Region {
+    Shape(RoiShape),
+    Mask(std::sync::Arc<MaskRegion>),
+}
+
+impl Region {
+    #[inline]
+    fn contains(&self, p: Vec3) -> bool {
+        match self {
+            Region::Shape(s) => s.contains(p),
+            Region::Mask(m) => m.contains(p),
+        }
+    }
+
+    fn is_plane(&self) -> bool {
+        matches!(self, Region::Shape(RoiShape::Plane { .. }))
+    }
+}
+
+/// `tckedit`'s selection of one streamline at a time: it is kept when it meets every include region and no
+/// exclude region (a streamline without points meets nothing); with `ends_only`, only its first and last
+/// points are tested (`-ends_only`). Planes, which `tckedit` has not, are met by a step crossing them and
+/// cannot be combined with `ends_only`.
+#[derive(Clone, Debug, Default)]
+pub struct Criteria {
+    pub include: Vec<Region>,
+    pub exclude: Vec<Region>,
+    pub ends_only: bool,
+}
+
+impl Criteria {
+    /// Whether there is anything to test.
+    pub fn is_empty(&self) -> bool {
+        self.include.is_empty() && self.exclude.is_empty()
+    }
+
+    /// Whether the streamline `pts` is kept.
+    pub fn keeps(&self, pts: &[Vec3]) -> bool {
+        if self.is_empty() {
+            return true;
+        }
+        if pts.is_empty() {
+            return false;
+        }
+        let mut met = 0u64;
+        let all = if self.include.len() >= 64 { u64::MAX } else { (1u64 << self.include.len()) - 1 };
+        let visit = |p: Vec3, met: &mut u64| -> bool {
+            for (k, r) in self.include.iter().enumerate() {
+                if *met & (1 << k.min(63)) == 0 && !r.is_plane() && r.contains(p) {
+                    *met |= 1 << k.min(63);
+                }
+            }
+            self.exclude.iter().any(|r| !r.is_plane() && r.contains(p))
+        };
+        let ends = [pts[0], pts[pts.len() - 1]];
+        let tested: &[Vec3] = if self.ends_only { &ends } else { pts };
+        for p in tested {
+            if visit(*p, &mut met) {
+                return false;
+            }
+        }
+        // Planes: crossed by a step.
+        for (k, r) in self.include.iter().enumerate() {
+            if let Region::Shape(s @ RoiShape::Plane { .. }) = r
+                && s.meets_streamline(pts)
+            {
+                met |= 1 << k.min(63);
+            }
+        }
+        if self
+            .exclude
+            .iter()
+            .any(|r| matches!(r, Region::Shape(s @ RoiShape::Plane { .. }) if s.meets_streamline(pts)))
+        {
+            return false;
+        }
+        met & all == all
     }
 }

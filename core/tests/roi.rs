@@ -3,7 +3,7 @@
 //! every segment selects; and the segment predicates agree with dense sampling of each segment.
 
 use fascicle_core::io::Tractogram;
-use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
+use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, select};
 use glam::Vec3;
 use rand::{RngExt, SeedableRng};
 
@@ -15,11 +15,11 @@ fn brute(t: &Tractogram, rois: &[Roi]) -> Vec<bool> {
     (0..t.offsets.len() - 1)
         .map(|s| {
             let pts = &t.points[t.offsets[s]..t.offsets[s + 1]];
-            let meets = |r: &Roi| {
-                if pts.len() == 1 {
-                    return r.shape.meets_segment(pts[0], pts[0]);
-                }
-                pts.windows(2).any(|w| r.shape.meets_segment(w[0], w[1]))
+            // The selection rule written out: a point in a sphere or box, a step across a plane.
+            let meets = |r: &Roi| match r.shape {
+                RoiShape::Plane { .. } if pts.len() > 1 => pts.windows(2).any(|w| r.shape.meets_segment(w[0], w[1])),
+                RoiShape::Plane { .. } => pts.len() == 1 && r.shape.meets_segment(pts[0], pts[0]),
+                _ => pts.iter().any(|p| r.shape.contains(*p)),
             };
             rois.iter().filter(|r| r.mode == RoiMode::Include).all(meets)
                 && !rois.iter().filter(|r| r.mode == RoiMode::Exclude).any(meets)
@@ -56,6 +56,14 @@ fn check(t: &Tractogram, seed: u64) -> (usize, usize) {
         let rois: Vec<Roi> = (0..rng.random_range(1..4)).map(|_| random_roi(&mut rng, lo, hi)).collect();
         let got = select(&t.points, &t.offsets, &grid, &rois);
         assert_eq!(got, brute(t, &rois), "{rois:?}");
+        // The streaming form (one streamline at a time, as `fascicle select` runs) keeps the same set.
+        let criteria = Criteria {
+            include: rois.iter().filter(|r| r.mode == RoiMode::Include).map(|r| Region::Shape(r.shape)).collect(),
+            exclude: rois.iter().filter(|r| r.mode == RoiMode::Exclude).map(|r| Region::Shape(r.shape)).collect(),
+            ends_only: false,
+        };
+        let streamed: Vec<bool> = t.iter().map(|s| criteria.keeps(s)).collect();
+        assert_eq!(streamed, got, "{rois:?}");
         selected += got.iter().filter(|s| **s).count();
         cases += 1;
     }
@@ -234,4 +242,37 @@ fn box_tests_never_miss_a_region() {
         if says { met += 1 } else { apart += 1 }
     }
     assert!(met > 300 && apart > 300, "{met} met, {apart} apart");
+}
+
+/// `tckedit`'s rules on a closed case: a point exactly on a sphere counts (`<=`), a step jumping over a small
+/// sphere misses it (points, not segments), `--ends-only` tests the two ends only, and a mask is met at the
+/// voxel nearest to a point (rounded), nothing outside the image.
+#[test]
+fn points_not_segments_and_ends_only_as_tckedit() {
+    let line: Vec<Vec3> = (0..11).map(|k| Vec3::new(k as f32 * 2.0, 0.0, 0.0)).collect();
+    let sphere = |x: f32, r: f32| Region::Shape(RoiShape::Sphere { centre: [x, 0.0, 0.0], radius: r });
+    let keeps = |include: Vec<Region>, exclude: Vec<Region>, ends_only: bool| {
+        Criteria { include, exclude, ends_only }.keeps(&line)
+    };
+    assert!(keeps(vec![sphere(4.0, 0.0)], vec![], false), "a point on the sphere (radius 0 at a point)");
+    assert!(!keeps(vec![sphere(5.0, 0.9)], vec![], false), "between points 4 and 6: the step jumps over it");
+    assert!(keeps(vec![sphere(5.0, 1.0)], vec![], false), "points 4 and 6 lie on its surface");
+    assert!(!keeps(vec![sphere(10.0, 1.0)], vec![], true), "a middle point with --ends-only");
+    assert!(keeps(vec![sphere(0.0, 1.0), sphere(20.0, 1.0)], vec![], true), "both ends");
+    assert!(keeps(vec![sphere(0.0, 1.0)], vec![sphere(4.0, 0.5)], true), "the exclude meets a middle point only");
+    assert!(!keeps(vec![sphere(0.0, 1.0)], vec![sphere(4.0, 0.5)], false));
+    assert!(!Criteria { include: vec![sphere(0.0, 100.0)], ..Default::default() }.keeps(&[]), "no points");
+    assert!(Criteria::default().keeps(&line), "no region keeps everything");
+
+    // A 10x10x10 mask of 2 mm voxels from (-1,-1,-1): voxel (3,0,0) set, centred at x = 5 mm.
+    let mut vol = fascicle_core::Volume::<f32>::zeros(
+        &[10, 10, 10],
+        glam::DMat4::from_translation(glam::DVec3::splat(-1.0)) * glam::DMat4::from_scale(glam::DVec3::splat(2.0)),
+    );
+    vol.data[3] = 1.0;
+    let mask = Region::Mask(std::sync::Arc::new(MaskRegion::new(&vol)));
+    let at = |x: f32| Criteria { include: vec![mask.clone()], ..Default::default() }.keeps(&[Vec3::new(x, -1.0, -1.0)]);
+    // x = 5 mm is voxel 3.0; rounding takes 2.5..3.5 (x in [4, 6)), with halves away from zero.
+    assert!(at(5.0) && at(4.0) && at(5.99) && !at(3.99) && !at(6.0));
+    assert!(!Criteria { include: vec![mask], ..Default::default() }.keeps(&[Vec3::new(-4.0, -1.0, -1.0)]));
 }

@@ -10,7 +10,8 @@
 use std::path::Path;
 
 use fascicle_core::io::classify::{ImageKind, classify};
-use fascicle_core::io::{Tractogram, mif, nifti, tractogram};
+use fascicle_core::io::stream::{TractogramReader, TractogramWriter};
+use fascicle_core::io::{mif, nifti, tractogram};
 use fascicle_core::sh::{self, ShBasis};
 use fascicle_core::{Error, Volume};
 
@@ -78,12 +79,12 @@ pub fn run(input: &Path, output: &Path, sh_basis: Option<ShBasis>) -> Result<(),
         if sh_basis.is_some() {
             return Err(Error::Param("--sh-basis applies to SH images, not tractograms".into()));
         }
-        let t = Tractogram::read(input)?;
-        let header = match tractogram::extension(input).as_str() {
-            "trk" => Some(fascicle_core::io::trk::read(input)?.1),
-            _ => None,
-        };
-        super::select::write(output, &t, header.as_ref())?;
+        // Streamed chunk by chunk: memory stays bounded whatever the file's size.
+        let reader = TractogramReader::open(input)?;
+        let options = super::select::write_options(input, reader.header(), output, true)?;
+        let mut writer = TractogramWriter::create(output, &options)?;
+        super::select::pipe(reader, &mut writer, "convert", |_| None)?;
+        writer.finish()?;
     } else {
         return Err(Error::Param(format!(
             "cannot convert {} to {}: both must be images (.nii, .nii.gz, .mif, .mif.gz) or both tractograms (.trk, .tck, gzipped)",

@@ -3,7 +3,8 @@
 use std::path::Path;
 
 use fascicle_core::Error;
-use fascicle_core::io::{nifti, tck, tractogram, trk};
+use fascicle_core::io::stream::{self, Format, StreamHeader, Summary, TractogramReader};
+use fascicle_core::io::{nifti, tractogram};
 
 pub fn run(path: &Path, json: bool) -> Result<(), Error> {
     if json {
@@ -47,27 +48,38 @@ pub fn run(path: &Path, json: bool) -> Result<(), Error> {
         return Ok(());
     }
     match tractogram::extension(path).as_str() {
-        "trk" => {
-            let (t, h) = trk::read(path)?;
-            println!("{}: TrackVis v{}{}", path.display(), h.version, if h.big_endian { " (big endian)" } else { "" });
-            print_tracts(&t);
-            println!("  grid        {:?} voxels of {:?} mm, voxel order {}", h.dims, h.voxel_size, h.voxel_order);
-        }
-        "tck" => {
-            let (t, h) = tck::read(path)?;
-            println!("{}: MRtrix tracks", path.display());
-            print_tracts(&t);
-            for (k, v) in h {
-                println!("  {k}: {}", v.replace('\n', "\n    "));
+        "trk" | "tck" | "trx" => {
+            let (h, s) = summary(path)?;
+            println!("{}: {}", path.display(), h.format.name());
+            println!("  streamlines {}", s.streamlines);
+            println!("  points      {}", s.points);
+            match s.bounds {
+                Some((lo, hi)) => println!(
+                    "  bounds (RAS mm) [{:.2}, {:.2}, {:.2}] .. [{:.2}, {:.2}, {:.2}]",
+                    lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
+                ),
+                None if h.format == Format::Trx => println!("  bounds      not read (a TRX's header and offsets only)"),
+                None => {}
             }
-        }
-        "trx" => {
-            let (t, h) = fascicle_core::io::trx::read(path)?;
-            println!("{}: TRX", path.display());
-            print_tracts(&t);
-            println!("  grid        {:?} voxels", h.dims);
-            for (name, members) in &h.groups {
-                println!("  group       {name} ({} streamlines)", members.len());
+            for n in &h.scalars {
+                println!("  scalar      {n}");
+            }
+            for n in &h.properties {
+                println!("  property    {n}");
+            }
+            if let Some(t) = &h.trk {
+                let v = if t.big_endian { " (big endian)" } else { "" };
+                println!("  version     {}{v}", t.version);
+                println!("  grid        {:?} voxels of {:?} mm, voxel order {}", t.dims, t.voxel_size, t.voxel_order);
+            }
+            if let Some(t) = &h.trx {
+                println!("  grid        {:?} voxels", t.dims);
+                for (name, members) in &t.groups {
+                    println!("  group       {name} ({} streamlines)", members.len());
+                }
+            }
+            for (k, v) in h.tck.iter().flatten() {
+                println!("  {k}: {}", v.replace('\n', "\n    "));
             }
         }
         other => {
@@ -80,23 +92,14 @@ pub fn run(path: &Path, json: bool) -> Result<(), Error> {
     Ok(())
 }
 
-fn print_tracts(t: &tractogram::Tractogram) {
-    println!("  streamlines {}", t.n_streamlines());
-    println!("  points      {}", t.points.len());
-    if let (Some(lo), Some(hi)) =
-        (t.points.iter().copied().reduce(|a, b| a.min(b)), t.points.iter().copied().reduce(|a, b| a.max(b)))
-    {
-        println!(
-            "  bounds (RAS mm) [{:.2}, {:.2}, {:.2}] .. [{:.2}, {:.2}, {:.2}]",
-            lo.x, lo.y, lo.z, hi.x, hi.y, hi.z
-        );
-    }
-    for (n, _) in &t.scalars {
-        println!("  scalar      {n}");
-    }
-    for (n, _) in &t.properties {
-        println!("  property    {n}");
-    }
+/// A tractogram's header and one streamed pass over it (the header only for a TRX), with a progress bar on
+/// stderr.
+fn summary(path: &Path) -> Result<(StreamHeader, Summary), Error> {
+    let mut reader = TractogramReader::open(path)?;
+    let pb = super::select::bytes_bar(reader.header().file_bytes, "reading");
+    let s = stream::scan(&mut reader, |b| pb.set_position(b))?;
+    pb.finish_and_clear();
+    Ok((reader.header().clone(), s))
 }
 
 /// What `info --json` prints: `kind` (tractogram, or for images dwi / tensor / sh / peaks / rgb / scalar /
@@ -165,46 +168,42 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
         }
         return Ok(v);
     }
-    let (t, space, extra) = match tractogram::extension(path).as_str() {
-        "trk" => {
-            let (t, h) = trk::read(path)?;
-            let space =
-                json!({"voxel_order": h.voxel_order, "dims": h.dims, "voxel_size": h.voxel_size, "points": "RAS+ mm"});
-            (t, space, json!({"format": format!("TrackVis v{}", h.version)}))
-        }
-        "tck" => {
-            let (t, _) = tck::read(path)?;
-            (t, json!({"points": "RAS+ mm (scanner)"}), json!({"format": "MRtrix tracks"}))
-        }
-        "trx" => {
-            let (t, h) = fascicle_core::io::trx::read(path)?;
-            let groups: serde_json::Map<String, serde_json::Value> =
-                h.groups.iter().map(|(n, m)| (n.clone(), json!(m.len()))).collect();
-            let space = json!({"dims": h.dims, "voxel_to_rasmm": h.voxel_to_rasmm.transpose().to_cols_array_2d(), "points": "RAS+ mm"});
-            (t, space, json!({"format": "TRX", "groups": groups}))
-        }
-        other => {
-            return Err(Error::Param(format!(
-                "{}: unknown file type '{other}' (NIfTI, .mif, .trk, .tck or .trx)",
-                path.display()
-            )));
-        }
+    if !matches!(tractogram::extension(path).as_str(), "trk" | "tck" | "trx") {
+        return Err(Error::Param(format!(
+            "{}: unknown file type '{}' (NIfTI, .mif, .trk, .tck or .trx)",
+            path.display(),
+            tractogram::extension(path)
+        )));
+    }
+    let (h, s) = summary(path)?;
+    let space = if let Some(t) = &h.trk {
+        json!({"voxel_order": t.voxel_order, "dims": t.dims, "voxel_size": t.voxel_size, "points": "RAS+ mm"})
+    } else if let Some(t) = &h.trx {
+        json!({"dims": t.dims, "voxel_to_rasmm": t.voxel_to_rasmm.transpose().to_cols_array_2d(), "points": "RAS+ mm"})
+    } else {
+        json!({"points": "RAS+ mm (scanner)"})
     };
-    let bounds =
-        match (t.points.iter().copied().reduce(|a, b| a.min(b)), t.points.iter().copied().reduce(|a, b| a.max(b))) {
-            (Some(lo), Some(hi)) => json!([lo.to_array(), hi.to_array()]),
-            _ => serde_json::Value::Null,
-        };
+    let format = match &h.trk {
+        Some(t) => format!("TrackVis v{}", t.version),
+        None => h.format.name().to_string(),
+    };
+    let groups = h.trx.as_ref().map_or(serde_json::Value::Null, |t| {
+        serde_json::Value::Object(t.groups.iter().map(|(n, m)| (n.clone(), json!(m.len()))).collect())
+    });
+    let bounds = match s.bounds {
+        Some((lo, hi)) => json!([lo.to_array(), hi.to_array()]),
+        None => serde_json::Value::Null,
+    };
     Ok(json!({
         "file": path.display().to_string(),
-        "format": extra["format"],
+        "format": format,
         "kind": "tractogram",
-        "count": t.n_streamlines(),
-        "points": t.points.len(),
+        "count": s.streamlines,
+        "points": s.points,
         "space": space,
         "bounds": bounds,
-        "scalars": t.scalars.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>(),
-        "properties": t.properties.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>(),
-        "groups": extra.get("groups").cloned().unwrap_or(serde_json::Value::Null),
+        "scalars": h.scalars,
+        "properties": h.properties,
+        "groups": groups,
     }))
 }

@@ -1,44 +1,68 @@
-//! `fascicle select`: keep the streamlines of a tractogram that meet every include ROI and no exclude ROI
-//! (TrackVis / DSI Studio AND semantics, `fascicle_core::roi`), and write them as `.trk` or `.tck`.
+//! `fascicle select`: keep the streamlines of a tractogram that meet every include region and no exclude region,
+//! as MRtrix3's `tckedit` keeps them (`fascicle_core::roi`: a point of the streamline in a sphere, box or mask;
+//! with `--ends-only` its two ends), and write them as `.tck`, `.trk` or `.trx`.
+//!
+//! The file is streamed: one thread reads chunks of streamlines while the others test them and the kept ones
+//! are written, so memory stays bounded (a few chunks) whatever the file's size.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use fascicle_core::Error;
+use fascicle_core::io::stream::{self, DEFAULT_CHUNK_POINTS, Format, TractogramReader, TractogramWriter, WriteOptions};
 use fascicle_core::io::{Tractogram, tck, tractogram::extension, trk};
-use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
+use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape};
 use glam::{DMat4, DVec3};
+use rayon::prelude::*;
 
 #[derive(clap::Args, Debug)]
 pub struct SelectArgs {
-    /// Input tractogram (.trk or .tck).
+    /// Input tractogram (.tck, .trk, gzipped, or .trx).
     pub input: PathBuf,
-    /// Include sphere, x,y,z,r in RAS+ mm (repeatable).
-    #[arg(long, value_name = "X,Y,Z,R")]
+    /// Include region (repeatable), as tckedit's -include: a sphere X,Y,Z,R (RAS+ mm) or a mask image (NIfTI or
+    /// .mif; its non-zero voxels).
+    #[arg(long, value_name = "X,Y,Z,R|IMAGE", allow_hyphen_values = true)]
+    pub include: Vec<String>,
+    /// Exclude region (repeatable), as tckedit's -exclude: a sphere X,Y,Z,R or a mask image.
+    #[arg(long, value_name = "X,Y,Z,R|IMAGE", allow_hyphen_values = true)]
+    pub exclude: Vec<String>,
+    /// Test only the first and last point of each streamline against the regions (tckedit's -ends_only).
+    #[arg(long)]
+    pub ends_only: bool,
+    /// Include sphere, x,y,z,r in RAS+ mm (repeatable; the same as --include X,Y,Z,R).
+    #[arg(long, value_name = "X,Y,Z,R", allow_hyphen_values = true)]
     pub sphere: Vec<String>,
     /// Exclude sphere, x,y,z,r (repeatable).
-    #[arg(long, value_name = "X,Y,Z,R")]
+    #[arg(long, value_name = "X,Y,Z,R", allow_hyphen_values = true)]
     pub exclude_sphere: Vec<String>,
-    /// Include axis-aligned box, x0,y0,z0,x1,y1,z1 (repeatable).
-    #[arg(long, value_name = "X0,Y0,Z0,X1,Y1,Z1", name = "box")]
+    /// Include axis-aligned box, x0,y0,z0,x1,y1,z1 (repeatable; faces included).
+    #[arg(long, value_name = "X0,Y0,Z0,X1,Y1,Z1", name = "box", allow_hyphen_values = true)]
     pub boxes: Vec<String>,
     /// Exclude box (repeatable).
-    #[arg(long, value_name = "X0,Y0,Z0,X1,Y1,Z1")]
+    #[arg(long, value_name = "X0,Y0,Z0,X1,Y1,Z1", allow_hyphen_values = true)]
     pub exclude_box: Vec<String>,
-    /// Include plane through a point with a normal, px,py,pz,nx,ny,nz (repeatable).
-    #[arg(long, value_name = "PX,PY,PZ,NX,NY,NZ")]
+    /// Include plane through a point with a normal, px,py,pz,nx,ny,nz (repeatable): a step of the streamline
+    /// crosses it.
+    #[arg(long, value_name = "PX,PY,PZ,NX,NY,NZ", allow_hyphen_values = true)]
     pub plane: Vec<String>,
     /// Exclude plane (repeatable).
-    #[arg(long, value_name = "PX,PY,PZ,NX,NY,NZ")]
+    #[arg(long, value_name = "PX,PY,PZ,NX,NY,NZ", allow_hyphen_values = true)]
     pub exclude_plane: Vec<String>,
-    /// Output (.trk or .tck).
+    /// Output (.tck, .trk, gzipped, or .trx).
     #[arg(long)]
     pub out: PathBuf,
 }
 
 fn numbers(s: &str, n: usize, what: &str) -> Result<Vec<f32>, Error> {
+    // Parsed as f64 and rounded to f32, as MRtrix3 parses an ROI (so a radius is the same float in both tools).
     let v: Vec<f32> = s
         .split(',')
-        .map(|x| x.trim().parse::<f32>().map_err(|_| Error::Param(format!("{what} '{s}': '{x}' is not a number"))))
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .map(|v| v as f32)
+                .map_err(|_| Error::Param(format!("{what} '{s}': '{x}' is not a number")))
+        })
         .collect::<Result<_, _>>()?;
     if v.len() != n || v.iter().any(|x| !x.is_finite()) {
         return Err(Error::Param(format!("{what} '{s}' needs {n} finite comma-separated numbers")));
@@ -116,30 +140,179 @@ pub fn write(path: &Path, t: &Tractogram, header: Option<&trk::TrkHeader>) -> Re
     }
 }
 
-pub fn run(a: SelectArgs) -> Result<(), Error> {
-    let rois = rois(&a)?;
-    super::check_output(&a.out)?;
-    let (t, header) = match extension(&a.input).as_str() {
-        "trk" => {
-            let (t, h) = trk::read(&a.input)?;
-            (t, Some(h))
+/// A sphere "X,Y,Z,R" or, when the text is not four numbers, a mask image (as tckedit reads an ROI).
+fn region(spec: &str) -> Result<Region, Error> {
+    let looks_numeric = spec.split(',').count() == 4 && !Path::new(spec).exists();
+    if looks_numeric {
+        let v = numbers(spec, 4, "sphere")?;
+        if v[3] <= 0.0 {
+            return Err(Error::Param(format!("sphere '{spec}': the radius must be positive")));
         }
-        _ => (Tractogram::read(&a.input)?, None),
+        return Ok(Region::Shape(RoiShape::Sphere { centre: [v[0], v[1], v[2]], radius: v[3] }));
+    }
+    let path = Path::new(spec);
+    if !path.exists() {
+        return Err(Error::Param(format!("region '{spec}' is neither a sphere X,Y,Z,R nor an image file")));
+    }
+    let vol = fascicle_core::io::mif::read_image::<f32>(path)?;
+    let mask = MaskRegion::new(&vol);
+    if mask.count() == 0 {
+        return Err(Error::Param(format!("{spec}: the mask image is empty (no non-zero voxel)")));
+    }
+    Ok(Region::Mask(Arc::new(mask)))
+}
+
+/// What the arguments select.
+pub fn criteria(a: &SelectArgs) -> Result<Criteria, Error> {
+    let mut c = Criteria { ends_only: a.ends_only, ..Default::default() };
+    for spec in &a.include {
+        c.include.push(region(spec)?);
+    }
+    for spec in &a.exclude {
+        c.exclude.push(region(spec)?);
+    }
+    for roi in rois(a)? {
+        match roi.mode {
+            RoiMode::Include => c.include.push(Region::Shape(roi.shape)),
+            RoiMode::Exclude => c.exclude.push(Region::Shape(roi.shape)),
+        }
+    }
+    if c.include.len() > 64 {
+        return Err(Error::Param(format!("{} include regions: at most 64", c.include.len())));
+    }
+    if a.ends_only && (!a.plane.is_empty() || !a.exclude_plane.is_empty()) {
+        return Err(Error::Param("--ends-only tests points; a plane is met by crossing it: use a box".into()));
+    }
+    Ok(c)
+}
+
+/// How a tractogram written from `header`'s file is placed: its values where the output format holds them,
+/// the `.tck` header entries, the TRX grid (without groups when the streamlines change), and for a `.trk` the
+/// input's grid (a 1 mm grid over the input's points for a `.tck`, read in one more pass).
+pub fn write_options(
+    input: &Path,
+    header: &stream::StreamHeader,
+    output: &Path,
+    keep_groups: bool,
+) -> Result<WriteOptions, Error> {
+    let mut options = WriteOptions {
+        tck_header: header.tck.clone().unwrap_or_default(),
+        scalars: header.scalars.clone(),
+        properties: header.properties.clone(),
+        trx: header.trx.clone().map(|mut h| {
+            if !keep_groups {
+                h.groups.clear();
+            }
+            h
+        }),
+        ..Default::default()
     };
+    if Format::of(output)? == Format::Trk {
+        let bounds = if header.trk.is_none() && header.trx.is_none() {
+            let mut r = TractogramReader::open(input)?;
+            stream::scan(&mut r, |_| {})?.bounds
+        } else {
+            None
+        };
+        options.trk_space = Some(stream::trk_space(header, bounds));
+        if options.scalars.len() > 10 || options.properties.len() > 10 {
+            return Err(Error::Param(format!(
+                "{}: {} values per point and {} per streamline; a .trk holds at most 10 of each",
+                input.display(),
+                options.scalars.len(),
+                options.properties.len()
+            )));
+        }
+    }
+    Ok(options)
+}
+
+/// A progress bar over a file's bytes.
+pub(crate) fn bytes_bar(total: u64, what: &str) -> indicatif::ProgressBar {
+    if super::globals().quiet {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(total);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {bytes}/{total_bytes} ({bytes_per_sec}, eta {eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    pb.set_message(what.to_string());
+    pb
+}
+
+/// Streams `input` through `keep` (per chunk, which streamlines to write) into `writer`: one thread reads while
+/// the caller's threads test and write. The streamlines read and written.
+pub fn pipe(
+    reader: TractogramReader,
+    writer: &mut TractogramWriter,
+    what: &str,
+    keep: impl Fn(&Tractogram) -> Option<Vec<bool>> + Sync,
+) -> Result<(usize, usize), Error> {
+    let pb = bytes_bar(reader.header().file_bytes, what);
+    let (mut read, mut written) = (0, 0);
+    std::thread::scope(|scope| -> Result<(), Error> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(Tractogram, u64), Error>>(2);
+        let mut reader = reader;
+        scope.spawn(move || {
+            loop {
+                match reader.next_chunk(DEFAULT_CHUNK_POINTS) {
+                    Ok(Some(t)) => {
+                        if tx.send(Ok((t, reader.bytes_read()))).is_err() {
+                            return;
+                        }
+                    }
+                    Ok(None) => return,
+                    Err(e) => {
+                        tx.send(Err(e)).ok();
+                        return;
+                    }
+                }
+            }
+        });
+        for msg in rx {
+            let (t, bytes) = msg?;
+            read += t.n_streamlines();
+            match keep(&t) {
+                Some(mask) => {
+                    let out = t.subset_with_values(&mask);
+                    written += out.n_streamlines();
+                    writer.write_chunk(&out)?;
+                }
+                None => {
+                    written += t.n_streamlines();
+                    writer.write_chunk(&t)?;
+                }
+            }
+            pb.set_position(bytes);
+        }
+        Ok(())
+    })?;
+    pb.finish_and_clear();
+    Ok((read, written))
+}
+
+pub fn run(a: SelectArgs) -> Result<(), Error> {
+    let criteria = criteria(&a)?;
+    super::check_output(&a.out)?;
     let t0 = std::time::Instant::now();
-    let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
-    let keep = select(&t.points, &t.offsets, &grid, &rois);
-    let ms = t0.elapsed().as_secs_f64() * 1e3;
-    let out = t.subset(&keep);
-    write(&a.out, &out, header.as_ref())?;
+    let reader = TractogramReader::open(&a.input)?;
+    let options = write_options(&a.input, reader.header(), &a.out, false)?;
+    let mut writer = TractogramWriter::create(&a.out, &options)?;
+    let keep = |t: &Tractogram| -> Option<Vec<bool>> {
+        Some(
+            (0..t.n_streamlines()).into_par_iter().with_min_len(256).map(|s| criteria.keeps(t.streamline(s))).collect(),
+        )
+    };
+    let (read, _) = pipe(reader, &mut writer, "select", keep)?;
+    let kept = writer.finish()?;
     if super::globals().quiet {
         return Ok(());
     }
+    let n_regions = criteria.include.len() + criteria.exclude.len();
     println!(
-        "kept {} of {} streamlines ({} ROIs, {ms:.1} ms) -> {}",
-        out.n_streamlines(),
-        t.n_streamlines(),
-        rois.len(),
+        "kept {kept} of {read} streamlines ({n_regions} regions, {:.1} s) -> {}",
+        t0.elapsed().as_secs_f64(),
         a.out.display()
     );
     Ok(())

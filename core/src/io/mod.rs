@@ -5,6 +5,7 @@ pub mod gradients;
 pub mod mif;
 pub mod nifti;
 pub mod peaks;
+pub mod stream;
 pub mod tck;
 pub mod tractogram;
 pub mod trk;

@@ -21,9 +21,22 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TckHeader)> {
     read_bytes(&std::fs::read(path).map_err(|e| Error::io(path, e))?, path)
 }
 
-/// [`read`] from the file's bytes in memory (gzipped or not); `path` is the name errors use.
-pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
-    let b = &super::tractogram::gunzipped(b, path)?[..];
+/// Where a `.tck` file's data lie and how they are stored, from its header.
+#[derive(Clone, Debug)]
+pub struct TckLayout {
+    /// Header key-value pairs in file order.
+    pub header: TckHeader,
+    /// Byte offset of the first point (`file: . OFFSET`).
+    pub offset: usize,
+    /// Bytes per coordinate: 4 (Float32) or 8 (Float64).
+    pub size: usize,
+    /// Big-endian data.
+    pub big_endian: bool,
+}
+
+/// Parses the header at the start of `b` (which must hold it whole, up to its `END` line); `path` names the
+/// file in errors.
+pub fn parse_header(b: &[u8], path: &Path) -> Result<TckLayout> {
     const MAGIC: &[u8] = b"mrtrix tracks";
     // MRtrix's own writers (tckgen) pad the first line with spaces, so that it can be rewritten in place.
     let first_eol = b.iter().take(4096).position(|&c| c == b'\n');
@@ -85,10 +98,20 @@ pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
         "Float64BE" => (8, true),
         other => return Err(Error::format(path, format!("datatype '{other}' is not one of Float32/64 LE/BE"))),
     };
-    if offset < pos || offset > b.len() {
+    if offset < pos {
+        return Err(Error::format(path, format!("data offset {offset} lies inside the header (it ends at {pos})")));
+    }
+    Ok(TckLayout { header, offset, size, big_endian: be })
+}
+
+/// [`read`] from the file's bytes in memory (gzipped or not); `path` is the name errors use.
+pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
+    let b = &super::tractogram::gunzipped(b, path)?[..];
+    let TckLayout { header, offset, size, big_endian: be } = parse_header(b, path)?;
+    if offset > b.len() {
         return Err(Error::format(
             path,
-            format!("data offset {offset} lies outside the data (header ends at {pos}, file is {} bytes)", b.len()),
+            format!("data offset {offset} lies outside the data (the file is {} bytes)", b.len()),
         ));
     }
     let read = |o: usize| -> f64 {

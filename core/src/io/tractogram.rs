@@ -47,6 +47,36 @@ impl Tractogram {
         out
     }
 
+    /// The streamlines with `keep[s]`, in order, with their values per point and per streamline.
+    pub fn subset_with_values(&self, keep: &[bool]) -> Tractogram {
+        let n = self.n_streamlines();
+        let kept = || (0..n).filter(|&s| keep.get(s).copied().unwrap_or(false));
+        let mut out = Tractogram::new();
+        let total: usize = kept().map(|s| self.offsets[s + 1] - self.offsets[s]).sum();
+        out.points.reserve(total);
+        for s in kept() {
+            out.points.extend_from_slice(self.streamline(s));
+            out.offsets.push(out.points.len());
+        }
+        out.scalars = self
+            .scalars
+            .iter()
+            .map(|(name, v)| {
+                let mut w = Vec::with_capacity(total);
+                for s in kept() {
+                    w.extend_from_slice(v.get(self.offsets[s]..self.offsets[s + 1]).unwrap_or(&[]));
+                }
+                (name.clone(), w)
+            })
+            .collect();
+        out.properties = self
+            .properties
+            .iter()
+            .map(|(name, v)| (name.clone(), kept().map(|s| v.get(s).copied().unwrap_or(0.0)).collect()))
+            .collect();
+        out
+    }
+
     /// Appends a streamline (no scalars or properties: use only on tractograms without them).
     pub fn push(&mut self, pts: &[Vec3]) {
         if self.offsets.is_empty() {

@@ -137,9 +137,22 @@ pub fn read(path: impl AsRef<Path>) -> Result<(Tractogram, TrkHeader)> {
     read_bytes(&std::fs::read(path).map_err(|e| Error::io(path, e))?, path)
 }
 
-/// [`read`] from the file's bytes in memory (gzipped or not); `path` is the name errors use.
-pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TrkHeader)> {
-    let b = &super::tractogram::gunzipped(b, path)?[..];
+/// A `.trk` header and the names of its values per point (scalars) and per streamline (properties).
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrkLayout {
+    /// The fields that place the streamlines in space.
+    pub header: TrkHeader,
+    /// Names of the values stored after each point.
+    pub scalars: Vec<String>,
+    /// Names of the values stored after each streamline.
+    pub properties: Vec<String>,
+}
+
+/// Size of a `.trk` header in bytes; the streamlines follow it.
+pub const HEADER_BYTES: usize = HDR;
+
+/// Parses the 1000-byte header at the start of `b`; `path` names the file in errors.
+pub fn parse_header(b: &[u8], path: &Path) -> Result<TrkLayout> {
     if b.len() < HDR {
         return Err(Error::format(path, format!("truncated TrackVis header: {} of 1000 bytes", b.len())));
     }
@@ -190,12 +203,21 @@ pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TrkHeader)> {
     }
     let header =
         TrkHeader { version: r.i32(992), big_endian, dims, voxel_size, voxel_order, vox_to_ras, n_count: r.i32(988) };
+    let scalars = r.names(38, n_scalars as usize);
+    let properties = r.names(240, n_props as usize);
+    Ok(TrkLayout { header, scalars, properties })
+}
+
+/// [`read`] from the file's bytes in memory (gzipped or not); `path` is the name errors use.
+pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TrkHeader)> {
+    let b = &super::tractogram::gunzipped(b, path)?[..];
+    let TrkLayout { header, scalars, properties } = parse_header(b, path)?;
+    let r = Rd { b, be: header.big_endian };
     let to_ras = header.rasmm_from_voxmm();
-    let ns = n_scalars as usize;
-    let np = n_props as usize;
+    let (ns, np) = (scalars.len(), properties.len());
     let mut t = Tractogram::new();
-    t.scalars = r.names(38, ns).into_iter().map(|n| (n, Vec::new())).collect();
-    t.properties = r.names(240, np).into_iter().map(|n| (n, Vec::new())).collect();
+    t.scalars = scalars.into_iter().map(|n| (n, Vec::new())).collect();
+    t.properties = properties.into_iter().map(|n| (n, Vec::new())).collect();
     let mut o = HDR;
     let limit = if header.n_count > 0 { header.n_count as usize } else { usize::MAX };
     while o < b.len() && t.n_streamlines() < limit {
@@ -242,13 +264,17 @@ pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TrkHeader)> {
     Ok((t, header))
 }
 
-/// Writes a version-2 `.trk` (little endian) for streamlines in RAS+ mm, in the voxel grid of a reference
-/// image (`world_from_voxel`, `dims`); the header's voxel order is the reference affine's.
-pub fn write(path: impl AsRef<Path>, t: &Tractogram, world_from_voxel: DMat4, dims: [usize; 3]) -> Result<()> {
-    let path = path.as_ref();
-    if t.scalars.len() > 10 || t.properties.len() > 10 {
-        return Err(Error::Param("TrackVis stores at most 10 scalars and 10 properties".into()));
-    }
+/// The header of a version-2 little-endian `.trk` in the voxel grid of a reference image
+/// (`world_from_voxel`, `dims`; the voxel order is the affine's), with the names of the values per point and
+/// per streamline (at most 10 each, names cut to 19 bytes) and the streamline count: the header and its
+/// 1000 bytes.
+pub fn encode_header(
+    world_from_voxel: DMat4,
+    dims: [usize; 3],
+    scalars: &[&str],
+    properties: &[&str],
+    n_count: i32,
+) -> (TrkHeader, Vec<u8>) {
     let vs = DVec3::new(
         world_from_voxel.x_axis.truncate().length(),
         world_from_voxel.y_axis.truncate().length(),
@@ -261,9 +287,8 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, world_from_voxel: DMat4, di
         voxel_size: vs.to_array().map(|v| v as f32),
         voxel_order: axcodes(&world_from_voxel),
         vox_to_ras: world_from_voxel,
-        n_count: t.n_streamlines() as i32,
+        n_count,
     };
-    let voxmm_from_ras = header.rasmm_from_voxmm().inverse();
     let mut h = vec![0u8; HDR];
     let put = |h: &mut Vec<u8>, o: usize, b: &[u8]| h[o..o + b.len()].copy_from_slice(b);
     put(&mut h, 0, b"TRACK\0");
@@ -271,12 +296,12 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, world_from_voxel: DMat4, di
         put(&mut h, 6 + 2 * i, &header.dims[i].to_le_bytes());
         put(&mut h, 12 + 4 * i, &header.voxel_size[i].to_le_bytes());
     }
-    put(&mut h, 36, &(t.scalars.len() as i16).to_le_bytes());
-    for (i, (n, _)) in t.scalars.iter().enumerate() {
+    put(&mut h, 36, &(scalars.len().min(10) as i16).to_le_bytes());
+    for (i, n) in scalars.iter().take(10).enumerate() {
         put(&mut h, 38 + 20 * i, &n.as_bytes()[..n.len().min(19)]);
     }
-    put(&mut h, 238, &(t.properties.len() as i16).to_le_bytes());
-    for (i, (n, _)) in t.properties.iter().enumerate() {
+    put(&mut h, 238, &(properties.len().min(10) as i16).to_le_bytes());
+    for (i, n) in properties.iter().take(10).enumerate() {
         put(&mut h, 240 + 20 * i, &n.as_bytes()[..n.len().min(19)]);
     }
     let rows = header.vox_to_ras.transpose().to_cols_array();
@@ -287,6 +312,23 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, world_from_voxel: DMat4, di
     put(&mut h, 988, &header.n_count.to_le_bytes());
     put(&mut h, 992, &2i32.to_le_bytes());
     put(&mut h, 996, &1000i32.to_le_bytes());
+    (header, h)
+}
+
+/// Byte offset of `n_count` (i32) in a `.trk` header.
+pub const N_COUNT_OFFSET: u64 = 988;
+
+/// Writes a version-2 `.trk` (little endian) for streamlines in RAS+ mm, in the voxel grid of a reference
+/// image (`world_from_voxel`, `dims`); the header's voxel order is the reference affine's.
+pub fn write(path: impl AsRef<Path>, t: &Tractogram, world_from_voxel: DMat4, dims: [usize; 3]) -> Result<()> {
+    let path = path.as_ref();
+    if t.scalars.len() > 10 || t.properties.len() > 10 {
+        return Err(Error::Param("TrackVis stores at most 10 scalars and 10 properties".into()));
+    }
+    let scalars: Vec<&str> = t.scalars.iter().map(|(n, _)| n.as_str()).collect();
+    let properties: Vec<&str> = t.properties.iter().map(|(n, _)| n.as_str()).collect();
+    let (header, h) = encode_header(world_from_voxel, dims, &scalars, &properties, t.n_streamlines() as i32);
+    let voxmm_from_ras = header.rasmm_from_voxmm().inverse();
     // The body is laid out in parallel: every streamline's byte range is known in advance.
     let (ns, np) = (t.scalars.len(), t.properties.len());
     let per_point = 4 * (3 + ns);

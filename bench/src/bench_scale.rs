@@ -1,0 +1,291 @@
+//! `fascicle-bench scale`: whole-brain-sized tractograms, as users have them. Makes deterministic tractograms of
+//! 1M and 10M streamlines (`fascicle_core::phantom::whole_brain_streamlines`: 40-160 points at 1 mm, 1.2 and 12
+//! GB as `.tck`) in `.tck`, `.trk` and `.trx`, once, and times whole processes on them, each with its peak
+//! resident memory (from `wait4`, as `/usr/bin/time -v` reports it), file in the page cache (one untimed read
+//! first): `fascicle info`, `select` (a 10 mm include sphere at the centre) and `convert`, beside MRtrix3's
+//! `tckinfo -count` and `tckedit -include` on the same `.tck` (their kept sets compared), nibabel's
+//! `streamlines.load` and trx-python's `load` when the Python given has them. An ROI drag step is timed in
+//! process: the selection the viewer re-runs when a sphere moves by 1 mm, on the segment grid built once.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Instant;
+
+use fascicle_core::Error;
+use fascicle_core::io::Tractogram;
+use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
+
+/// One timed process.
+struct Row {
+    n: usize,
+    format: &'static str,
+    task: &'static str,
+    tool: &'static str,
+    wall_s: f64,
+    peak_mib: f64,
+    result: String,
+}
+
+/// Runs a command to its end: wall time (s), peak resident memory (MiB), stdout; an error naming it on failure.
+#[allow(clippy::zombie_processes, reason = "the child is reaped by wait4, which also reports its peak memory")]
+fn measure(cmd: &mut Command) -> Result<(f64, f64, String), Error> {
+    let name = format!("{:?}", cmd.get_program());
+    let t = Instant::now();
+    let mut child =
+        cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().map_err(|e| Error::Param(format!("{name}: {e}")))?;
+    let mut out = String::new();
+    let mut err = String::new();
+    if let Some(o) = child.stdout.as_mut() {
+        std::io::Read::read_to_string(o, &mut out).ok();
+    }
+    if let Some(e) = child.stderr.as_mut() {
+        std::io::Read::read_to_string(e, &mut err).ok();
+    }
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is a valid value for wait4 to fill.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: waits for our own child (std has not reaped it), writing into locals.
+    let pid = unsafe { libc::wait4(child.id() as libc::pid_t, &mut status, 0, &mut usage) };
+    let wall = t.elapsed().as_secs_f64();
+    if pid != child.id() as libc::pid_t || !libc::WIFEXITED(status) || libc::WEXITSTATUS(status) != 0 {
+        let tail: Vec<&str> = err.lines().rev().take(3).collect();
+        return Err(Error::Param(format!(
+            "{name} {:?} failed: {}",
+            cmd.get_args().collect::<Vec<_>>(),
+            tail.join(" | ")
+        )));
+    }
+    Ok((wall, usage.ru_maxrss as f64 / 1024.0, out))
+}
+
+fn on_path(name: &str) -> Option<PathBuf> {
+    std::env::var_os("PATH")?.to_str()?.split(':').map(|d| Path::new(d).join(name)).find(|p| p.is_file())
+}
+
+/// Reads a file once so that it is in the page cache.
+fn warm(path: &Path) {
+    if let Ok(mut f) = std::fs::File::open(path) {
+        let mut buf = vec![0u8; 8 << 20];
+        while std::io::Read::read(&mut f, &mut buf).is_ok_and(|n| n > 0) {}
+    }
+}
+
+fn python_has(python: &Path, module: &str) -> bool {
+    Command::new(python).args(["-c", &format!("import {module}")]).output().is_ok_and(|o| o.status.success())
+}
+
+/// The bench: `sizes` in streamlines, files in `dir`; `python` with nibabel / trx-python for their rows;
+/// `drag_max`: the largest size whose ROI drag step is measured (it holds the whole tractogram in memory).
+pub fn run(
+    sizes: &[usize],
+    dir: &Path,
+    python: Option<&Path>,
+    csv: Option<&Path>,
+    drag_max: usize,
+) -> Result<(), Error> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::Param(format!("{}: {e}", dir.display())))?;
+    let exe = std::env::current_exe()
+        .ok()
+        .and_then(|p| p.parent().map(|d| d.join("fascicle")))
+        .filter(|p| p.is_file())
+        .ok_or_else(|| {
+            Error::Param("the fascicle binary is not beside fascicle-bench (cargo build --release)".into())
+        })?;
+    let tckinfo = on_path("tckinfo");
+    let tckedit = on_path("tckedit");
+    let nibabel = python.filter(|p| python_has(p, "nibabel"));
+    let trx_python = python.filter(|p| python_has(p, "trx.trx_file_memmap"));
+    let mut rows: Vec<Row> = vec![];
+    let log = |r: Row, rows: &mut Vec<Row>| {
+        eprintln!(
+            "{:>9} {:4} {:8} {:22} {:8.2} s {:8.1} MiB  {}",
+            r.n, r.format, r.task, r.tool, r.wall_s, r.peak_mib, r.result
+        );
+        rows.push(r);
+    };
+    for &n in sizes {
+        let name = |ext: &str| dir.join(format!("brain{n}.{ext}"));
+        for ext in ["tck", "trk", "trx"] {
+            let p = name(ext);
+            if !p.is_file() {
+                let t = Instant::now();
+                eprintln!("writing {} ...", p.display());
+                fascicle_core::phantom::write_whole_brain(&p, n, 1)?;
+                eprintln!("  {:.1} s", t.elapsed().as_secs_f64());
+            }
+        }
+        let sel = dir.join("selected.tck");
+        for (format, ext) in [("tck", "tck"), ("trk", "trk"), ("trx", "trx")] {
+            let input = name(ext);
+            let file = input.to_str().unwrap_or_default().to_string();
+            warm(&input);
+            let (wall, peak, out) = measure(Command::new(&exe).args(["info", "--json", &file]))?;
+            let v: serde_json::Value = serde_json::from_str(&out).unwrap_or_default();
+            let result = format!("{} streamlines", v["count"]);
+            log(
+                Row { n, format, task: "info", tool: "fascicle info --json", wall_s: wall, peak_mib: peak, result },
+                &mut rows,
+            );
+            let (wall, peak, out) = measure(Command::new(&exe).args([
+                "select",
+                &file,
+                "--include",
+                "0,0,0,10",
+                "--out",
+                sel.to_str().unwrap_or_default(),
+                "--force",
+            ]))?;
+            let result = out.split_whitespace().nth(1).map(|k| format!("{k} kept")).unwrap_or_default();
+            log(
+                Row { n, format, task: "select", tool: "fascicle select", wall_s: wall, peak_mib: peak, result },
+                &mut rows,
+            );
+            let target = if ext == "trx" { dir.join("converted.tck") } else { dir.join("converted.trx") };
+            let (wall, peak, _) = measure(Command::new(&exe).args([
+                "convert",
+                &file,
+                target.to_str().unwrap_or_default(),
+                "--force",
+                "--quiet",
+            ]))?;
+            let to = if ext == "trx" { "to .tck" } else { "to .trx" };
+            log(
+                Row {
+                    n,
+                    format,
+                    task: "convert",
+                    tool: "fascicle convert",
+                    wall_s: wall,
+                    peak_mib: peak,
+                    result: to.into(),
+                },
+                &mut rows,
+            );
+            std::fs::remove_file(&target).ok();
+            if let (Some(py), "trk" | "tck") = (nibabel, ext) {
+                let script =
+                    format!("import nibabel as nib; t = nib.streamlines.load('{file}'); print(len(t.streamlines))");
+                let (wall, peak, out) = measure(Command::new(py).args(["-c", &script]))?;
+                let result = format!("{} streamlines", out.trim());
+                log(
+                    Row {
+                        n,
+                        format,
+                        task: "load",
+                        tool: "nibabel streamlines.load",
+                        wall_s: wall,
+                        peak_mib: peak,
+                        result,
+                    },
+                    &mut rows,
+                );
+            }
+            if let (Some(py), "trx") = (trx_python, ext) {
+                let script = format!(
+                    "from trx.trx_file_memmap import load; t = load('{file}'); print(len(t.streamlines)); t.close()"
+                );
+                let (wall, peak, out) = measure(Command::new(py).args(["-c", &script]))?;
+                let result = format!("{} streamlines", out.trim());
+                log(
+                    Row { n, format, task: "load", tool: "trx-python load", wall_s: wall, peak_mib: peak, result },
+                    &mut rows,
+                );
+            }
+            if ext != "tck" {
+                continue;
+            }
+            if let Some(tckinfo) = &tckinfo {
+                let (wall, peak, out) = measure(Command::new(tckinfo).args(["-quiet", "-count", &file]))?;
+                let count = out.lines().find(|l| l.contains("actual count")).and_then(|l| l.rsplit(':').next());
+                let result = format!("{} streamlines", count.unwrap_or("?").trim());
+                log(
+                    Row { n, format, task: "info", tool: "tckinfo -count", wall_s: wall, peak_mib: peak, result },
+                    &mut rows,
+                );
+            }
+            if let Some(tckedit) = &tckedit {
+                let theirs = dir.join("selected_mrtrix.tck");
+                let (wall, peak, _) = measure(Command::new(tckedit).args([
+                    "-quiet",
+                    "-force",
+                    "-include",
+                    "0,0,0,10",
+                    &file,
+                    theirs.to_str().unwrap_or_default(),
+                ]))?;
+                let (a, b) = (Tractogram::read(&sel)?, Tractogram::read(&theirs)?);
+                let same = a.offsets == b.offsets && a.points == b.points;
+                let result = format!("{} kept, {} set", b.n_streamlines(), if same { "same" } else { "DIFFERENT" });
+                log(
+                    Row { n, format, task: "select", tool: "tckedit -include", wall_s: wall, peak_mib: peak, result },
+                    &mut rows,
+                );
+                std::fs::remove_file(&theirs).ok();
+            }
+        }
+        std::fs::remove_file(&sel).ok();
+        if n <= drag_max {
+            let t = Tractogram::read(name("tck"))?;
+            let t0 = Instant::now();
+            let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
+            let build = t0.elapsed().as_secs_f64();
+            let mut times = vec![];
+            let mut kept = 0;
+            for k in 0..40 {
+                let centre = [-20.0 + k as f32, 0.0, 0.0];
+                let rois = [Roi { shape: RoiShape::Sphere { centre, radius: 10.0 }, mode: RoiMode::Include }];
+                let t1 = Instant::now();
+                kept = select(&t.points, &t.offsets, &grid, &rois).iter().filter(|k| **k).count();
+                times.push(t1.elapsed().as_secs_f64() * 1e3);
+            }
+            times.sort_by(f64::total_cmp);
+            let result = format!(
+                "median {:.1} ms, worst {:.1} ms ({kept} kept; grid built once in {build:.1} s)",
+                times[20], times[39]
+            );
+            log(
+                Row {
+                    n,
+                    format: "tck",
+                    task: "roi_drag",
+                    tool: "select on the grid",
+                    wall_s: times[20] / 1e3,
+                    peak_mib: f64::NAN,
+                    result,
+                },
+                &mut rows,
+            );
+        }
+    }
+    let mut table = String::from(
+        "| streamlines | file | task | tool | wall (s) | peak memory (MiB) | result |\n|---|---|---|---|---|---|---|\n",
+    );
+    for r in &rows {
+        let peak = if r.peak_mib.is_finite() { format!("{:.0}", r.peak_mib) } else { "-".into() };
+        let _ = writeln!(
+            table,
+            "| {} | {} | {} | {} | {:.2} | {peak} | {} |",
+            r.n, r.format, r.task, r.tool, r.wall_s, r.result
+        );
+    }
+    println!("{table}");
+    if let Some(csv) = csv {
+        let mut text = String::from("streamlines,format,task,tool,wall_s,peak_mib,result\n");
+        for r in &rows {
+            let _ = writeln!(
+                text,
+                "{},{},{},{},{:.3},{:.1},{}",
+                r.n,
+                r.format,
+                r.task,
+                r.tool,
+                r.wall_s,
+                r.peak_mib,
+                r.result.replace(',', ";")
+            );
+        }
+        std::fs::write(csv, text).map_err(|e| Error::Param(format!("{}: {e}", csv.display())))?;
+    }
+    Ok(())
+}

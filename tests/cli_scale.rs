@@ -1,0 +1,113 @@
+//! Whole-brain scale at a size CI affords: `info`, `select` and `convert` stream a generated tractogram of
+//! 100,000 streamlines (10M points, a 120 MB `.tck`) with a peak resident memory far below the file's size
+//! (measured from the process by `wait4`), and agree with an in-memory reading of the same file. The full
+//! sizes (1M and 10M streamlines) are in `fascicle-bench scale`.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use fascicle_core::io::Tractogram;
+use fascicle_core::roi::{Criteria, Region, RoiShape};
+
+/// Peak resident memory (MiB) the bound allows any command at this size; the input is 120 MB.
+const PEAK_MIB: f64 = 96.0;
+
+/// Runs `fascicle ARGS`: its stdout, and its peak resident memory in MiB.
+#[allow(clippy::zombie_processes, reason = "the child is reaped by wait4, which also reports its peak memory")]
+fn fascicle(args: &[&str]) -> (String, f64) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_fascicle"))
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run fascicle");
+    let mut out = String::new();
+    let mut err = String::new();
+    std::io::Read::read_to_string(child.stdout.as_mut().unwrap(), &mut out).unwrap();
+    std::io::Read::read_to_string(child.stderr.as_mut().unwrap(), &mut err).unwrap();
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is a valid value; wait4 fills it for our own child.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: waits for the child spawned above (std has not reaped it), writing into locals.
+    let pid = unsafe { libc::wait4(child.id() as libc::pid_t, &mut status, 0, &mut usage) };
+    assert_eq!(pid, child.id() as libc::pid_t, "wait4");
+    assert!(libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0, "fascicle {args:?} failed: {err}");
+    (out, usage.ru_maxrss as f64 / 1024.0)
+}
+
+fn scratch() -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("fascicle-scale-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Writes the generated tractogram when this test binary is run as a helper (`FASCICLE_SCALE_WRITE=path`),
+/// so that the measuring process stays small (see below); a no-op otherwise.
+#[test]
+fn write_helper() {
+    if let Some(path) = std::env::var_os("FASCICLE_SCALE_WRITE") {
+        fascicle_core::phantom::write_whole_brain(Path::new(&path), 100_000, 11).unwrap();
+    }
+}
+
+/// The children run before this process reads any file whole, and the input is written by another process: a
+/// child's peak (`ru_maxrss`) starts from its parent's high-water mark at the spawn, so a large parent would
+/// hide the child's own figure.
+#[test]
+fn commands_stream_a_large_tractogram_in_bounded_memory() {
+    let dir = scratch();
+    let tck = dir.join("brain100k.tck");
+    let helper = Command::new(std::env::current_exe().unwrap())
+        .args(["--exact", "write_helper", "--quiet"])
+        .env("FASCICLE_SCALE_WRITE", &tck)
+        .output()
+        .unwrap();
+    assert!(helper.status.success(), "{helper:?}");
+    let bytes = std::fs::metadata(&tck).unwrap().len();
+    assert!(bytes > 110_000_000, "the input is {bytes} bytes");
+    let (sel, trx, trk) = (dir.join("sel.tck"), dir.join("brain100k.trx"), dir.join("brain100k.trk"));
+    let runs: [(&str, Vec<&str>, f64); 5] = [
+        ("info", vec!["info", "--json", s(&tck)], PEAK_MIB),
+        ("select", vec!["select", s(&tck), "--include", "0,0,0,10", "--out", s(&sel), "--quiet"], PEAK_MIB),
+        ("convert tck -> trx", vec!["convert", s(&tck), s(&trx), "--quiet"], PEAK_MIB),
+        // A TRX's header and offsets only.
+        ("info trx", vec!["info", "--json", s(&trx)], 48.0),
+        ("convert trx -> trk", vec!["convert", s(&trx), s(&trk), "--quiet"], PEAK_MIB),
+    ];
+    let mut outputs = vec![];
+    for (what, args, bound) in &runs {
+        let (out, peak) = fascicle(args);
+        eprintln!("{what}: {peak:.1} MiB");
+        assert!(peak < *bound, "{what} of a {bytes}-byte file peaked at {peak:.1} MiB (bound {bound})");
+        outputs.push(out);
+    }
+
+    let whole = Tractogram::read(&tck).unwrap();
+    for json in [&outputs[0], &outputs[3]] {
+        let v: serde_json::Value = serde_json::from_str(json).unwrap();
+        assert_eq!((v["count"].as_u64(), v["points"].as_u64()), (Some(100_000), Some(whole.points.len() as u64)));
+    }
+    let v: serde_json::Value = serde_json::from_str(&outputs[0]).unwrap();
+    let lo = whole.points.iter().copied().reduce(glam::Vec3::min).unwrap();
+    assert_eq!(v["bounds"][0], serde_json::json!(lo.to_array()));
+
+    let c = Criteria {
+        include: vec![Region::Shape(RoiShape::Sphere { centre: [0.0; 3], radius: 10.0 })],
+        ..Default::default()
+    };
+    let keep: Vec<bool> = whole.iter().map(|s| c.keeps(s)).collect();
+    let want = whole.subset(&keep);
+    let got = Tractogram::read(&sel).unwrap();
+    assert!(want.n_streamlines() > 1000, "{} kept", want.n_streamlines());
+    assert_eq!((got.offsets, got.points), (want.offsets, want.points));
+
+    let back = Tractogram::read(&trk).unwrap();
+    assert_eq!(back.offsets, whole.offsets);
+    let worst = back.points.iter().zip(&whole.points).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
+    assert!(worst < 1e-4, "points moved by {worst} mm through .trx and .trk");
+    std::fs::remove_dir_all(dir).ok();
+}
