@@ -421,7 +421,9 @@ impl Uploads<'_> {
                 c.spawn((Mesh3d(m.add(quad(corners))), MeshMaterial3d(self.materials.add(mat)))).id()
             }
             (Content::Lines { mesh, .. }, _) => {
-                c.spawn((Mesh3d(m.add(*mesh)), MeshMaterial3d(self.materials.add(unlit(spec.opacity))))).id()
+                // Weighed by the tracts plugin's rule for MSAA on dense lines, as its own line sets are.
+                let segments = fascicle_tracts::LineSegments(mesh.count_vertices() / 2);
+                c.spawn((Mesh3d(m.add(*mesh)), MeshMaterial3d(self.materials.add(unlit(spec.opacity))), segments)).id()
             }
             (Content::Axes { length_mm: l }, _) => {
                 let w = l / 40.0;

@@ -28,8 +28,28 @@ struct Row {
 }
 
 /// Runs a command to its end: wall time (s), peak resident memory (MiB), stdout; an error naming it on failure.
-#[allow(clippy::zombie_processes, reason = "the child is reaped by wait4, which also reports its peak memory")]
+/// The peak is `/usr/bin/time`'s where it is installed (its own few MiB are the child's floor), else `wait4`'s,
+/// whose floor is this process's high-water mark (a child's peak starts from its parent's).
 fn measure(cmd: &mut Command) -> Result<(f64, f64, String), Error> {
+    let time = Path::new("/usr/bin/time");
+    if !time.is_file() {
+        return measure_wait4(cmd);
+    }
+    let report = std::env::temp_dir().join(format!("fascicle-bench-peak-{}", std::process::id()));
+    let mut wrapped = Command::new(time);
+    wrapped.args(["-f", "%M", "-o"]).arg(&report).arg(cmd.get_program()).args(cmd.get_args());
+    let (wall, _, out) = measure_wait4(&mut wrapped)?;
+    let kb: f64 = std::fs::read_to_string(&report)
+        .ok()
+        .and_then(|t| t.lines().last().and_then(|l| l.trim().parse().ok()))
+        .unwrap_or(f64::NAN);
+    std::fs::remove_file(&report).ok();
+    Ok((wall, kb / 1024.0, out))
+}
+
+/// [`measure`] by `wait4` alone.
+#[allow(clippy::zombie_processes, reason = "the child is reaped by wait4, which also reports its peak memory")]
+fn measure_wait4(cmd: &mut Command) -> Result<(f64, f64, String), Error> {
     let name = format!("{:?}", cmd.get_program());
     let t = Instant::now();
     let mut child =
@@ -75,16 +95,40 @@ fn python_has(python: &Path, module: &str) -> bool {
     Command::new(python).args(["-c", &format!("import {module}")]).output().is_ok_and(|o| o.status.success())
 }
 
-/// The bench: `sizes` in streamlines, files in `dir`; `python` with nibabel / trx-python for their rows;
-/// `drag_max`: the largest size whose ROI drag step is measured (it holds the whole tractogram in memory).
-pub fn run(
-    sizes: &[usize],
-    dir: &Path,
-    python: Option<&Path>,
-    csv: Option<&Path>,
-    drag_max: usize,
-) -> Result<(), Error> {
+/// Options of [`run`].
+pub struct ScaleOptions<'a> {
+    /// Sizes in streamlines.
+    pub sizes: &'a [usize],
+    /// Where the tractograms are kept.
+    pub dir: &'a Path,
+    /// A Python with nibabel / trx-python, for their rows.
+    pub python: Option<&'a Path>,
+    /// Also write the rows as CSV here.
+    pub csv: Option<&'a Path>,
+    /// The largest size whose ROI drag step is measured (the whole tractogram held in memory).
+    pub drag_max: usize,
+    /// Only write the missing tractograms (the bench's child process).
+    pub write_only: bool,
+}
+
+/// The bench (see the module documentation and [`ScaleOptions`]).
+pub fn run(o: ScaleOptions) -> Result<(), Error> {
+    let ScaleOptions { sizes, dir, python, csv, drag_max, write_only } = o;
     std::fs::create_dir_all(dir).map_err(|e| Error::Param(format!("{}: {e}", dir.display())))?;
+    if write_only {
+        for &n in sizes {
+            for ext in ["tck", "trk", "trx"] {
+                let p = dir.join(format!("brain{n}.{ext}"));
+                if !p.is_file() {
+                    let t = Instant::now();
+                    eprintln!("writing {} ...", p.display());
+                    fascicle_core::phantom::write_whole_brain(&p, n, 1)?;
+                    eprintln!("  {:.1} s", t.elapsed().as_secs_f64());
+                }
+            }
+        }
+        return Ok(());
+    }
     let exe = std::env::current_exe()
         .ok()
         .and_then(|p| p.parent().map(|d| d.join("fascicle")))
@@ -97,6 +141,7 @@ pub fn run(
     let nibabel = python.filter(|p| python_has(p, "nibabel"));
     let trx_python = python.filter(|p| python_has(p, "trx.trx_file_memmap"));
     let mut rows: Vec<Row> = vec![];
+    let mut compare: Vec<(usize, PathBuf, PathBuf)> = vec![];
     let log = |r: Row, rows: &mut Vec<Row>| {
         eprintln!(
             "{:>9} {:4} {:8} {:22} {:8.2} s {:8.1} MiB  {}",
@@ -106,14 +151,12 @@ pub fn run(
     };
     for &n in sizes {
         let name = |ext: &str| dir.join(format!("brain{n}.{ext}"));
-        for ext in ["tck", "trk", "trx"] {
-            let p = name(ext);
-            if !p.is_file() {
-                let t = Instant::now();
-                eprintln!("writing {} ...", p.display());
-                fascicle_core::phantom::write_whole_brain(&p, n, 1)?;
-                eprintln!("  {:.1} s", t.elapsed().as_secs_f64());
-            }
+        if ["tck", "trk", "trx"].iter().any(|ext| !name(ext).is_file()) {
+            // Written by a child process: a child's peak memory starts from its parent's high-water mark, so
+            // this process stays small until every figure is taken.
+            let me = std::env::current_exe().map_err(|e| Error::Param(format!("this program's path: {e}")))?;
+            let dir_arg = dir.to_str().unwrap_or_default();
+            measure(Command::new(me).args(["scale", "--write-only", "--sizes", &n.to_string(), "--dir", dir_arg]))?;
         }
         let sel = dir.join("selected.tck");
         for (format, ext) in [("tck", "tck"), ("trk", "trk"), ("trx", "trx")] {
@@ -214,17 +257,31 @@ pub fn run(
                     &file,
                     theirs.to_str().unwrap_or_default(),
                 ]))?;
-                let (a, b) = (Tractogram::read(&sel)?, Tractogram::read(&theirs)?);
-                let same = a.offsets == b.offsets && a.points == b.points;
-                let result = format!("{} kept, {} set", b.n_streamlines(), if same { "same" } else { "DIFFERENT" });
+                // Compared once every process has run (reading them here would raise this process's peak).
+                let ours = dir.join(format!("selected{n}.tck"));
+                let theirs_kept = dir.join(format!("selected{n}_mrtrix.tck"));
+                std::fs::rename(&sel, &ours).ok();
+                std::fs::rename(&theirs, &theirs_kept).ok();
+                compare.push((rows.len(), ours, theirs_kept));
+                let result = String::new();
                 log(
                     Row { n, format, task: "select", tool: "tckedit -include", wall_s: wall, peak_mib: peak, result },
                     &mut rows,
                 );
-                std::fs::remove_file(&theirs).ok();
             }
         }
         std::fs::remove_file(&sel).ok();
+    }
+    for (row, ours, theirs) in compare {
+        let (a, b) = (Tractogram::read(&ours)?, Tractogram::read(&theirs)?);
+        let same = a.offsets == b.offsets && a.points == b.points;
+        rows[row].result = format!("{} kept, {} set", b.n_streamlines(), if same { "the same" } else { "a DIFFERENT" });
+        eprintln!("{} streamlines: tckedit {}", rows[row].n, rows[row].result);
+        std::fs::remove_file(ours).ok();
+        std::fs::remove_file(theirs).ok();
+    }
+    for &n in sizes {
+        let name = |ext: &str| dir.join(format!("brain{n}.{ext}"));
         if n <= drag_max {
             let t = Tractogram::read(name("tck"))?;
             let t0 = Instant::now();

@@ -146,6 +146,9 @@ pub enum BenchCommand {
         /// The largest size whose ROI drag step is measured (the tractogram held in memory).
         #[arg(long, default_value_t = 1_000_000)]
         drag_max: usize,
+        /// Only write the missing tractograms, then exit (the bench runs itself so to keep its own memory small).
+        #[arg(long, hide = true)]
+        write_only: bool,
     },
     /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory and
     /// asset counts (the soak test). Fails when a layer reports an error or the second half of the run grows:
@@ -170,8 +173,15 @@ pub enum BenchCommand {
 
 pub fn run(cmd: BenchCommand) -> Result<(), Error> {
     match cmd {
-        BenchCommand::Scale { sizes, dir, python, csv, drag_max } => {
-            crate::bench_scale::run(&sizes, &dir, python.as_deref(), csv.as_deref(), drag_max)
+        BenchCommand::Scale { sizes, dir, python, csv, drag_max, write_only } => {
+            crate::bench_scale::run(crate::bench_scale::ScaleOptions {
+                sizes: &sizes,
+                dir: &dir,
+                python: python.as_deref(),
+                csv: csv.as_deref(),
+                drag_max,
+                write_only,
+            })
         }
         BenchCommand::Soak { frames, size, csv, max_growth } => {
             crate::soak::run(frames, &size, csv.as_deref(), max_growth).map_err(Error::Param)

@@ -47,12 +47,13 @@ fn readers_never_panic_on_mutated_files() {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(2);
     let dir = std::env::temp_dir().join(format!("fascicle-mut-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let cases: [(&str, &str); 6] = [
+    let cases: [(&str, &str); 7] = [
         ("dwi/small_25.nii.gz", "m.nii.gz"),
         ("dwi/qform_be_scaled.nii", "m.nii"),
         ("dwi/small_25_nifti2.nii.gz", "m2.nii.gz"),
         ("tracts/complex.trk", "m.trk"),
         ("tracts/standard.tck", "m.tck"),
+        ("tracts/tracks300_f32_deflate.trx", "m.trx"),
         ("dwi/small_25.bvec", "m.bvec"),
     ];
     let mut outcomes = (0usize, 0usize);
@@ -67,8 +68,20 @@ fn readers_never_panic_on_mutated_files() {
             std::fs::write(&p, &m).unwrap();
             let ok = match name {
                 n if n.contains(".nii") => nifti::read::<f32>(&p).is_ok(),
-                "m.trk" => trk::read(&p).is_ok(),
-                "m.tck" => tck::read(&p).is_ok(),
+                // The whole-file and the streaming readers: both answer (an error, never a panic), and where
+                // both read the file they read the same streamlines.
+                "m.trk" | "m.tck" | "m.trx" => {
+                    let whole = match name {
+                        "m.trk" => trk::read(&p).map(|(t, _)| t),
+                        "m.tck" => tck::read(&p).map(|(t, _)| t),
+                        _ => fascicle_core::io::Tractogram::read(&p),
+                    };
+                    let streamed = streamed(&p);
+                    if let (Ok(a), Ok(b)) = (&whole, &streamed) {
+                        assert_eq!((&a.offsets, &a.points), (&b.offsets, &b.points), "{name}");
+                    }
+                    whole.is_ok() && streamed.is_ok()
+                }
                 _ => GradientTable::from_fsl(data("dwi/small_25.bval"), &p, 50.0).is_ok(),
             };
             if ok { outcomes.0 += 1 } else { outcomes.1 += 1 }
@@ -77,6 +90,18 @@ fn readers_never_panic_on_mutated_files() {
     println!("mutants read: {}, rejected with an error: {}", outcomes.0, outcomes.1);
     assert!(outcomes.1 > 1000, "mutations should mostly be rejected");
     std::fs::remove_dir_all(dir).ok();
+}
+
+/// Every streamline of a file through the streaming reader, in small chunks.
+fn streamed(p: &std::path::Path) -> fascicle_core::Result<fascicle_core::io::Tractogram> {
+    let mut r = fascicle_core::io::stream::TractogramReader::open(p)?;
+    let mut all = fascicle_core::io::Tractogram::new();
+    while let Some(c) = r.next_chunk(100)? {
+        for s in c.iter() {
+            all.push(s);
+        }
+    }
+    Ok(all)
 }
 
 fn nifti_raw(p: &std::path::Path) -> Vec<u8> {

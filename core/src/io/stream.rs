@@ -25,6 +25,10 @@ use crate::error::{Error, Result};
 /// Points per chunk that [`TractogramReader::next_chunk`] callers use by default: about 3 MB of positions.
 pub const DEFAULT_CHUNK_POINTS: usize = 1 << 18;
 
+/// Points one `.trk` streamline may claim (a 1 mm tractogram's longest streamlines hold a few hundred); a larger
+/// count is a corrupt file, refused before its bytes are asked for.
+const MAX_STREAMLINE_POINTS: usize = 1 << 24;
+
 /// Bytes read from the file at a time.
 const BLOCK: usize = 4 << 20;
 
@@ -451,6 +455,11 @@ impl TrkStream {
                 return Err(ReadError::Format(format!("streamline {index} has a negative point count {n}")));
             }
             let n = n as usize;
+            if n > MAX_STREAMLINE_POINTS {
+                return Err(ReadError::Format(format!(
+                    "streamline {index} claims {n} points (more than {MAX_STREAMLINE_POINTS}): a corrupt count"
+                )));
+            }
             let need = 4 + (n * (3 + ns) + np) * 4;
             let b = self.blocks.fill(need)?;
             if b.len() < need {
@@ -577,6 +586,14 @@ impl TrxEntry {
 
     /// Every value of a small array (groups), as f64.
     fn read_all(&self, path: &Path) -> Result<Vec<f64>> {
+        let file = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+        if self.size > file.saturating_mul(1032) || self.size > 1 << 32 {
+            // Deflate expands at most 1032:1; a larger size is a lying directory.
+            return Err(Error::format(
+                path,
+                format!("{}: {} bytes claimed by a {file}-byte file", self.base, self.size),
+            ));
+        }
         let mut blocks = self.open(path, None)?;
         let size = self.dtype.size();
         let b = blocks.fill(self.size as usize).map_err(|e| Error::io(path, e))?;
@@ -681,7 +698,7 @@ fn trx_entries(path: &Path) -> Result<(serde_json::Value, Vec<TrxEntry>)> {
             header_text = Some(text);
             continue;
         }
-        let Some((base, components, dtype)) = parse_name(&name) else { continue };
+        let Some((base, components, dtype)) = trx::parse_name(&name) else { continue };
         let Some(dtype) = Dtype::parse(&dtype) else {
             // Arrays of an unknown type outside the ones read (dpg/, unknown folders) are passed over.
             if base == "positions" || base == "offsets" || base.starts_with("dpv/") || base.starts_with("dps/") {
@@ -706,41 +723,11 @@ fn trx_entries(path: &Path) -> Result<(serde_json::Value, Vec<TrxEntry>)> {
     Ok((header, entries))
 }
 
-/// Splits `dps/length.3.float32` into (`dps/length`, 3, `float32`).
-fn parse_name(name: &str) -> Option<(String, usize, String)> {
-    let (rest, dtype) = name.rsplit_once('.')?;
-    match rest.rsplit_once('.') {
-        Some((base, k)) if !base.ends_with('/') && k.parse::<usize>().is_ok() => {
-            Some((base.to_string(), k.parse().ok()?, dtype.to_string()))
-        }
-        _ => Some((rest.to_string(), 1, dtype.to_string())),
-    }
-}
-
 /// A TRX file's header (counts, grid, groups, names of its values) from header.json and the central directory.
 fn trx_header(path: &Path) -> Result<(StreamHeader, Vec<TrxEntry>)> {
     let bad = |reason: String| Error::format(path, reason);
     let (json, entries) = trx_entries(path)?;
-    let count = |key: &str| {
-        json[key].as_u64().map(|n| n as usize).ok_or_else(|| bad(format!("header.json has no {key} count")))
-    };
-    let (n_vertices, n_streamlines) = (count("NB_VERTICES")?, count("NB_STREAMLINES")?);
-    let dims: Vec<usize> = json["DIMENSIONS"]
-        .as_array()
-        .map(|a| a.iter().filter_map(|d| d.as_u64()).map(|d| d as usize).collect())
-        .unwrap_or_default();
-    let rows: Vec<Vec<f64>> = json["VOXEL_TO_RASMM"]
-        .as_array()
-        .map(|r| {
-            r.iter()
-                .map(|row| row.as_array().map_or(vec![], |c| c.iter().filter_map(|x| x.as_f64()).collect()))
-                .collect()
-        })
-        .unwrap_or_default();
-    if dims.len() != 3 || rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
-        return Err(bad("header.json needs DIMENSIONS (3 numbers) and VOXEL_TO_RASMM (4x4)".into()));
-    }
-    let voxel_to_rasmm = DMat4::from_cols_array_2d(&std::array::from_fn(|c| std::array::from_fn(|r| rows[r][c])));
+    let trx::HeaderJson { n_vertices, n_streamlines, dims, voxel_to_rasmm } = trx::parse_header_json(&json, path)?;
     let mut groups = vec![];
     let (mut scalars, mut properties) = (vec![], vec![]);
     for e in &entries {
@@ -780,7 +767,7 @@ fn trx_header(path: &Path) -> Result<(StreamHeader, Vec<TrxEntry>)> {
         properties,
         tck: None,
         trk: None,
-        trx: Some(trx::TrxHeader { dims: [dims[0], dims[1], dims[2]], voxel_to_rasmm, groups }),
+        trx: Some(trx::TrxHeader { dims, voxel_to_rasmm, groups }),
         file_bytes,
     };
     Ok((header, entries))
@@ -1023,29 +1010,7 @@ impl TractogramWriter {
         let io = |e| Error::io(&part, e);
         let inner = match format {
             Format::Tck => {
-                let mut head = String::from("mrtrix tracks\n");
-                for (k, v) in &options.tck_header {
-                    if ["file", "datatype", "count", "total_count"].contains(&k.as_str()) {
-                        continue;
-                    }
-                    for line in v.lines() {
-                        head.push_str(&format!("{k}: {line}\n"));
-                    }
-                }
-                head.push_str("datatype: Float32LE\n");
-                let count_at = (head.len() + "count: ".len()) as u64;
-                head.push_str(&format!("count: {:010}\n", 0));
-                let mut offset = head.len() + 20;
-                loop {
-                    let total = head.len() + format!("file: . {offset}\n").len() + 4;
-                    if total <= offset {
-                        break;
-                    }
-                    offset = total;
-                }
-                let mut bytes = head.into_bytes();
-                bytes.extend_from_slice(format!("file: . {offset}\nEND\n").as_bytes());
-                bytes.resize(offset, 0);
+                let (bytes, count_at) = tck::header_bytes(&options.tck_header, 0);
                 let mut out = spool(&part)?;
                 out.write_all(&bytes).map_err(io)?;
                 Writer::Tck { out, count_at }

@@ -150,9 +150,10 @@ pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
     Ok((t, header))
 }
 
-/// Writes a `.tck` file (Float32LE) with the given extra header entries.
-pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)]) -> Result<()> {
-    let path = path.as_ref();
+/// The bytes of a `.tck` header (Float32LE) with the given extra entries (`file`, `datatype`, `count` and
+/// `total_count` are the writer's own) and `count`, padded to the data offset; and the byte offset of the count's
+/// ten digits (so that a streaming writer can patch it).
+pub fn header_bytes(extra: &[(String, String)], count: usize) -> (Vec<u8>, u64) {
     let mut head = String::from("mrtrix tracks\n");
     for (k, v) in extra {
         if ["file", "datatype", "count", "total_count"].contains(&k.as_str()) {
@@ -163,7 +164,8 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)])
         }
     }
     head.push_str("datatype: Float32LE\n");
-    head.push_str(&format!("count: {:010}\n", t.n_streamlines()));
+    let count_at = (head.len() + "count: ".len()) as u64;
+    head.push_str(&format!("count: {count:010}\n"));
     // The offset line contains its own length: iterate to a fixed point.
     let mut offset = head.len() + 20;
     loop {
@@ -176,6 +178,13 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)])
     let mut out = head.into_bytes();
     out.extend_from_slice(format!("file: . {offset}\nEND\n").as_bytes());
     out.resize(offset, 0);
+    (out, count_at)
+}
+
+/// Writes a `.tck` file (Float32LE) with the given extra header entries.
+pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)]) -> Result<()> {
+    let path = path.as_ref();
+    let (mut out, _) = header_bytes(extra, t.n_streamlines());
     for s in t.iter() {
         for p in s {
             for c in p.to_array() {

@@ -53,7 +53,7 @@ struct Entry {
 }
 
 /// Splits `dps/length.3.float32` into (`dps/length`, 3, `float32`).
-fn parse_name(name: &str) -> Option<(String, usize, String)> {
+pub(crate) fn parse_name(name: &str) -> Option<(String, usize, String)> {
     let (rest, dtype) = name.rsplit_once('.')?;
     match rest.rsplit_once('.') {
         Some((base, k)) if !base.ends_with('/') && k.parse::<usize>().is_ok() => {
@@ -98,6 +98,40 @@ fn values(bytes: &[u8], dtype: &str) -> Option<Vec<f64>> {
     Some(bytes.chunks_exact(size).map(v).collect())
 }
 
+/// The counts and grid of a TRX's header.json.
+pub(crate) struct HeaderJson {
+    pub n_vertices: usize,
+    pub n_streamlines: usize,
+    pub dims: [usize; 3],
+    pub voxel_to_rasmm: DMat4,
+}
+
+/// Reads `NB_VERTICES`, `NB_STREAMLINES`, `DIMENSIONS` and `VOXEL_TO_RASMM` from a parsed header.json.
+pub(crate) fn parse_header_json(header: &serde_json::Value, path: &Path) -> Result<HeaderJson> {
+    let bad = |reason: String| Error::format(path, reason);
+    let count = |key: &str| {
+        header[key].as_u64().map(|n| n as usize).ok_or_else(|| bad(format!("header.json has no {key} count")))
+    };
+    let (n_vertices, n_streamlines) = (count("NB_VERTICES")?, count("NB_STREAMLINES")?);
+    let dims: Vec<usize> = header["DIMENSIONS"]
+        .as_array()
+        .map(|a| a.iter().filter_map(|d| d.as_u64()).map(|d| d as usize).collect())
+        .unwrap_or_default();
+    let rows: Vec<Vec<f64>> = header["VOXEL_TO_RASMM"]
+        .as_array()
+        .map(|r| {
+            r.iter()
+                .map(|row| row.as_array().map_or(vec![], |c| c.iter().filter_map(|x| x.as_f64()).collect()))
+                .collect()
+        })
+        .unwrap_or_default();
+    if dims.len() != 3 || rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
+        return Err(bad("header.json needs DIMENSIONS (3 numbers) and VOXEL_TO_RASMM (4x4)".into()));
+    }
+    let voxel_to_rasmm = DMat4::from_cols_array_2d(&std::array::from_fn(|c| std::array::from_fn(|r| rows[r][c])));
+    Ok(HeaderJson { n_vertices, n_streamlines, dims: [dims[0], dims[1], dims[2]], voxel_to_rasmm })
+}
+
 /// [`read`] from a file's bytes (`path` names it in errors).
 pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<(Tractogram, TrxHeader)> {
     let bad = |reason: String| Error::format(path, reason);
@@ -123,26 +157,7 @@ pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<(Tractogram, TrxHeader)> 
     let header_text = header_text.ok_or_else(|| bad("no header.json in the archive".into()))?;
     let header: serde_json::Value =
         serde_json::from_str(&header_text).map_err(|e| bad(format!("header.json is not JSON: {e}")))?;
-    let count = |key: &str| {
-        header[key].as_u64().map(|n| n as usize).ok_or_else(|| bad(format!("header.json has no {key} count")))
-    };
-    let (n_vertices, n_streamlines) = (count("NB_VERTICES")?, count("NB_STREAMLINES")?);
-    let dims: Vec<usize> = header["DIMENSIONS"]
-        .as_array()
-        .map(|a| a.iter().filter_map(|d| d.as_u64()).map(|d| d as usize).collect())
-        .unwrap_or_default();
-    let rows: Vec<Vec<f64>> = header["VOXEL_TO_RASMM"]
-        .as_array()
-        .map(|r| {
-            r.iter()
-                .map(|row| row.as_array().map_or(vec![], |c| c.iter().filter_map(|x| x.as_f64()).collect()))
-                .collect()
-        })
-        .unwrap_or_default();
-    if dims.len() != 3 || rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
-        return Err(bad("header.json needs DIMENSIONS (3 numbers) and VOXEL_TO_RASMM (4x4)".into()));
-    }
-    let voxel_to_rasmm = DMat4::from_cols_array_2d(&std::array::from_fn(|c| std::array::from_fn(|r| rows[r][c])));
+    let HeaderJson { n_vertices, n_streamlines, dims, voxel_to_rasmm } = parse_header_json(&header, path)?;
 
     let take = |base: &str| entries.iter().find(|e| e.base == base);
     let positions = take("positions").ok_or_else(|| bad("no positions array".into()))?;
@@ -207,7 +222,7 @@ pub fn read_bytes(bytes: &[u8], path: &Path) -> Result<(Tractogram, TrxHeader)> 
             target.push((label, v.iter().skip(k).step_by(e.components).map(|x| *x as f32).collect()));
         }
     }
-    let header = TrxHeader { dims: [dims[0], dims[1], dims[2]], voxel_to_rasmm, groups };
+    let header = TrxHeader { dims, voxel_to_rasmm, groups };
     Ok((t, header))
 }
 

@@ -502,20 +502,58 @@ fn to_capture(img: Image) -> Result<Capture, HeadlessError> {
 }
 
 /// Steps `app` until no layer is [`LayerStatus::Loading`](crate::layer::LayerStatus) (its data loaded or
-/// failed), then one frame more so the layers' builds are applied; an error after 3000 frames.
+/// failed), without drawing while they load, then one frame more so the layers' builds are applied; an error
+/// after [`LOAD_TIMEOUT`].
 pub fn wait_for_layers(app: &mut App) -> Result<(), HeadlessError> {
     use crate::layer::LayerStatus;
-    for _ in 0..3000 {
-        app.update();
+    fn loading(app: &mut App) -> bool {
         let world = app.world_mut();
-        if world.query::<&LayerStatus>().iter(world).all(|s| *s != LayerStatus::Loading) {
-            app.update();
-            return Ok(());
-        }
-        std::thread::sleep(std::time::Duration::from_millis(2));
+        world.query::<&LayerStatus>().iter(world).any(|s| *s == LayerStatus::Loading)
     }
-    Err(HeadlessError::Timeout("layers still loading after 3000 frames".into()))
+    app.update();
+    if !loading(app) {
+        app.update();
+        return Ok(());
+    }
+    // Nothing is drawn while layers load: every frame would draw all that has arrived so far (a streamed
+    // tractogram part by part, seconds a frame on a software rasteriser), taking the CPU from the loading it
+    // waits for. The cameras are paused until the layers are in, however long their data take to read.
+    let paused: Vec<Entity> = {
+        let world = app.world_mut();
+        let mut cameras = world.query::<(Entity, &mut Camera)>();
+        cameras
+            .iter_mut(world)
+            .filter_map(|(e, mut c)| {
+                c.is_active.then(|| {
+                    c.is_active = false;
+                    e
+                })
+            })
+            .collect()
+    };
+    let start = std::time::Instant::now();
+    let result = loop {
+        app.update();
+        if !loading(app) {
+            break Ok(());
+        }
+        if start.elapsed() > LOAD_TIMEOUT {
+            break Err(HeadlessError::Timeout(format!("layers still loading after {} s", LOAD_TIMEOUT.as_secs())));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    };
+    for e in paused {
+        if let Some(mut c) = app.world_mut().get_mut::<Camera>(e) {
+            c.is_active = true;
+        }
+    }
+    app.update();
+    result
 }
+
+/// How long [`wait_for_layers`] waits for data to load before it reports a timeout: an hour (a whole-brain
+/// tractogram read from a slow disk takes minutes, not hours).
+pub const LOAD_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(3600);
 
 /// Whether GPU tests may be skipped: only when `FASCICLE_SKIP_GPU=1` is set explicitly (never in CI).
 pub fn gpu_tests_skipped() -> bool {

@@ -11,6 +11,7 @@
 //! - [`layer`]: what every data layer shares: its status (loading, ready, failed), its voxel selection and
 //!   the per-stage work counters.
 //! - [`reference`]: f64 CPU references of the shared shader math, for tests.
+//! - [`AdapterKind`]: whether the renderer is a software rasteriser, for plugins that lower their cost there.
 
 pub mod example;
 pub mod headless;
@@ -39,7 +40,34 @@ impl Plugin for FascicleRenderPlugin {
             return;
         }
         app.init_resource::<RenderBaseAdded>();
+        let adapter = AdapterKind::default();
+        app.insert_resource(adapter.clone());
+        if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
+            render_app.insert_resource(adapter).add_systems(bevy::render::RenderStartup, detect_adapter);
+        }
         shaders::register(app, "fascicle-render", &shaders::SOURCES);
         app.add_plugins((MaterialPlugin::<impostor::SphereImpostorMaterial>::default(), headless::DepthCopyPlugin));
     }
+}
+
+/// What kind of adapter renders: set once the renderer has started (false until then, and without one).
+/// Plugins lower what costs a software rasteriser most (MSAA on millions of lines, say) where it is one.
+#[derive(Resource, Clone, Default, Debug)]
+pub struct AdapterKind(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl AdapterKind {
+    /// Whether the adapter is a software rasteriser (wgpu's device type `Cpu`: lavapipe, llvmpipe, WARP).
+    pub fn is_software(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Records the adapter's kind (the renderer does it at start; tests may too).
+    pub fn set_software(&self, software: bool) {
+        self.0.store(software, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+fn detect_adapter(adapter: Res<bevy::render::renderer::RenderAdapter>, kind: Res<AdapterKind>) {
+    // wgpu's `DeviceType::Cpu` (Bevy does not re-export the type).
+    kind.set_software(format!("{:?}", adapter.get_info().device_type) == "Cpu");
 }

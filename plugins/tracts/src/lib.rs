@@ -14,7 +14,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use bevy::asset::RenderAssetUsages;
-use bevy::camera::visibility::NoFrustumCulling;
+use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
 use bevy::mesh::{Indices, PrimitiveTopology};
 use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, ShaderType};
@@ -128,6 +128,62 @@ pub struct MeshSet {
     pub material: Handle<TractMeshMaterial>,
 }
 
+/// The line segments an entity's mesh draws: what [`LineMsaa`] weighs. Line-mesh sets carry it; an app that
+/// draws lines with a mesh of its own adds it there too.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LineSegments(pub usize);
+
+/// When cameras drop MSAA for lines: a 3D camera that sees more line segments than the limit renders without
+/// MSAA (logged once). On a software rasteriser multisampled lines cost about ten times single-sampled ones
+/// (20,000 streamlines at 1280x720 on lavapipe: 77 s against 7.4 s for a headless render), so a dense
+/// tractogram would take minutes a frame; a hardware GPU keeps MSAA. The viewer and `fascicle render` follow
+/// the same rule, so they draw the same image. A camera keeps MSAA off after the lines go.
+#[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LineMsaa {
+    /// Segments above which a camera on a software adapter drops MSAA. Default 1,000,000.
+    pub software_max_segments: usize,
+    /// The same on a hardware GPU. Default `usize::MAX` (never).
+    pub hardware_max_segments: usize,
+}
+
+impl Default for LineMsaa {
+    fn default() -> Self {
+        Self { software_max_segments: 1_000_000, hardware_max_segments: usize::MAX }
+    }
+}
+
+/// Applies [`LineMsaa`] to the 3D cameras, by the line segments of the visible mesh sets on their render layers.
+#[allow(clippy::type_complexity, reason = "a Bevy system's queries")]
+fn line_msaa(
+    policy: Res<LineMsaa>,
+    adapter: Option<Res<fascicle_render::AdapterKind>>,
+    sets: Query<(&LineSegments, Option<&RenderLayers>, &InheritedVisibility)>,
+    cameras: Query<(Entity, Option<&Msaa>, Option<&RenderLayers>), With<Camera3d>>,
+    mut commands: Commands,
+) {
+    let software = adapter.is_some_and(|a| a.is_software());
+    let limit = if software { policy.software_max_segments } else { policy.hardware_max_segments };
+    let default_layers = RenderLayers::default();
+    for (e, msaa, layers) in &cameras {
+        if msaa == Some(&Msaa::Off) {
+            continue;
+        }
+        let layers = layers.unwrap_or(&default_layers);
+        let segments: usize = sets
+            .iter()
+            .filter(|(_, l, v)| v.get() && l.unwrap_or(&default_layers).intersects(layers))
+            .map(|(s, _, _)| s.0)
+            .sum();
+        if segments > limit {
+            info!(
+                "fascicle-tracts: camera {e} sees {segments} line segments (over {limit} on a {} adapter); its MSAA is turned off",
+                if software { "software" } else { "hardware" }
+            );
+            commands.entity(e).insert(Msaa::Off);
+        }
+    }
+}
+
 /// GPU parameters of tract meshes. Keep in sync with `TractMeshParams` in `shaders/tract_mesh.wgsl`.
 #[derive(Clone, Copy, Debug, ShaderType)]
 pub struct TractMeshUniform {
@@ -187,7 +243,8 @@ impl Plugin for TractPlugin {
         shaders::register(app);
         app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
-            .add_systems(PostUpdate, apply_rois.in_set(TractSystems::Select));
+            .init_resource::<LineMsaa>()
+            .add_systems(PostUpdate, (apply_rois.in_set(TractSystems::Select), line_msaa));
         layer::build(app);
         app.add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
     }
@@ -410,11 +467,16 @@ fn spawn_mesh_set(
 ) -> Entity {
     let params = TractMeshUniform { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3 };
     let material = materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
+    let line_segments = match mesh.primitive_topology() {
+        PrimitiveTopology::LineList => mesh.count_vertices() / 2,
+        _ => 0,
+    };
     commands
         .spawn((
             set,
             selection,
             MeshSet { material: material.clone() },
+            LineSegments(line_segments),
             Mesh3d(meshes.add(mesh)),
             MeshMaterial3d(material),
             Transform::default(),
@@ -644,5 +706,45 @@ mod tests {
                 assert!((*end - want).length() < 1e-5, "streamline {s} segment {k}: {end} vs {want}");
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod line_msaa_tests {
+    use super::*;
+
+    /// A camera that sees more line segments than the software limit drops MSAA on a software adapter only;
+    /// a camera on other render layers, and any camera on a hardware adapter, keep theirs.
+    #[test]
+    fn dense_lines_turn_msaa_off_on_software_adapters() {
+        for software in [true, false] {
+            let mut app = App::new();
+            let adapter = fascicle_render::AdapterKind::default();
+            adapter.set_software(software);
+            app.insert_resource(adapter).insert_resource(LineMsaa::default()).add_systems(Update, line_msaa);
+            let set = |n| (LineSegments(n), InheritedVisibility::VISIBLE);
+            app.world_mut().spawn(set(600_000));
+            app.world_mut().spawn(set(600_000));
+            app.world_mut().spawn((set(5_000_000), RenderLayers::layer(3)));
+            let main = app.world_mut().spawn((Camera3d::default(), Msaa::Sample4)).id();
+            let other = app.world_mut().spawn((Camera3d::default(), Msaa::Sample4, RenderLayers::layer(2))).id();
+            app.update();
+            let msaa = |e| *app.world().get::<Msaa>(e).unwrap();
+            assert_eq!(
+                msaa(main),
+                if software { Msaa::Off } else { Msaa::Sample4 },
+                "1.2M segments, software {software}"
+            );
+            assert_eq!(msaa(other), Msaa::Sample4, "its layers see no line");
+        }
+        // Under the limit: MSAA stays.
+        let mut app = App::new();
+        let adapter = fascicle_render::AdapterKind::default();
+        adapter.set_software(true);
+        app.insert_resource(adapter).insert_resource(LineMsaa::default()).add_systems(Update, line_msaa);
+        app.world_mut().spawn((LineSegments(900_000), InheritedVisibility::VISIBLE));
+        let cam = app.world_mut().spawn((Camera3d::default(), Msaa::Sample4)).id();
+        app.update();
+        assert_eq!(*app.world().get::<Msaa>(cam).unwrap(), Msaa::Sample4);
     }
 }
