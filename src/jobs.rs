@@ -1459,9 +1459,13 @@ mod tests {
             };
             (pos, col)
         };
-        // Which streamline each vertex belongs to: segments are emitted streamline by streamline.
-        let owners: Vec<usize> =
-            t.iter().enumerate().flat_map(|(i, s)| std::iter::repeat_n(i, 2 * s.len().saturating_sub(1))).collect();
+        // Which streamline each vertex belongs to: a vertex per point, streamline by streamline (one-point
+        // streamlines draw no line).
+        let owners: Vec<usize> = t
+            .iter()
+            .enumerate()
+            .flat_map(|(i, s)| std::iter::repeat_n(i, if s.len() >= 2 { s.len() } else { 0 }))
+            .collect();
         let close = |a: [f32; 4], b: glam::Vec3| (glam::Vec3::new(a[0], a[1], a[2]) - b).abs().max_element() < 1e-5;
 
         let (_, ends) = colours(TractColouring::Ends);

@@ -422,7 +422,7 @@ impl Uploads<'_> {
             }
             (Content::Lines { mesh, .. }, _) => {
                 // Weighed by the tracts plugin's rule for MSAA on dense lines, as its own line sets are.
-                let segments = fascicle_tracts::LineSegments(mesh.count_vertices() / 2);
+                let segments = fascicle_tracts::LineSegments(fascicle_tracts::line_segments(&mesh));
                 c.spawn((Mesh3d(m.add(*mesh)), MeshMaterial3d(self.materials.add(unlit(spec.opacity))), segments)).id()
             }
             (Content::Axes { length_mm: l }, _) => {

@@ -370,7 +370,7 @@ impl PreparedTracts {
         PreparedTracts::with(tractogram, geometry)
     }
 
-    /// Lines coloured by segment direction ([`line_mesh`]).
+    /// Lines coloured by local direction ([`line_mesh`]).
     pub fn lines(tractogram: Arc<Tractogram>) -> Self {
         PreparedTracts::lines_coloured(tractogram, None)
     }
@@ -467,10 +467,7 @@ fn spawn_mesh_set(
 ) -> Entity {
     let params = TractMeshUniform { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3 };
     let material = materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
-    let line_segments = match mesh.primitive_topology() {
-        PrimitiveTopology::LineList => mesh.count_vertices() / 2,
-        _ => 0,
-    };
+    let line_segments = line_segments(&mesh);
     commands
         .spawn((
             set,
@@ -555,24 +552,43 @@ pub fn line_mesh(t: &Tractogram) -> Mesh {
 }
 
 /// [`line_mesh`] with each vertex coloured by `colour` when given.
+///
+/// One vertex per point, shared by the two segments that meet there (an indexed line list: 36 bytes a point
+/// and 8 a segment, where a vertex per segment end took 72 bytes a segment); the default colour is the
+/// direction between a point's neighbours (its one neighbour at an end), |x y z| as RGB.
 pub fn line_mesh_coloured(t: &Tractogram, colour: Option<PointColour>) -> Mesh {
-    let n = t.points.len() * 2;
+    let n = t.points.len();
     let (mut pos, mut col, mut uv) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
-    for (i, s) in t.iter().enumerate() {
-        for w in s.windows(2) {
-            let d = (w[1] - w[0]).normalize_or_zero().abs();
-            for p in w {
-                pos.push(*p);
-                let [r, g, b] = colour.map_or([d.x, d.y, d.z], |f| f(i, *p));
-                col.push([r, g, b, 1.0]);
-                uv.push([i as f32, 0.0]);
-            }
+    let mut idx: Vec<u32> = Vec::with_capacity(2 * n);
+    for (i, s) in t.iter().enumerate().filter(|(_, s)| s.len() >= 2) {
+        let base = pos.len() as u32;
+        for (k, p) in s.iter().enumerate() {
+            let [r, g, b] = colour.map_or_else(
+                || {
+                    let d = (s[(k + 1).min(s.len() - 1)] - s[k.saturating_sub(1)]).normalize_or_zero().abs();
+                    [d.x, d.y, d.z]
+                },
+                |f| f(i, *p),
+            );
+            pos.push(*p);
+            col.push([r, g, b, 1.0]);
+            uv.push([i as f32, 0.0]);
         }
+        idx.extend((0..s.len() as u32 - 1).flat_map(|k| [base + k, base + k + 1]));
     }
     Mesh::new(PrimitiveTopology::LineList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
         .with_inserted_attribute(Mesh::ATTRIBUTE_UV_0, uv)
         .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
+        .with_inserted_indices(Indices::U32(idx))
+}
+
+/// The line segments a mesh draws: 0 unless it is a line list (indexed or not).
+pub fn line_segments(mesh: &Mesh) -> usize {
+    match mesh.primitive_topology() {
+        PrimitiveTopology::LineList => mesh.indices().map_or(mesh.count_vertices(), |i| i.len()) / 2,
+        _ => 0,
+    }
 }
 
 /// The polygon-tube baseline mesh (`sides` per profile), coloured by local direction; UV x is the streamline's
