@@ -1220,7 +1220,9 @@ impl TractogramWriter {
                 f.write_all(&n.to_le_bytes()).map_err(io)?;
             }
             Writer::Trx(w) => {
-                let TrxWriter { mut zip, offsets, dpv, dps, header, .. } = *w;
+                let TrxWriter { mut zip, mut offsets, dpv, dps, header, .. } = *w;
+                // The closing entry (NB_STREAMLINES + 1 offsets, ending at NB_VERTICES), as trx-python requires.
+                offsets.1.write_all(&self.points.to_le_bytes()).map_err(io)?;
                 let copy = |zip: &mut zip::ZipWriter<BufWriter<File>>,
                             name: &str,
                             (p, out): (PathBuf, BufWriter<File>)|
@@ -1385,6 +1387,14 @@ mod tests {
             for chunk in [1, 50, 1 << 20] {
                 let s = read_all(&path, chunk);
                 assert_eq!((&s.offsets, &s.points), (&whole.offsets, &whole.points), "{name} in chunks of {chunk}");
+            }
+            if name.ends_with(".trx") {
+                // NB_STREAMLINES + 1 offsets ending at NB_VERTICES, as trx-python requires.
+                let mut zip = zip::ZipArchive::new(File::open(&path).unwrap()).unwrap();
+                let mut offsets = vec![];
+                zip.by_name("offsets.uint64").unwrap().read_to_end(&mut offsets).unwrap();
+                assert_eq!(offsets.len(), 8 * 1001);
+                assert_eq!(offsets[8000..], (t.points.len() as u64).to_le_bytes());
             }
             let mut r = TractogramReader::open(&path).unwrap();
             let summary = scan(&mut r, |_| {}).unwrap();
