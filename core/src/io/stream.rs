@@ -1108,17 +1108,8 @@ impl TractogramWriter {
         self.hi = self.hi.max(hi);
         match &mut self.inner {
             Writer::Tck { out, .. } => {
-                let mut buf = Vec::with_capacity(12 * (t.points.len() + n));
-                for s in t.iter() {
-                    for p in s {
-                        for c in p.to_array() {
-                            buf.extend_from_slice(&c.to_le_bytes());
-                        }
-                    }
-                    for _ in 0..3 {
-                        buf.extend_from_slice(&f32::NAN.to_le_bytes());
-                    }
-                }
+                let mut buf = Vec::new();
+                tck::encode_streamlines(&mut buf, t);
                 out.write_all(&buf).map_err(io)?;
             }
             Writer::Trk { out, voxmm_from_ras, ns, np, buf } => {

@@ -181,10 +181,9 @@ pub fn header_bytes(extra: &[(String, String)], count: usize) -> (Vec<u8>, u64) 
     (out, count_at)
 }
 
-/// Writes a `.tck` file (Float32LE) with the given extra header entries.
-pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)]) -> Result<()> {
-    let path = path.as_ref();
-    let (mut out, _) = header_bytes(extra, t.n_streamlines());
+/// Appends the streamlines of `t` as `.tck` data (Float32LE points, a NaN triple after each streamline).
+pub fn encode_streamlines(out: &mut Vec<u8>, t: &Tractogram) {
+    out.reserve(12 * (t.points.len() + t.n_streamlines()));
     for s in t.iter() {
         for p in s {
             for c in p.to_array() {
@@ -195,6 +194,13 @@ pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)])
             out.extend_from_slice(&f32::NAN.to_le_bytes());
         }
     }
+}
+
+/// Writes a `.tck` file (Float32LE) with the given extra header entries.
+pub fn write(path: impl AsRef<Path>, t: &Tractogram, extra: &[(String, String)]) -> Result<()> {
+    let path = path.as_ref();
+    let (mut out, _) = header_bytes(extra, t.n_streamlines());
+    encode_streamlines(&mut out, t);
     for _ in 0..3 {
         out.extend_from_slice(&f32::INFINITY.to_le_bytes());
     }
