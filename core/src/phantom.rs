@@ -178,13 +178,7 @@ pub fn add_rician_noise(vol: &mut Volume<f32>, snr: f64, seed: u64) {
     let sigma = 100.0 / snr.max(1e-6);
     // splitmix64 uniforms, Box-Muller normals.
     let mut state = seed ^ 0x9e37_79b9_7f4a_7c15;
-    let mut uniform = move || {
-        state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut uniform = move || (splitmix64(&mut state) >> 11) as f64 / (1u64 << 53) as f64;
     let mut normal = move || {
         let (u1, u2) = (uniform().max(1e-300), uniform());
         (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
@@ -193,6 +187,15 @@ pub fn add_rician_noise(vol: &mut Volume<f32>, snr: f64, seed: u64) {
         let (a, b) = (*s as f64 + sigma * normal(), sigma * normal());
         *s = (a * a + b * b).sqrt() as f32;
     }
+}
+
+/// The next output of the splitmix64 generator at `state` (which it advances).
+fn splitmix64(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
 }
 
 /// The ellipsoids of the 3D Shepp-Logan head phantom (Kak and Slaney's, with Toft's higher-contrast
@@ -473,14 +476,7 @@ pub fn whole_brain_streamlines(seed: u64, first: usize, n: usize) -> crate::io::
         .into_par_iter()
         .map(|i| {
             let mut state = seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
-            let mut next = move || {
-                // splitmix64
-                state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-                let mut z = state;
-                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-                ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
-            };
+            let mut next = move || (splitmix64(&mut state) >> 40) as f32 / (1u64 << 24) as f32;
             let unit = |next: &mut dyn FnMut() -> f32| loop {
                 let v = Vec3::new(next(), next(), next()) * 2.0 - 1.0;
                 let l = v.length_squared();

@@ -12,7 +12,7 @@ use fascicle_core::Error;
 use fascicle_core::io::stream::{self, DEFAULT_CHUNK_POINTS, Format, TractogramReader, TractogramWriter, WriteOptions};
 use fascicle_core::io::{Tractogram, tck, tractogram::extension, trk};
 use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape};
-use glam::{DMat4, DVec3};
+use glam::DMat4;
 use rayon::prelude::*;
 
 #[derive(clap::Args, Debug)]
@@ -117,16 +117,9 @@ pub fn write(path: &Path, t: &Tractogram, header: Option<&trk::TrkHeader>) -> Re
                     (h.vox_to_ras, h.dims.map(|d| d as usize))
                 }
                 _ => {
-                    let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
-                    for p in &t.points {
-                        lo = lo.min(p.as_dvec3());
-                        hi = hi.max(p.as_dvec3());
-                    }
-                    if lo.x > hi.x {
-                        (lo, hi) = (DVec3::ZERO, DVec3::ZERO);
-                    }
-                    let dims = ((hi - lo).ceil() + 1.0).to_array().map(|v| v as usize);
-                    (DMat4::from_translation(lo), dims)
+                    let lo = t.points.iter().copied().reduce(glam::Vec3::min);
+                    let hi = t.points.iter().copied().reduce(glam::Vec3::max);
+                    stream::grid_over(lo.zip(hi))
                 }
             };
             trk::write(path, t, affine, dims)

@@ -19,6 +19,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use glam::{DMat4, DVec3, Vec3};
 
 use super::tractogram::{Tractogram, extension};
+use super::trx::Dtype;
 use super::{tck, trk, trx};
 use crate::error::{Error, Result};
 
@@ -278,14 +279,6 @@ impl TractogramReader {
         self.streamlines += t.n_streamlines();
         Ok((t.n_streamlines() > 0).then_some(t))
     }
-
-    /// Reads every remaining streamline, calling `f` on each chunk.
-    pub fn for_each_chunk(&mut self, max_points: usize, mut f: impl FnMut(Tractogram) -> Result<()>) -> Result<()> {
-        while let Some(t) = self.next_chunk(max_points)? {
-            f(t)?;
-        }
-        Ok(())
-    }
 }
 
 /// A reading error before the path is known: an I/O error or a reason.
@@ -488,68 +481,6 @@ impl TrkStream {
             if t.points.len() >= max_points {
                 return Ok(());
             }
-        }
-    }
-}
-
-/// An element type of a TRX array.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Dtype {
-    I8,
-    U8,
-    I16,
-    U16,
-    F16,
-    I32,
-    U32,
-    F32,
-    I64,
-    U64,
-    F64,
-}
-
-impl Dtype {
-    fn parse(s: &str) -> Option<Dtype> {
-        Some(match s {
-            "int8" => Dtype::I8,
-            "uint8" | "bool" => Dtype::U8,
-            "int16" => Dtype::I16,
-            "uint16" => Dtype::U16,
-            "float16" => Dtype::F16,
-            "int32" => Dtype::I32,
-            "uint32" => Dtype::U32,
-            "float32" => Dtype::F32,
-            "int64" => Dtype::I64,
-            "uint64" => Dtype::U64,
-            "float64" => Dtype::F64,
-            _ => return None,
-        })
-    }
-
-    fn size(self) -> usize {
-        match self {
-            Dtype::I8 | Dtype::U8 => 1,
-            Dtype::I16 | Dtype::U16 | Dtype::F16 => 2,
-            Dtype::I32 | Dtype::U32 | Dtype::F32 => 4,
-            Dtype::I64 | Dtype::U64 | Dtype::F64 => 8,
-        }
-    }
-
-    fn value(self, c: &[u8]) -> f64 {
-        let a4 = || <[u8; 4]>::try_from(&c[..4]).unwrap_or_default();
-        let a8 = || <[u8; 8]>::try_from(&c[..8]).unwrap_or_default();
-        match self {
-            Dtype::I8 => c[0] as i8 as f64,
-            Dtype::U8 => c[0] as f64,
-            Dtype::I16 => i16::from_le_bytes([c[0], c[1]]) as f64,
-            Dtype::U16 => u16::from_le_bytes([c[0], c[1]]) as f64,
-            Dtype::F16 => trx::f16_to_f32(u16::from_le_bytes([c[0], c[1]])) as f64,
-            Dtype::I32 => i32::from_le_bytes(a4()) as f64,
-            Dtype::U32 => u32::from_le_bytes(a4()) as f64,
-            Dtype::F32 => f32::from_le_bytes(a4()) as f64,
-            Dtype::I64 => i64::from_le_bytes(a8()) as f64,
-            Dtype::U64 => u64::from_le_bytes(a8()) as f64,
-            Dtype::F64 => f64::from_le_bytes(a8()),
         }
     }
 }
@@ -936,7 +867,6 @@ pub fn scan(reader: &mut TractogramReader, mut progress: impl FnMut(u64)) -> Res
 
 /// Bounds of finite points (infinite box when there are none).
 fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
-    // Per-lane minima over fixed blocks vectorise better than one fold.
     let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
     for p in points {
         lo = lo.min(*p);
@@ -1291,25 +1221,15 @@ pub fn trk_space(header: &StreamHeader, bounds: Option<(Vec3, Vec3)>) -> (DMat4,
     if let Some(h) = header.trx.as_ref().filter(|h| h.dims.iter().all(|d| *d > 0)) {
         return (h.voxel_to_rasmm, h.dims);
     }
+    grid_over(bounds)
+}
+
+/// A 1 mm grid from `bounds`' lower corner covering them (a single voxel without bounds): the reference grid of a
+/// `.trk` written from streamlines that have none.
+pub fn grid_over(bounds: Option<(Vec3, Vec3)>) -> (DMat4, [usize; 3]) {
     let (lo, hi) = bounds.map_or((DVec3::ZERO, DVec3::ZERO), |(a, b)| (a.as_dvec3(), b.as_dvec3()));
     let dims = ((hi - lo).ceil() + 1.0).to_array().map(|v| v.max(1.0) as usize);
     (DMat4::from_translation(lo), dims)
-}
-
-/// Copies every remaining streamline of `reader` into `writer`, calling `progress` with the bytes read after each
-/// chunk; the streamlines copied.
-pub fn copy(
-    reader: &mut TractogramReader,
-    writer: &mut TractogramWriter,
-    mut progress: impl FnMut(u64),
-) -> Result<usize> {
-    let mut n = 0;
-    while let Some(t) = reader.next_chunk(DEFAULT_CHUNK_POINTS)? {
-        n += t.n_streamlines();
-        writer.write_chunk(&t)?;
-        progress(reader.bytes_read());
-    }
-    Ok(n)
 }
 
 #[cfg(test)]

@@ -63,39 +63,76 @@ pub(crate) fn parse_name(name: &str) -> Option<(String, usize, String)> {
     }
 }
 
-/// Size in bytes of one element of `dtype`.
-fn dtype_size(dtype: &str) -> Option<usize> {
-    Some(match dtype {
-        "int8" | "uint8" | "bool" => 1,
-        "int16" | "uint16" | "float16" => 2,
-        "int32" | "uint32" | "float32" => 4,
-        "int64" | "uint64" | "float64" => 8,
-        _ => return None,
-    })
+/// An element type of a TRX array.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Dtype {
+    I8,
+    U8,
+    I16,
+    U16,
+    F16,
+    I32,
+    U32,
+    F32,
+    I64,
+    U64,
+    F64,
+}
+
+impl Dtype {
+    pub(crate) fn parse(s: &str) -> Option<Dtype> {
+        Some(match s {
+            "int8" => Dtype::I8,
+            "uint8" | "bool" => Dtype::U8,
+            "int16" => Dtype::I16,
+            "uint16" => Dtype::U16,
+            "float16" => Dtype::F16,
+            "int32" => Dtype::I32,
+            "uint32" => Dtype::U32,
+            "float32" => Dtype::F32,
+            "int64" => Dtype::I64,
+            "uint64" => Dtype::U64,
+            "float64" => Dtype::F64,
+            _ => return None,
+        })
+    }
+
+    pub(crate) fn size(self) -> usize {
+        match self {
+            Dtype::I8 | Dtype::U8 => 1,
+            Dtype::I16 | Dtype::U16 | Dtype::F16 => 2,
+            Dtype::I32 | Dtype::U32 | Dtype::F32 => 4,
+            Dtype::I64 | Dtype::U64 | Dtype::F64 => 8,
+        }
+    }
+
+    pub(crate) fn value(self, c: &[u8]) -> f64 {
+        let a4 = || <[u8; 4]>::try_from(&c[..4]).unwrap_or_default();
+        let a8 = || <[u8; 8]>::try_from(&c[..8]).unwrap_or_default();
+        match self {
+            Dtype::I8 => c[0] as i8 as f64,
+            Dtype::U8 => c[0] as f64,
+            Dtype::I16 => i16::from_le_bytes([c[0], c[1]]) as f64,
+            Dtype::U16 => u16::from_le_bytes([c[0], c[1]]) as f64,
+            Dtype::F16 => f16_to_f32(u16::from_le_bytes([c[0], c[1]])) as f64,
+            Dtype::I32 => i32::from_le_bytes(a4()) as f64,
+            Dtype::U32 => u32::from_le_bytes(a4()) as f64,
+            Dtype::F32 => f32::from_le_bytes(a4()) as f64,
+            Dtype::I64 => i64::from_le_bytes(a8()) as f64,
+            Dtype::U64 => u64::from_le_bytes(a8()) as f64,
+            Dtype::F64 => f64::from_le_bytes(a8()),
+        }
+    }
 }
 
 /// The values of a little-endian array of `dtype` as f64.
 fn values(bytes: &[u8], dtype: &str) -> Option<Vec<f64>> {
-    let size = dtype_size(dtype)?;
+    let dtype = Dtype::parse(dtype)?;
+    let size = dtype.size();
     if !bytes.len().is_multiple_of(size) {
         return None;
     }
-    let v = |c: &[u8]| -> f64 {
-        match dtype {
-            "int8" => c[0] as i8 as f64,
-            "uint8" | "bool" => c[0] as f64,
-            "int16" => i16::from_le_bytes([c[0], c[1]]) as f64,
-            "uint16" => u16::from_le_bytes([c[0], c[1]]) as f64,
-            "float16" => f16_to_f32(u16::from_le_bytes([c[0], c[1]])) as f64,
-            "int32" => i32::from_le_bytes(c.try_into().unwrap_or_default()) as f64,
-            "uint32" => u32::from_le_bytes(c.try_into().unwrap_or_default()) as f64,
-            "float32" => f32::from_le_bytes(c.try_into().unwrap_or_default()) as f64,
-            "int64" => i64::from_le_bytes(c.try_into().unwrap_or_default()) as f64,
-            "uint64" => u64::from_le_bytes(c.try_into().unwrap_or_default()) as f64,
-            _ => f64::from_le_bytes(c.try_into().unwrap_or_default()),
-        }
-    };
-    Some(bytes.chunks_exact(size).map(v).collect())
+    Some(bytes.chunks_exact(size).map(|c| dtype.value(c)).collect())
 }
 
 /// The counts and grid of a TRX's header.json.
