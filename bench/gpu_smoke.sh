@@ -7,14 +7,28 @@
 #
 # Usage: bench/gpu_smoke.sh [OUT_DIR]   (default target/gpu-smoke); logs, CSVs and smoke.md land there.
 # Checks of the script itself: SMOKE_QUICK=1 runs each suite with --quick, SMOKE_ONLY=soak,glyphs only those runs,
-# SMOKE_SOAK_FRAMES=N and SMOKE_SOAK_SIZE=WxH a shorter soak.
+# SMOKE_SOAK_FRAMES=N and SMOKE_SOAK_SIZE=WxH a shorter soak. SMOKE_ONLY also sets the order of the runs.
+# On a machine without Rust (a lent GPU): SMOKE_BENCH=PATH runs that prebuilt fascicle-bench (built and carried from
+# here) instead of building; SMOKE_RUN_TIMEOUT=S stops any one run after S seconds (exit 124 in its row).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out="${1:-target/gpu-smoke}"
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"
 export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$HOME/.cache/fascicle/target}"
-./run bench --help >/dev/null # builds fascicle and fascicle-bench once, installs what the suites need
+if [ -n "${SMOKE_BENCH:-}" ]; then
+  bench=("$SMOKE_BENCH")
+  export WGPU_BACKEND="${WGPU_BACKEND:-vulkan}"
+  if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
+    export XDG_RUNTIME_DIR="${TMPDIR:-/tmp}/fascicle-runtime-$(id -u)"
+    mkdir -p "$XDG_RUNTIME_DIR" && chmod 700 "$XDG_RUNTIME_DIR"
+  fi
+else
+  ./run bench --help >/dev/null # builds fascicle and fascicle-bench once, installs what the suites need
+  bench=(./run bench)           # ./run picks the adapter as for every other command
+fi
+limit=()
+[ -n "${SMOKE_RUN_TIMEOUT:-}" ] && limit=(timeout "$SMOKE_RUN_TIMEOUT")
 quick=()
 [ "${SMOKE_QUICK:-0}" = 1 ] && quick=(--quick)
 
@@ -38,12 +52,21 @@ runs=(
   echo "|---|---|---|---|---|"
 } >"$out/smoke.md"
 
+# SMOKE_ONLY: these runs, in this order
+if [ -n "${SMOKE_ONLY:-}" ]; then
+  chosen=()
+  IFS=, read -r -a names <<<"$SMOKE_ONLY"
+  for want in "${names[@]}"; do
+    for entry in "${runs[@]}"; do
+      [ "${entry%%|*}" = "$want" ] && chosen+=("$entry")
+    done
+  done
+  runs=("${chosen[@]}")
+fi
+
 failed=0
 for entry in "${runs[@]}"; do
   name="${entry%%|*}"
-  if [ -n "${SMOKE_ONLY:-}" ] && [[ ",$SMOKE_ONLY," != *",$name,"* ]]; then
-    continue
-  fi
   read -r -a args <<<"${entry#*|}"
   mem="$out/$name.gpu_mem.csv"
   sampler=""
@@ -53,7 +76,7 @@ for entry in "${runs[@]}"; do
   fi
   start=$(date +%s)
   set +e
-  ./run bench "${args[@]}" >"$out/$name.log" 2>&1 # ./run picks the adapter as for every other command
+  "${limit[@]}" "${bench[@]}" "${args[@]}" >"$out/$name.log" 2>&1
   code=$?
   set -e
   wall=$(($(date +%s) - start))

@@ -600,10 +600,10 @@ pub fn tensor_field(cache: &DataCache, source: &TensorSource, progress: &JobProg
                 },
             )?
         }
-        TensorSource::Dwi { path } => {
+        TensorSource::Dwi { path, bvecs } => {
             use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD};
             let dwi = image(cache, path, progress)?;
-            let key = format!("tensor:dwi:{path:?}");
+            let key = format!("tensor:dwi:{path:?}:{}", bvecs.name());
             // The cache stamps the gradient files beside the image too (a .mif carries its own).
             let beside = fascicle_core::io::classify::gradients_beside(path);
             let mut files: Vec<&Path> = vec![path];
@@ -615,7 +615,7 @@ pub fn tensor_field(cache: &DataCache, source: &TensorSource, progress: &JobProg
                 &files,
                 |f: &TensorField| volume_bytes(&f.tensors),
                 || {
-                    let gtab = GradientTable::of_image(path, dwi.world_from_voxel, DEFAULT_B0_THRESHOLD)
+                    let gtab = GradientTable::of_image(path, dwi.world_from_voxel, *bvecs, DEFAULT_B0_THRESHOLD)
                         .ok_or_else(|| {
                             format!(
                                 "{}: no .bval/.bvec beside the image (nor a .mif dw_scheme): it cannot be fitted as a DWI",
@@ -907,12 +907,12 @@ fn tract_files(source: &TractSource) -> Vec<&Path> {
         TractSource::PhantomRk4 { .. } => {}
         TractSource::File { path, tensors } => {
             files.push(path);
-            if let Some(TensorSource::Nifti { path, .. } | TensorSource::Dwi { path }) = tensors {
+            if let Some(TensorSource::Nifti { path, .. } | TensorSource::Dwi { path, .. }) = tensors {
                 files.push(path);
             }
         }
         TractSource::Peaks { path, .. } => files.push(path),
-        TractSource::Track { tensors: TensorSource::Nifti { path, .. } | TensorSource::Dwi { path }, .. } => {
+        TractSource::Track { tensors: TensorSource::Nifti { path, .. } | TensorSource::Dwi { path, .. }, .. } => {
             files.push(path)
         }
         TractSource::Track { .. } => {}
@@ -1219,7 +1219,8 @@ mod tests {
             tract_data(&cache, &TractSource::Track { tensors, seeds: seeds.clone(), params: params.clone() }, p)
         };
         let p = JobProgress::default();
-        let from_dwi = track(TensorSource::Dwi { path: data("dwi/small_64D.nii") }, &p).unwrap();
+        let from_dwi =
+            track(TensorSource::Dwi { path: data("dwi/small_64D.nii"), bvecs: Default::default() }, &p).unwrap();
         let (stage, done) = p.snapshot();
         assert_eq!((stage, done), ("tracking", Some(1.0)));
         let file = TensorSource::Nifti { path: data("dti/small_64D_tensor.nii.gz"), order: Default::default() };
@@ -1238,7 +1239,7 @@ mod tests {
         let loads = cache.stats().loads;
         let glyphs = tensor_glyphs(
             &cache,
-            &TensorSource::Dwi { path: data("dwi/small_64D.nii") },
+            &TensorSource::Dwi { path: data("dwi/small_64D.nii"), bvecs: Default::default() },
             SliceAxis::Z,
             None,
             1,
@@ -1249,7 +1250,13 @@ mod tests {
         assert!(glyphs.unwrap().0.len() > 10);
         assert_eq!(cache.stats().loads, loads, "the fit is reused");
         // A DWI without gradient files beside it is a clear error.
-        let e = tensor_field(&cache, &TensorSource::Dwi { path: data("dti/small_64D_fa.nii.gz") }, &p).err().unwrap();
+        let e = tensor_field(
+            &cache,
+            &TensorSource::Dwi { path: data("dti/small_64D_fa.nii.gz"), bvecs: Default::default() },
+            &p,
+        )
+        .err()
+        .unwrap();
         assert!(e.contains("no .bval/.bvec beside"), "{e}");
     }
 

@@ -210,7 +210,8 @@ fn glyph_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
 
 /// Tensor splats: slab and size (rebuild), attenuation and opacity (uniform only).
 fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
-    let LayerKind::TensorSplats { axis, index, thickness, size, min_fa, render, .. } = kind else { return };
+    let LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, render, .. } = kind else { return };
+    bvec_convention_field(ui, source);
     slice_controls(ui, axis, index);
     ui.add(egui::Slider::new(thickness, 1..=15).text("slab (slices)"));
     ui.add(egui::Slider::new(size, 0.1..=2.0).text("size (voxels)"));
@@ -236,7 +237,7 @@ fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
 fn tensor_source_field(ui: &mut egui::Ui, tensors: &mut Option<crate::scene::TensorSource>) {
     use crate::scene::TensorSource;
     let shown = |t: &Option<TensorSource>| match t {
-        Some(TensorSource::Nifti { path, .. } | TensorSource::Dwi { path }) => path.display().to_string(),
+        Some(TensorSource::Nifti { path, .. } | TensorSource::Dwi { path, .. }) => path.display().to_string(),
         Some(TensorSource::Phantom) => "phantom".into(),
         Some(TensorSource::Spiral { n }) => format!("spiral {n}"),
         None => String::new(),
@@ -663,9 +664,24 @@ pub fn to_barycentric(q: [f32; 2]) -> [f64; 3] {
     w.map(|v| v / t)
 }
 
+/// For tensors fitted to a DWI: the frame its `.bvec` file is read in (a change refits).
+fn bvec_convention_field(ui: &mut egui::Ui, source: &mut crate::scene::TensorSource) {
+    use fascicle_core::io::BvecConvention;
+    let crate::scene::TensorSource::Dwi { bvecs, .. } = source else { return };
+    ui.horizontal(|ui| {
+        ui.label("b-vectors").on_hover_text(
+            "FSL: as FSL, MRtrix3 and dcm2niix define them (x negated on images whose affine has a positive \
+             determinant). DIPY: the voxel axes as given. They differ only on positive-determinant images.",
+        );
+        ui.radio_value(bvecs, BvecConvention::Fsl, "FSL");
+        ui.radio_value(bvecs, BvecConvention::Dipy, "DIPY");
+    });
+}
+
 /// Tensor glyphs: slice and size (rebuild), shape (rebuild), knobs and colour (uniform only).
 fn tensor_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
-    let LayerKind::TensorGlyphs { axis, index, spacing, size, min_fa, render, .. } = kind else { return };
+    let LayerKind::TensorGlyphs { source, axis, index, spacing, size, min_fa, render, .. } = kind else { return };
+    bvec_convention_field(ui, source);
     slice_controls(ui, axis, index);
     ui.add(egui::Slider::new(spacing, 1..=8).text("spacing (voxels)"));
     ui.add(egui::Slider::new(size, 0.1..=3.0).text("size (voxels)"));

@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use fascicle_core::dti::glyph::TensorShape;
+use fascicle_core::io::BvecConvention;
 use fascicle_core::io::classify::{ImageKind, TensorOrder};
 use fascicle_core::roi::{Roi, RoiMode, RoiShape};
 use fascicle_core::sh::ShBasis;
@@ -319,8 +320,14 @@ pub enum TensorSource {
         #[serde(default)]
         order: TensorOrder,
     },
-    /// Tensors fitted (weighted least squares) to a DWI with its `.bval`/`.bvec` beside it.
-    Dwi { path: PathBuf },
+    /// Tensors fitted (weighted least squares) to a DWI with its `.bval`/`.bvec` beside it (or a `.mif`'s
+    /// `dw_scheme`).
+    Dwi {
+        path: PathBuf,
+        /// Frame of the `.bvec` file (default FSL's: x negated on images with a positive determinant).
+        #[serde(default)]
+        bvecs: BvecConvention,
+    },
     /// The seed's synthetic spiral of `n` tensors (`fascicle_core::phantom::spiral`); the slice settings
     /// are ignored and sizes are fractions of 8 mm.
     Spiral { n: usize },
@@ -624,7 +631,7 @@ pub fn layer_kind_for(path: &Path, kind: &ImageKind) -> LayerKind {
 /// order its content shows (DIPY's when it cannot be read).
 pub fn tensor_source_for(path: &Path) -> TensorSource {
     match fascicle_core::io::classify::classify(path).map(|c| c.kind) {
-        Ok(ImageKind::Dwi { .. }) => TensorSource::Dwi { path: path.to_path_buf() },
+        Ok(ImageKind::Dwi { .. }) => TensorSource::Dwi { path: path.to_path_buf(), bvecs: BvecConvention::default() },
         Ok(ImageKind::Tensor { order }) => TensorSource::Nifti { path: path.to_path_buf(), order },
         _ => TensorSource::Nifti { path: path.to_path_buf(), order: TensorOrder::default() },
     }
@@ -677,7 +684,7 @@ mod tests {
         assert!(matches!(kind("tracts/tracks300.trk"), LayerKind::Tractogram { .. }));
         assert_eq!(
             tensor_source_for(&data.join("dwi/small_64D.nii")),
-            TensorSource::Dwi { path: data.join("dwi/small_64D.nii") }
+            TensorSource::Dwi { path: data.join("dwi/small_64D.nii"), bvecs: BvecConvention::Fsl }
         );
     }
 

@@ -22,6 +22,7 @@ use bevy::window::{FileDragAndDrop, PrimaryWindow};
 use bevy_egui::input::{egui_wants_any_keyboard_input, egui_wants_any_pointer_input};
 use bevy_egui::{EguiContexts, EguiGlobalSettings, EguiPlugin, EguiPrimaryContextPass, PrimaryEguiContext, egui};
 use fascicle_render::FascicleRenderPlugin;
+use fascicle_render::on_demand::{DrawOnDemand, DrawOnDemandPlugin, KeepAwake, NextFrame, ScheduleNextFrame};
 
 use crate::history::{RecentFiles, SceneHistory};
 use crate::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin};
@@ -168,6 +169,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     let (scene, errors) = initial_scene(&files);
     let orbit = Orbit::from_spec(&scene.camera);
     let mut app = App::new();
+    let draw_on_demand = screenshot.is_none();
     if let Some(path) = screenshot {
         app.insert_resource(AutoScreenshot { path, frame: 0 })
             .add_systems(Update, auto_screenshot.run_if(resource_exists::<AutoScreenshot>));
@@ -177,7 +179,16 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             .set(WindowPlugin { primary_window: Some(Window { title: "Fascicle".into(), ..default() }), ..default() }),
     )
     .add_plugins(EguiPlugin::default())
-    .add_plugins((FascicleRenderPlugin, ScenePlugin))
+    .add_plugins((FascicleRenderPlugin, ScenePlugin, DrawOnDemandPlugin))
+    // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
+    .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
+    .add_systems(Last, keep_awake_while_working.before(ScheduleNextFrame))
+    .add_systems(
+        PreUpdate,
+        drop_repeated_modifier_events
+            .after(bevy_egui::EguiPreUpdateSet::ProcessInput)
+            .before(bevy_egui::EguiPreUpdateSet::BeginPass),
+    )
     .insert_resource(ActiveScene(scene))
     .init_resource::<LayerPanels>()
     .init_resource::<RoiDrag>()
@@ -704,6 +715,33 @@ fn open_path(
 #[derive(Resource, Default)]
 struct FileDialog(Option<bevy::tasks::Task<Option<Vec<PathBuf>>>>);
 
+/// Draws every [`DrawOnDemand::busy_wait`] while layers are being built, neighbouring slices prefetched or
+/// the file dialog is open, so that progress bars move and finished work shows without input.
+fn keep_awake_while_working(
+    jobs: Query<(), With<crate::layers::LayerJob>>,
+    prefetches: Res<crate::layers::Prefetches>,
+    dialog: Res<FileDialog>,
+    mut keep: ResMut<KeepAwake>,
+) {
+    if !jobs.is_empty() || prefetches.running() > 0 || dialog.0.is_some() {
+        keep.busy();
+    }
+}
+
+/// bevy_egui 0.42 tells egui the modifier keys' state as an event every frame, and egui repaints at once after
+/// any event: the window would never go idle. Only a change of the modifiers is passed on.
+fn drop_repeated_modifier_events(
+    mut inputs: Query<(Entity, &mut bevy_egui::EguiInput)>,
+    mut last: Local<std::collections::HashMap<Entity, egui::Modifiers>>,
+) {
+    for (entity, mut input) in &mut inputs {
+        input.0.events.retain(|e| match e {
+            egui::Event::ModifiersChanged(m) => last.insert(entity, *m) != Some(*m),
+            _ => true,
+        });
+    }
+}
+
 /// Opens the file dialog when the panel asked, and the files chosen in it when it closes.
 fn file_dialog(
     mut dialog: ResMut<FileDialog>,
@@ -784,10 +822,15 @@ fn panel(
     (mut region, crosshair): (ResMut<ViewRegion>, Res<Crosshair>),
     window: Single<&Window, With<PrimaryWindow>>,
     (history, recent): (Res<SceneHistory>, Res<RecentFiles>),
+    (draw, next_frame): (Res<DrawOnDemand>, Res<NextFrame>),
 ) -> Result {
     let ctx = contexts.ctx_mut()?;
-    let dt = time.delta_secs() * 1000.0;
-    ui_state.frame_ms = if ui_state.frame_ms == 0.0 { dt } else { 0.95 * ui_state.frame_ms + 0.05 * dt };
+    trace!("egui repaint causes: {:?}; events {:?}", ctx.repaint_causes(), ctx.input(|i| i.events.clone()));
+    // Frames drawn back to back measure what a frame costs; the time since an idle or polling frame does not.
+    if *next_frame == NextFrame::Now || !draw.enabled {
+        let dt = time.delta_secs() * 1000.0;
+        ui_state.frame_ms = if ui_state.frame_ms == 0.0 { dt } else { 0.95 * ui_state.frame_ms + 0.05 * dt };
+    }
     let mut edited = scene.0.clone();
     let mut viewport_ui = egui::Ui::new(
         ctx.clone(),
@@ -796,7 +839,13 @@ fn panel(
     );
     let panel_width = egui::Panel::left("layers").resizable(true).show(&mut viewport_ui, |ui| {
         ui.heading("Fascicle");
-        ui.label(format!("frame {:.1} ms", ui_state.frame_ms));
+        let drawing = match (draw.enabled, *next_frame) {
+            (false, _) => "every frame",
+            (true, NextFrame::Poll) => "while working",
+            (true, _) => "on demand",
+        };
+        ui.label(format!("frame {:.1} ms, drawn {drawing}", ui_state.frame_ms))
+            .on_hover_text("the cost of a frame drawn back to back; an idle window draws nothing");
         ui.separator();
         ui.heading("Layers");
         let mut remove = None;
@@ -984,7 +1033,7 @@ fn tensor_source_of(kind: &LayerKind) -> Option<crate::scene::TensorSource> {
     match kind {
         LayerKind::Slice { source: VolumeSource::Nifti { path, .. }, .. } => {
             (fascicle_core::io::classify::gradients_beside(path).is_some() || has_dw_scheme(path))
-                .then(|| TensorSource::Dwi { path: path.clone() })
+                .then(|| TensorSource::Dwi { path: path.clone(), bvecs: Default::default() })
         }
         LayerKind::TensorGlyphs { source, .. } | LayerKind::TensorSplats { source, .. }
             if !matches!(source, TensorSource::Spiral { .. }) =>

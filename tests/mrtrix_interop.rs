@@ -260,10 +260,22 @@ fn dwi_mif_from_mrtrix_fits_as_its_nifti() {
         &s(&a),
     ]);
     fascicle(&["fit", "dti", &s(&mif), "--quiet", "--force", "--out", &s(&b)]);
+    let (worst_fa, worst_dir, compared) = compare_dti_fits(&a, &b);
+    println!(
+        "fit of MRtrix's .mif vs the NIfTI: FA worst {worst_fa:.2e}, e1 worst 1 - |cos| {worst_dir:.2e} over {compared}"
+    );
+    assert!(worst_fa < 1e-4, "FA differs by {worst_fa}");
+    assert!(compared > 50 && worst_dir < 1e-4, "principal directions differ: 1 - |cos| = {worst_dir}");
+}
+
+/// FA and principal eigenvectors of two `fascicle fit dti` outputs (prefixes) of the same DWI stored two ways,
+/// compared at every scanner position: the worst FA difference, the worst 1 - |cos| between the principal
+/// directions taken to scanner axes where FA > 0.3, and how many voxels were compared.
+fn compare_dti_fits(a: &PathBuf, b: &PathBuf) -> (f64, f64, usize) {
     let read =
         |prefix: &PathBuf, what: &str| nifti::read::<f32>(format!("{}_{what}.nii.gz", prefix.display())).unwrap().0;
-    let (fa_a, fa_b) = (read(&a, "fa"), read(&b, "fa"));
-    let (ev_a, ev_b) = (read(&a, "evecs"), read(&b, "evecs"));
+    let (fa_a, fa_b) = (read(a, "fa"), read(b, "fa"));
+    let (ev_a, ev_b) = (read(a, "evecs"), read(b, "evecs"));
     let axes = |v: &Volume<f32>| fascicle_core::sh::world_from_voxel_axes(v.world_from_voxel);
     let (ma, mb) = (axes(&fa_a), axes(&fa_b));
     let inv = fa_b.world_from_voxel.inverse();
@@ -287,11 +299,86 @@ fn dwi_mif_from_mrtrix_fits_as_its_nifti() {
             compared += 1;
         }
     }
-    println!(
-        "fit of MRtrix's .mif vs the NIfTI: FA worst {worst_fa:.2e}, e1 worst 1 - |cos| {worst_dir:.2e} over {compared}"
-    );
-    assert!(worst_fa < 1e-4, "FA differs by {worst_fa}");
-    assert!(compared > 50 && worst_dir < 1e-4, "principal directions differ: 1 - |cos| = {worst_dir}");
+    (worst_fa, worst_dir, compared)
+}
+
+/// FSL's b-vector frame as MRtrix3 defines it (`-fslgrad`; `-export_grad_mrtrix` gives the table in scanner
+/// axes): Fascicle's table taken to world axes equals MRtrix3's on an image with a positive determinant
+/// (`small_25`, where x is negated) and on an oblique one with a negative determinant (`small_64D`); DIPY's
+/// reading differs on the first. And a copy of `small_64D` that MRtrix3 stores with a positive determinant,
+/// with the `.bvec` it exports for it (`-export_grad_fsl`), fits to the same principal directions in world
+/// space as the original (under DIPY's reading of that copy, they come out mirrored).
+#[test]
+fn fsl_bvecs_are_read_in_mrtrix_frame() {
+    use fascicle_core::io::{BvecConvention, GradientTable};
+    if !mrtrix() {
+        return;
+    }
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    for (name, positive) in [("small_25", true), ("small_64D", false)] {
+        let img = s(&data(&format!("dwi/{name}.nii{}", if name == "small_25" { ".gz" } else { "" })));
+        let (bval, bvec) = (s(&data(&format!("dwi/{name}.bval"))), s(&data(&format!("dwi/{name}.bvec"))));
+        let grad = scratch(&format!("{name}_grad.b"));
+        let mif = scratch(&format!("{name}_grad.mif"));
+        let args = ["-quiet", "-force", &img, "-fslgrad", &bvec, &bval, "-export_grad_mrtrix"];
+        run("mrconvert", &[&args[..], &[grad.to_str().unwrap(), mif.to_str().unwrap()]].concat());
+        let theirs: Vec<[f64; 4]> = std::fs::read_to_string(&grad)
+            .unwrap()
+            .lines()
+            .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+            .map(|l| {
+                let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+                [v[0], v[1], v[2], v[3]]
+            })
+            .collect();
+        let affine = nifti::read::<f32>(&img).unwrap().0.world_from_voxel;
+        assert_eq!(glam::DMat3::from_mat4(affine).determinant() > 0.0, positive, "{name}");
+        let worst = |c: BvecConvention| {
+            let t = GradientTable::from_fsl_for_image(&bval, &bvec, affine, c, 50.0).unwrap();
+            assert_eq!(t.len(), theirs.len(), "{name}");
+            let mut worst = 0f64;
+            for (g, r) in t.world_bvecs(affine).iter().zip(&theirs) {
+                let m = glam::DVec3::new(r[0], r[1], r[2]);
+                if r[3] > 50.0 {
+                    worst = worst.max((g.normalize() - m.normalize()).length());
+                }
+            }
+            for (b, r) in t.bvals.iter().zip(&theirs) {
+                assert!((b - r[3]).abs() <= 1e-3 * b.max(1.0), "{name}: b {b} vs MRtrix3's {}", r[3]);
+            }
+            worst
+        };
+        let (fsl, dipy) = (worst(BvecConvention::Fsl), worst(BvecConvention::Dipy));
+        println!("{name}: |g - MRtrix3's| worst {fsl:.1e} (fsl), {dipy:.1e} (dipy)");
+        assert!(fsl < 1e-6, "{name}: FSL frame differs from MRtrix3's by {fsl}");
+        assert_eq!(dipy > 0.1, positive, "{name}: DIPY's reading differs from MRtrix3's by {dipy}");
+    }
+
+    // The positive-determinant copy, its gradients exported by MRtrix3 in FSL's frame.
+    let src = s(&data("dwi/small_64D.nii"));
+    let (bval, bvec) = (s(&data("dwi/small_64D.bval")), s(&data("dwi/small_64D.bvec")));
+    let copy = scratch("small_64D_ras.nii");
+    let (cbvec, cbval) = (scratch("small_64D_ras.bvec"), scratch("small_64D_ras.bval"));
+    let args = ["-quiet", "-force", &src, "-fslgrad", &bvec, &bval, "-stride", "1,2,3,4", &s(&copy)];
+    run("mrconvert", &[&args[..], &["-export_grad_fsl", &s(&cbvec), &s(&cbval)]].concat());
+    let affine = nifti::read::<f32>(&copy).unwrap().0.world_from_voxel;
+    assert!(glam::DMat3::from_mat4(affine).determinant() > 0.0, "MRtrix3 kept the determinant's sign");
+    let fit = |dwi: &str, bval: &str, bvec: &str, convention: &str, out: &PathBuf| {
+        let args = ["fit", "dti", dwi, "--bval", bval, "--bvec", bvec, "--bvec-convention", convention];
+        fascicle(&[&args[..], &["--quiet", "--force", "--out", &s(out)]].concat());
+    };
+    let (a, b, c) = (scratch("fsl_frame_orig"), scratch("fsl_frame_copy"), scratch("fsl_frame_copy_dipy"));
+    fit(&src, &bval, &bvec, "fsl", &a);
+    fit(&s(&copy), &s(&cbval), &s(&cbvec), "fsl", &b);
+    fit(&s(&copy), &s(&cbval), &s(&cbvec), "dipy", &c);
+    let (fa, dir, n) = compare_dti_fits(&a, &b);
+    let (_, dir_dipy, _) = compare_dti_fits(&a, &c);
+    println!("positive-determinant copy: FA worst {fa:.1e}, e1 1 - |cos| {dir:.1e} over {n} (dipy: {dir_dipy:.2})");
+    assert!(fa < 1e-4 && n > 50 && dir < 1e-4, "FA {fa}, directions {dir} over {n}");
+    assert!(dir_dipy > 0.1, "DIPY's reading of the copy should mirror it: {dir_dipy}");
+    let sidecar: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(format!("{}_tensor.json", b.display())).unwrap()).unwrap();
+    assert_eq!(sidecar["gradients"]["bvec_convention"], "fsl");
 }
 
 /// `fascicle select` keeps exactly the streamlines MRtrix3's `tckedit` keeps, on a generated whole-brain-like
@@ -356,4 +443,58 @@ fn select_keeps_what_tckedit_keeps() {
         );
         assert_eq!((x.offsets, x.points), (y.offsets, y.points), "case {k} {ours:?}");
     }
+}
+
+/// Streamline weights as `tckedit -tck_weights_in/-minweight/-tck_weights_out` use them (a weight equal to the
+/// minimum is kept), alone and with an include sphere, over a file read in several chunks: the same streamlines
+/// and the same weights written for them.
+#[test]
+fn select_weights_as_tckedit() {
+    if !mrtrix() {
+        return;
+    }
+    let input = scratch("brain20k_w.tck");
+    fascicle_core::phantom::write_whole_brain(&input, 20_000, 11).unwrap();
+    let weights: Vec<String> =
+        (0..20_000u64).map(|i| format!("{}", (i * 2_654_435_761 % 1000) as f64 / 1000.0)).collect();
+    let w = scratch("brain20k_w.txt");
+    std::fs::write(&w, format!("# weights made by the test\n{}\n", weights.join(" "))).unwrap();
+    let (input, w) = (input.to_str().unwrap(), w.to_str().unwrap());
+    let cases: [(&[&str], &[&str]); 2] = [
+        (&["--min-weight", "0.5"], &["-minweight", "0.5"]),
+        (&["--min", "0.25", "--include", "0,0,0,25"], &["-minweight", "0.25", "-include", "0,0,0,25"]),
+    ];
+    for (k, (ours, theirs)) in cases.iter().enumerate() {
+        let (a, b) = (scratch(&format!("selw{k}_fascicle.tck")), scratch(&format!("selw{k}_mrtrix.tck")));
+        let (wa, wb) = (scratch(&format!("selw{k}_fascicle.txt")), scratch(&format!("selw{k}_mrtrix.txt")));
+        let (a_, b_, wa_, wb_) = (a.to_str().unwrap(), b.to_str().unwrap(), wa.to_str().unwrap(), wb.to_str().unwrap());
+        let mut args = vec!["select", input, "--weights", w, "--weights-out", wa_, "--out", a_, "--force", "--quiet"];
+        args.extend_from_slice(ours);
+        fascicle(&args);
+        let mut args = vec!["-quiet", "-force", "-tck_weights_in", w, "-tck_weights_out", wb_];
+        args.extend_from_slice(theirs);
+        args.extend_from_slice(&[input, b_]);
+        run("tckedit", &args);
+        let (x, y) = (Tractogram::read(&a).unwrap(), Tractogram::read(&b).unwrap());
+        let (wx, wy) = (fascicle_core::io::weights::read(&wa).unwrap(), fascicle_core::io::weights::read(&wb).unwrap());
+        eprintln!("weights case {k}: tckedit keeps {}, Fascicle {}", y.n_streamlines(), x.n_streamlines());
+        assert!(y.n_streamlines() > 100 && y.n_streamlines() < 15_000, "case {k}: {} kept", y.n_streamlines());
+        assert_eq!((&x.offsets, &x.points), (&y.offsets, &y.points), "case {k} {ours:?}");
+        assert_eq!(wx, wy, "case {k}: the weights written");
+        assert_eq!(wx.len(), x.n_streamlines());
+    }
+    // A weights file that does not match the tractogram is refused, naming the file; no output is left.
+    let short = scratch("brain20k_short.txt");
+    std::fs::write(&short, weights[..19_999].join(" ")).unwrap();
+    let out = scratch("selw_short.tck");
+    let o = Command::new(env!("CARGO_BIN_EXE_fascicle"))
+        .args(["select", input, "--weights", short.to_str().unwrap(), "--min", "0.5", "--force", "--quiet"])
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("brain20k_short.txt") && err.contains("19999 weights, fewer"), "{err}");
+    assert!(!out.exists() && !scratch("selw_short.tck.part").exists(), "no output after an error");
 }

@@ -131,7 +131,18 @@ fn track_honours_the_model() {
     let (dwi, _) = nifti::read::<f32>(phantom("nii.gz")).unwrap();
     let gtab = GradientTable::from_fsl(phantom("bval"), phantom("bvec"), 50.0).unwrap();
     let dims = dwi.dims3();
-    let base = ["track", "--dwi", &phantom("nii.gz"), "--bval", &phantom("bval"), "--bvec", &phantom("bvec")];
+    // The phantom was made by DIPY in DIPY's frame (its affine has a positive determinant).
+    let base = [
+        "track",
+        "--dwi",
+        &phantom("nii.gz"),
+        "--bval",
+        &phantom("bval"),
+        "--bvec",
+        &phantom("bvec"),
+        "--bvec-convention",
+        "dipy",
+    ];
     let run = |extra: &[&str], out: &std::path::Path| {
         let o = fascicle(&[&base[..], extra, &["--out", out.to_str().unwrap()]].concat());
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -173,6 +184,8 @@ fn track_honours_the_model() {
         &phantom("bval"),
         "--bvec",
         &phantom("bvec"),
+        "--bvec-convention",
+        "dipy",
         "--out",
         pk.to_str().unwrap(),
     ]);
@@ -185,6 +198,8 @@ fn track_honours_the_model() {
         &phantom("bval"),
         "--bvec",
         &phantom("bvec"),
+        "--bvec-convention",
+        "dipy",
         "--layout",
         "dipy",
         "--out",

@@ -140,6 +140,8 @@ pub fn run(phantom: &Path, python: Option<&Path>, tckgen: Option<&Path>, runs: u
             let trk = dir.join(format!("fascicle_{name}_{threads}.trk"));
             let mut cmd = Command::new(&exe);
             cmd.args(["track", "--dwi"]).arg(&dwi_path).arg("--bval").arg(&bval).arg("--bvec").arg(&bvec);
+            // The phantom was made by DIPY in DIPY's b-vector frame (its affine has a positive determinant).
+            cmd.args(["--bvec-convention", "dipy"]);
             cmd.arg("--seed-mask").arg(&seed_mask).args(["--integrator", name, "--threads", &threads.to_string()]);
             cmd.arg("--out").arg(&trk);
             let (wall, tracking, tracts) = time_process(cmd, &trk, runs)?;

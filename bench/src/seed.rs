@@ -6,9 +6,15 @@ use std::path::Path;
 use fascicle_core::Volume;
 use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD, nifti};
 
-/// The phantom DWI and its gradient table.
+/// The phantom DWI and its gradient table, from `data/phantom` under the working directory (a binary carried to
+/// another machine and run in a checkout there), else from the checkout this binary was built in.
 pub fn phantom_dwi() -> fascicle_core::Result<(Volume<f32>, GradientTable)> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/phantom");
+    let here = Path::new("data/phantom");
+    let dir = if here.join("phantom_ring_cross.nii.gz").is_file() {
+        here.to_path_buf()
+    } else {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/phantom")
+    };
     let (dwi, _) = nifti::read::<f32>(dir.join("phantom_ring_cross.nii.gz"))?;
     let gtab = GradientTable::from_fsl(
         dir.join("phantom_ring_cross.bval"),

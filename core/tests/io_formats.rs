@@ -486,7 +486,7 @@ fn mif_dw_scheme_gives_voxel_axis_gradients() {
         mif::write(&path, &vol, &extra).unwrap();
         assert_eq!(mif::read_dw_scheme(&path).unwrap(), rows.to_vec(), "{name}");
         let read = mif::read_image::<f32>(&path).unwrap();
-        let g = GradientTable::of_image(&path, read.world_from_voxel, 50.0).unwrap().unwrap();
+        let g = GradientTable::of_image(&path, read.world_from_voxel, Default::default(), 50.0).unwrap().unwrap();
         assert_eq!(g.bvals, vec![0.0, 1000.0, 2000.0]);
         let axes = fascicle_core::sh::world_from_voxel_axes(read.world_from_voxel);
         for (v, r) in g.bvecs.iter().zip(&rows).skip(1) {
@@ -494,6 +494,6 @@ fn mif_dw_scheme_gives_voxel_axis_gradients() {
         }
         assert_eq!(g.bvecs[0], DVec3::ZERO);
     }
-    assert!(GradientTable::of_image(&dir.join("none.nii"), DMat4::IDENTITY, 50.0).is_none());
+    assert!(GradientTable::of_image(&dir.join("none.nii"), DMat4::IDENTITY, Default::default(), 50.0).is_none());
     std::fs::remove_dir_all(dir).ok();
 }

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use clap::{Args, Subcommand};
 use fascicle_core::dti::{self, FitMethod, metrics};
-use fascicle_core::io::{GradientTable, gradients::DEFAULT_B0_THRESHOLD, nifti};
+use fascicle_core::io::{BvecConvention, GradientTable, gradients::DEFAULT_B0_THRESHOLD, nifti};
 use fascicle_core::sh::{self, OdfKind, OdfModel};
 use fascicle_core::{Error, Volume};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -17,10 +17,15 @@ pub struct DwiArgs {
     /// FSL b-values (one row, or one per line); default: the .bval beside the image, or a .mif's dw_scheme.
     #[arg(long)]
     pub bval: Option<PathBuf>,
-    /// FSL b-vectors (3 rows or 3 columns, in the image's voxel axes as DIPY reads them); default: the .bvec
-    /// beside the image, or a .mif's dw_scheme (turned from scanner into voxel axes).
+    /// FSL b-vectors (3 rows or 3 columns, in the frame --bvec-convention names); default: the .bvec beside the
+    /// image, or a .mif's dw_scheme (turned from scanner into voxel axes).
     #[arg(long)]
     pub bvec: Option<PathBuf>,
+    /// Frame of the .bvec file: `fsl` (FSL's definition, as FSL, MRtrix3's -fslgrad and dcm2niix use it: the
+    /// image's voxel axes with x negated when the affine's determinant is positive) or `dipy` (the voxel axes as
+    /// given, as DIPY reads them). The two differ only on images with a positive determinant.
+    #[arg(long, default_value = "fsl")]
+    pub bvec_convention: BvecConvention,
     /// 3D mask: voxels > 0 are fitted.
     #[arg(long)]
     pub mask: Option<PathBuf>,
@@ -83,9 +88,13 @@ pub(crate) fn load(a: &DwiArgs) -> Result<Loaded, Error> {
         return Err(Error::Shape(format!("{}: a DWI must be 4D, this image is {:?}", a.dwi.display(), dwi.shape)));
     }
     let (gtab, source) = match (&a.bval, &a.bvec) {
-        (Some(bval), Some(bvec)) => (GradientTable::from_fsl(bval, bvec, a.b0_threshold)?, bval.display().to_string()),
+        (Some(bval), Some(bvec)) => (
+            GradientTable::from_fsl_for_image(bval, bvec, dwi.world_from_voxel, a.bvec_convention, a.b0_threshold)?,
+            bval.display().to_string(),
+        ),
         (None, None) => {
-            let gtab = GradientTable::of_image(&a.dwi, dwi.world_from_voxel, a.b0_threshold).ok_or_else(|| {
+            let of_image = GradientTable::of_image(&a.dwi, dwi.world_from_voxel, a.bvec_convention, a.b0_threshold);
+            let gtab = of_image.ok_or_else(|| {
                 Error::Param(format!(
                     "{}: no gradients: give --bval and --bvec (or put them beside the image, or use a .mif with a dw_scheme)",
                     a.dwi.display()
@@ -154,6 +163,7 @@ fn fit_dti(input: &DwiArgs, method: FitMethod, out: &Path) -> Result<(), Error> 
     for n in names {
         super::check_output(&file(&format!("{n}.nii.gz")))?;
     }
+    super::check_output(&file("tensor.json"))?;
     let parent = if as_dir { out.to_path_buf() } else { out.parent().map(Path::to_path_buf).unwrap_or_default() };
     if !parent.as_os_str().is_empty() {
         std::fs::create_dir_all(&parent).map_err(|e| Error::Io { path: parent.clone(), source: e })?;
@@ -191,6 +201,13 @@ fn fit_dti(input: &DwiArgs, method: FitMethod, out: &Path) -> Result<(), Error> 
     write("cl.nii.gz", tv.map(westin(0)))?;
     write("cp.nii.gz", tv.map(westin(1)))?;
     write("cs.nii.gz", tv.map(westin(2)))?;
+    let json = serde_json::json!({
+        "model": "dti",
+        "method": format!("{method:?}").to_lowercase(),
+        "tensor_order": "dipy",
+        "gradients": gradient_record(input),
+    });
+    write_sidecar(&file("tensor.json"), &json)?;
     if !super::globals().quiet {
         eprintln!("wrote {} maps: {}", names.len(), file("{tensor,fa,...}.nii.gz").display());
     }
@@ -223,9 +240,9 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
         "sh_basis": { "convention": basis.convention(), "legacy": basis.legacy() },
         "l_max": a.lmax,
         "smooth": a.smooth,
+        "gradients": gradient_record(&a.input),
     });
-    std::fs::write(&sidecar, serde_json::to_string_pretty(&json).unwrap_or_default() + "\n")
-        .map_err(|e| Error::Io { path: sidecar.clone(), source: e })?;
+    write_sidecar(&sidecar, &json)?;
     if !super::globals().quiet {
         eprintln!(
             "wrote {} ({} coefficients, {}) and {}",
@@ -236,6 +253,21 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
         );
     }
     Ok(())
+}
+
+/// Where a fit's gradients came from and in which frame its `.bvec` was read, for its sidecar.
+fn gradient_record(a: &DwiArgs) -> serde_json::Value {
+    let beside = fascicle_core::io::classify::gradients_beside(&a.dwi);
+    match (&a.bvec, beside) {
+        (Some(bvec), _) => serde_json::json!({ "bvec": bvec, "bvec_convention": a.bvec_convention.name() }),
+        (None, Some((_, bvec))) => serde_json::json!({ "bvec": bvec, "bvec_convention": a.bvec_convention.name() }),
+        (None, None) => serde_json::json!({ "dw_scheme": a.dwi }),
+    }
+}
+
+fn write_sidecar(path: &Path, json: &serde_json::Value) -> Result<(), Error> {
+    std::fs::write(path, serde_json::to_string_pretty(json).unwrap_or_default() + "\n")
+        .map_err(|e| Error::Io { path: path.to_path_buf(), source: e })
 }
 
 /// `x.nii.gz` / `x.nii` -> `x.json`.

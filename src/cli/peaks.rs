@@ -65,6 +65,10 @@ pub struct PeaksArgs {
     /// FSL b-vectors of --dwi.
     #[arg(long, requires = "dwi")]
     pub bvec: Option<PathBuf>,
+    /// Frame of the .bvec file: `fsl` (FSL's definition: voxel axes, x negated when the affine's determinant
+    /// is positive; as FSL, MRtrix3 and dcm2niix) or `dipy` (the voxel axes as given, as DIPY reads them).
+    #[arg(long, requires = "dwi", default_value = "fsl")]
+    pub bvec_convention: fascicle_core::io::BvecConvention,
     /// ODF model fitted to --dwi.
     #[arg(long, value_enum, default_value_t = OdfArg::Csa)]
     pub model: OdfArg,
@@ -126,6 +130,7 @@ pub fn run(a: PeaksArgs) -> Result<(), Error> {
             dwi: dwi.clone(),
             bval: a.bval.clone(),
             bvec: a.bvec.clone(),
+            bvec_convention: a.bvec_convention,
             mask: a.mask.clone(),
             b0_threshold: fascicle_core::io::gradients::DEFAULT_B0_THRESHOLD,
         })?;

@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use fascicle_core::Error;
 use fascicle_core::io::stream::{self, DEFAULT_CHUNK_POINTS, Format, TractogramReader, TractogramWriter, WriteOptions};
-use fascicle_core::io::{Tractogram, tck, tractogram::extension, trk};
+use fascicle_core::io::{Tractogram, tck, tractogram::extension, trk, weights};
 use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape};
 use glam::DMat4;
 use rayon::prelude::*;
@@ -48,6 +48,15 @@ pub struct SelectArgs {
     /// Exclude plane (repeatable).
     #[arg(long, value_name = "PX,PY,PZ,NX,NY,NZ", allow_hyphen_values = true)]
     pub exclude_plane: Vec<String>,
+    /// Streamline weights, one per input streamline (tcksift2's output; as tckedit's -tck_weights_in).
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
+    /// Keep only streamlines whose weight is at least this (tckedit's -minweight; needs --weights).
+    #[arg(long = "min-weight", visible_alias = "min", requires = "weights")]
+    pub min_weight: Option<f32>,
+    /// Write the kept streamlines' weights here, in their order (tckedit's -tck_weights_out; needs --weights).
+    #[arg(long, requires = "weights")]
+    pub weights_out: Option<PathBuf>,
     /// Output (.tck, .trk, gzipped, or .trx).
     #[arg(long)]
     pub out: PathBuf,
@@ -240,7 +249,7 @@ pub fn pipe(
     reader: TractogramReader,
     writer: &mut TractogramWriter,
     what: &str,
-    keep: impl Fn(&Tractogram) -> Option<Vec<bool>> + Sync,
+    keep: impl Fn(&Tractogram) -> Result<Option<Vec<bool>>, Error> + Sync,
 ) -> Result<(usize, usize), Error> {
     let pb = bytes_bar(reader.header().file_bytes, what);
     let (mut read, mut written) = (0, 0);
@@ -266,7 +275,7 @@ pub fn pipe(
         for msg in rx {
             let (t, bytes) = msg?;
             read += t.n_streamlines();
-            match keep(&t) {
+            match keep(&t)? {
                 Some(mask) => {
                     let out = t.subset_with_values(&mask);
                     written += out.n_streamlines();
@@ -289,16 +298,51 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     let criteria = criteria(&a)?;
     super::check_output(&a.out)?;
     let t0 = std::time::Instant::now();
+    if let Some(w) = &a.weights_out {
+        super::check_output(w)?;
+    }
     let reader = TractogramReader::open(&a.input)?;
     let options = write_options(&a.input, reader.header(), &a.out, false)?;
     let mut writer = TractogramWriter::create(&a.out, &options)?;
-    let keep = |t: &Tractogram| -> Option<Vec<bool>> {
-        Some(
-            (0..t.n_streamlines()).into_par_iter().with_min_len(256).map(|s| criteria.keeps(t.streamline(s))).collect(),
-        )
+    // Weights are read in step with the chunks (the consumer takes the chunks in order).
+    let weights = match &a.weights {
+        Some(p) => Some(std::sync::Mutex::new((
+            weights::WeightReader::open(p)?,
+            a.weights_out.as_ref().map(weights::WeightWriter::create).transpose()?,
+        ))),
+        None => None,
+    };
+    let min_weight = a.min_weight.unwrap_or(f32::NEG_INFINITY);
+    let keep = |t: &Tractogram| -> Result<Option<Vec<bool>>, Error> {
+        let mut mask: Vec<bool> =
+            (0..t.n_streamlines()).into_par_iter().with_min_len(256).map(|s| criteria.keeps(t.streamline(s))).collect();
+        if let Some(w) = &weights {
+            let mut guard = w.lock().unwrap_or_else(|e| e.into_inner());
+            let (reader, out) = &mut *guard;
+            let ws = reader.take(t.n_streamlines())?;
+            for (k, w) in mask.iter_mut().zip(&ws) {
+                *k &= *w >= min_weight;
+            }
+            if let Some(out) = out {
+                let kept: Vec<f32> = ws.iter().zip(&mask).filter(|(_, k)| **k).map(|(w, _)| *w).collect();
+                out.write(&kept)?;
+            }
+        }
+        Ok(Some(mask))
     };
     let (read, _) = pipe(reader, &mut writer, "select", keep)?;
+    let weights_out = match weights {
+        Some(w) => {
+            let (reader, out) = w.into_inner().unwrap_or_else(|e| e.into_inner());
+            reader.finish(read as u64)?;
+            out
+        }
+        None => None,
+    };
     let kept = writer.finish()?;
+    if let Some(out) = weights_out {
+        out.finish()?;
+    }
     if super::globals().quiet {
         return Ok(());
     }

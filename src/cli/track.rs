@@ -49,9 +49,13 @@ pub struct TrackArgs {
     /// FSL b-values of --dwi.
     #[arg(long, requires = "dwi")]
     pub bval: Option<PathBuf>,
-    /// FSL b-vectors of --dwi (in the image's voxel axes, as DIPY reads them).
+    /// FSL b-vectors of --dwi (in the frame --bvec-convention names).
     #[arg(long, requires = "dwi")]
     pub bvec: Option<PathBuf>,
+    /// Frame of the .bvec file: `fsl` (FSL's definition: voxel axes, x negated when the affine's determinant
+    /// is positive; as FSL, MRtrix3 and dcm2niix) or `dipy` (the voxel axes as given, as DIPY reads them).
+    #[arg(long, requires = "dwi", default_value = "fsl")]
+    pub bvec_convention: fascicle_core::io::BvecConvention,
     /// Model fitted to --dwi.
     #[arg(long, value_enum, default_value_t = TrackModel::Dti)]
     pub model: TrackModel,
@@ -287,6 +291,7 @@ fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {
         dwi: dwi.clone(),
         bval: a.bval.clone(),
         bvec: a.bvec.clone(),
+        bvec_convention: a.bvec_convention,
         mask: a.mask.clone(),
         b0_threshold: DEFAULT_B0_THRESHOLD,
     };

@@ -899,6 +899,9 @@ pub struct TractogramWriter {
     part: PathBuf,
     gzip: bool,
     inner: Writer,
+    /// Removes the part file and the TRX spool files when the writer is dropped unfinished (an error, a
+    /// cancel), and whatever is left after [`Self::finish`].
+    _leftovers: Leftovers,
     streamlines: usize,
     points: u64,
     lo: Vec3,
@@ -921,6 +924,17 @@ struct TrxWriter {
     buf: Vec<u8>,
 }
 
+/// Files removed when dropped (those that no longer exist are skipped).
+pub(crate) struct Leftovers(pub(crate) Vec<PathBuf>);
+
+impl Drop for Leftovers {
+    fn drop(&mut self) {
+        for p in &self.0 {
+            std::fs::remove_file(p).ok();
+        }
+    }
+}
+
 fn spool(path: &Path) -> Result<BufWriter<File>> {
     Ok(BufWriter::with_capacity(1 << 20, File::create(path).map_err(|e| Error::io(path, e))?))
 }
@@ -937,6 +951,15 @@ impl TractogramWriter {
         let mut part = path.clone().into_os_string();
         part.push(".part");
         let part = PathBuf::from(part);
+        let side_file = |what: String| -> PathBuf {
+            let mut p = part.clone().into_os_string();
+            p.push(format!(".{what}"));
+            PathBuf::from(p)
+        };
+        let mut leftovers = vec![part.clone(), side_file("offsets".into())];
+        leftovers.extend((0..options.scalars.len()).map(|i| side_file(format!("dpv{i}"))));
+        leftovers.extend((0..options.properties.len()).map(|i| side_file(format!("dps{i}"))));
+        let leftovers = Leftovers(leftovers);
         let io = |e| Error::io(&part, e);
         let inner = match format {
             Format::Tck => {
@@ -976,11 +999,7 @@ impl TractogramWriter {
                     .compression_method(zip::CompressionMethod::Stored)
                     .large_file(true);
                 zip.start_file(format!("positions.3.{suffix}"), opts).map_err(|e| zip_error(&part, e))?;
-                let side = |what: &str| -> PathBuf {
-                    let mut p = part.clone().into_os_string();
-                    p.push(format!(".{what}"));
-                    PathBuf::from(p)
-                };
+                let side = |what: &str| side_file(what.to_string());
                 let arrays = |folder: &str, names: &[String]| -> Result<Vec<(String, PathBuf, BufWriter<File>)>> {
                     names
                         .iter()
@@ -1015,6 +1034,7 @@ impl TractogramWriter {
             part,
             gzip,
             inner,
+            _leftovers: leftovers,
             streamlines: 0,
             points: 0,
             lo: Vec3::splat(f32::INFINITY),

@@ -11,7 +11,7 @@
 //! use fascicle_core::{dti, io, tracking::{PeakField, TrackParams, Tracker, seeds_from_mask}};
 //! # fn main() -> fascicle_core::Result<()> {
 //! let (dwi, _) = io::nifti::read::<f32>("dwi.nii.gz")?;
-//! let gtab = io::GradientTable::from_fsl("dwi.bval", "dwi.bvec", 50.0)?;
+//! let gtab = io::GradientTable::from_fsl_for_image("dwi.bval", "dwi.bvec", dwi.world_from_voxel, io::BvecConvention::Fsl, 50.0)?;
 //! let fit = dti::fit_volume(&dwi, &gtab, dti::FitMethod::Wls, None)?;
 //! let field = PeakField::from_fit(&fit, dwi.voxel_size())?;
 //! let mask: Vec<bool> = (0..dwi.n_voxels()).map(|v| field.scalar_at(v) > 0.2).collect();

@@ -236,7 +236,11 @@ pub fn headless_app_with_assets(asset_root: Option<&str>) -> App {
             close_when_requested: false,
             ..default()
         })
-        .set(RenderPlugin { synchronous_pipeline_compilation: true, ..default() })
+        .set(RenderPlugin {
+            render_creation: shared_render_creation(),
+            synchronous_pipeline_compilation: true,
+            ..default()
+        })
         .disable::<PipelinedRenderingPlugin>()
         .set(bevy::asset::AssetPlugin {
             // Relative to the crate (or executable) directory; an absolute path is taken as it is.
@@ -259,9 +263,50 @@ pub fn headless_app_with_assets(asset_root: Option<&str>) -> App {
         app.add_plugins(plugins.disable::<bevy::log::LogPlugin>());
     }
     if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
-        render_app.add_systems(bevy::render::Render, finish_frame.in_set(bevy::render::RenderSystems::Cleanup));
+        render_app.add_systems(
+            bevy::render::Render,
+            (finish_frame, share_render_resources).in_set(bevy::render::RenderSystems::Cleanup),
+        );
     }
     app
+}
+
+/// The GPU device (with its queue, adapter and instance) that the first headless app of the process opened;
+/// every later headless app renders with it instead of opening its own. Benchmarks and test binaries make
+/// hundreds of apps one after another: on an H200 (driver 580) opening a new device per app failed after 24-30
+/// of them ("Unable to find a GPU!"), and each opening costs about half a second.
+static SHARED_RENDER: Mutex<Option<bevy::render::settings::RenderResources>> = Mutex::new(None);
+
+/// `Manual` with the process's shared device once one is open, else `Automatic` (default settings).
+fn shared_render_creation() -> bevy::render::settings::RenderCreation {
+    match SHARED_RENDER.lock().unwrap_or_else(|e| e.into_inner()).clone() {
+        Some(resources) => bevy::render::settings::RenderCreation::Manual(resources),
+        None => default(),
+    }
+}
+
+/// Records the render world's device for [`shared_render_creation`] (the first app's, once).
+fn share_render_resources(
+    device: Res<bevy::render::renderer::RenderDevice>,
+    queue: Res<bevy::render::renderer::RenderQueue>,
+    info: Res<bevy::render::renderer::RenderAdapterInfo>,
+    adapter: Res<bevy::render::renderer::RenderAdapter>,
+    instance: Res<bevy::render::renderer::RenderInstance>,
+    mut done: Local<bool>,
+) {
+    if std::mem::replace(&mut *done, true) {
+        return;
+    }
+    let mut shared = SHARED_RENDER.lock().unwrap_or_else(|e| e.into_inner());
+    if shared.is_none() {
+        *shared = Some(bevy::render::settings::RenderResources(
+            device.clone(),
+            queue.clone(),
+            info.clone(),
+            adapter.clone(),
+            instance.clone(),
+        ));
+    }
 }
 
 /// Ends each headless frame when the GPU has finished it. Without a window nothing presents, so nothing else

@@ -18,6 +18,8 @@ pub mod headless;
 pub mod impostor;
 pub mod layer;
 pub mod meshes;
+#[cfg(feature = "winit")]
+pub mod on_demand;
 pub mod reference;
 pub mod shaders;
 
