@@ -927,6 +927,11 @@ fn panel(
             ui.checkbox(&mut edited.views.ortho, "orthogonal 2D views");
             ui.checkbox(&mut edited.views.follow, "slices follow the crosshair");
             ui.checkbox(&mut edited.views.colour_bars, "colour bars");
+            let mut slab = edited.views.slab_mm.unwrap_or(0.0);
+            let r = ui.add(egui::Slider::new(&mut slab, 0.0..=20.0).text("streamline slab (mm; 0: one voxel)"));
+            if r.changed() {
+                edited.views.slab_mm = (slab > 0.0).then_some(slab);
+            }
             let mut c = crosshair.world.to_array();
             let changed = ui
                 .horizontal(|ui| {

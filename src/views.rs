@@ -10,7 +10,8 @@
 //!   screen's right; sagittal views from the subject's left, anterior to the left). For every visible slice
 //!   layer it shows the slice of that image through the crosshair, cut along the image's voxel axis closest to
 //!   the view's axis (so permuted or flipped images show the right plane), with the layer's window and
-//!   opacity. Two lines mark the crosshair.
+//!   opacity. Two lines mark the crosshair. Tract layers drawn as lines or polygon tubes show cropped to a slab
+//!   around the view's plane ([`Views::slab_mm`]), over the image.
 //! - A left click or drag in a 2D view moves the crosshair within that view's plane; the wheel steps it one
 //!   voxel through the plane; a right drag sets the window of the top slice layer (horizontal: width,
 //!   vertical: level), as in mrview. With [`Views::follow`], the slices of the slice, glyph and tensor layers
@@ -43,11 +44,14 @@ pub struct Views {
     pub follow: bool,
     /// A colour bar for every colour-mapped layer, in the 3D view.
     pub colour_bars: bool,
+    /// Thickness of the slab around each 2D view's slice within which streamlines are drawn, mm; default
+    /// (None): one voxel of the top slice layer along the view's axis, else 2 mm.
+    pub slab_mm: Option<f32>,
 }
 
 impl Default for Views {
     fn default() -> Self {
-        Self { ortho: false, crosshair: None, follow: false, colour_bars: true }
+        Self { ortho: false, crosshair: None, follow: false, colour_bars: true, slab_mm: None }
     }
 }
 
@@ -186,6 +190,7 @@ impl Plugin for ViewsPlugin {
                     spawn_view_marks,
                     place_ortho_cameras,
                     view_slices,
+                    view_tract_slabs,
                     bars,
                 )
                     .chain()
@@ -555,6 +560,58 @@ fn view_slices(
                         RenderLayers::layer(VIEW_LAYERS[a]),
                         ChildOf(layer),
                     ));
+                }
+            }
+        }
+    }
+}
+
+/// A 2D view's crop of a tract layer's mesh (`fascicle_tracts::TractSlab`), for view `.0`.
+#[derive(Component, Clone, Copy, Debug)]
+struct ViewSlab(usize);
+
+/// The slab thickness of 2D view `a`: the scene's, else one voxel of the top slice layer along the view's axis,
+/// else 2 mm.
+pub fn slab_thickness(views: &Views, top: Option<&VoxelGrid>, a: usize) -> f32 {
+    if let Some(t) = views.slab_mm.filter(|t| *t > 0.0) {
+        return t;
+    }
+    top.map_or(2.0, |g| g.world_from_voxel.col(g.axis_along(a)).truncate().length() as f32)
+}
+
+/// With the 2D views on, each tract layer drawn as lines or polygon tubes shows in every 2D view cropped to a
+/// slab around the crosshair's plane, in its own colours, over the image (mrview's "crop to slab"): one
+/// `TractSlab` per set and view, whose move with the crosshair is a uniform write. Hyperstreamlines are not
+/// cropped (not drawn in the 2D views).
+fn view_tract_slabs(
+    mut commands: Commands,
+    scene: Res<ActiveScene>,
+    crosshair: Res<Crosshair>,
+    sets: Query<Entity, With<fascicle_tracts::MeshSet>>,
+    mut slabs: Query<(Entity, &ViewSlab, &mut fascicle_tracts::TractSlab)>,
+    slice_layers: Query<(&LayerEntity, &VoxelGrid), With<SliceSource>>,
+) {
+    if !scene.0.views.ortho {
+        for (e, ..) in &slabs {
+            commands.entity(e).despawn();
+        }
+        return;
+    }
+    let top = slice_layers.iter().max_by_key(|(le, _)| le.0).map(|(_, g)| *g);
+    for set in &sets {
+        for a in 0..3 {
+            let want = fascicle_tracts::TractSlab {
+                set,
+                normal: Vec3::AXES[a],
+                offset: crosshair.world[a],
+                half_thickness: 0.5 * slab_thickness(&scene.0.views, top.as_ref(), a),
+            };
+            match slabs.iter_mut().find(|(_, v, s)| v.0 == a && s.set == set) {
+                Some((_, _, mut slab)) => {
+                    slab.set_if_neq(want);
+                }
+                None => {
+                    commands.spawn((want, ViewSlab(a), RenderLayers::layer(VIEW_LAYERS[a])));
                 }
             }
         }

@@ -276,3 +276,69 @@ fn a_click_moves_the_crosshair_and_the_slices_follow() {
         check_view(&img, a, picked.as_dvec3(), (0.2, 0.6));
     }
 }
+
+/// Streamlines in the 2D views, cropped to a slab one voxel thick around each view's plane (closed form): a
+/// straight streamline at 60 degrees to z, 8 mm right of and 6 mm in front of the crosshair, shows in the axial
+/// view as a segment of length t tan(60°) about where it crosses the axial plane (t the voxel's height), in the
+/// sagittal view as a dot where it crosses the sagittal plane, and not at all in the coronal view (its plane is
+/// 6 mm away); away from the slab nothing of it is drawn.
+#[test]
+fn the_2d_views_show_streamlines_cropped_to_a_slab() {
+    if headless::gpu_tests_skipped() {
+        return;
+    }
+    let fa = fa();
+    let m = fa.world_from_voxel;
+    let (lo, hi) = world_box(m, fa.dims3());
+    let c = m.transform_point3(DVec3::new(24.0, 24.0, 12.0));
+    let theta = 60f64.to_radians();
+    let d = DVec3::new(theta.sin(), 0.0, theta.cos());
+    let through = c + DVec3::new(8.0, 6.0, 0.0);
+    let mut t = fascicle_core::io::Tractogram::new();
+    let points: Vec<Vec3> = (-160..=160).map(|k| (through + d * (f64::from(k) * 0.125)).as_vec3()).collect();
+    t.push(&points);
+    let path = std::env::temp_dir().join(format!("fascicle-slab-{}.tck", std::process::id()));
+    fascicle_core::io::tck::write(&path, &t, &[]).unwrap();
+    let mut scene = ortho_scene(c.as_vec3().to_array());
+    scene.layers.retain(|l| matches!(l.kind, LayerKind::Slice { .. }));
+    scene.layers.push(fascicle::scene::LayerSpec {
+        name: "line".into(),
+        visible: true,
+        opacity: 1.0,
+        kind: LayerKind::Tracts {
+            source: fascicle::scene::TractSource::File { path: path.clone(), tensors: None },
+            mode: fascicle::scene::TractMode::Lines,
+            render: Default::default(),
+            rois: vec![],
+            colouring: Default::default(),
+        },
+    });
+    let Some(img) = render(&scene) else { return };
+    std::fs::remove_file(&path).ok();
+    let coloured = |x: f64, y: f64| {
+        let p = img.pixel(x.round() as u32, y.round() as u32);
+        (i32::from(p[0]) - i32::from(p[1])).abs() > 30 && p[2] > 60
+    };
+    let voxel = |k: usize| m.col(k).truncate().length();
+    // Axial (view 2, normal z): the drawn part of the line's row, in pixels, against t tan(theta).
+    let (x_mid, y_row) = screen(2, through, c, lo, hi);
+    let (x_mm, _) = screen(2, through + DVec3::X, c, lo, hi);
+    let px_per_mm = x_mm - x_mid;
+    let drawn: Vec<i32> = (-40..=40).filter(|&dx| coloured(x_mid + f64::from(dx), y_row)).collect();
+    let want = voxel(2) * theta.tan() * px_per_mm;
+    let span = drawn.last().zip(drawn.first()).map_or(0, |(a, b)| a - b + 1);
+    println!("axial: drawn {span} px of the line's row, expected {want:.1} px ({drawn:?})");
+    assert!((f64::from(span) - want).abs() <= 3.0, "axial crop: {span} px drawn, {want:.1} expected");
+    assert!(drawn.iter().all(|dx| f64::from(dx.abs()) <= want / 2.0 + 2.0), "drawn outside the slab: {drawn:?}");
+    // Sagittal (view 0, normal x): a dot where the line crosses x = c.x, nothing 5 mm along the line from it.
+    let s = (c.x - through.x) / d.x;
+    let (sx, sy) = screen(0, through + d * s, c, lo, hi);
+    let near = (-2..=2).any(|dy| (-2..=2).any(|dx| coloured(sx + f64::from(dx), sy + f64::from(dy))));
+    assert!(near, "sagittal: no streamline pixel near ({sx:.1}, {sy:.1})");
+    let (fx, fy) = screen(0, through + d * (s + 5.0), c, lo, hi);
+    assert!(!coloured(fx, fy), "sagittal: drawn 5 mm along the line, outside the slab");
+    // Coronal (view 1, normal y): the line lies 6 mm in front of the plane: nothing.
+    let (x0, y0, w, h) = CELLS[1];
+    let any = (y0..y0 + h).step_by(2).any(|y| (x0..x0 + w).step_by(2).any(|x| coloured(f64::from(x), f64::from(y))));
+    assert!(!any, "coronal: a streamline 6 mm from the plane was drawn");
+}

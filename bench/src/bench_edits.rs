@@ -173,6 +173,14 @@ fn measure(name: &'static str, scene: Scene, drags: usize) -> Result<Vec<Row>, S
             let c = s.views.crosshair.get_or_insert([0.0; 3]);
             c[2] += 1.0;
         })?;
+        if tracts.is_some() {
+            // With a tract layer, the 2D views crop its streamlines to a slab around their planes: the same
+            // move, named as issue #36 asks (three slab uniforms written, nothing uploaded).
+            time(&mut app, "slab_crosshair_move", &|s| {
+                let c = s.views.crosshair.get_or_insert([0.0; 3]);
+                c[2] -= 1.0;
+            })?;
+        }
         time(&mut app, "ortho_views_off", &|s| s.views.ortho = false)?;
     }
     let seeded = layer_of(&scene, |k| {

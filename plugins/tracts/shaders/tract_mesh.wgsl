@@ -11,6 +11,9 @@
 struct TractMeshParams {
     opacity: f32,
     ambient: f32,
+    // > 0: crop to |dot(slab.xyz, p) - slab.w| <= slab_half and draw over the scene's depth.
+    slab_half: f32,
+    slab: vec4<f32>,
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: TractMeshParams;
@@ -41,7 +44,15 @@ fn vertex(v: TractVertex) -> TractVertexOutput {
     let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
     let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
     let hidden = selected[u32(v.uv.x)] == 0u;
-    out.clip_position = select(position_world_to_clip(w.xyz), vec4<f32>(2.0, 2.0, 2.0, 1.0), hidden);
+    // Cropped to a slab: drawn on the slab's centre plane, 1 mm towards the eye, so that a 2D view looking along
+    // the normal shows it where it is, over its images (within 1 mm of the plane) and under its crosshair. The
+    // fragment stage crops by the true position. A select, not an `if` on a uniform alone (lavapipe, see
+    // lib/ray.wgsl).
+    let n = params.slab.xyz;
+    let eye_side = sign(dot(n, view.world_position) - params.slab.w);
+    let on_plane = w.xyz - (dot(n, w.xyz) - params.slab.w - eye_side) * n;
+    let drawn_at = select(w.xyz, on_plane, params.slab_half > 0.0);
+    out.clip_position = select(position_world_to_clip(drawn_at), vec4<f32>(2.0, 2.0, 2.0, 1.0), hidden);
     out.color = v.color;
     out.world_position = w.xyz;
 #ifdef VERTEX_NORMALS
@@ -54,6 +65,10 @@ fn vertex(v: TractVertex) -> TractVertexOutput {
 
 @fragment
 fn fragment(in: TractVertexOutput) -> @location(0) vec4<f32> {
+    let from_plane = abs(dot(params.slab.xyz, in.world_position) - params.slab.w);
+    if from_plane > select(3.0e38, params.slab_half, params.slab_half > 0.0) {
+        discard;
+    }
 #ifdef VERTEX_NORMALS
     let to_eye = normalize(view.world_position - in.world_position);
     let k = params.ambient + (1.0 - params.ambient) * abs(dot(normalize(in.world_normal), to_eye));

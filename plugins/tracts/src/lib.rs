@@ -190,6 +190,38 @@ pub struct TractMeshUniform {
     pub opacity: f32,
     /// Ambient term of the tubes' headlight shading (lines are unshaded).
     pub ambient: f32,
+    /// Half the thickness of the slab the mesh is cropped to, in mm; 0 (the default) draws it whole. A cropped
+    /// mesh is drawn flattened onto the slab's centre plane, 1 mm towards the eye: a 2D view looking along the
+    /// normal shows it over its images.
+    pub slab_half: f32,
+    /// The slab's centre plane: unit normal (xyz) and offset (w, mm): points with `normal . p = offset`.
+    pub slab: Vec4,
+}
+
+impl TractMeshUniform {
+    /// A whole mesh of `opacity` with the tubes' ambient term.
+    pub fn whole(opacity: f32) -> Self {
+        Self { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3, slab_half: 0.0, slab: Vec4::ZERO }
+    }
+}
+
+/// A tract set's mesh (lines or polygon tubes) cropped to a slab: what a 2D view shows of a tractogram
+/// (mrview's "crop to slab"). Spawn it with the 2D view's `RenderLayers`: the plugin gives it the set's mesh
+/// and a material of its own with the set's opacity and selection, keeps them in step with the set, and
+/// despawns it with the set. Moving the slab (a write of this component) is a uniform write. A fragment is
+/// drawn when its distance to the centre plane is at most half the thickness, flattened onto the centre plane
+/// 1 mm towards the eye (a view along the normal shows it over images in that plane).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[require(Transform, Visibility)]
+pub struct TractSlab {
+    /// The tract set: an entity with [`MeshSet`].
+    pub set: Entity,
+    /// Unit normal of the slab, world axes.
+    pub normal: Vec3,
+    /// The centre plane's offset along the normal, mm.
+    pub offset: f32,
+    /// Half the slab's thickness, mm (> 0).
+    pub half_thickness: f32,
 }
 
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
@@ -244,9 +276,57 @@ impl Plugin for TractPlugin {
         app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
             .init_resource::<LineMsaa>()
-            .add_systems(PostUpdate, (apply_rois.in_set(TractSystems::Select), line_msaa));
+            .add_systems(PostUpdate, (apply_rois.in_set(TractSystems::Select), line_msaa, sync_slabs));
         layer::build(app);
         app.add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
+    }
+}
+
+/// What [`sync_slabs`] reads and writes of a slab.
+type SlabItem<'a> =
+    (Entity, &'a TractSlab, Option<&'a Mesh3d>, Option<&'a MeshMaterial3d<TractMeshMaterial>>, &'a mut Visibility);
+
+/// Gives each [`TractSlab`] its set's mesh and a material of its own, and keeps both in step with the set
+/// (opacity, selection buffer, mesh, visibility); despawns a slab whose set is gone. Assets are written only
+/// when something differs.
+fn sync_slabs(
+    mut commands: Commands,
+    mut slabs: Query<SlabItem>,
+    sets: Query<(&Mesh3d, &MeshSet, &InheritedVisibility)>,
+    mut materials: ResMut<Assets<TractMeshMaterial>>,
+) {
+    for (e, slab, mesh, material, mut visibility) in &mut slabs {
+        let Ok((set_mesh, set, shown)) = sets.get(slab.set) else {
+            commands.entity(e).despawn();
+            continue;
+        };
+        let Some(source) = materials.get(&set.material).cloned() else { continue };
+        let params = TractMeshUniform {
+            slab_half: slab.half_thickness.max(f32::MIN_POSITIVE),
+            slab: slab.normal.normalize_or_zero().extend(slab.offset),
+            ..source.params
+        };
+        match material.and_then(|m| materials.get(&m.0).map(|mat| (m.0.clone(), mat))) {
+            Some((handle, mat)) => {
+                let differs = mat.selected != source.selected
+                    || mat.params.opacity != params.opacity
+                    || mat.params.slab != params.slab
+                    || mat.params.slab_half != params.slab_half;
+                if differs && let Some(mut mat) = materials.get_mut(&handle) {
+                    mat.params = params;
+                    mat.selected = source.selected.clone();
+                }
+            }
+            None => {
+                let handle = materials.add(TractMeshMaterial { params, selected: source.selected.clone() });
+                commands.entity(e).insert(MeshMaterial3d(handle));
+            }
+        }
+        if mesh.map(|m| &m.0) != Some(&set_mesh.0) {
+            commands.entity(e).insert(Mesh3d(set_mesh.0.clone()));
+        }
+        let want = if shown.get() { Visibility::Inherited } else { Visibility::Hidden };
+        visibility.set_if_neq(want);
     }
 }
 
@@ -465,7 +545,7 @@ fn spawn_mesh_set(
     mesh: Mesh,
     opacity: f32,
 ) -> Entity {
-    let params = TractMeshUniform { opacity: opacity.clamp(0.0, 1.0), ambient: 0.3 };
+    let params = TractMeshUniform::whole(opacity);
     let material = materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
     let line_segments = line_segments(&mesh);
     commands
