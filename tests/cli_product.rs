@@ -309,3 +309,25 @@ fn sh_bases_convert_both_ways_through_the_affine() {
     assert_eq!(o.status.code(), Some(1));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// `select` with a malformed mask image or weights file: exit 1, the message names the file; no output.
+#[test]
+fn select_refuses_malformed_masks_and_weights() {
+    let dir = std::env::temp_dir().join(format!("fascicle-select-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("out.tck");
+    let input = data("tracts/standard.tck");
+    for (args, file) in [
+        (vec!["--include", &data("malformed/mask_truncated.nii")[..]], "mask_truncated.nii"),
+        (vec!["--weights", &data("malformed/weights_not_a_number.txt")[..]], "weights_not_a_number.txt"),
+    ] {
+        let mut all = vec!["select", &input[..], "--out", out.to_str().unwrap()];
+        all.extend(args);
+        let o = fascicle(&all);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert!(err.contains(file), "{err}");
+        assert!(!out.exists(), "no output after an error");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -498,3 +498,51 @@ fn select_weights_as_tckedit() {
     assert!(err.contains("brain20k_short.txt") && err.contains("19999 weights, fewer"), "{err}");
     assert!(!out.exists() && !scratch("selw_short.tck.part").exists(), "no output after an error");
 }
+
+/// Track scalar files (`.tsf`) both ways: `tcksample` of an image linear in x (trilinear sampling is exact on
+/// it) along Fascicle's streamlines reads back as each point's x, streamline by streamline; and a `.tsf` that
+/// Fascicle writes for those streamlines passes MRtrix3's own `tsfvalidate` and reads in `tsfinfo` with its count.
+#[test]
+fn track_scalars_both_ways() {
+    use fascicle_core::io::tsf;
+    if !mrtrix() {
+        return;
+    }
+    let tracks = scratch("tsf_tracks.tck");
+    let t = fascicle_core::phantom::whole_brain_streamlines(5, 0, 500);
+    fascicle_core::io::tck::write(&tracks, &t, &[]).unwrap();
+    // x in mm on a 2 mm grid from -110 mm, covering every point with room for the interpolation.
+    let affine =
+        glam::DMat4::from_translation(glam::DVec3::splat(-110.0)) * glam::DMat4::from_scale(glam::DVec3::splat(2.0));
+    let n = 111;
+    let mut img = Volume::<f32>::zeros(&[n, n, n], affine);
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                img.data[x + n * (y + n * z)] = (-110.0 + 2.0 * x as f64) as f32;
+            }
+        }
+    }
+    let image = scratch("tsf_linear_x.nii");
+    nifti::write(&image, &img, nifti::WriteType::F32).unwrap();
+    let theirs = scratch("tsf_mrtrix.tsf");
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    run("tcksample", &["-quiet", "-force", &s(&tracks), &s(&image), &s(&theirs)]);
+    let sampled = tsf::read(&theirs).unwrap();
+    sampled.check_against(&t, &theirs).unwrap();
+    let worst = (0..t.n_streamlines())
+        .flat_map(|i| t.streamline(i).iter().zip(sampled.streamline(i)).map(|(p, v)| (p.x - v).abs()))
+        .fold(0f32, f32::max);
+    println!("tcksample of x along {} streamlines: worst |x - value| {worst:.2e} mm", t.n_streamlines());
+    assert!(worst < 1e-3, "tcksample's values differ from the points' x by {worst}");
+
+    let ours = scratch("tsf_fascicle.tsf");
+    tsf::write(&ours, &tsf::TrackScalars::for_tractogram(&t, |i, k| t.streamline(i)[k].y)).unwrap();
+    let out = Command::new("tsfvalidate").args([s(&ours), s(&tracks)]).output().unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let verdict = text.lines().last().unwrap_or_default().trim();
+    println!("{verdict}");
+    assert!(out.status.success() && text.contains("checked OK") && !text.contains("ERROR"), "tsfvalidate: {text}");
+    let info = run("tsfinfo", &["-count", &s(&ours)]);
+    assert!(info.contains("500"), "tsfinfo: {info}");
+}

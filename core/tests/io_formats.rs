@@ -156,6 +156,16 @@ fn malformed_tractograms_give_clear_errors() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// The malformed track value files (`data/malformed`): a `.tsf` cut short and a weights file with a word among
+/// its numbers are errors naming the file and the problem.
+#[test]
+fn malformed_track_values_give_clear_errors() {
+    let e = fascicle_core::io::tsf::read(data("malformed/cut_short.tsf")).unwrap_err().to_string();
+    assert!(e.contains("cut_short.tsf") && e.contains("cut short"), "{e}");
+    let e = fascicle_core::io::weights::read(data("malformed/weights_not_a_number.txt")).unwrap_err().to_string();
+    assert!(e.contains("weights_not_a_number.txt") && e.contains("line 2: 'abc' (weight 5)"), "{e}");
+}
+
 #[test]
 fn nifti_matches_nibabel_for_qform_big_endian_scaled() {
     let (v, h) = nifti::read::<f64>(data("dwi/qform_be_scaled.nii")).unwrap();

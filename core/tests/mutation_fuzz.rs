@@ -92,6 +92,43 @@ fn readers_never_panic_on_mutated_files() {
     std::fs::remove_dir_all(dir).ok();
 }
 
+/// The track value readers (`.tsf`, weights text) on mutants of files written here: an error or values, never
+/// a panic.
+#[test]
+fn track_value_readers_never_panic_on_mutated_files() {
+    use fascicle_core::io::{tsf, weights};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+    let dir = std::env::temp_dir().join(format!("fascicle-mut-values-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let t = fascicle_core::phantom::whole_brain_streamlines(1, 0, 20);
+    let (tsf_path, w_path) = (dir.join("v.tsf"), dir.join("w.txt"));
+    tsf::write(&tsf_path, &tsf::TrackScalars::for_tractogram(&t, |i, k| (i * 1000 + k) as f32)).unwrap();
+    let ws: Vec<f32> = (0..t.n_streamlines()).map(|i| i as f32 * 0.25).collect();
+    weights::write(&w_path, &ws).unwrap();
+    let mut outcomes = (0usize, 0usize);
+    for p in [&tsf_path, &w_path] {
+        let seed = std::fs::read(p).unwrap();
+        let m_path = dir.join(format!("m.{}", p.extension().unwrap().to_string_lossy()));
+        for m in mutants(&seed, 1500, &mut rng) {
+            std::fs::write(&m_path, &m).unwrap();
+            let ok = if p == &tsf_path {
+                tsf::read(&m_path).map(|s| s.check_against(&t, &m_path).is_ok()).unwrap_or(false)
+            } else {
+                weights::WeightReader::open(&m_path)
+                    .and_then(|mut r| {
+                        r.take(t.n_streamlines())?;
+                        r.finish(t.n_streamlines() as u64)
+                    })
+                    .is_ok()
+            };
+            if ok { outcomes.0 += 1 } else { outcomes.1 += 1 }
+        }
+    }
+    println!("value mutants matching the tractogram: {}, rejected: {}", outcomes.0, outcomes.1);
+    assert!(outcomes.0 > 100 && outcomes.1 > 1000, "{outcomes:?}");
+    std::fs::remove_dir_all(dir).ok();
+}
+
 /// Every streamline of a file through the streaming reader, in small chunks.
 fn streamed(p: &std::path::Path) -> fascicle_core::Result<fascicle_core::io::Tractogram> {
     let mut r = fascicle_core::io::stream::TractogramReader::open(p)?;

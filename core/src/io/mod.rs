@@ -1,4 +1,4 @@
-//! File formats: NIfTI-1/2 images, FSL gradient tables, peak images (MRtrix and DIPY layouts), TrackVis `.trk`, MRtrix `.tck` and TRX `.trx` tractograms, streamline weights.
+//! File formats: NIfTI-1/2 images, FSL gradient tables, peak images (MRtrix and DIPY layouts), TrackVis `.trk`, MRtrix `.tck` and TRX `.trx` tractograms, MRtrix `.tsf` track scalars, streamline weights.
 
 pub mod classify;
 pub mod gradients;
@@ -10,6 +10,7 @@ pub mod tck;
 pub mod tractogram;
 pub mod trk;
 pub mod trx;
+pub mod tsf;
 pub mod weights;
 
 pub use gradients::{BvecConvention, GradientTable};

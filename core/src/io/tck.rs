@@ -37,14 +37,21 @@ pub struct TckLayout {
 /// Parses the header at the start of `b` (which must hold it whole, up to its `END` line); `path` names the
 /// file in errors.
 pub fn parse_header(b: &[u8], path: &Path) -> Result<TckLayout> {
-    const MAGIC: &[u8] = b"mrtrix tracks";
+    parse_header_of(b, path, "mrtrix tracks")
+}
+
+/// [`parse_header`] of a file of MRtrix's track family whose first line is `magic` (`mrtrix tracks`, or
+/// `mrtrix track scalars` for a `.tsf`).
+pub fn parse_header_of(b: &[u8], path: &Path, magic: &str) -> Result<TckLayout> {
+    let what = if magic == "mrtrix tracks" { "tracks" } else { "track scalars" };
+    let magic_bytes = magic.as_bytes();
     // MRtrix's own writers (tckgen) pad the first line with spaces, so that it can be rewritten in place.
     let first_eol = b.iter().take(4096).position(|&c| c == b'\n');
     let first_ok = first_eol.is_some_and(|e| {
-        b[..e].starts_with(MAGIC) && b[MAGIC.len()..e].iter().all(|c| matches!(c, b' ' | b'\t' | b'\r'))
+        b[..e].starts_with(magic_bytes) && b[magic_bytes.len()..e].iter().all(|c| matches!(c, b' ' | b'\t' | b'\r'))
     });
     let Some(first_eol) = first_eol.filter(|_| first_ok) else {
-        return Err(Error::format(path, "not an MRtrix tracks file: the first line is not 'mrtrix tracks'"));
+        return Err(Error::format(path, format!("not an MRtrix {what} file: the first line is not '{magic}'")));
     };
     let mut header: TckHeader = Vec::new();
     let mut pos = first_eol + 1;
@@ -154,7 +161,12 @@ pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
 /// `total_count` are the writer's own) and `count`, padded to the data offset; and the byte offset of the count's
 /// ten digits (so that a streaming writer can patch it).
 pub fn header_bytes(extra: &[(String, String)], count: usize) -> (Vec<u8>, u64) {
-    let mut head = String::from("mrtrix tracks\n");
+    header_bytes_of("mrtrix tracks", extra, count)
+}
+
+/// [`header_bytes`] for a file of MRtrix's track family whose first line is `magic`.
+pub fn header_bytes_of(magic: &str, extra: &[(String, String)], count: usize) -> (Vec<u8>, u64) {
+    let mut head = format!("{magic}\n");
     for (k, v) in extra {
         if ["file", "datatype", "count", "total_count"].contains(&k.as_str()) {
             continue;
