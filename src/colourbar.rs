@@ -90,9 +90,11 @@ pub fn scene_bars(scene: &Scene, slice_window: impl Fn(usize) -> Option<(f32, f3
             LayerKind::TensorSplats { render, .. } if render.colouring.mode == SplatColourMode::Fa => {
                 bars.push(bar(ColourMap::Viridis, (0.0, 1.0)))
             }
-            LayerKind::Tracts { colouring: TractColouring::Scalar { window: (lo, hi), .. }, .. } => {
-                bars.push(bar(ColourMap::Viridis, (f64::from(*lo), f64::from(*hi))))
-            }
+            LayerKind::Tracts {
+                colouring:
+                    TractColouring::Scalar { window: (lo, hi), .. } | TractColouring::Value { window: (lo, hi), .. },
+                ..
+            } => bars.push(bar(ColourMap::Viridis, (f64::from(*lo), f64::from(*hi)))),
             _ => {}
         }
     }

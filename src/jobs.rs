@@ -244,8 +244,11 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
                 _ => None,
             };
-            let prepare = |part: TractData| {
-                let colours = point_colours(colouring, &part.tractogram, scalar.as_deref());
+            // Values per streamline to colour by (and to hide below a minimum), aligned with the streamlines.
+            let mut values: Option<Vec<f32>> = None;
+            let prepare = |part: TractData, first: usize, values: Option<&[f32]>| {
+                let part_values = values.map(|v| &v[first..first + part.tractogram.n_streamlines()]);
+                let colours = point_colours(colouring, &part.tractogram, scalar.as_deref(), part_values);
                 let colour = colours.as_deref();
                 let (t, tensors) = (part.tractogram, part.tensors.as_deref().map(|v| v.as_slice()));
                 Content::Tracts(match mode {
@@ -256,22 +259,42 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             };
             // Tracking delivers its streamlines as they are computed.
             let streamed = AtomicBool::new(false);
+            let by_value = matches!(colouring, TractColouring::Value { .. });
+            if by_value && matches!(source, TractSource::Track { .. }) {
+                return Err("colouring by a value per streamline needs a file's streamlines, not tracking".into());
+            }
             let on_part = |part: TractData| {
                 streamed.store(true, Ordering::Relaxed);
-                progress.parts.push(prepare(part));
+                progress.parts.push(prepare(part, 0, None));
             };
-            let data = tract_data_in_parts(cache, source, progress, Some(&on_part))?;
+            let mut data = tract_data_in_parts(cache, source, progress, (!by_value).then_some(&on_part as OnPart))?;
+            if let TractColouring::Value { weights, name, min, .. } = colouring {
+                let v = streamline_values(&data.tractogram, weights.as_deref(), name)?;
+                let (kept, v) = match min {
+                    Some(m) => {
+                        let keep: Vec<bool> = v.iter().map(|x| *x >= *m).collect();
+                        (subset_of(&data, &keep), v.into_iter().filter(|x| *x >= *m).collect())
+                    }
+                    None => (data, v),
+                };
+                data = kept;
+                values = Some(v);
+            }
+            let values = values.as_deref();
             progress.stage("building the geometry", 0)?;
             let items = data.tractogram.n_streamlines();
             if streamed.load(Ordering::Relaxed) {
                 return Ok(Content::Streamed { items });
             }
             if data.tractogram.points.len() <= PART_POINTS {
-                return Ok(prepare(data));
+                return Ok(prepare(data, 0, values));
             }
+            let mut first = 0;
             for part in split(&data, PART_POINTS) {
                 progress.stage("building the geometry", 0)?;
-                progress.parts.push(prepare(part));
+                let n = part.tractogram.n_streamlines();
+                progress.parts.push(prepare(part, first, values));
+                first += n;
             }
             Ok(Content::Streamed { items })
         }
@@ -324,11 +347,13 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
 pub type ColourFn = dyn Fn(usize, Vec3) -> [f32; 3] + Sync;
 
 /// The colour of each point of `t`'s streamlines under `colouring` (None: the style's own), as a function of
-/// (streamline, point): the direction between a streamline's ends, its length, or `scalar` sampled there.
+/// (streamline, point): the direction between a streamline's ends, its length, `scalar` sampled there, or its
+/// value in `values` (one per streamline of `t`).
 pub fn point_colours(
     colouring: &TractColouring,
     t: &Tractogram,
     scalar: Option<&Volume<f32>>,
+    values: Option<&[f32]>,
 ) -> Option<Box<ColourFn>> {
     use fascicle_core::dti::splat::viridis;
     let on_viridis = |x: f64| viridis(x).as_vec3().to_array();
@@ -359,7 +384,49 @@ pub fn point_colours(
                 on_viridis((v - lo) / span)
             }))
         }
+        TractColouring::Value { window: (lo, hi), .. } => {
+            let (lo, hi) = (f64::from(*lo), f64::from(*hi));
+            let span = if hi > lo { hi - lo } else { 1.0 };
+            let c: Vec<[f32; 3]> = values?.iter().map(|v| on_viridis((f64::from(*v) - lo) / span)).collect();
+            Some(Box::new(move |i, _| c.get(i).copied().unwrap_or([0.5; 3])))
+        }
     }
+}
+
+/// The value of each streamline of `t`: the weights in `weights` (one per streamline, else an error naming the
+/// file), or `t`'s own per-streamline array `name`.
+pub fn streamline_values(t: &Tractogram, weights: Option<&Path>, name: &str) -> Result<Vec<f32>, String> {
+    if let Some(path) = weights {
+        let w = fascicle_core::io::weights::read(path).map_err(|e| e.to_string())?;
+        if w.len() != t.n_streamlines() {
+            return Err(format!(
+                "{}: {} weights, but the tractogram has {} streamlines",
+                path.display(),
+                w.len(),
+                t.n_streamlines()
+            ));
+        }
+        return Ok(w);
+    }
+    match t.properties.iter().find(|(n, _)| n == name) {
+        Some((_, v)) => Ok(v.clone()),
+        None => {
+            let names: Vec<&str> = t.properties.iter().map(|(n, _)| n.as_str()).collect();
+            Err(format!(
+                "no per-streamline values named '{name}' (the tractogram has {}); give a weights file or one of them",
+                if names.is_empty() { "none".to_string() } else { names.join(", ") }
+            ))
+        }
+    }
+}
+
+/// The streamlines of `data` that `keep` marks, with their tensors.
+fn subset_of(data: &TractData, keep: &[bool]) -> TractData {
+    let mut out = (Tractogram::new(), vec![]);
+    for (s, _) in keep.iter().enumerate().filter(|(_, k)| **k) {
+        append_streamlines(&mut out, data, s..s + 1);
+    }
+    TractData { tractogram: Arc::new(out.0), tensors: data.tensors.as_ref().map(|_| Arc::new(out.1)) }
 }
 
 /// The files an SH source reads (for cache stamps).
@@ -1490,9 +1557,49 @@ mod tests {
         for (c, p) in by_x.iter().zip(&pos) {
             assert!(close(*c, viridis((f64::from(p[0]) / 100.0 - 0.6) / 0.6).as_vec3()), "at {p:?}: {c:?}");
         }
+        // A value per streamline from a weights file (tcksift2's text): streamline s weighs s / 300; with a
+        // minimum of 0.5 only the upper half is drawn, each in viridis of its weight.
+        let weights = std::env::temp_dir().join(format!("fascicle-weights-{}.txt", std::process::id()));
+        let w: Vec<f32> = (0..t.n_streamlines()).map(|s| s as f32 / 300.0).collect();
+        fascicle_core::io::weights::write(&weights, &w).unwrap();
+        let value = |min| TractColouring::Value {
+            weights: Some(weights.clone()),
+            name: String::new(),
+            window: (0.0, 1.0),
+            min,
+        };
+        let (_, by_weight) = colours(value(None));
+        for (c, &s) in by_weight.iter().zip(&owners) {
+            assert!(close(*c, viridis(f64::from(w[s])).as_vec3()), "streamline {s}: {c:?}");
+        }
+        let (_, upper) = colours(value(Some(0.5)));
+        let kept: Vec<usize> = (0..t.n_streamlines()).filter(|&s| w[s] >= 0.5).collect();
+        let kept_owners: Vec<usize> = kept
+            .iter()
+            .flat_map(|&s| std::iter::repeat_n(s, if t.streamline(s).len() >= 2 { t.streamline(s).len() } else { 0 }))
+            .collect();
+        assert_eq!(upper.len(), kept_owners.len(), "only the streamlines weighing 0.5 or more");
+        for (c, &s) in upper.iter().zip(&kept_owners) {
+            assert!(close(*c, viridis(f64::from(w[s])).as_vec3()), "streamline {s}: {c:?}");
+        }
+        // A weights file of the wrong length, or a value name the file lacks: errors naming them.
+        fascicle_core::io::weights::write(&weights, &w[..10]).unwrap();
+        let kind = |colouring| LayerKind::Tracts {
+            source: TractSource::File { path: path.clone(), tensors: None },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: vec![],
+            colouring,
+        };
+        let e = build(&kind(value(None)), &DataCache::default(), &JobProgress::default()).err().unwrap();
+        assert!(e.contains("10 weights, but the tractogram has 300"), "{e}");
+        let named = TractColouring::Value { weights: None, name: "sift".into(), window: (0.0, 1.0), min: None };
+        let e = build(&kind(named), &DataCache::default(), &JobProgress::default()).err().unwrap();
+        assert!(e.contains("no per-streamline values named 'sift'"), "{e}");
+        std::fs::remove_file(&weights).ok();
         // Hyperstreamlines: the tubelets' end colours (packed after the geometry) are the same function.
         let colouring = TractColouring::Scalar { source, window: (0.6, 1.2) };
-        let c = point_colours(&colouring, &t, Some(&vol)).unwrap();
+        let c = point_colours(&colouring, &t, Some(&vol), None).unwrap();
         let tubes =
             fascicle_tracts::PreparedTracts::tubes_coloured(Arc::new(t.clone()), None, &Default::default(), Some(&*c));
         assert!(

@@ -294,6 +294,16 @@ fn tract_colouring(ui: &mut egui::Ui, colouring: &mut TractColouring, render: &m
                 window: (0.0, 1.0),
             };
         }
+        if ui
+            .radio(matches!(colouring, TractColouring::Value { .. }), "value")
+            .on_hover_text(
+                "a value per streamline: a tcksift2 weights file, or the file's own per-streamline array (TRX dps)",
+            )
+            .clicked()
+            && !matches!(colouring, TractColouring::Value { .. })
+        {
+            *colouring = TractColouring::Value { weights: None, name: String::new(), window: (0.0, 1.0), min: None };
+        }
     });
     match colouring {
         TractColouring::Length { max_mm } => {
@@ -312,6 +322,32 @@ fn tract_colouring(ui: &mut egui::Ui, colouring: &mut TractColouring, render: &m
                 ui.add(egui::DragValue::new(&mut window.0).speed(0.01).prefix("from "));
                 ui.add(egui::DragValue::new(&mut window.1).speed(0.01).prefix("to "));
             });
+        }
+        TractColouring::Value { weights, name, window, min } => {
+            let mut text = weights.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
+            ui.horizontal(|ui| {
+                ui.label("weights file");
+                if ui.add(egui::TextEdit::singleline(&mut text).hint_text("tcksift2 .txt, or empty")).changed() {
+                    *weights = (!text.trim().is_empty()).then(|| text.trim().into());
+                }
+            });
+            if weights.is_none() {
+                ui.horizontal(|ui| {
+                    ui.label("per-streamline array");
+                    ui.text_edit_singleline(name);
+                });
+            }
+            ui.horizontal(|ui| {
+                ui.add(egui::DragValue::new(&mut window.0).speed(0.01).prefix("from "));
+                ui.add(egui::DragValue::new(&mut window.1).speed(0.01).prefix("to "));
+            });
+            let mut hide = min.is_some();
+            let mut m = min.unwrap_or(window.0);
+            ui.horizontal(|ui| {
+                ui.checkbox(&mut hide, "hide below");
+                ui.add_enabled(hide, egui::DragValue::new(&mut m).speed(0.01));
+            });
+            *min = hide.then_some(m);
         }
         _ => {}
     }

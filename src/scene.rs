@@ -270,6 +270,18 @@ pub enum TractColouring {
     Length { max_mm: f32 },
     /// A scalar image (FA, MD, ...) sampled (trilinear) at every point, on viridis over `window`.
     Scalar { source: VolumeSource, window: (f32, f32) },
+    /// A value per streamline on viridis over `window`: the weights of `weights` (a `tcksift2` file, one per
+    /// streamline of the file) or, without it, the tractogram's own per-streamline array `name` (a TRX's
+    /// `dps`, a `.trk`'s properties). Streamlines whose value is below `min` are not shown (a change rebuilds).
+    Value {
+        #[serde(default)]
+        weights: Option<PathBuf>,
+        #[serde(default)]
+        name: String,
+        window: (f32, f32),
+        #[serde(default)]
+        min: Option<f32>,
+    },
 }
 
 /// Where tracking starts.

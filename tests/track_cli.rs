@@ -132,17 +132,9 @@ fn track_honours_the_model() {
     let gtab = GradientTable::from_fsl(phantom("bval"), phantom("bvec"), 50.0).unwrap();
     let dims = dwi.dims3();
     // The phantom was made by DIPY in DIPY's frame (its affine has a positive determinant).
-    let base = [
-        "track",
-        "--dwi",
-        &phantom("nii.gz"),
-        "--bval",
-        &phantom("bval"),
-        "--bvec",
-        &phantom("bvec"),
-        "--bvec-convention",
-        "dipy",
-    ];
+    let (img, bval, bvec) = (phantom("nii.gz"), phantom("bval"), phantom("bvec"));
+    let dwi_args = ["--dwi", &img, "--bval", &bval, "--bvec", &bvec, "--bvec-convention", "dipy"];
+    let base = [&["track"][..], &dwi_args[..]].concat();
     let run = |extra: &[&str], out: &std::path::Path| {
         let o = fascicle(&[&base[..], extra, &["--out", out.to_str().unwrap()]].concat());
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -176,35 +168,10 @@ fn track_honours_the_model() {
     // `fascicle peaks` in MRtrix's layout, tracked back with --peaks and the GFA as stop map, gives the same
     // streamlines as --model csa, up to the f32 round trip of the directions through world coordinates.
     let pk = dir.join("peaks.nii.gz");
-    let o = fascicle(&[
-        "peaks",
-        "--dwi",
-        &phantom("nii.gz"),
-        "--bval",
-        &phantom("bval"),
-        "--bvec",
-        &phantom("bvec"),
-        "--bvec-convention",
-        "dipy",
-        "--out",
-        pk.to_str().unwrap(),
-    ]);
+    let o = fascicle(&[&["peaks"][..], &dwi_args[..], &["--out", pk.to_str().unwrap()]].concat());
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = fascicle(&[
-        "peaks",
-        "--dwi",
-        &phantom("nii.gz"),
-        "--bval",
-        &phantom("bval"),
-        "--bvec",
-        &phantom("bvec"),
-        "--bvec-convention",
-        "dipy",
-        "--layout",
-        "dipy",
-        "--out",
-        dir.join("pam").to_str().unwrap(),
-    ]);
+    let pam = dir.join("pam");
+    let o = fascicle(&[&["peaks"][..], &dwi_args[..], &["--layout", "dipy", "--out", pam.to_str().unwrap()]].concat());
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let gfa = dir.join("pam_gfa.nii.gz");
     let o = fascicle(&[
