@@ -716,15 +716,20 @@ fn open_path(
 struct FileDialog(Option<bevy::tasks::Task<Option<Vec<PathBuf>>>>);
 
 /// Draws every [`DrawOnDemand::busy_wait`] while layers are being built, neighbouring slices prefetched or
-/// the file dialog is open, so that progress bars move and finished work shows without input.
+/// the file dialog is open, so that progress bars move and finished work shows without input; and draws again
+/// after egui's textures changed (text with glyphs new to the font atlas is drawn whole in the next frame).
 fn keep_awake_while_working(
     jobs: Query<(), With<crate::layers::LayerJob>>,
     prefetches: Res<crate::layers::Prefetches>,
     dialog: Res<FileDialog>,
+    egui_outputs: Query<&bevy_egui::EguiRenderOutput>,
     mut keep: ResMut<KeepAwake>,
 ) {
     if !jobs.is_empty() || prefetches.running() > 0 || dialog.0.is_some() {
         keep.busy();
+    }
+    if egui_outputs.iter().any(|o| !o.textures_delta.set.is_empty() || !o.textures_delta.free.is_empty()) {
+        keep.redraw();
     }
 }
 
