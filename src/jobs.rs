@@ -244,8 +244,6 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
                 _ => None,
             };
-            // Values per streamline to colour by (and to hide below a minimum), aligned with the streamlines.
-            let mut values: Option<Vec<f32>> = None;
             let prepare = |part: TractData, first: usize, values: Option<&[f32]>| {
                 let part_values = values.map(|v| &v[first..first + part.tractogram.n_streamlines()]);
                 let colours = point_colours(colouring, &part.tractogram, scalar.as_deref(), part_values);
@@ -268,18 +266,19 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 progress.parts.push(prepare(part, 0, None));
             };
             let mut data = tract_data_in_parts(cache, source, progress, (!by_value).then_some(&on_part as OnPart))?;
-            if let TractColouring::Value { weights, name, min, .. } = colouring {
-                let v = streamline_values(&data.tractogram, weights.as_deref(), name)?;
-                let (kept, v) = match min {
-                    Some(m) => {
-                        let keep: Vec<bool> = v.iter().map(|x| *x >= *m).collect();
-                        (subset_of(&data, &keep), v.into_iter().filter(|x| *x >= *m).collect())
+            // Values per streamline to colour by (those below a minimum hidden), aligned with the streamlines.
+            let values = match colouring {
+                TractColouring::Value { weights, name, min, .. } => {
+                    let mut v = streamline_values(&data.tractogram, weights.as_deref(), name)?;
+                    if let Some(m) = min {
+                        let keep: Vec<bool> = v.iter().map(|x| x >= m).collect();
+                        data = subset_of(&data, &keep);
+                        v.retain(|x| x >= m);
                     }
-                    None => (data, v),
-                };
-                data = kept;
-                values = Some(v);
-            }
+                    Some(v)
+                }
+                _ => None,
+            };
             let values = values.as_deref();
             progress.stage("building the geometry", 0)?;
             let items = data.tractogram.n_streamlines();

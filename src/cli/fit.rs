@@ -257,11 +257,10 @@ fn fit_odf(a: &OdfArgs, kind: OdfKind) -> Result<(), Error> {
 
 /// Where a fit's gradients came from and in which frame its `.bvec` was read, for its sidecar.
 fn gradient_record(a: &DwiArgs) -> serde_json::Value {
-    let beside = fascicle_core::io::classify::gradients_beside(&a.dwi);
-    match (&a.bvec, beside) {
-        (Some(bvec), _) => serde_json::json!({ "bvec": bvec, "bvec_convention": a.bvec_convention.name() }),
-        (None, Some((_, bvec))) => serde_json::json!({ "bvec": bvec, "bvec_convention": a.bvec_convention.name() }),
-        (None, None) => serde_json::json!({ "dw_scheme": a.dwi }),
+    let bvec = a.bvec.clone().or_else(|| fascicle_core::io::classify::gradients_beside(&a.dwi).map(|(_, v)| v));
+    match bvec {
+        Some(bvec) => serde_json::json!({ "bvec": bvec, "bvec_convention": a.bvec_convention.name() }),
+        None => serde_json::json!({ "dw_scheme": a.dwi }),
     }
 }
 

@@ -180,15 +180,8 @@ impl GradientTable {
         ]
         .join("\n")
             + "\n";
-        for (path, text) in [(bval.as_ref(), bvals), (bvec.as_ref(), bvecs)] {
-            let part = path.with_file_name(format!(
-                "{}.part",
-                path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
-            ));
-            std::fs::write(&part, text).map_err(|e| Error::io(&part, e))?;
-            std::fs::rename(&part, path).map_err(|e| Error::io(path, e))?;
-        }
-        Ok(())
+        super::stream::write_whole(bval.as_ref(), bvals.as_bytes())?;
+        super::stream::write_whole(bvec.as_ref(), bvecs.as_bytes())
     }
 
     /// Reads FSL text files in the files' own axes (DIPY's reading; [`GradientTable::from_fsl_for_image`] reads

@@ -924,6 +924,23 @@ struct TrxWriter {
     buf: Vec<u8>,
 }
 
+/// Where an output is written until it is complete: `OUT.part` beside it.
+pub(crate) fn part_path(path: &Path) -> PathBuf {
+    let mut part = path.as_os_str().to_os_string();
+    part.push(".part");
+    PathBuf::from(part)
+}
+
+/// Writes `bytes` to `path` whole or not at all: into [`part_path`], then renamed.
+pub(crate) fn write_whole(path: &Path, bytes: &[u8]) -> Result<()> {
+    let part = part_path(path);
+    let leftover = Leftovers(vec![part.clone()]);
+    std::fs::write(&part, bytes).map_err(|e| Error::io(&part, e))?;
+    std::fs::rename(&part, path).map_err(|e| Error::io(path, e))?;
+    drop(leftover);
+    Ok(())
+}
+
 /// Files removed when dropped (those that no longer exist are skipped).
 pub(crate) struct Leftovers(pub(crate) Vec<PathBuf>);
 
@@ -948,9 +965,7 @@ impl TractogramWriter {
         if gzip && format == Format::Trx {
             return Err(Error::Param(format!("{}: a TRX is not gzipped (it is a zip archive)", path.display())));
         }
-        let mut part = path.clone().into_os_string();
-        part.push(".part");
-        let part = PathBuf::from(part);
+        let part = part_path(&path);
         let side_file = |what: String| -> PathBuf {
             let mut p = part.clone().into_os_string();
             p.push(format!(".{what}"));

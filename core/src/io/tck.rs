@@ -111,6 +111,18 @@ pub fn parse_header_of(b: &[u8], path: &Path, magic: &str) -> Result<TckLayout> 
     Ok(TckLayout { header, offset, size, big_endian: be })
 }
 
+/// The number at byte `o` of `b`, `size` bytes (4: Float32, 8: Float64) in the given byte order, as a file of
+/// MRtrix's track family stores it (`.tck` coordinates, `.tsf` values). `b` must hold `o + size` bytes.
+pub fn value_at(b: &[u8], o: usize, size: usize, big_endian: bool) -> f64 {
+    if size == 4 {
+        let a: [u8; 4] = b[o..o + 4].try_into().unwrap_or_default();
+        f64::from(if big_endian { f32::from_be_bytes(a) } else { f32::from_le_bytes(a) })
+    } else {
+        let a: [u8; 8] = b[o..o + 8].try_into().unwrap_or_default();
+        if big_endian { f64::from_be_bytes(a) } else { f64::from_le_bytes(a) }
+    }
+}
+
 /// [`read`] from the file's bytes in memory (gzipped or not); `path` is the name errors use.
 pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
     let b = &super::tractogram::gunzipped(b, path)?[..];
@@ -121,15 +133,7 @@ pub fn read_bytes(b: &[u8], path: &Path) -> Result<(Tractogram, TckHeader)> {
             format!("data offset {offset} lies outside the data (the file is {} bytes)", b.len()),
         ));
     }
-    let read = |o: usize| -> f64 {
-        if size == 4 {
-            let a: [u8; 4] = b[o..o + 4].try_into().unwrap_or_default();
-            (if be { f32::from_be_bytes(a) } else { f32::from_le_bytes(a) }) as f64
-        } else {
-            let a: [u8; 8] = b[o..o + 8].try_into().unwrap_or_default();
-            if be { f64::from_be_bytes(a) } else { f64::from_le_bytes(a) }
-        }
-    };
+    let read = |o: usize| value_at(b, o, size, be);
     let mut t = Tractogram::new();
     let mut o = offset;
     let mut cur = t.points.len();

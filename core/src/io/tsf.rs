@@ -76,13 +76,7 @@ pub fn read(path: impl AsRef<Path>) -> Result<TrackScalars> {
     let mut o = offset;
     let mut ended = false;
     while o + size <= b.len() {
-        let v = if size == 4 {
-            let a: [u8; 4] = b[o..o + 4].try_into().unwrap_or_default();
-            f64::from(if be { f32::from_be_bytes(a) } else { f32::from_le_bytes(a) })
-        } else {
-            let a: [u8; 8] = b[o..o + 8].try_into().unwrap_or_default();
-            if be { f64::from_be_bytes(a) } else { f64::from_le_bytes(a) }
-        };
+        let v = tck::value_at(b, o, size, be);
         o += size;
         if v.is_infinite() {
             ended = true;
@@ -116,10 +110,7 @@ pub fn write(path: impl AsRef<Path>, s: &TrackScalars) -> Result<()> {
         out.extend_from_slice(&f32::NAN.to_le_bytes());
     }
     out.extend_from_slice(&f32::INFINITY.to_le_bytes());
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let part = path.with_file_name(format!("{name}.part"));
-    std::fs::write(&part, &out).map_err(|e| Error::io(&part, e))?;
-    std::fs::rename(&part, path).map_err(|e| Error::io(path, e))
+    super::stream::write_whole(path, &out)
 }
 
 #[cfg(test)]

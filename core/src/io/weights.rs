@@ -171,8 +171,7 @@ impl WeightWriter {
     /// Creates `path.part`.
     pub fn create(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let part = path.with_file_name(format!("{name}.part"));
+        let part = super::stream::part_path(&path);
         let file = File::create(&part).map_err(|e| Error::io(&part, e))?;
         let _leftovers = super::stream::Leftovers(vec![part.clone()]);
         Ok(Self { path, part, out: BufWriter::with_capacity(1 << 16, file), count: 0, _leftovers })

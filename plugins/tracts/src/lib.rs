@@ -185,7 +185,7 @@ fn line_msaa(
 }
 
 /// GPU parameters of tract meshes. Keep in sync with `TractMeshParams` in `shaders/tract_mesh.wgsl`.
-#[derive(Clone, Copy, Debug, ShaderType)]
+#[derive(Clone, Copy, Debug, PartialEq, ShaderType)]
 pub struct TractMeshUniform {
     pub opacity: f32,
     /// Ambient term of the tubes' headlight shading (lines are unshaded).
@@ -308,11 +308,9 @@ fn sync_slabs(
         };
         match material.and_then(|m| materials.get(&m.0).map(|mat| (m.0.clone(), mat))) {
             Some((handle, mat)) => {
-                let differs = mat.selected != source.selected
-                    || mat.params.opacity != params.opacity
-                    || mat.params.slab != params.slab
-                    || mat.params.slab_half != params.slab_half;
-                if differs && let Some(mut mat) = materials.get_mut(&handle) {
+                if (mat.params != params || mat.selected != source.selected)
+                    && let Some(mut mat) = materials.get_mut(&handle)
+                {
                     mat.params = params;
                     mat.selected = source.selected.clone();
                 }
