@@ -40,7 +40,7 @@ pub struct JobProgress {
 
 /// Parts of a layer's content that its job delivers while it runs, oldest first: streamlines as they are
 /// tracked, or a large tractogram in parts of at most [`PART_POINTS`] points, so that the main thread uploads
-/// one part per frame and never stalls on one large upload.
+/// them a few at a time and never stalls on one large upload.
 #[derive(Default)]
 pub struct Parts(Mutex<std::collections::VecDeque<Content>>);
 
@@ -151,15 +151,10 @@ pub enum Content {
         /// The image it was cut from: window edits and the 2D views cut new slices from it.
         source: crate::views::SliceSource,
     },
-    /// A tractogram's line mesh (lines coloured by direction).
-    Lines {
-        mesh: Box<bevy::mesh::Mesh>,
-        streamlines: usize,
-    },
     Axes {
         length_mm: f32,
     },
-    /// Everything went through the job's [`JobProgress::parts`] (each a `Tracts` or `Lines` part) while it ran;
+    /// Everything went through the job's [`JobProgress::parts`] (each a `Tracts` part) while it ran;
     /// `items` in all.
     Streamed {
         items: usize,
@@ -176,7 +171,6 @@ impl Content {
             Content::Tracts(t) => t.tractogram.n_streamlines(),
             Content::Volume { volume, .. } => volume.n_voxels(),
             Content::Slice { image, .. } => (image.width() * image.height()) as usize,
-            Content::Lines { streamlines, .. } => *streamlines,
             Content::Axes { .. } => 3,
             Content::Streamed { items } => *items,
         }
@@ -238,7 +232,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
-        LayerKind::Tracts { source, mode, render, colouring, .. } => {
+        LayerKind::Tracts { source, mode, render, colouring, rois, .. } => {
             // A scalar image to colour by is read (through the cache) before any part is made.
             let scalar = match colouring {
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
@@ -249,11 +243,13 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 let colours = point_colours(colouring, &part.tractogram, scalar.as_deref(), part_values);
                 let colour = colours.as_deref();
                 let (t, tensors) = (part.tractogram, part.tensors.as_deref().map(|v| v.as_slice()));
-                Content::Tracts(match mode {
+                let prepared = match mode {
                     TractMode::Tubes => PreparedTracts::tubes_coloured(t, tensors, render, colour),
                     TractMode::Polygon => PreparedTracts::polygon_tubes(t, tensors, render.scale),
                     TractMode::Lines => PreparedTracts::lines_coloured(t, colour),
-                })
+                };
+                // The ROIs' segment grid is built here, off the main thread, when the layer has ROIs.
+                Content::Tracts(if rois.is_empty() { prepared } else { prepared.with_grid() })
             };
             // Tracking delivers its streamlines as they are computed.
             let streamed = AtomicBool::new(false);
@@ -318,28 +314,60 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             let source = crate::views::SliceSource { volume: vol, channels: channel, auto_window: auto };
             Ok(Content::Slice { image: Box::new(image), corners, source })
         }
-        LayerKind::Tractogram { path } => {
-            // The same cached streamlines as a tract layer (or a density map) of this file.
-            let t = tract_data(cache, &TractSource::File { path: path.clone(), tensors: None }, progress)?.tractogram;
-            if t.points.is_empty() {
-                return Err("the tractogram holds no points".into());
-            }
-            let lines = |t: &Tractogram| Content::Lines {
-                mesh: Box::new(fascicle_tracts::line_mesh(t)),
-                streamlines: t.n_streamlines(),
-            };
-            if t.points.len() <= PART_POINTS {
-                return Ok(lines(&t));
-            }
-            let data = TractData { tractogram: t, tensors: None };
-            for part in split(&data, PART_POINTS) {
-                progress.stage("building the lines", 0)?;
-                progress.parts.push(lines(&part.tractogram));
-            }
-            Ok(Content::Streamed { items: data.tractogram.n_streamlines() })
-        }
+        LayerKind::Tractogram { path } => stream_lines(path, progress),
         LayerKind::Axes { length_mm } => Ok(Content::Axes { length_mm: *length_mm }),
     }
+}
+
+/// The most points of one part of a tractogram opened as lines ([`stream_lines`]): compressed to about a
+/// quarter on smooth tractography, 2M points are some 9 MB of vertices and indices, one upload of a frame.
+pub const LINE_PART_POINTS: usize = 2_000_000;
+
+/// A tractogram file as lines, read and drawn part by part: the file is streamed in parts of whole
+/// streamlines (at most [`LINE_PART_POINTS`] points), a batch of parts (one per job thread) is read and then
+/// built in parallel, and each part is delivered to be drawn while the rest is read. The whole tractogram is
+/// never held twice (nor the file's bytes): its points live in the parts alone. One part is returned as it
+/// is; more go through [`JobProgress::parts`].
+fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> {
+    use fascicle_core::io::stream::TractogramReader;
+    use rayon::prelude::*;
+    let mut reader = TractogramReader::open(path).map_err(|e| e.to_string())?;
+    progress.stage("reading the streamlines", reader.header().file_bytes as usize)?;
+    let batch = rayon::current_num_threads().max(1);
+    let (mut items, mut done) = (0, 0);
+    loop {
+        let mut chunks = Vec::with_capacity(batch);
+        while chunks.len() < batch
+            && let Some(mut t) = reader.next_chunk(LINE_PART_POINTS).map_err(|e| e.to_string())?
+        {
+            // Kept for as long as the layer is shown (ROIs select on it): no spare capacity.
+            t.points.shrink_to_fit();
+            t.offsets.shrink_to_fit();
+            chunks.push(Arc::new(t));
+        }
+        progress.advance((reader.bytes_read() as usize).saturating_sub(done));
+        done = reader.bytes_read() as usize;
+        if progress.is_cancelled() {
+            return Err(CANCELLED.into());
+        }
+        let ended = chunks.len() < batch;
+        let mut parts: Vec<Content> =
+            chunks.into_par_iter().map(|t| Content::Tracts(PreparedTracts::lines(t))).collect();
+        if ended && items == 0 && parts.len() == 1 {
+            return Ok(parts.remove(0));
+        }
+        for part in parts {
+            items += part.items();
+            progress.parts.push(part);
+        }
+        if ended {
+            break;
+        }
+    }
+    if items == 0 {
+        return Err(format!("{}: the tractogram holds no streamlines", path.display()));
+    }
+    Ok(Content::Streamed { items })
 }
 
 /// A streamline point's colour: (streamline, world point) to linear RGB.
@@ -1510,7 +1538,9 @@ mod tests {
             *v = (40.0 + 2.0 * (i % 50) as f32) / 100.0;
         }
         nifti::write(&ramp, &vol, nifti::WriteType::F32).unwrap();
-        let colours = |colouring: TractColouring| -> (Vec<[f32; 3]>, Vec<[f32; 4]>) {
+        // (position, colour, streamline in the drawn set) of each vertex of the layer's line mesh.
+        type Vertices = (Vec<[f32; 3]>, Vec<[f32; 4]>, Vec<usize>);
+        let colours = |colouring: TractColouring| -> Vertices {
             let kind = LayerKind::Tracts {
                 source: TractSource::File { path: path.clone(), tensors: None },
                 mode: TractMode::Lines,
@@ -1526,33 +1556,36 @@ mod tests {
                 Some(VertexAttributeValues::Float32x3(v)) => v.clone(),
                 _ => panic!("positions"),
             };
-            let col = match mesh.attribute(Mesh::ATTRIBUTE_COLOR) {
-                Some(VertexAttributeValues::Float32x4(v)) => v.clone(),
+            let col = match mesh.attribute(fascicle_tracts::ATTRIBUTE_RGBA8) {
+                Some(VertexAttributeValues::Unorm8x4(v)) => v.iter().map(|c| c.map(|x| f32::from(x) / 255.0)).collect(),
                 _ => panic!("colours"),
             };
-            (pos, col)
+            let owners = match mesh.attribute(fascicle_tracts::ATTRIBUTE_STREAMLINE) {
+                Some(VertexAttributeValues::Uint32(v)) => v.iter().map(|s| *s as usize).collect(),
+                _ => panic!("streamlines"),
+            };
+            (pos, col, owners)
         };
-        // Which streamline each vertex belongs to: a vertex per point, streamline by streamline (one-point
-        // streamlines draw no line).
-        let owners: Vec<usize> = t
-            .iter()
-            .enumerate()
-            .flat_map(|(i, s)| std::iter::repeat_n(i, if s.len() >= 2 { s.len() } else { 0 }))
-            .collect();
-        let close = |a: [f32; 4], b: glam::Vec3| (glam::Vec3::new(a[0], a[1], a[2]) - b).abs().max_element() < 1e-5;
+        // Colours are 8-bit: within half a step of the colour function.
+        let close = |a: [f32; 4], b: glam::Vec3| {
+            (glam::Vec3::new(a[0], a[1], a[2]) - b).abs().max_element() < 0.5 / 255.0 + 1e-5
+        };
 
-        let (_, ends) = colours(TractColouring::Ends);
+        let (_, ends, owners) = colours(TractColouring::Ends);
+        // Every streamline of two points or more is drawn (one-point streamlines draw no line).
+        let drawn: std::collections::BTreeSet<usize> = owners.iter().copied().collect();
+        assert_eq!(drawn.len(), t.iter().filter(|s| s.len() >= 2).count());
         for (c, &s) in ends.iter().zip(&owners) {
             let p = t.streamline(s);
             assert!(close(*c, (p[p.len() - 1] - p[0]).normalize().abs()), "streamline {s}: {c:?}");
         }
-        let (_, by_length) = colours(TractColouring::Length { max_mm: 120.0 });
+        let (_, by_length, owners) = colours(TractColouring::Length { max_mm: 120.0 });
         for (c, &s) in by_length.iter().zip(&owners) {
             let len: f64 = t.streamline(s).windows(2).map(|w| f64::from(w[0].distance(w[1]))).sum();
             assert!(close(*c, viridis(len / 120.0).as_vec3()), "streamline {s}: {c:?}");
         }
         let source = VolumeSource::Nifti { path: ramp.clone(), volume: 0 };
-        let (pos, by_x) = colours(TractColouring::Scalar { source: source.clone(), window: (0.6, 1.2) });
+        let (pos, by_x, _) = colours(TractColouring::Scalar { source: source.clone(), window: (0.6, 1.2) });
         for (c, p) in by_x.iter().zip(&pos) {
             assert!(close(*c, viridis((f64::from(p[0]) / 100.0 - 0.6) / 0.6).as_vec3()), "at {p:?}: {c:?}");
         }
@@ -1567,18 +1600,18 @@ mod tests {
             window: (0.0, 1.0),
             min,
         };
-        let (_, by_weight) = colours(value(None));
+        let (_, by_weight, owners) = colours(value(None));
         for (c, &s) in by_weight.iter().zip(&owners) {
             assert!(close(*c, viridis(f64::from(w[s])).as_vec3()), "streamline {s}: {c:?}");
         }
-        let (_, upper) = colours(value(Some(0.5)));
+        let (_, upper, upper_owners) = colours(value(Some(0.5)));
         let kept: Vec<usize> = (0..t.n_streamlines()).filter(|&s| w[s] >= 0.5).collect();
-        let kept_owners: Vec<usize> = kept
-            .iter()
-            .flat_map(|&s| std::iter::repeat_n(s, if t.streamline(s).len() >= 2 { t.streamline(s).len() } else { 0 }))
-            .collect();
-        assert_eq!(upper.len(), kept_owners.len(), "only the streamlines weighing 0.5 or more");
-        for (c, &s) in upper.iter().zip(&kept_owners) {
+        let drawn: std::collections::BTreeSet<usize> = upper_owners.iter().map(|k| kept[*k]).collect();
+        let expected: std::collections::BTreeSet<usize> =
+            kept.iter().copied().filter(|&s| t.streamline(s).len() >= 2).collect();
+        assert_eq!(drawn, expected, "only the streamlines weighing 0.5 or more");
+        for (c, &k) in upper.iter().zip(&upper_owners) {
+            let s = kept[k];
             assert!(close(*c, viridis(f64::from(w[s])).as_vec3()), "streamline {s}: {c:?}");
         }
         // A weights file of the wrong length, or a value name the file lacks: errors naming them.

@@ -274,8 +274,11 @@ fn start_job(
 }
 
 /// Shows the parts that running jobs delivered ([`crate::jobs::Parts`]: streamlines as they are tracked, a
-/// large tractogram part by part), one part per layer and frame, so no frame uploads more than one part. The
-/// first part of a job replaces the layer's old content.
+/// large tractogram part by part): each frame takes what arrived, for up to [`PART_BUDGET`] of the main thread
+/// (at least one part). Parts arrive as fast as the job builds them, so a quick frame uploads about one; a slow
+/// frame (a dense scene on a software rasteriser) takes all that arrived while it drew, and a file loads in a
+/// few frames, not one frame per part with every frame drawing all so far. The first part of a job replaces
+/// the layer's old content.
 fn stream_parts(
     mut commands: Commands,
     mut layers: Query<(Entity, &LayerEntity, &SceneLayer, &mut LayerJob)>,
@@ -286,17 +289,27 @@ fn stream_parts(
         if job.progress.is_cancelled() {
             continue;
         }
-        let Some(part) = job.progress.parts.pop() else { continue };
-        if job.parts_shown == 0 {
-            clear_content(&mut commands, e, le.0, &layer.spec);
-        }
-        job.parts_shown += 1;
-        counts.parts += 1;
-        if let Err(message) = upload.spawn(&mut commands, e, le.0, &layer.spec, part) {
-            commands.entity(e).insert(LayerStatus::Failed(message));
+        // The parts waiting, up to a few milliseconds of this frame: a slow frame (a dense scene on a software
+        // rasteriser) takes all that arrived while it drew, so loading needs fewer frames, not one per part.
+        let start = std::time::Instant::now();
+        while start.elapsed() < PART_BUDGET
+            && let Some(part) = job.progress.parts.pop()
+        {
+            if job.parts_shown == 0 {
+                clear_content(&mut commands, e, le.0, &layer.spec);
+            }
+            job.parts_shown += 1;
+            counts.parts += 1;
+            if let Err(message) = upload.spawn(&mut commands, e, le.0, &layer.spec, part) {
+                commands.entity(e).insert(LayerStatus::Failed(message));
+                break;
+            }
         }
     }
 }
+
+/// The main thread's time a frame spends taking a layer's delivered parts (at least one part a frame).
+const PART_BUDGET: std::time::Duration = std::time::Duration::from_millis(8);
 
 /// Removes what layer `e` shows and, for a tract layer, gives it its ROIs again (children of the layer: they
 /// act on all its tract sets).
@@ -409,6 +422,10 @@ impl Uploads<'_> {
                 let (tubes, meshes) = (&mut self.tube_materials, &mut self.mesh_materials);
                 spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity)
             }
+            (Content::Tracts(prepared), LayerKind::Tractogram { .. }) => {
+                let (tubes, meshes) = (&mut self.tube_materials, &mut self.mesh_materials);
+                spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity)
+            }
             (Content::Volume { volume, texture }, LayerKind::Volume { render, .. }) => {
                 let depth = self.depth.as_deref().ok_or("the volume plugin has not started")?;
                 let (images, materials) = (&mut self.images, &mut self.volume_materials);
@@ -419,11 +436,6 @@ impl Uploads<'_> {
                 let mut mat = unlit(spec.opacity);
                 mat.base_color_texture = Some(self.images.add(*image));
                 c.spawn((Mesh3d(m.add(quad(corners))), MeshMaterial3d(self.materials.add(mat)))).id()
-            }
-            (Content::Lines { mesh, .. }, _) => {
-                // Weighed by the tracts plugin's rule for MSAA on dense lines, as its own line sets are.
-                let segments = fascicle_tracts::LineSegments(fascicle_tracts::line_segments(&mesh));
-                c.spawn((Mesh3d(m.add(*mesh)), MeshMaterial3d(self.materials.add(unlit(spec.opacity))), segments)).id()
             }
             (Content::Axes { length_mm: l }, _) => {
                 let w = l / 40.0;

@@ -1405,7 +1405,11 @@ mod tests {
 
         // A tract set: its flags are what is saved (every third streamline here).
         let flags: Vec<bool> = (0..t.n_streamlines()).map(|s| s % 3 == 0).collect();
-        let set = TractSet { tractogram: Arc::new(t.clone()), grid: Arc::new(grid), selected: Handle::default() };
+        let set = TractSet {
+            tractogram: Arc::new(t.clone()),
+            grid: fascicle_tracts::LazyGrid::built(&t),
+            selected: Handle::default(),
+        };
         app.world_mut().spawn((set, TractSelection(flags.clone()), LayerEntity(0)));
         let out = dir.join("set.trk");
         let msg = save(&mut app, 0, &out);

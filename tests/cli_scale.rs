@@ -12,6 +12,20 @@ use fascicle_core::roi::{Criteria, Region, RoiShape};
 /// Peak resident memory (MiB) the bound allows any command at this size; the input is 120 MB.
 const PEAK_MIB: f64 = 96.0;
 
+/// Peak resident memory (MiB) the bound allows `render` of the file as lines at 640x360.
+const RENDER_PEAK_MIB: f64 = 900.0;
+
+/// An 8-bit RGBA PNG: (width, height, pixels).
+fn read_png(path: &Path) -> (u32, u32, Vec<u8>) {
+    let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = dec.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgba, "{}", path.display());
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
 /// Runs `fascicle ARGS`: its stdout, and its peak resident memory in MiB.
 #[allow(clippy::zombie_processes, reason = "the child is reaped by wait4, which also reports its peak memory")]
 fn fascicle(args: &[&str]) -> (String, f64) {
@@ -85,6 +99,41 @@ fn commands_stream_a_large_tractogram_in_bounded_memory() {
         assert!(peak < *bound, "{what} of a {bytes}-byte file peaked at {peak:.1} MiB (bound {bound})");
         outputs.push(out);
     }
+
+    // `fascicle view` opens a tractogram as lines: the renderer draws it streamed (5 parts of at most 2M points),
+    // compressed, in one frame once loaded. The file's 120 MB of points are held once; the bound leaves room
+    // for the renderer and the software rasteriser (measured 600-700 MiB at 640x360).
+    let scene = dir.join("lines.ron");
+    let png = dir.join("lines.png");
+    std::fs::write(
+        &scene,
+        format!(
+            "(layers: [(name: \"t\", visible: true, opacity: 1.0, kind: Tractogram(path: {:?}))], \
+             camera: (eye: (0.0, -330.0, 60.0), target: (0.0, 0.0, 0.0), up: (0.0, 0.0, 1.0), fov_y_deg: 45.0))",
+            s(&tck)
+        ),
+    )
+    .unwrap();
+    let (_, peak) = if fascicle_render::headless::gpu_tests_skipped() {
+        (String::new(), 0.0)
+    } else {
+        fascicle(&["render", s(&scene), "--out", s(&png), "--size", "640x360", "--quiet"])
+    };
+    eprintln!("render: {peak:.1} MiB");
+    assert!(peak < RENDER_PEAK_MIB, "render of a {bytes}-byte file peaked at {peak:.1} MiB (bound {RENDER_PEAK_MIB})");
+    let (w, h, rgba) = if png.is_file() { read_png(&png) } else { (8, 8, vec![0; 256]) };
+    // The brain-sized ellipsoid (about 150 x 180 x 120 mm) seen from 330 mm: streamlines cover its middle, the
+    // corners are background.
+    let px = |x: u32, y: u32| &rgba[4 * (y * w + x) as usize..][..3];
+    let background = px(1, 1).to_vec();
+    let lit = |x: u32, y: u32| px(x, y).iter().zip(&background).map(|(a, b)| a.abs_diff(*b) as u32).sum::<u32>() > 30;
+    let (cx, cy) = (w / 2, h / 2);
+    let centre = (cx - 20..cx + 20).flat_map(|x| (cy - 20..cy + 20).map(move |y| (x, y))).filter(|(x, y)| lit(*x, *y));
+    assert!(
+        fascicle_render::headless::gpu_tests_skipped() || centre.count() > 1500,
+        "the centre of the image is not covered by streamlines"
+    );
+    assert!(!lit(w - 3, 2) && !lit(2, h - 3) && !lit(w - 3, h - 3), "a corner of the image is not background");
 
     let whole = Tractogram::read(&tck).unwrap();
     for json in [&outputs[0], &outputs[3]] {

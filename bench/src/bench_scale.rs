@@ -206,6 +206,31 @@ pub fn run(o: ScaleOptions) -> Result<(), Error> {
                 &mut rows,
             );
             std::fs::remove_file(&target).ok();
+            // The file opened as `fascicle view` opens it (a tractogram layer: lines), rendered once at 1280x720.
+            let scene = dir.join("render_scene.ron");
+            let png = dir.join("render.png");
+            let text = format!(
+                "(layers: [(name: \"t\", visible: true, opacity: 1.0, kind: Tractogram(path: {file:?}))], \
+                 camera: (eye: (0.0, -330.0, 60.0), target: (0.0, 0.0, 0.0), up: (0.0, 0.0, 1.0), fov_y_deg: 45.0))"
+            );
+            std::fs::write(&scene, text).map_err(|e| Error::Param(format!("{}: {e}", scene.display())))?;
+            let (wall, peak, _) = measure(Command::new(&exe).args([
+                "render",
+                scene.to_str().unwrap_or_default(),
+                "--out",
+                png.to_str().unwrap_or_default(),
+                "--size",
+                "1280x720",
+                "--force",
+                "--quiet",
+            ]))?;
+            let result = if png.is_file() { "1280x720, lines".to_string() } else { "no image".to_string() };
+            log(
+                Row { n, format, task: "render", tool: "fascicle render", wall_s: wall, peak_mib: peak, result },
+                &mut rows,
+            );
+            std::fs::remove_file(&png).ok();
+            std::fs::remove_file(&scene).ok();
             if let (Some(py), "trk" | "tck") = (nibabel, ext) {
                 let script =
                     format!("import nibabel as nib; t = nib.streamlines.load('{file}'); print(len(t.streamlines))");

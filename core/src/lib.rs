@@ -6,6 +6,7 @@
 //!
 //! Everything is checked against DIPY's own arrays (see `tests/`); nothing here panics on bad input.
 
+pub mod compress;
 pub mod dti;
 pub mod dvr;
 pub mod error;

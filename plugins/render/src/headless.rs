@@ -426,11 +426,18 @@ pub fn failed_pipelines(app: &App) -> Vec<String> {
         .unwrap_or_default()
 }
 
-/// Steps until nothing is pending for `STABLE_FRAMES` frames in a row. Fails if a pipeline failed.
+/// Steps `app` until no pipeline has been waiting for three frames (all compiled, or failed: an error);
+/// returns the frames it took. While it waits the active cameras draw into a single pixel of their viewports
+/// (the same pipelines are specialised and compiled; on a software rasteriser a frame of a dense scene costs
+/// seconds at full size), and get their viewports back before it returns.
 pub fn run_until_ready(app: &mut App, max_frames: u32) -> Result<u32, HeadlessError> {
     const STABLE_FRAMES: u32 = 3;
     initialise(app)?;
+    let start = std::time::Instant::now();
+    let shrunk = shrink_viewports(app);
+    app.insert_resource(PipelineWarmup);
     let mut stable = 0;
+    let mut result = Err(HeadlessError::Timeout(String::new()));
     for frame in 1..=max_frames {
         app.update();
         if pending_pipelines(app) == 0 {
@@ -440,16 +447,61 @@ pub fn run_until_ready(app: &mut App, max_frames: u32) -> Result<u32, HeadlessEr
         }
         if stable >= STABLE_FRAMES {
             let failed = failed_pipelines(app);
-            if !failed.is_empty() {
-                return Err(HeadlessError::Pipeline(failed.join("\n")));
-            }
-            return Ok(frame);
+            result = if failed.is_empty() { Ok(frame) } else { Err(HeadlessError::Pipeline(failed.join("\n"))) };
+            break;
         }
     }
-    Err(HeadlessError::Timeout(format!(
-        "{} pipelines still compiling after {max_frames} frames",
-        pending_pipelines(app)
-    )))
+    end_warmup(app, shrunk);
+    debug!("fascicle-render: pipelines ready after {result:?} frames, {:.2} s", start.elapsed().as_secs_f64());
+    if let Err(HeadlessError::Timeout(_)) = result {
+        return Err(HeadlessError::Timeout(format!(
+            "{} pipelines still compiling after {max_frames} frames",
+            pending_pipelines(app)
+        )));
+    }
+    result
+}
+
+/// The active cameras' viewports before [`shrink_viewports`].
+type SavedViewports = Vec<(Entity, Option<bevy::camera::Viewport>)>;
+
+/// Makes every active camera draw into the first pixel of its viewport; returns what to restore.
+fn shrink_viewports(app: &mut App) -> SavedViewports {
+    let world = app.world_mut();
+    let mut cameras = world.query::<(Entity, &mut Camera)>();
+    cameras
+        .iter_mut(world)
+        .filter(|(_, c)| c.is_active)
+        .map(|(e, mut c)| {
+            let saved = c.viewport.clone();
+            let at = saved.as_ref().map_or(UVec2::ZERO, |v| v.physical_position);
+            c.viewport = Some(bevy::camera::Viewport { physical_position: at, physical_size: UVec2::ONE, ..default() });
+            (e, saved)
+        })
+        .collect()
+}
+
+fn restore_viewports(app: &mut App, saved: SavedViewports) {
+    for (e, viewport) in saved {
+        if let Some(mut c) = app.world_mut().get_mut::<Camera>(e) {
+            c.viewport = viewport;
+        }
+    }
+}
+
+/// Sets `is_active` of the cameras listed, or of every active camera (returning them) when `cameras` is `None`.
+fn set_cameras_active(app: &mut App, cameras: Option<&[Entity]>, active: bool) -> Vec<Entity> {
+    let world = app.world_mut();
+    let mut query = world.query::<(Entity, &mut Camera)>();
+    let mut changed = Vec::new();
+    for (e, mut c) in query.iter_mut(world) {
+        let listed = cameras.map_or(c.is_active != active, |l| l.contains(&e));
+        if listed && c.is_active != active {
+            c.is_active = active;
+            changed.push(e);
+        }
+    }
+    changed
 }
 
 /// Renders until ready and reads `target` back.
@@ -484,6 +536,26 @@ pub fn capture_with_depth(
             })
             .id()
     });
+    // One frame draws the image and copies it out; the cameras are then paused while its readback arrives
+    // (each further frame of a dense scene would cost as much again on a software rasteriser), and resumed.
+    let start = std::time::Instant::now();
+    app.update();
+    debug!("fascicle-render: the captured frame took {:.2} s", start.elapsed().as_secs_f64());
+    let paused = set_cameras_active(app, None, false);
+    let result = await_readback(app, (&colour, &depth_bytes), readback, depth);
+    set_cameras_active(app, Some(&paused), true);
+    result
+}
+
+/// A captured colour image and depth bytes, as the observers leave them.
+type Sinks<'a> = (&'a Arc<Mutex<Option<Image>>>, &'a Arc<Mutex<Option<Vec<u8>>>>);
+
+fn await_readback(
+    app: &mut App,
+    (colour, depth_bytes): Sinks,
+    readback: Option<Entity>,
+    depth: Option<&DepthCopy>,
+) -> Result<(Capture, Option<DepthMap>), HeadlessError> {
     let (mut got_colour, mut got_depth) = (None, None);
     // The readback arrives when the GPU has finished the frame and mapped the buffer: on a software rasteriser
     // sharing the CPU with other work that can take many quick frames, so the wait is bounded in time (at
@@ -580,6 +652,7 @@ pub fn wait_for_layers(app: &mut App) -> Result<(), HeadlessError> {
     let result = loop {
         app.update();
         if !loading(app) {
+            debug!("fascicle-render: layers loaded in {:.2} s", start.elapsed().as_secs_f64());
             break Ok(());
         }
         if start.elapsed() > LOAD_TIMEOUT {
@@ -587,14 +660,30 @@ pub fn wait_for_layers(app: &mut App) -> Result<(), HeadlessError> {
         }
         std::thread::sleep(std::time::Duration::from_millis(5));
     };
-    for e in paused {
-        if let Some(mut c) = app.world_mut().get_mut::<Camera>(e) {
-            c.is_active = true;
-        }
-    }
+    // One frame more applies what the last frame spawned, with the cameras on (what follows a camera, such as
+    // a depth sort, is done) but drawing into one pixel, each layer's parts but one hidden.
+    set_cameras_active(app, Some(&paused), true);
+    let shrunk = shrink_viewports(app);
+    app.insert_resource(PipelineWarmup);
     app.update();
+    end_warmup(app, shrunk);
     result
 }
+
+/// Ends a warm-up: the viewports back, and a frame without drawing in which the plugins show what they hid.
+fn end_warmup(app: &mut App, shrunk: SavedViewports) {
+    restore_viewports(app, shrunk);
+    app.world_mut().remove_resource::<PipelineWarmup>();
+    let paused = set_cameras_active(app, None, false);
+    app.update();
+    set_cameras_active(app, Some(&paused), true);
+}
+
+/// Present while [`run_until_ready`] waits for the pipelines: a plugin that draws many like entities (the
+/// parts of a streamed tractogram) may hide all but one of each kind meanwhile, since the others would use
+/// the same pipelines; each warm-up frame then costs what one part costs, not what the scene costs.
+#[derive(Resource, Clone, Copy, Debug, Default)]
+pub struct PipelineWarmup;
 
 /// How long [`wait_for_layers`] waits for data to load before it reports a timeout: an hour (a whole-brain
 /// tractogram read from a slow disk takes minutes, not hours).

@@ -1,6 +1,6 @@
 // Tract meshes: lines (`fascicle_tracts::line_mesh`) or polygon tubes (`polygon_tube_mesh`) in direction
-// colours, tubes with headlight shading. The vertex stage looks up the streamline's selection flag (UV x is its
-// index) and moves the vertices of unselected streamlines outside the clip volume, so an ROI edit uploads 4
+// colours, tubes with headlight shading. The vertex stage looks up the streamline's selection flag (the vertex
+// carries its index) and moves the vertices of unselected streamlines outside the clip volume, so an ROI edit uploads 4
 // bytes per streamline and nothing else. Keep `TractMeshParams` in sync with `TractMeshUniform` in
 // `plugins/tracts/src/lib.rs`.
 
@@ -20,14 +20,15 @@ struct TractMeshParams {
 // One flag per streamline: 1 selected, 0 hidden.
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> selected: array<u32>;
 
-// Bevy's mesh attribute locations: position 0, normal 1 (tubes only: VERTEX_NORMALS), UV 2, colour 5.
+// The compact vertex (`TractMeshMaterial::specialize`): position 0, normal 1 (tubes only: VERTEX_NORMALS),
+// streamline index 2, colour 5 (8 bits a channel).
 struct TractVertex {
     @builtin(instance_index) instance_index: u32,
     @location(0) position: vec3<f32>,
 #ifdef VERTEX_NORMALS
     @location(1) normal: vec3<f32>,
 #endif
-    @location(2) uv: vec2<f32>,
+    @location(2) streamline: u32,
     @location(5) color: vec4<f32>,
 };
 
@@ -43,7 +44,7 @@ fn vertex(v: TractVertex) -> TractVertexOutput {
     var out: TractVertexOutput;
     let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
     let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
-    let hidden = selected[u32(v.uv.x)] == 0u;
+    let hidden = selected[v.streamline] == 0u;
     // Cropped to a slab: drawn on the slab's centre plane, 1 mm towards the eye, so that a 2D view looking along
     // the normal shows it where it is, over its images (within 1 mm of the plane) and under its crosshair. The
     // fragment stage crops by the true position. A select, not an `if` on a uniform alone (lavapipe, see

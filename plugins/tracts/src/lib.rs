@@ -10,15 +10,19 @@
 //! when an ROI or a tract set changes, and rewrites the 4-byte-per-streamline flag buffer that both vertex
 //! shaders (tubelet, tract mesh) read; nothing else is re-uploaded.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
-use bevy::mesh::{Indices, PrimitiveTopology};
+use bevy::mesh::{
+    Indices, MeshVertexAttribute, MeshVertexBufferLayoutRef, PrimitiveTopology, VertexAttributeValues, VertexFormat,
+};
+use bevy::pbr::{MaterialPipeline, MaterialPipelineKey};
 use bevy::prelude::*;
-use bevy::render::render_resource::{AsBindGroup, ShaderType};
+use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
 use bevy::render::storage::ShaderBuffer;
+use fascicle_core::compress::{Compression, kept_points};
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{Roi, SegmentGrid, select};
 pub use fascicle_core::tubelet::TubeMethod;
@@ -109,9 +113,35 @@ fascicle_render::proxy_glyph_material!(TubeletMaterial, shaders::TUBELET);
 #[derive(Component, Clone)]
 pub struct TractSet {
     pub tractogram: Arc<Tractogram>,
-    pub grid: Arc<SegmentGrid>,
+    /// The segment grid ROIs are tested on, built when an ROI first acts on the set.
+    pub grid: LazyGrid,
     /// One `u32` per streamline, 1 when selected; the vertex shaders hide the others.
     pub selected: Handle<ShaderBuffer>,
+}
+
+/// A tract set's segment grid ([`SegmentGrid`], 4 mm cells), built once on first use and shared by clones: a
+/// layer without ROIs never builds it (1M streamlines: 13 s and several GB), one with ROIs builds it ahead in
+/// its background job ([`PreparedTracts::with_grid`]).
+#[derive(Clone, Default)]
+pub struct LazyGrid(Arc<OnceLock<SegmentGrid>>);
+
+impl LazyGrid {
+    /// A grid already built for `t`.
+    pub fn built(t: &Tractogram) -> Self {
+        let grid = LazyGrid::default();
+        grid.get(t);
+        grid
+    }
+
+    /// The grid of `t` (the set's tractogram), built now if it was not.
+    pub fn get(&self, t: &Tractogram) -> &SegmentGrid {
+        self.0.get_or_init(|| SegmentGrid::new(&t.points, &t.offsets, 4.0))
+    }
+
+    /// Whether the grid has been built.
+    pub fn is_built(&self) -> bool {
+        self.0.get().is_some()
+    }
 }
 
 /// A tract set drawn as hyperstreamlines (tubelets): one entity, one draw.
@@ -224,6 +254,24 @@ pub struct TractSlab {
     pub half_thickness: f32,
 }
 
+/// The streamline a vertex of a tract mesh belongs to (its index in the set: the selection flag the vertex
+/// shader reads).
+pub const ATTRIBUTE_STREAMLINE: MeshVertexAttribute =
+    MeshVertexAttribute::new("Fascicle_Streamline", 0x6661_7363_0001, VertexFormat::Uint32);
+
+/// The colour of a vertex of a tract mesh, linear RGBA in 8 bits a channel (a quarter of Bevy's
+/// `ATTRIBUTE_COLOR`; a direction colour is exact to 1/510).
+pub const ATTRIBUTE_RGBA8: MeshVertexAttribute =
+    MeshVertexAttribute::new("Fascicle_Rgba8", 0x6661_7363_0002, VertexFormat::Unorm8x4);
+
+/// `rgb` (each in 0..1) as an [`ATTRIBUTE_RGBA8`] value, alpha 1.
+pub fn rgba8([r, g, b]: [f32; 3]) -> [u8; 4] {
+    let q = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+    [q(r), q(g), q(b), 255]
+}
+
+/// Drawing material of tract meshes (lines and polygon tubes) with the compact vertex: `POSITION` (and
+/// `NORMAL` for tubes), [`ATTRIBUTE_STREAMLINE`] and [`ATTRIBUTE_RGBA8`]: 20 bytes a line vertex.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct TractMeshMaterial {
     #[uniform(0)]
@@ -241,6 +289,22 @@ impl Material for TractMeshMaterial {
     }
     fn alpha_mode(&self) -> AlphaMode {
         if self.params.opacity < 1.0 { AlphaMode::Blend } else { AlphaMode::Opaque }
+    }
+    // The compact vertex: position, (normal,) streamline index and 8-bit colour.
+    fn specialize(
+        _pipeline: &MaterialPipeline,
+        descriptor: &mut RenderPipelineDescriptor,
+        layout: &MeshVertexBufferLayoutRef,
+        _key: MaterialPipelineKey<Self>,
+    ) -> Result<(), SpecializedMeshPipelineError> {
+        let mut attributes = vec![Mesh::ATTRIBUTE_POSITION.at_shader_location(0)];
+        if layout.0.contains(Mesh::ATTRIBUTE_NORMAL) {
+            attributes.push(Mesh::ATTRIBUTE_NORMAL.at_shader_location(1));
+        }
+        attributes.push(ATTRIBUTE_STREAMLINE.at_shader_location(2));
+        attributes.push(ATTRIBUTE_RGBA8.at_shader_location(5));
+        descriptor.vertex.buffers = vec![layout.0.get_layout(&attributes)?];
+        Ok(())
     }
     // The prepass would draw every line with the default vertex shader, hidden ones included.
     fn enable_prepass() -> bool {
@@ -276,9 +340,43 @@ impl Plugin for TractPlugin {
         app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
             .init_resource::<LineMsaa>()
-            .add_systems(PostUpdate, (apply_rois.in_set(TractSystems::Select), line_msaa, sync_slabs));
+            .add_systems(PostUpdate, (apply_rois.in_set(TractSystems::Select), line_msaa, sync_slabs, warm_up));
         layer::build(app);
         app.add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
+    }
+}
+
+/// The visibility a tract set had before [`warm_up`] hid it.
+#[derive(Component, Clone, Copy, Debug)]
+struct HiddenForWarmup(Visibility);
+
+/// While a headless app warms its pipelines up ([`fascicle_render::headless::PipelineWarmup`]), every tract
+/// set but the first of its layer (its parent; the parts of one tractogram share their pipelines) is hidden,
+/// and shown again after.
+#[allow(clippy::type_complexity, reason = "a Bevy system's queries")]
+fn warm_up(
+    mut commands: Commands,
+    warming: Option<Res<fascicle_render::headless::PipelineWarmup>>,
+    mut sets: Query<
+        (Entity, &mut Visibility, Option<&ChildOf>, Option<&HiddenForWarmup>),
+        Or<(With<MeshSet>, With<TubeSet>)>,
+    >,
+) {
+    if warming.is_some() {
+        let mut seen = std::collections::HashSet::new();
+        for (e, mut visibility, parent, hidden) in &mut sets {
+            if hidden.is_none() && !seen.insert(parent.map(ChildOf::parent)) {
+                commands.entity(e).insert(HiddenForWarmup(*visibility));
+                *visibility = Visibility::Hidden;
+            }
+        }
+    } else {
+        for (e, mut visibility, _, hidden) in &mut sets {
+            if let Some(HiddenForWarmup(was)) = hidden {
+                *visibility = *was;
+                commands.entity(e).remove::<HiddenForWarmup>();
+            }
+        }
     }
 }
 
@@ -401,10 +499,11 @@ pub fn tract_tubelets(t: &Tractogram, tensors: Option<&[[f32; 6]]>, settings: &T
 }
 
 /// A tract set's CPU work, done before it is spawned (on any thread: the app builds it in a background job):
-/// the segment grid of the selection and, for the chosen style, the packed tubelets or the mesh.
+/// for the chosen style, the packed tubelets or the mesh, and (with [`PreparedTracts::with_grid`]) the segment
+/// grid of the selection.
 pub struct PreparedTracts {
     pub tractogram: Arc<Tractogram>,
-    pub grid: Arc<SegmentGrid>,
+    pub grid: LazyGrid,
     pub geometry: PreparedGeometry,
 }
 
@@ -419,7 +518,13 @@ pub enum PreparedGeometry {
 
 impl PreparedTracts {
     fn with(tractogram: Arc<Tractogram>, geometry: PreparedGeometry) -> Self {
-        PreparedTracts { grid: segment_grid(&tractogram), tractogram, geometry }
+        PreparedTracts { grid: LazyGrid::default(), tractogram, geometry }
+    }
+
+    /// With the segment grid built now (for a layer with ROIs: not on the main thread at the first selection).
+    pub fn with_grid(self) -> Self {
+        self.grid.get(&self.tractogram);
+        self
     }
 
     /// Hyperstreamlines (optional per-point world tensors give the sections).
@@ -453,9 +558,10 @@ impl PreparedTracts {
         PreparedTracts::lines_coloured(tractogram, None)
     }
 
-    /// Lines coloured by `colour` at each vertex when given ([`line_mesh_coloured`]).
+    /// Lines compressed to [`LINE_TOLERANCE_MM`], coloured by `colour` at each vertex when given
+    /// ([`line_mesh_coloured`]).
     pub fn lines_coloured(tractogram: Arc<Tractogram>, colour: Option<PointColour>) -> Self {
-        let mesh = line_mesh_coloured(&tractogram, colour);
+        let mesh = line_mesh_coloured(&tractogram, colour, LINE_TOLERANCE_MM);
         PreparedTracts::with(tractogram, PreparedGeometry::Mesh(Box::new(mesh)))
     }
 
@@ -470,17 +576,12 @@ impl PreparedTracts {
 fn tract_set(
     buffers: &mut Assets<ShaderBuffer>,
     tractogram: Arc<Tractogram>,
-    grid: Arc<SegmentGrid>,
+    grid: LazyGrid,
 ) -> (TractSet, TractSelection) {
     let n_streamlines = tractogram.n_streamlines();
     let flags = [1u8, 0, 0, 0].repeat(n_streamlines.max(1));
     let selected = buffers.add(ShaderBuffer::new(&flags, RenderAssetUsages::default()));
     (TractSet { tractogram, grid, selected }, TractSelection(vec![true; n_streamlines]))
-}
-
-/// The grid of segments the ROI selection scans.
-fn segment_grid(t: &Tractogram) -> Arc<SegmentGrid> {
-    Arc::new(SegmentGrid::new(&t.points, &t.offsets, 4.0))
 }
 
 /// Spawns prepared tracts (tubes, lines or polygon tubes); `opacity` applies to meshes. Returns the set's
@@ -572,7 +673,7 @@ pub fn spawn_tubes(
     settings: &TubeSettings,
 ) -> Entity {
     let tubes = tract_tubelets(&tractogram, tensors, settings);
-    let target = tract_set(buffers, tractogram.clone(), segment_grid(&tractogram));
+    let target = tract_set(buffers, tractogram, LazyGrid::default());
     let proxies = (&pack(&tubes)[..], tubes.len(), boxes(tubes.len()));
     spawn_tube_set(commands, meshes, materials, buffers, target, proxies, *settings)
 }
@@ -588,7 +689,7 @@ pub fn spawn_lines(
     opacity: f32,
 ) -> Entity {
     let mesh = line_mesh(&tractogram);
-    let target = tract_set(buffers, tractogram.clone(), segment_grid(&tractogram));
+    let target = tract_set(buffers, tractogram, LazyGrid::default());
     spawn_mesh_set(commands, meshes, materials, target, mesh, opacity)
 }
 
@@ -606,7 +707,7 @@ pub fn spawn_polygon_tubes(
     opacity: f32,
 ) -> Entity {
     let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
-    let target = tract_set(buffers, tractogram.clone(), segment_grid(&tractogram));
+    let target = tract_set(buffers, tractogram, LazyGrid::default());
     spawn_mesh_set(commands, meshes, materials, target, mesh, opacity)
 }
 
@@ -623,41 +724,51 @@ pub fn recolour(tubes: &mut [fascicle_core::tubelet::Tubelet], colour: PointColo
     }
 }
 
-/// Line segments of every streamline: positions, colours |direction| and UV x = the streamline's index
-/// (exact in f32 up to 2^24 streamlines), which the vertex shader looks up in the selection flags.
+/// The default tolerance of line meshes, mm ([`Compression`]): a tenth of a millimetre, below a pixel at any
+/// zoom that shows a whole brain.
+pub const LINE_TOLERANCE_MM: f64 = 0.1;
+
+/// Line segments of every streamline, compressed to [`LINE_TOLERANCE_MM`], coloured by local direction.
 pub fn line_mesh(t: &Tractogram) -> Mesh {
-    line_mesh_coloured(t, None)
+    line_mesh_coloured(t, None, LINE_TOLERANCE_MM)
 }
 
-/// [`line_mesh`] with each vertex coloured by `colour` when given.
+/// The lines of `t`: each streamline compressed to `tolerance_mm` ([`fascicle_core::compress`]; 0 keeps
+/// every point but exactly collinear ones), its kept points coloured by `colour` when given, else by the
+/// direction between their kept neighbours (the one neighbour at an end), |x y z| as RGB.
 ///
-/// One vertex per point, shared by the two segments that meet there (an indexed line list: 36 bytes a point
-/// and 8 a segment, where a vertex per segment end took 72 bytes a segment); the default colour is the
-/// direction between a point's neighbours (its one neighbour at an end), |x y z| as RGB.
-pub fn line_mesh_coloured(t: &Tractogram, colour: Option<PointColour>) -> Mesh {
-    let n = t.points.len();
-    let (mut pos, mut col, mut uv) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
-    let mut idx: Vec<u32> = Vec::with_capacity(2 * n);
+/// One vertex per kept point, shared by the two segments that meet there (an indexed line list), in the
+/// compact format of [`TractMeshMaterial`]: 20 bytes a point and 8 a segment (36 and 8 uncompressed with
+/// Bevy's standard attributes before).
+pub fn line_mesh_coloured(t: &Tractogram, colour: Option<PointColour>, tolerance_mm: f64) -> Mesh {
+    let compression = Compression { tolerance_mm, ..Compression::default() };
+    let (mut pos, mut col, mut ids) = (Vec::new(), Vec::new(), Vec::new());
+    let mut idx: Vec<u32> = Vec::new();
+    let mut kept = Vec::new();
     for (i, s) in t.iter().enumerate().filter(|(_, s)| s.len() >= 2) {
+        kept.clear();
+        kept_points(s, compression, &mut kept);
         let base = pos.len() as u32;
-        for (k, p) in s.iter().enumerate() {
-            let [r, g, b] = colour.map_or_else(
+        for (k, &at) in kept.iter().enumerate() {
+            let p = s[at as usize];
+            let rgb = colour.map_or_else(
                 || {
-                    let d = (s[(k + 1).min(s.len() - 1)] - s[k.saturating_sub(1)]).normalize_or_zero().abs();
+                    let (a, b) = (kept[k.saturating_sub(1)], kept[(k + 1).min(kept.len() - 1)]);
+                    let d = (s[b as usize] - s[a as usize]).normalize_or_zero().abs();
                     [d.x, d.y, d.z]
                 },
-                |f| f(i, *p),
+                |f| f(i, p),
             );
-            pos.push(*p);
-            col.push([r, g, b, 1.0]);
-            uv.push([i as f32, 0.0]);
+            pos.push(p);
+            col.push(rgba8(rgb));
+            ids.push(i as u32);
         }
-        idx.extend((0..s.len() as u32 - 1).flat_map(|k| [base + k, base + k + 1]));
+        idx.extend((0..kept.len() as u32 - 1).flat_map(|k| [base + k, base + k + 1]));
     }
     Mesh::new(PrimitiveTopology::LineList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_UV_0, uv)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
+        .with_inserted_attribute(ATTRIBUTE_STREAMLINE, ids)
+        .with_inserted_attribute(ATTRIBUTE_RGBA8, VertexAttributeValues::Unorm8x4(col))
         .with_inserted_indices(Indices::U32(idx))
 }
 
@@ -669,10 +780,10 @@ pub fn line_segments(mesh: &Mesh) -> usize {
     }
 }
 
-/// The polygon-tube baseline mesh (`sides` per profile), coloured by local direction; UV x is the streamline's
-/// index (for the selection flags).
+/// The polygon-tube baseline mesh (`sides` per profile), coloured by local direction, in the compact format of
+/// [`TractMeshMaterial`] (with normals).
 pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f64, sides: usize) -> Mesh {
-    let (mut pos, mut nrm, mut col, mut uv, mut idx) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let (mut pos, mut nrm, mut col, mut ids, mut idx) = (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for s in 0..t.offsets.len().saturating_sub(1) {
         let r = t.offsets[s]..t.offsets[s + 1];
         let pts: Vec<glam::DVec3> = t.points[r.clone()].iter().map(|p| p.as_dvec3()).collect();
@@ -687,8 +798,8 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
             let d = (pts[k + 1] - pts[k]).normalize_or_zero().abs();
             pos.push(p.as_vec3().to_array());
             nrm.push(n.as_vec3().to_array());
-            col.push([d.x as f32, d.y as f32, d.z as f32, 1.0]);
-            uv.push([s as f32, 0.0]);
+            col.push(rgba8([d.x as f32, d.y as f32, d.z as f32]));
+            ids.push(s as u32);
         }
         for ring in 0..pts.len() - 1 {
             for k in 0..sides {
@@ -702,8 +813,8 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
     Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
         .with_inserted_attribute(Mesh::ATTRIBUTE_NORMAL, nrm)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_UV_0, uv)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_COLOR, col)
+        .with_inserted_attribute(ATTRIBUTE_STREAMLINE, ids)
+        .with_inserted_attribute(ATTRIBUTE_RGBA8, VertexAttributeValues::Unorm8x4(col))
         .with_inserted_indices(Indices::U32(idx))
 }
 
@@ -734,7 +845,11 @@ pub fn apply_rois(
         // An ROI acts on its parent set, on the sets of its parent layer, or (without a parent) on all.
         let owner = |p: &ChildOf| p.parent() == entity || layer.is_some_and(|l| l.parent() == p.parent());
         let list: Vec<Roi> = rois.iter().filter(|(_, parent)| parent.is_none_or(owner)).map(|(r, _)| r.0).collect();
-        let sel = select(&set.tractogram.points, &set.tractogram.offsets, &set.grid, &list);
+        let sel = if list.is_empty() {
+            vec![true; set.tractogram.n_streamlines()]
+        } else {
+            select(&set.tractogram.points, &set.tractogram.offsets, set.grid.get(&set.tractogram), &list)
+        };
         selected += sel.iter().filter(|s| **s).count();
         let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();
         selection.0 = sel;
