@@ -338,11 +338,8 @@ fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> 
     loop {
         let mut chunks = Vec::with_capacity(batch);
         while chunks.len() < batch
-            && let Some(mut t) = reader.next_chunk(LINE_PART_POINTS).map_err(|e| e.to_string())?
+            && let Some(t) = reader.next_chunk(LINE_PART_POINTS).map_err(|e| e.to_string())?
         {
-            // Kept for as long as the layer is shown (ROIs select on it): no spare capacity.
-            t.points.shrink_to_fit();
-            t.offsets.shrink_to_fit();
             chunks.push(Arc::new(t));
         }
         progress.advance((reader.bytes_read() as usize).saturating_sub(done));

@@ -413,16 +413,14 @@ impl Uploads<'_> {
                 render.colouring.apply(&mut splats);
                 spawn_splats(c, m, &mut self.splat_materials, b, &splats, render)
             }
-            (Content::Tracts(mut prepared), LayerKind::Tracts { render, .. }) => {
-                // The job built the tubes from the layer's structure (scale, colour); the per-pixel knobs are
+            (Content::Tracts(mut prepared), LayerKind::Tracts { .. } | LayerKind::Tractogram { .. }) => {
+                // The job built a tract layer's tubes from its structure (scale, colour); the per-pixel knobs are
                 // the layer's settings now.
-                if let PreparedGeometry::Tubes { settings, .. } = &mut prepared.geometry {
+                if let (PreparedGeometry::Tubes { settings, .. }, LayerKind::Tracts { render, .. }) =
+                    (&mut prepared.geometry, &spec.kind)
+                {
                     *settings = *render;
                 }
-                let (tubes, meshes) = (&mut self.tube_materials, &mut self.mesh_materials);
-                spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity)
-            }
-            (Content::Tracts(prepared), LayerKind::Tractogram { .. }) => {
                 let (tubes, meshes) = (&mut self.tube_materials, &mut self.mesh_materials);
                 spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity)
             }

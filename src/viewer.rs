@@ -1407,7 +1407,7 @@ mod tests {
         let flags: Vec<bool> = (0..t.n_streamlines()).map(|s| s % 3 == 0).collect();
         let set = TractSet {
             tractogram: Arc::new(t.clone()),
-            grid: fascicle_tracts::LazyGrid::built(&t),
+            grid: fascicle_tracts::LazyGrid::default(),
             selected: Handle::default(),
         };
         app.world_mut().spawn((set, TractSelection(flags.clone()), LayerEntity(0)));

@@ -434,8 +434,7 @@ pub fn run_until_ready(app: &mut App, max_frames: u32) -> Result<u32, HeadlessEr
     const STABLE_FRAMES: u32 = 3;
     initialise(app)?;
     let start = std::time::Instant::now();
-    let shrunk = shrink_viewports(app);
-    app.insert_resource(PipelineWarmup);
+    let shrunk = begin_warmup(app);
     let mut stable = 0;
     let mut result = Err(HeadlessError::Timeout(String::new()));
     for frame in 1..=max_frames {
@@ -635,19 +634,7 @@ pub fn wait_for_layers(app: &mut App) -> Result<(), HeadlessError> {
     // Nothing is drawn while layers load: every frame would draw all that has arrived so far (a streamed
     // tractogram part by part, seconds a frame on a software rasteriser), taking the CPU from the loading it
     // waits for. The cameras are paused until the layers are in, however long their data take to read.
-    let paused: Vec<Entity> = {
-        let world = app.world_mut();
-        let mut cameras = world.query::<(Entity, &mut Camera)>();
-        cameras
-            .iter_mut(world)
-            .filter_map(|(e, mut c)| {
-                c.is_active.then(|| {
-                    c.is_active = false;
-                    e
-                })
-            })
-            .collect()
-    };
+    let paused = set_cameras_active(app, None, false);
     let start = std::time::Instant::now();
     let result = loop {
         app.update();
@@ -663,11 +650,16 @@ pub fn wait_for_layers(app: &mut App) -> Result<(), HeadlessError> {
     // One frame more applies what the last frame spawned, with the cameras on (what follows a camera, such as
     // a depth sort, is done) but drawing into one pixel, each layer's parts but one hidden.
     set_cameras_active(app, Some(&paused), true);
-    let shrunk = shrink_viewports(app);
-    app.insert_resource(PipelineWarmup);
+    let shrunk = begin_warmup(app);
     app.update();
     end_warmup(app, shrunk);
     result
+}
+
+/// Starts a warm-up: the active cameras draw into one pixel and [`PipelineWarmup`] is present.
+fn begin_warmup(app: &mut App) -> SavedViewports {
+    app.insert_resource(PipelineWarmup);
+    shrink_viewports(app)
 }
 
 /// Ends a warm-up: the viewports back, and a frame without drawing in which the plugins show what they hid.

@@ -126,21 +126,9 @@ pub struct TractSet {
 pub struct LazyGrid(Arc<OnceLock<SegmentGrid>>);
 
 impl LazyGrid {
-    /// A grid already built for `t`.
-    pub fn built(t: &Tractogram) -> Self {
-        let grid = LazyGrid::default();
-        grid.get(t);
-        grid
-    }
-
     /// The grid of `t` (the set's tractogram), built now if it was not.
     pub fn get(&self, t: &Tractogram) -> &SegmentGrid {
         self.0.get_or_init(|| SegmentGrid::new(&t.points, &t.offsets, 4.0))
-    }
-
-    /// Whether the grid has been built.
-    pub fn is_built(&self) -> bool {
-        self.0.get().is_some()
     }
 }
 
