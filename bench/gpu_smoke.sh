@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# The smoke run on a real GPU (issue #21): every benchmark suite in its full setting and a 10,000-frame soak of the
-# default scene at 1920x1080, one after the other, each a process of its own. It fails when any of them exits with
-# an error or when a log shows device loss (wgpu's "device lost", "timed out waiting on the last successful
-# submission", a driver reset); the soak itself fails on resident-memory growth over 1 MiB per 10k frames.
+# The smoke run on a real GPU (issue #21): every benchmark suite in its full setting (SH glyphs and volume
+# rendering at 1920x1080, SMOKE_SIZE=WxH another size) and a 10,000-frame soak of the default scene at 1920x1080,
+# one after the other, each a process of its own. It fails when any of them exits with an error or when a log
+# shows device loss (wgpu's "device lost", "timed out waiting on the last successful submission", a driver
+# reset); the soak itself fails on resident-memory growth over 1 MiB per 10k frames.
 # On NVIDIA machines the driver's memory report (nvidia-smi, every 5 s) is sampled beside each run.
 #
 # Usage: bench/gpu_smoke.sh [OUT_DIR]   (default target/gpu-smoke); logs, CSVs and smoke.md land there.
@@ -30,13 +31,14 @@ fi
 limit=()
 [ -n "${SMOKE_RUN_TIMEOUT:-}" ] && limit=(timeout "$SMOKE_RUN_TIMEOUT")
 quick=()
-[ "${SMOKE_QUICK:-0}" = 1 ] && quick=(--quick)
+size=(--size "${SMOKE_SIZE:-1920x1080}")
+[ "${SMOKE_QUICK:-0}" = 1 ] && quick=(--quick) && size=()
 
 # name and arguments of each run
 runs=(
   "splats|splats ${quick[*]} --csv $out/splats.csv"
-  "glyphs|glyphs ${quick[*]} --csv $out/glyphs.csv"
-  "volume|volume ${quick[*]} --csv $out/volume.csv"
+  "glyphs|glyphs ${quick[*]} ${size[*]} --csv $out/glyphs.csv"
+  "volume|volume ${quick[*]} ${size[*]} --csv $out/volume.csv"
   "tracts|tracts ${quick[*]} --csv $out/tracts.csv"
   "edits|edits ${quick[*]} --csv $out/edits.csv"
   "soak|soak --frames ${SMOKE_SOAK_FRAMES:-10000} --size ${SMOKE_SOAK_SIZE:-1920x1080} --csv $out/soak.csv"

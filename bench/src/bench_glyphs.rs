@@ -209,8 +209,9 @@ fn sweep(quick: bool) -> Vec<Method> {
     m
 }
 
-pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
-    let big = (1280, 960);
+/// Runs the suite; `size` (width, height) replaces 1280x960 for the 4,096-glyph cases.
+pub fn run(quick: bool, size: Option<(u32, u32)>, csv: Option<&Path>) -> Result<(), String> {
+    let big = size.unwrap_or((1280, 960));
     let mut cases = Vec::new();
     if quick {
         for l_max in [4usize, 8] {

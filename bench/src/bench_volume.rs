@@ -66,7 +66,7 @@ fn tf() -> TransferFunction {
 
 /// A camera seeing the volume's content (the bounding sphere of its non-zero voxels fills 90 % of the view's
 /// height), obliquely.
-fn camera(vol: &Volume<f32>, size: u32) -> PinholeCamera {
+fn camera(vol: &Volume<f32>, (width, height): (u32, u32)) -> PinholeCamera {
     let d = vol.dims3();
     let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
     for (i, v) in vol.data[..d[0] * d[1] * d[2]].iter().enumerate() {
@@ -92,16 +92,15 @@ fn camera(vol: &Volume<f32>, size: u32) -> PinholeCamera {
         target: centre,
         up: DVec3::Z,
         fov_y: FOV_Y,
-        width: size,
-        height: size,
+        width,
+        height,
     }
 }
 
 fn render(vol: &Volume<f32>, cam: &PinholeCamera, settings: &VolumeSettings) -> Result<(f64, Capture), String> {
-    let size = cam.width;
     let mut app = headless::headless_app();
     app.add_plugins((FascicleRenderPlugin, VolumePlugin));
-    let target = headless::add_target_image(&mut app, size, size);
+    let target = headless::add_target_image(&mut app, cam.width, cam.height);
     let (vol, s) = (vol.clone(), settings.clone());
     app.add_systems(
         PostStartup,
@@ -134,7 +133,7 @@ fn reference(vol: &Volume<f32>, cam: &PinholeCamera, tf: &TransferFunction) -> V
     let lut = tf.lut();
     let inv = vol.world_from_voxel.inverse();
     let p = MarchParams { step: 0.1, termination: 2.0, ..MarchParams::default() };
-    (0..size * size)
+    (0..size * cam.height)
         .into_par_iter()
         .map(|i| {
             let (o, d) = cam.subpixel_ray((i % size) as f64 + 0.5, (i / size) as f64 + 0.5);
@@ -143,12 +142,12 @@ fn reference(vol: &Volume<f32>, cam: &PinholeCamera, tf: &TransferFunction) -> V
         .collect()
 }
 
-fn error(img: &Capture, want: &[DVec3], size: u32) -> f64 {
+fn error(img: &Capture, want: &[DVec3], width: u32) -> f64 {
     let sum: f64 = want
         .iter()
         .enumerate()
         .map(|(i, r)| {
-            let got = img.pixel(i as u32 % size, i as u32 / size);
+            let got = img.pixel(i as u32 % width, i as u32 / width);
             (0..3).map(|k| (got[k] as f64 - srgb8(r[k])).abs()).fold(0.0, f64::max)
         })
         .sum();
@@ -202,10 +201,11 @@ fn method_rows(vol: &Volume<f32>, tf: &TransferFunction, quick: bool) -> Vec<(&'
     rows
 }
 
-pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
-    let image: u32 = if quick { 128 } else { 256 };
+/// Runs the suite; `size` (width, height) replaces the default square image (256, or 128 with `quick`).
+pub fn run(quick: bool, size: Option<(u32, u32)>, csv: Option<&Path>) -> Result<(), String> {
+    let (width, height) = size.unwrap_or(if quick { (128, 128) } else { (256, 256) });
     let adapter = std::env::var("VK_ICD_FILENAMES").unwrap_or_else(|_| "default Vulkan adapter".into());
-    println!("## Volume rendering: every method over its knob ({image}x{image}, {adapter})\n");
+    println!("## Volume rendering: every method over its knob ({width}x{height}, {adapter})\n");
     println!("error = mean |RGB - f64 reference at step 0.1 mm| in 8-bit levels\n");
     println!("| volume | method | n | param | frame (ms) | error |");
     println!("|---|---|---|---|---|---|");
@@ -218,19 +218,19 @@ pub fn run(quick: bool, csv: Option<&Path>) -> Result<(), String> {
         let d = vol.dims3();
         let t = Instant::now();
         // The camera frames the volume's content: found once per volume (a scan of every voxel).
-        let cam = camera(&vol, image);
+        let cam = camera(&vol, (width, height));
         let want = reference(&vol, &cam, &tf);
         eprintln!("reference for {name} {d:?}: {:.1} s", t.elapsed().as_secs_f64());
         for (method, param, s) in method_rows(&vol, &tf, quick) {
             let (ms, img) = render(&vol, &cam, &s)?;
-            let err = error(&img, &want, image);
+            let err = error(&img, &want, width);
             if let Ok(dir) = std::env::var("FASCICLE_BENCH_OUT") {
                 let png = img.to_png().unwrap_or_default();
                 let _ = std::fs::write(format!("{dir}/volume_{name}{}_{method}_{param}.png", d[0]), png);
             }
             let dims = format!("{}x{}x{}", d[0], d[1], d[2]);
             println!("| {name} | {method} | {dims} | {param} | {ms:.1} | {err:.3} |");
-            rows.push(format!("{method},{},{param},{ms:.2},{err:.4},{image},{image},{name}", d[0] * d[1] * d[2]));
+            rows.push(format!("{method},{},{param},{ms:.2},{err:.4},{width},{height},{name}", d[0] * d[1] * d[2]));
         }
     }
     if let Some(path) = csv {

@@ -33,6 +33,9 @@ pub enum BenchCommand {
         /// 1k glyphs at 256x256 (l_max 4, 8) and 4,096 l_max-8 glyphs at 1280x960.
         #[arg(long)]
         quick: bool,
+        /// Image size of the 4,096-glyph cases, WxH (default 1280x960; 1920x1080 on a real GPU).
+        #[arg(long)]
+        size: Option<String>,
         /// Also write the rows as CSV (method,n,param,frame_ms,error,l_max,width,height).
         #[arg(long)]
         csv: Option<PathBuf>,
@@ -44,6 +47,9 @@ pub enum BenchCommand {
         /// 128x128 images, the FA map and the 128³ head, two steps.
         #[arg(long)]
         quick: bool,
+        /// Image size, WxH (default 256x256, 128x128 with --quick; 1920x1080 on a real GPU).
+        #[arg(long)]
+        size: Option<String>,
         /// Also write the rows as CSV (method,n,param,frame_ms,error,width,height,volume).
         #[arg(long)]
         csv: Option<PathBuf>,
@@ -192,8 +198,9 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         BenchCommand::Tracking { phantom, python, tckgen, runs } => {
             crate::bench_tracking::run(&phantom, python.as_deref(), tckgen.as_deref(), runs)
         }
-        BenchCommand::Glyphs { quick, csv } => {
-            crate::bench_glyphs::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+        BenchCommand::Glyphs { quick, size, csv } => {
+            let size = size.as_deref().map(fascicle::cli::parse_size).transpose().map_err(Error::Param)?;
+            crate::bench_glyphs::run(quick, size, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Plot { csv, out, title, by_n } => crate::bench_all::plot_csv(&csv, &out, &title, by_n),
         BenchCommand::All { quick, quick_suite, report, python } => {
@@ -205,8 +212,9 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         BenchCommand::Tracts { quick, csv } => {
             crate::bench_tracts::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
-        BenchCommand::Volume { quick, csv } => {
-            crate::bench_volume::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
+        BenchCommand::Volume { quick, size, csv } => {
+            let size = size.as_deref().map(fascicle::cli::parse_size).transpose().map_err(Error::Param)?;
+            crate::bench_volume::run(quick, size, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Splats { quick, csv } => {
             crate::bench_splats::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
