@@ -480,25 +480,83 @@ pub fn neighbour_slices(kind: &LayerKind, dims: [usize; 3]) -> Vec<LayerKind> {
         .collect()
 }
 
-/// Runs `f` (a layer's job) with its parallel work (fits, tracking, glyph placement) on the jobs' own rayon
-/// threads, one fewer than the cores (at least one): a core stays for the frame. The main thread's parallel
-/// work (ROI selection as tract parts arrive, as an ROI is dragged) uses the global pool: were the jobs there
-/// too, a frame would wait until their queued work was done (a 2.2 s frame while the large bench scene built).
-/// Without the pool (threads could not be made), `f` runs on the global one.
-pub fn on_job_threads<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+/// The jobs' own rayon threads, one fewer than the cores (at least one): a core stays for the frame. None when
+/// the threads could not be made.
+fn job_pool() -> Option<&'static rayon::ThreadPool> {
     static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
-    let pool = POOL.get_or_init(|| {
+    POOL.get_or_init(|| {
         let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
         rayon::ThreadPoolBuilder::new()
             .num_threads(cores.saturating_sub(1).max(1))
             .thread_name(|i| format!("fascicle-job-{i}"))
             .build()
             .ok()
-    });
-    match pool {
+    })
+    .as_ref()
+}
+
+/// Runs `f` (a layer's job) with its parallel work (fits, tracking, glyph placement) on the jobs' own rayon
+/// threads ([`job_pool`]). The main thread's parallel work (ROI selection as tract parts arrive, as an ROI is
+/// dragged) uses the global pool: were the jobs there too, a frame would wait until their queued work was done
+/// (a 2.2 s frame while the large bench scene built). Without the pool (threads could not be made), `f` runs on
+/// the global one.
+pub fn on_job_threads<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+    match job_pool() {
         Some(pool) => pool.install(f),
         None => f(),
     }
+}
+
+/// A job's result as it is handed from the job's thread to the task that awaits it.
+struct JobSlot<T> {
+    result: Option<std::thread::Result<T>>,
+    waker: Option<std::task::Waker>,
+}
+
+/// Starts `f` (a layer's job) on a thread of its own, its parallel work on the jobs' threads
+/// ([`on_job_threads`]), and returns a task that is ready with
+/// its result; a panic in `f` resumes in the task, as if `f` ran there.
+///
+/// The job does not run on Bevy's async compute threads, whose task only waits for it: the render world
+/// compiles its pipelines there and blocks on one of them (the window's upscaling pipeline), so a long job
+/// holding one of those threads froze the window until the job ended (7 s of no frames while 1M streamlines
+/// loaded on 2 cores).
+pub fn spawn_job<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> bevy::tasks::Task<T> {
+    let slot = Arc::new(Mutex::new(JobSlot { result: None, waker: None }));
+    let done = slot.clone();
+    let run = move || {
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+        let mut s = done.lock().unwrap_or_else(|e| e.into_inner());
+        s.result = Some(result);
+        if let Some(w) = s.waker.take() {
+            w.wake();
+        }
+    };
+    // A thread of its own, so that a small job (the axes) does not queue behind a long one on the pool; its
+    // parallel work shares the pool. Should no thread be made, the pool runs it.
+    let thread = std::thread::Builder::new().name("fascicle-job".into());
+    let run = Arc::new(Mutex::new(Some(run)));
+    let take = |run: &Mutex<Option<_>>| run.lock().unwrap_or_else(|e| e.into_inner()).take();
+    let on_thread = run.clone();
+    if thread.spawn(move || take(&on_thread).map(on_job_threads)).is_err()
+        && let Some(f) = take(&run)
+    {
+        match job_pool() {
+            Some(pool) => pool.spawn(f),
+            None => rayon::spawn(f),
+        }
+    }
+    bevy::tasks::AsyncComputeTaskPool::get().spawn(std::future::poll_fn(move |cx| {
+        let mut s = slot.lock().unwrap_or_else(|e| e.into_inner());
+        match s.result.take() {
+            Some(Ok(value)) => std::task::Poll::Ready(value),
+            Some(Err(panic)) => std::panic::resume_unwind(panic),
+            None => {
+                s.waker = Some(cx.waker().clone());
+                std::task::Poll::Pending
+            }
+        }
+    }))
 }
 
 /// Places the glyphs of the slices next to an SH glyph layer's into the cache, on a thread of their own (not
@@ -1265,6 +1323,27 @@ pub fn slice_image(
 mod tests {
     use super::*;
 
+    /// A job does not hold Bevy's async compute threads (where the render world compiles its pipelines and
+    /// blocks on one): with one such thread, a task spawned there completes while a job is still running, and
+    /// the job's result, or its panic, reaches its task.
+    #[test]
+    fn jobs_leave_the_async_compute_threads_free() {
+        use bevy::tasks::{AsyncComputeTaskPool, TaskPoolBuilder, block_on};
+        AsyncComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(1).build());
+        let (release, wait) = std::sync::mpsc::channel::<()>();
+        let job = spawn_job(move || {
+            wait.recv().ok();
+            42
+        });
+        let other = AsyncComputeTaskPool::get().spawn(async { 7 });
+        assert_eq!(block_on(other), 7, "a task waited for a running job");
+        release.send(()).ok();
+        assert_eq!(block_on(job), 42);
+        let panicking = spawn_job(|| -> u32 { panic!("a job's panic") });
+        let joined = std::thread::spawn(move || block_on(panicking)).join();
+        assert!(joined.is_err(), "the job's panic resumes in its task");
+    }
+
     /// Tracts from a file with a tensor field: the phantom's RK4 tracts written to `.tck` and read back with
     /// the phantom's tensors carry the tensors the tracker recorded (to f32 rounding of the points);
     /// without, none; a field that is not a voxel grid is a clear error.
@@ -1293,7 +1372,9 @@ mod tests {
     }
 
     fn data(path: &str) -> std::path::PathBuf {
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(path)
+        std::path::Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+            .join("data")
+            .join(path)
     }
 
     /// Tracking on a user's data: from a DWI (tensors fitted in the job, WLS) and from the tensor file that
@@ -1548,7 +1629,7 @@ mod tests {
             let Ok(Content::Tracts(p)) = build(&kind, &DataCache::default(), &JobProgress::default()) else {
                 panic!("no tracts")
             };
-            let fascicle_tracts::PreparedGeometry::Mesh(mesh) = p.geometry else { panic!("not a mesh") };
+            let fascicle_tracts::PreparedGeometry::Mesh { mesh, .. } = p.geometry else { panic!("not a mesh") };
             let pos = match mesh.attribute(Mesh::ATTRIBUTE_POSITION) {
                 Some(VertexAttributeValues::Float32x3(v)) => v.clone(),
                 _ => panic!("positions"),

@@ -18,7 +18,7 @@ use bevy::asset::RenderAssetUsages;
 use bevy::mesh::{Indices, PrimitiveTopology};
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
-use bevy::tasks::{AsyncComputeTaskPool, Task, futures::check_ready};
+use bevy::tasks::{Task, futures::check_ready};
 use fascicle_render::layer::LayerStatus;
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
@@ -30,7 +30,7 @@ use fascicle_tracts::{
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume_texture};
 
 use crate::cache::DataCache;
-use crate::jobs::{CANCELLED, Content, JobProgress, build, on_job_threads};
+use crate::jobs::{CANCELLED, Content, JobProgress, build, spawn_job};
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
 use crate::scene::{LayerKind, LayerSpec, Scene};
 
@@ -268,7 +268,7 @@ fn start_job(
 ) {
     let progress = Arc::new(JobProgress::default());
     let (p, c, kind) = (progress.clone(), cache.clone(), structure.clone());
-    let task = AsyncComputeTaskPool::get().spawn(async move { on_job_threads(|| build(&kind, &c, &p)) });
+    let task = spawn_job(move || build(&kind, &c, &p));
     commands.entity(layer).insert((LayerJob { progress, structure, task, parts_shown: 0 }, LayerStatus::Loading));
     counts.jobs += 1;
 }

@@ -842,14 +842,11 @@ mod tests {
     #[test]
     fn splat_panel_with_barycentric_widget_leaves_an_unedited_kind() {
         let ctx = egui::Context::default();
-        let mut kind = crate::scene::Scene::load(std::path::Path::new(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/scenes/spiral50.ron"
-        )))
-        .unwrap()
-        .layers[0]
-            .kind
-            .clone();
+        let dir = std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into());
+        let mut kind =
+            crate::scene::Scene::load(&std::path::Path::new(&dir).join("scenes/spiral50.ron")).unwrap().layers[0]
+                .kind
+                .clone();
         let before = kind.clone();
         let data = LayerData { eigenvalues: Arc::new(vec![[1.0, 0.5, 0.1], [1.0, 1.0, 1.0]]), ..Default::default() };
         let _ = ctx.run_ui(egui::RawInput::default(), |ui| splat_panel(ui, &mut kind, &data));

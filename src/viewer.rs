@@ -182,6 +182,9 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .add_plugins((FascicleRenderPlugin, ScenePlugin, DrawOnDemandPlugin))
     // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
     .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
+    // Line previews while the view moves or a tractogram streams in (not with `--screenshot`, whose frame count
+    // stands for a settled scene).
+    .insert_resource(fascicle_tracts::TractDetail { enabled: draw_on_demand, ..default() })
     .add_systems(Last, keep_awake_while_working.before(ScheduleNextFrame))
     .add_systems(
         PreUpdate,
@@ -1173,7 +1176,10 @@ mod tests {
             .insert_resource(Orbit::from_spec(&CameraSpec::default()))
             .add_systems(Update, dropped_files);
         let before = app.world().resource::<ActiveScene>().0.layers.len();
-        let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+        let data = std::path::Path::new(
+            &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
+        )
+        .join("data");
         let window = Entity::PLACEHOLDER;
         app.world_mut()
             .write_message(FileDragAndDrop::DroppedFile { window, path_buf: data.join("tracts/tracks300.trk") });
@@ -1351,7 +1357,10 @@ mod tests {
         use fascicle_core::io::Tractogram;
         use fascicle_core::roi::{Roi, RoiMode, RoiShape};
         use std::sync::Arc;
-        let trk = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tracts/tracks300.trk");
+        let trk = std::path::Path::new(
+            &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
+        )
+        .join("data/tracts/tracks300.trk");
         let t = Tractogram::read(&trk).unwrap();
         let dir = std::env::temp_dir().join(format!("fascicle-save-selection-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();

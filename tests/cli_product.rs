@@ -7,7 +7,11 @@ use std::path::PathBuf;
 use std::process::{Command, Stdio};
 
 fn data(rel: &str) -> String {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data").join(rel).to_string_lossy().into_owned()
+    PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join("data")
+        .join(rel)
+        .to_string_lossy()
+        .into_owned()
 }
 
 fn fascicle(args: &[&str]) -> std::process::Output {

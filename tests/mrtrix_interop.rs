@@ -29,7 +29,9 @@ fn run(cmd: &str, args: &[&str]) -> String {
 }
 
 fn data(p: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(p)
+    Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join("data")
+        .join(p)
 }
 
 fn scratch(name: &str) -> PathBuf {

@@ -128,9 +128,12 @@ fn spiral_scene_renders() {
     let dir = std::env::temp_dir().join(format!("fascicle-spiral-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join("spiral.png");
-    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/spiral50.ron");
+    let scene = format!(
+        "{}/scenes/spiral50.ron",
+        std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into())
+    );
     let st = Command::new(env!("CARGO_BIN_EXE_fascicle"))
-        .args(["render", scene, "--out", out.to_str().unwrap(), "--size", "320x240"])
+        .args(["render", &scene, "--out", out.to_str().unwrap(), "--size", "320x240"])
         .status()
         .expect("run fascicle");
     assert!(st.success());

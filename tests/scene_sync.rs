@@ -153,7 +153,10 @@ fn sh_coefficient_file_renders_as_glyphs() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
     }
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/sh/func_coef.nii.gz");
+    let path = std::path::Path::new(
+        &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
+    )
+    .join("data/sh/func_coef.nii.gz");
     let mut layer = Scene::layer_for_file(&path).unwrap();
     if let LayerKind::ShGlyphs { index, style, .. } = &mut layer.kind {
         *index = Some(1);
@@ -265,8 +268,11 @@ fn full_volume_glyphs_cover_the_field() {
 fn splat_recolouring_rewrites_only_the_styles() {
     use fascicle_core::dti::splat::SplatColourMode;
     use fascicle_tensors::splat::{SplatMaterial, SplatSet, SplatSortStats};
-    let scene = Scene::load(std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/spiral50.ron")))
-        .expect("spiral scene");
+    let scene = Scene::load(std::path::Path::new(&format!(
+        "{}/scenes/spiral50.ron",
+        std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into())
+    )))
+    .expect("spiral scene");
     let Some(mut app) = scene_app(scene) else { return };
     // A camera that renders (the splats are sorted on the GPU, per view drawn).
     let target = headless::add_target_image(&mut app, 64, 48);
@@ -402,7 +408,10 @@ fn rois_act_on_their_own_layer() {
     use fascicle::scene::{CameraSpec, LayerSpec, TractMode, TractSource};
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
     use fascicle_tracts::{TractSelection, TractSet};
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tracts/tracks300.trk");
+    let path = std::path::Path::new(
+        &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
+    )
+    .join("data/tracts/tracks300.trk");
     let t = fascicle_core::io::Tractogram::read(&path).unwrap();
     let p = t.streamline(0)[t.streamline(0).len() / 2];
     let sphere = Roi { shape: RoiShape::Sphere { centre: p.to_array(), radius: 5.0 }, mode: RoiMode::Include };
@@ -635,7 +644,10 @@ fn track_density_slices_render() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
     }
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tracts/tracks300.trk");
+    let path = std::path::Path::new(
+        &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
+    )
+    .join("data/tracts/tracks300.trk");
     let t = fascicle_core::io::Tractogram::read(&path).unwrap();
     let (lo, hi) =
         t.points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(a, b), p| (a.min(*p), b.max(*p)));

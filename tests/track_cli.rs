@@ -8,7 +8,11 @@ use fascicle_core::io::{GradientTable, Tractogram, nifti};
 use fascicle_core::tracking::{Integrator, PeakField, TrackParams, Tracker, read_seeds, to_voxel};
 
 fn data(rel: &str) -> String {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data").join(rel).to_string_lossy().into_owned()
+    PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join("data")
+        .join(rel)
+        .to_string_lossy()
+        .into_owned()
 }
 
 fn fascicle(args: &[&str]) -> std::process::Output {
@@ -88,7 +92,10 @@ fn select_writes_the_streamlines_the_rois_keep() {
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
     let dir = std::env::temp_dir().join(format!("fascicle-select-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let input = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/tracts/tracks300.trk");
+    let input = std::path::Path::new(
+        &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
+    )
+    .join("data/tracts/tracks300.trk");
     let t = Tractogram::read(&input).unwrap();
     let c = t.points[t.points.len() / 2];
     let out = dir.join("sel.tck");

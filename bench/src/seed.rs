@@ -13,7 +13,8 @@ pub fn phantom_dwi() -> fascicle_core::Result<(Volume<f32>, GradientTable)> {
     let dir = if here.join("phantom_ring_cross.nii.gz").is_file() {
         here.to_path_buf()
     } else {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/phantom")
+        Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+            .join("../data/phantom")
     };
     let (dwi, _) = nifti::read::<f32>(dir.join("phantom_ring_cross.nii.gz"))?;
     let gtab = GradientTable::from_fsl(

@@ -11,7 +11,9 @@ use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis, sphere};
 use fascicle_core::tracking::{self, DirectionField, TensorField, TensorInterpolation};
 
 fn data(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../data").join(rel)
+    PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join("../data")
+        .join(rel)
 }
 
 /// The brain-ish voxels of small_64D as signal vectors.

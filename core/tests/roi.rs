@@ -8,7 +8,9 @@ use glam::Vec3;
 use rand::{RngExt, SeedableRng};
 
 fn data(p: &str) -> std::path::PathBuf {
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(p)
+    std::path::Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join("..")
+        .join(p)
 }
 
 fn brute(t: &Tractogram, rois: &[Roi]) -> Vec<bool> {

@@ -4,7 +4,9 @@
 use std::path::PathBuf;
 
 pub fn data(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../data").join(rel)
+    PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join("../data")
+        .join(rel)
 }
 
 /// A float64 `.npy` array: (shape, C-order values).

@@ -11,10 +11,14 @@ use bevy::prelude::*;
 use fascicle_render::example::ExampleApp;
 use fascicle_sh_glyphs::{RayCastSettings, Selection, ShGlyphPlugin, ShGlyphs, SliceAxis};
 
-pub const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data");
+/// The repository's data folder: under the package's folder as cargo gives it at run time, else as it was
+/// when built.
+pub fn data() -> String {
+    format!("{}/../../data", std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+}
 
 fn main() -> AppExit {
-    app(ExampleApp::from_args("Fascicle: SH glyphs", DATA)).run()
+    app(ExampleApp::from_args("Fascicle: SH glyphs", &data())).run()
 }
 
 pub fn app(mut example: ExampleApp) -> ExampleApp {

@@ -22,7 +22,9 @@ const NEAR: f64 = 0.1;
 const RMAX: f64 = 2.5;
 
 fn data(rel: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data").join(rel)
+    PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join("../../data")
+        .join(rel)
 }
 
 /// The test glyphs (rmax `RMAX` each) and how each draws negative lobes.

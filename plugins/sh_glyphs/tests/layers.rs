@@ -29,7 +29,7 @@ fn gpu_skipped() -> bool {
 
 /// World centres of the voxels of z-slice `k` with signal (`c00 > 0`), read with the core reader.
 fn slice_centres(k: usize) -> Vec<Vec3> {
-    let (v, _) = fascicle_core::io::nifti::read::<f32>(format!("{}/{FIELD}", example::DATA)).unwrap();
+    let (v, _) = fascicle_core::io::nifti::read::<f32>(format!("{}/{FIELD}", example::data())).unwrap();
     let d = v.dims3();
     let mut out = Vec::new();
     for y in 0..d[1] {
@@ -47,7 +47,7 @@ fn the_example_draws_a_glyph_at_every_voxel_of_its_slice() {
     if gpu_skipped() {
         return;
     }
-    let mut ex = example::app(ExampleApp::offscreen(example::DATA, None));
+    let mut ex = example::app(ExampleApp::offscreen(&example::data(), None));
     let frame = ex.render().expect("offscreen render");
     let world = ex.app.world_mut();
     let centres = slice_centres(5);
@@ -75,7 +75,7 @@ fn my_app_shows_its_own_meshes_and_the_glyphs() {
     if gpu_skipped() {
         return;
     }
-    let mut ex = my_app::app(ExampleApp::offscreen(my_app::DATA, None));
+    let mut ex = my_app::app(ExampleApp::offscreen(&my_app::data(), None));
     let frame = ex.render().expect("offscreen render");
     let world = ex.app.world_mut();
     let (camera, at) = world.query::<(&Camera, &GlobalTransform)>().single(world).unwrap();
@@ -120,14 +120,14 @@ fn each_stage_touches_only_what_it_must() {
     if gpu_skipped() {
         return;
     }
-    let mut app = headless::headless_app_with_assets(Some(example::DATA));
+    let mut app = headless::headless_app_with_assets(Some(&example::data()));
     app.add_plugins(ShGlyphPlugin);
     headless::initialise(&mut app).expect("GPU adapter");
     let loaded: Handle<ShField> = app.world().resource::<AssetServer>().load(FIELD);
     let slice = |k| Selection::Slice { axis: SliceAxis::Z, index: Some(k), spacing: 1 };
     let a = app.world_mut().spawn((ShGlyphs { field: loaded }, slice(4))).id();
     // Layer b holds its own copy of the field, added from code (no file).
-    let (vol, _) = fascicle_core::io::nifti::read::<f32>(format!("{}/{FIELD}", example::DATA)).unwrap();
+    let (vol, _) = fascicle_core::io::nifti::read::<f32>(format!("{}/{FIELD}", example::data())).unwrap();
     let own = ShField::new(vol, Default::default()).unwrap();
     let own = app.world_mut().resource_mut::<Assets<ShField>>().add(own);
     let b = app.world_mut().spawn((ShGlyphs { field: own.clone() }, slice(6))).id();

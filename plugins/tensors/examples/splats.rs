@@ -15,7 +15,11 @@ use fascicle_core::dti::splat::{SplatColourMode, SplatColouring};
 use fascicle_render::example::ExampleApp;
 use fascicle_tensors::{Selection, SliceAxis, SplatSettings, SplatShape, TensorGlyphPlugin, TensorSplats};
 
-pub const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data");
+/// The repository's data folder: under the package's folder as cargo gives it at run time, else as it was
+/// when built.
+pub fn data() -> String {
+    format!("{}/../../data", std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+}
 
 /// Red fibres, green sheets, grey spheres; opacity peaks at the linear corner and fades towards the others.
 pub fn colouring() -> SplatColouring {
@@ -28,7 +32,7 @@ pub fn colouring() -> SplatColouring {
 }
 
 fn main() -> AppExit {
-    app(ExampleApp::from_args("Fascicle: tensor splats", DATA)).run()
+    app(ExampleApp::from_args("Fascicle: tensor splats", &data())).run()
 }
 
 pub fn app(mut example: ExampleApp) -> ExampleApp {

@@ -13,11 +13,15 @@ use fascicle_core::dti::glyph::TensorShape;
 use fascicle_render::example::ExampleApp;
 use fascicle_tensors::{Selection, SliceAxis, TensorColour, TensorGlyphPlugin, TensorGlyphSettings, TensorGlyphs};
 
-pub const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data");
+/// The repository's data folder: under the package's folder as cargo gives it at run time, else as it was
+/// when built.
+pub fn data() -> String {
+    format!("{}/../../data", std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+}
 pub const SUPERQUADRIC: TensorShape = TensorShape::Superquadric { gamma: 3.0 };
 
 fn main() -> AppExit {
-    app(ExampleApp::from_args("Fascicle: tensor glyphs", DATA)).run()
+    app(ExampleApp::from_args("Fascicle: tensor glyphs", &data())).run()
 }
 
 pub fn app(mut example: ExampleApp) -> ExampleApp {

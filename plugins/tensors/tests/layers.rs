@@ -37,7 +37,7 @@ fn gpu_skipped() -> bool {
 /// World centre, world principal direction and FA of each voxel of z-slice `k`, from the file read by the
 /// core reader and the core's eigensolver (the rotation is the affine's polar factor).
 fn slice_directions(k: usize) -> Vec<(Vec3, DVec3, f64)> {
-    let (v, _) = fascicle_core::io::nifti::read::<f64>(format!("{}/{FIELD}", glyph_example::DATA)).unwrap();
+    let (v, _) = fascicle_core::io::nifti::read::<f64>(format!("{}/{FIELD}", glyph_example::data())).unwrap();
     let (d, n) = (v.dims3(), v.n_voxels());
     let rot = fascicle_core::linalg::polar_rotation(DMat3::from_mat4(v.world_from_voxel));
     let mut out = Vec::new();
@@ -65,7 +65,7 @@ fn the_glyph_example_colours_each_glyph_by_its_principal_direction() {
     if gpu_skipped() {
         return;
     }
-    let mut ex = glyph_example::app(ExampleApp::offscreen(glyph_example::DATA, None));
+    let mut ex = glyph_example::app(ExampleApp::offscreen(&glyph_example::data(), None));
     let frame = ex.render().expect("offscreen render");
     let world = ex.app.world_mut();
     let voxels = slice_directions(5);
@@ -96,7 +96,7 @@ fn the_splat_example_matches_the_f64_compositor() {
     if gpu_skipped() {
         return;
     }
-    let mut ex = splat_example::app(ExampleApp::offscreen(splat_example::DATA, None));
+    let mut ex = splat_example::app(ExampleApp::offscreen(&splat_example::data(), None));
     // Exact output for the comparison: no tonemapping or dithering, float blending, no MSAA.
     ex.app.add_systems(PostStartup, |mut commands: Commands, cameras: Query<Entity, With<Camera3d>>| {
         for c in &cameras {
@@ -150,13 +150,13 @@ fn each_edit_of_a_tensor_layer_costs_what_it_changes() {
     if gpu_skipped() {
         return;
     }
-    let mut app = headless::headless_app_with_assets(Some(glyph_example::DATA));
+    let mut app = headless::headless_app_with_assets(Some(&glyph_example::data()));
     app.add_plugins(TensorGlyphPlugin);
     headless::initialise(&mut app).expect("GPU adapter");
     let server = app.world().resource::<AssetServer>().clone();
     let glyphs = app.world_mut().spawn(TensorGlyphs { field: server.load(FIELD) }).id();
     // The splats' field is added from code (a second asset: editing it must not touch the glyphs).
-    let (vol, _) = fascicle_core::io::nifti::read::<f32>(format!("{}/{FIELD}", glyph_example::DATA)).unwrap();
+    let (vol, _) = fascicle_core::io::nifti::read::<f32>(format!("{}/{FIELD}", glyph_example::data())).unwrap();
     let field = app.world_mut().resource_mut::<Assets<TensorField>>().add(TensorField::new(vol.clone()).unwrap());
     let splats = app.world_mut().spawn(TensorSplats { field: field.clone() }).id();
     let bad = app.world_mut().spawn(TensorGlyphs { field: server.load("sh/small_64D_csa_l6.nii.gz") }).id();

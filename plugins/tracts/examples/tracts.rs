@@ -15,7 +15,11 @@ use fascicle_core::roi::{Roi, RoiMode, RoiShape};
 use fascicle_render::example::ExampleApp;
 use fascicle_tracts::{TractPlugin, TractRoi, TractStyle, Tracts};
 
-pub const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data");
+/// The repository's data folder: under the package's folder as cargo gives it at run time, else as it was
+/// when built.
+pub fn data() -> String {
+    format!("{}/../../data", std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+}
 /// The streamlines span (64..116, 78..121, 61..92) mm (RAS+, `fascicle info`).
 pub const CENTRE: Vec3 = Vec3::new(90.0, 100.0, 77.0);
 /// Where the ROI starts: on the bundle, a fifth of the streamlines pass through.
@@ -23,7 +27,7 @@ pub const ROI_START: Vec3 = Vec3::new(94.0, 96.0, 84.0);
 pub const ROI_RADIUS: f32 = 6.0;
 
 fn main() -> AppExit {
-    app(ExampleApp::from_args("Fascicle: tracts and a draggable ROI", DATA)).run()
+    app(ExampleApp::from_args("Fascicle: tracts and a draggable ROI", &data())).run()
 }
 
 pub fn app(mut example: ExampleApp) -> ExampleApp {

@@ -144,6 +144,95 @@ pub struct TubeSet {
 #[derive(Component, Clone)]
 pub struct MeshSet {
     pub material: Handle<TractMeshMaterial>,
+    /// The whole set's mesh; the entity's [`Mesh3d`] holds it unless [`TractDetail`] shows the preview.
+    pub full: Handle<Mesh>,
+    /// A sparser mesh of the same set ([`preview_mesh`]; lines only), drawn while the view moves or parts
+    /// arrive when the whole scene is over [`TractDetail`]'s budget.
+    pub preview: Option<Handle<Mesh>>,
+}
+
+/// Level of detail of line sets, a resource. While a camera moves or tract sets are still arriving (a file
+/// streamed in parts), and the visible line sets hold more segments than the adapter's limit, every line set
+/// draws its preview ([`preview_mesh`]: one streamline in [`PREVIEW_STRIDE`], compressed to
+/// [`PREVIEW_TOLERANCE_MM`]); the whole sets return once the view has been still, and no set arrived, for
+/// `still_after`. Switching is a change of the entity's [`Mesh3d`] handle: nothing is rebuilt or uploaded.
+///
+/// Off by default (every frame draws every streamline: headless renders, tests); the viewer turns it on.
+#[derive(Resource, Clone, Debug, PartialEq)]
+pub struct TractDetail {
+    /// Whether previews are used at all (default false).
+    pub enabled: bool,
+    /// Visible line segments above which a software adapter draws previews while moving: default 1,000,000
+    /// (about 0.3 s a frame on lavapipe with 2 cores, which draws about 3.7M segments a second).
+    pub software_max_segments: usize,
+    /// The same on a hardware GPU: default 200,000,000 (an H200 draws 22M segments in 36 ms).
+    pub hardware_max_segments: usize,
+    /// How long the view stays still, and no set arrives, before the whole sets return (default 300 ms).
+    pub still_after: std::time::Duration,
+}
+
+impl Default for TractDetail {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            software_max_segments: 1_000_000,
+            hardware_max_segments: 200_000_000,
+            still_after: std::time::Duration::from_millis(300),
+        }
+    }
+}
+
+/// Whether line sets draw their previews: the view moved or a set arrived less than `still_after` ago, and
+/// the whole sets hold more than `limit` segments.
+pub fn use_previews(
+    since_activity: Option<std::time::Duration>,
+    still_after: std::time::Duration,
+    segments: usize,
+    limit: usize,
+) -> bool {
+    segments > limit && since_activity.is_some_and(|t| t < still_after)
+}
+
+/// Applies [`TractDetail`]: each mesh set with a preview draws it or its whole mesh. While previews are shown
+/// a redraw is requested every frame, so that the whole sets return once the view is still, and so on the
+/// frame that switches (a window drawn on demand would otherwise keep the last preview on screen).
+#[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's parameters")]
+fn tract_detail(
+    detail: Res<TractDetail>,
+    adapter: Option<Res<fascicle_render::AdapterKind>>,
+    time: Res<Time<bevy::time::Real>>,
+    moved: Query<(), (With<Camera3d>, Changed<GlobalTransform>)>,
+    added: Query<(), Added<MeshSet>>,
+    mut sets: Query<(&MeshSet, &LineSegments, &InheritedVisibility, &mut Mesh3d)>,
+    mut last_activity: Local<Option<std::time::Duration>>,
+    redraws: Option<ResMut<Messages<bevy::window::RequestRedraw>>>,
+) {
+    let now = time.elapsed();
+    if !moved.is_empty() || !added.is_empty() {
+        *last_activity = Some(now);
+    }
+    let software = adapter.is_some_and(|a| a.is_software());
+    let limit = if software { detail.software_max_segments } else { detail.hardware_max_segments };
+    let segments: usize =
+        sets.iter().filter(|(set, _, shown, _)| set.preview.is_some() && shown.get()).map(|(_, s, _, _)| s.0).sum();
+    let since = last_activity.map(|t| now.saturating_sub(t));
+    let coarse = detail.enabled && use_previews(since, detail.still_after, segments, limit);
+    let mut switched = false;
+    for (set, _, _, mut mesh) in &mut sets {
+        let want = match (&set.preview, coarse) {
+            (Some(preview), true) => preview,
+            _ => &set.full,
+        };
+        if mesh.0 != *want {
+            mesh.0 = want.clone();
+            switched = true;
+        }
+    }
+    if (coarse || switched)
+        && let Some(mut redraws) = redraws
+    {
+        redraws.write(bevy::window::RequestRedraw);
+    }
 }
 
 /// The line segments an entity's mesh draws: what [`LineMsaa`] weighs. Line-mesh sets carry it; an app that
@@ -328,7 +417,17 @@ impl Plugin for TractPlugin {
         app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
             .init_resource::<LineMsaa>()
-            .add_systems(PostUpdate, (apply_rois.in_set(TractSystems::Select), line_msaa, sync_slabs, warm_up));
+            .init_resource::<TractDetail>()
+            .add_systems(
+                PostUpdate,
+                (
+                    apply_rois.in_set(TractSystems::Select),
+                    line_msaa,
+                    tract_detail.after(bevy::transform::TransformSystems::Propagate).before(sync_slabs),
+                    sync_slabs,
+                    warm_up,
+                ),
+            );
         layer::build(app);
         app.add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
     }
@@ -500,8 +599,8 @@ pub enum PreparedGeometry {
     /// Hyperstreamlines: the packed tubelet buffer, their count, the settings they were made with, and the
     /// proxy boxes (8 vertices each; built here, off the main thread, not at spawn).
     Tubes { packed: Vec<u8>, n_tubelets: usize, settings: TubeSettings, boxes: Box<Mesh> },
-    /// Lines or polygon tubes.
-    Mesh(Box<Mesh>),
+    /// Lines or polygon tubes, and for lines the preview [`TractDetail`] may draw instead.
+    Mesh { mesh: Box<Mesh>, preview: Option<Box<Mesh>> },
 }
 
 impl PreparedTracts {
@@ -549,14 +648,15 @@ impl PreparedTracts {
     /// Lines compressed to [`LINE_TOLERANCE_MM`], coloured by `colour` at each vertex when given
     /// ([`line_mesh_coloured`]).
     pub fn lines_coloured(tractogram: Arc<Tractogram>, colour: Option<PointColour>) -> Self {
-        let mesh = line_mesh_coloured(&tractogram, colour, LINE_TOLERANCE_MM);
-        PreparedTracts::with(tractogram, PreparedGeometry::Mesh(Box::new(mesh)))
+        let mesh = Box::new(line_mesh_coloured(&tractogram, colour, LINE_TOLERANCE_MM));
+        let preview = Some(Box::new(preview_mesh(&tractogram, colour)));
+        PreparedTracts::with(tractogram, PreparedGeometry::Mesh { mesh, preview })
     }
 
     /// Polygon tubes, 16 sides per ring ([`polygon_tube_mesh`]).
     pub fn polygon_tubes(tractogram: Arc<Tractogram>, tensors: Option<&[[f32; 6]]>, scale: f64) -> Self {
-        let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
-        PreparedTracts::with(tractogram, PreparedGeometry::Mesh(Box::new(mesh)))
+        let mesh = Box::new(polygon_tube_mesh(&tractogram, tensors, scale, 16));
+        PreparedTracts::with(tractogram, PreparedGeometry::Mesh { mesh, preview: None })
     }
 }
 
@@ -590,7 +690,10 @@ pub fn spawn_prepared(
             let tubes = (&packed[..], n_tubelets, *boxes);
             spawn_tube_set(commands, meshes, tube_materials, buffers, target, tubes, settings)
         }
-        PreparedGeometry::Mesh(mesh) => spawn_mesh_set(commands, meshes, mesh_materials, target, *mesh, opacity),
+        PreparedGeometry::Mesh { mesh, preview } => {
+            let preview = preview.map(|p| meshes.add(*p));
+            spawn_mesh_set(commands, meshes, mesh_materials, target, (*mesh, preview), opacity)
+        }
     }
 }
 
@@ -629,19 +732,20 @@ fn spawn_mesh_set(
     meshes: &mut Assets<Mesh>,
     materials: &mut Assets<TractMeshMaterial>,
     (set, selection): (TractSet, TractSelection),
-    mesh: Mesh,
+    (mesh, preview): (Mesh, Option<Handle<Mesh>>),
     opacity: f32,
 ) -> Entity {
     let params = TractMeshUniform::whole(opacity);
     let material = materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
     let line_segments = line_segments(&mesh);
+    let full = meshes.add(mesh);
     commands
         .spawn((
             set,
             selection,
-            MeshSet { material: material.clone() },
+            MeshSet { material: material.clone(), full: full.clone(), preview },
             LineSegments(line_segments),
-            Mesh3d(meshes.add(mesh)),
+            Mesh3d(full),
             MeshMaterial3d(material),
             Transform::default(),
             Visibility::default(),
@@ -676,9 +780,9 @@ pub fn spawn_lines(
     tractogram: Arc<Tractogram>,
     opacity: f32,
 ) -> Entity {
-    let mesh = line_mesh(&tractogram);
+    let (mesh, preview) = (line_mesh(&tractogram), meshes.add(preview_mesh(&tractogram, None)));
     let target = tract_set(buffers, tractogram, LazyGrid::default());
-    spawn_mesh_set(commands, meshes, materials, target, mesh, opacity)
+    spawn_mesh_set(commands, meshes, materials, target, (mesh, Some(preview)), opacity)
 }
 
 /// Spawns a tractogram as polygon tubes (16 sides per ring, sections from the optional per-point world
@@ -696,7 +800,7 @@ pub fn spawn_polygon_tubes(
 ) -> Entity {
     let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
     let target = tract_set(buffers, tractogram, LazyGrid::default());
-    spawn_mesh_set(commands, meshes, materials, target, mesh, opacity)
+    spawn_mesh_set(commands, meshes, materials, target, (mesh, None), opacity)
 }
 
 /// A colour for a point of a streamline: (the streamline's index in its set, the world point) to linear RGB.
@@ -729,11 +833,29 @@ pub fn line_mesh(t: &Tractogram) -> Mesh {
 /// compact format of [`TractMeshMaterial`]: 20 bytes a point and 8 a segment (36 and 8 uncompressed with
 /// Bevy's standard attributes before).
 pub fn line_mesh_coloured(t: &Tractogram, colour: Option<PointColour>, tolerance_mm: f64) -> Mesh {
+    strided_line_mesh(t, colour, tolerance_mm, 1)
+}
+
+/// One streamline in this many is in a line set's preview ([`TractDetail`]).
+pub const PREVIEW_STRIDE: usize = 16;
+/// The compression tolerance of previews, mm: half a millimetre, about a pixel of a whole brain at 1080p.
+pub const PREVIEW_TOLERANCE_MM: f64 = 0.5;
+
+/// The preview of `t`'s lines: every [`PREVIEW_STRIDE`]-th streamline (the first, then every 16th), compressed
+/// to [`PREVIEW_TOLERANCE_MM`], in the format and colours of [`line_mesh_coloured`]; each vertex keeps its
+/// streamline's index in `t`, so ROI selection and opacity act on it as on the whole mesh. About 3 % of the
+/// whole mesh's segments (generated whole brain).
+pub fn preview_mesh(t: &Tractogram, colour: Option<PointColour>) -> Mesh {
+    strided_line_mesh(t, colour, PREVIEW_TOLERANCE_MM, PREVIEW_STRIDE)
+}
+
+/// [`line_mesh_coloured`] of every `stride`-th streamline.
+fn strided_line_mesh(t: &Tractogram, colour: Option<PointColour>, tolerance_mm: f64, stride: usize) -> Mesh {
     let compression = Compression { tolerance_mm, ..Compression::default() };
     let (mut pos, mut col, mut ids) = (Vec::new(), Vec::new(), Vec::new());
     let mut idx: Vec<u32> = Vec::new();
     let mut kept = Vec::new();
-    for (i, s) in t.iter().enumerate().filter(|(_, s)| s.len() >= 2) {
+    for (i, s) in t.iter().enumerate().step_by(stride.max(1)).filter(|(_, s)| s.len() >= 2) {
         kept.clear();
         kept_points(s, compression, &mut kept);
         let base = pos.len() as u32;
@@ -885,6 +1007,53 @@ pub fn selected_tractogram(set: &TractSet, selection: &TractSelection) -> Tracto
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A preview holds streamlines 0, 16, 32 of 40, each vertex one of that streamline's points, in fewer
+    /// segments than the whole mesh (a coarser tolerance), its ends kept.
+    #[test]
+    fn a_preview_is_every_sixteenth_streamline_more_compressed() {
+        let mut t = Tractogram::new();
+        for i in 0..40 {
+            let s: Vec<Vec3> = (0..60)
+                .map(|k| {
+                    let a = k as f32 * 0.1;
+                    Vec3::new(10.0 * a.cos() + i as f32, 10.0 * a.sin(), 0.5 * k as f32)
+                })
+                .collect();
+            t.push(&s);
+        }
+        let (full, preview) = (line_mesh(&t), preview_mesh(&t, None));
+        let ids = |m: &Mesh| match m.attribute(ATTRIBUTE_STREAMLINE) {
+            Some(VertexAttributeValues::Uint32(v)) => v.clone(),
+            _ => panic!("streamline ids"),
+        };
+        let pos = match preview.attribute(Mesh::ATTRIBUTE_POSITION) {
+            Some(VertexAttributeValues::Float32x3(v)) => v.clone(),
+            _ => panic!("positions"),
+        };
+        let mut kept: Vec<u32> = ids(&preview);
+        for (p, &i) in pos.iter().zip(&kept) {
+            assert!(t.streamline(i as usize).contains(&Vec3::from_array(*p)), "vertex {p:?} not on streamline {i}");
+        }
+        kept.dedup();
+        assert_eq!(kept, [0, 16, 32]);
+        for i in [0usize, 16, 32] {
+            let s = t.streamline(i);
+            assert!(pos.contains(&s[0].to_array()) && pos.contains(&s[s.len() - 1].to_array()), "ends of {i}");
+        }
+        let per_full = line_segments(&full) as f64 / 40.0;
+        let per_preview = line_segments(&preview) as f64 / 3.0;
+        assert!(per_preview < per_full, "preview {per_preview} segments a streamline, whole {per_full}");
+    }
+
+    #[test]
+    fn previews_only_while_active_and_over_the_limit() {
+        let ms = std::time::Duration::from_millis;
+        assert!(use_previews(Some(ms(100)), ms(300), 2_000_000, 1_000_000));
+        assert!(!use_previews(Some(ms(300)), ms(300), 2_000_000, 1_000_000), "still for still_after");
+        assert!(!use_previews(None, ms(300), 2_000_000, 1_000_000), "nothing ever moved");
+        assert!(!use_previews(Some(ms(0)), ms(300), 1_000_000, 1_000_000), "within the limit");
+    }
 
     /// A tubelet's end colours are the colour function at its streamline's two points (here the colour is
     /// the point itself and the streamline's index).

@@ -128,3 +128,80 @@ fn polygon_tubes_follow_the_selection_and_are_shaded() {
     println!("tube green: centre {centre}, 4 px out {edge}");
     assert!(centre >= 235 && edge + 10 < centre && edge > 120, "centre {centre}, edge {edge}");
 }
+
+/// 17 straight streamlines along y, 1 mm apart (x = -8..8): the preview ([`PREVIEW_STRIDE`] = 16) holds the
+/// first and the last.
+fn fan() -> Tractogram {
+    let mut t = Tractogram::new();
+    for i in 0..17 {
+        for k in 0..9 {
+            t.points.push(Vec3::new(i as f32 - 8.0, -8.0 + 2.0 * k as f32, 0.0));
+        }
+        t.offsets.push(t.points.len());
+    }
+    t
+}
+
+/// Columns of the image with a lit pixel on row 60.
+fn lit_columns(c: &headless::Capture) -> Vec<u32> {
+    (0..W).filter(|&x| c.pixel(x, 60)[..3].iter().any(|&v| v > 40)).collect()
+}
+
+#[test]
+fn line_previews_draw_while_the_view_moves_and_the_whole_set_returns_when_still() {
+    use bevy::time::TimeUpdateStrategy;
+    use fascicle_tracts::{MeshSet, PREVIEW_STRIDE, TractDetail};
+    assert_eq!(PREVIEW_STRIDE, 16);
+    let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
+    app.add_plugins(TractPlugin);
+    // Every line set is over the limit; time stands still, so the set's arrival stays recent.
+    let detail = TractDetail {
+        enabled: true,
+        software_max_segments: 0,
+        hardware_max_segments: 0,
+        still_after: std::time::Duration::from_millis(300),
+    };
+    app.insert_resource(detail).insert_resource(TimeUpdateStrategy::ManualDuration(std::time::Duration::ZERO));
+    app.add_systems(
+        Startup,
+        |mut commands: Commands,
+         mut meshes: ResMut<Assets<Mesh>>,
+         mut materials: ResMut<Assets<TractMeshMaterial>>,
+         mut buffers: ResMut<Assets<ShaderBuffer>>| {
+            spawn_lines(&mut commands, &mut meshes, &mut materials, &mut buffers, Arc::new(fan()), 1.0);
+        },
+    );
+    headless::spawn_test_camera(&mut app, target.clone(), Vec3::new(0.0, 0.0, EYE_Z), Vec3::ZERO);
+    let moving = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
+    let shown = |app: &mut App| {
+        let mut q = app.world_mut().query::<(&MeshSet, &Mesh3d)>();
+        let (set, mesh) = q.single(app.world()).expect("one line set");
+        (mesh.0 == set.full, set.preview.as_ref() == Some(&mesh.0))
+    };
+    assert_eq!(shown(&mut app), (false, true), "the preview is drawn while the set has just arrived");
+    let cols = lit_columns(&moving);
+    // Lines at x = -8 and x = 8 only: two runs of columns near their projections.
+    let near = |x: f32, c: u32| (c as f32 - column(x)).abs() <= 2.0;
+    assert!(!cols.is_empty() && cols.iter().all(|&c| near(-8.0, c) || near(8.0, c)), "preview columns {cols:?}");
+    assert!(cols.iter().any(|&c| near(-8.0, c)) && cols.iter().any(|&c| near(8.0, c)), "{cols:?}");
+
+    // Time passes with the view still: the whole set returns, the same mesh handles, nothing rebuilt.
+    app.insert_resource(TimeUpdateStrategy::ManualDuration(std::time::Duration::from_millis(400)));
+    app.update();
+    app.insert_resource(TimeUpdateStrategy::ManualDuration(std::time::Duration::ZERO));
+    let still = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(shown(&mut app), (true, false), "the whole set is drawn once the view is still");
+    let cols = lit_columns(&still);
+    for i in 0..17 {
+        let x = i as f32 - 8.0;
+        assert!(cols.iter().any(|&c| near(x, c)), "line at x = {x} missing when still: {cols:?}");
+    }
+
+    // The camera moves: previews again.
+    let mut cams = app.world_mut().query_filtered::<&mut Transform, With<Camera3d>>();
+    for mut t in cams.iter_mut(app.world_mut()) {
+        t.translation.x += 0.001;
+    }
+    app.update();
+    assert_eq!(shown(&mut app), (false, true), "the preview is drawn while the camera moves");
+}

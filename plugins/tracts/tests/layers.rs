@@ -88,10 +88,10 @@ fn the_example_shows_the_streamlines_through_the_roi_as_it_moves() {
     if gpu_skipped() {
         return;
     }
-    let mut ex = example::app(ExampleApp::offscreen(example::DATA, None));
+    let mut ex = example::app(ExampleApp::offscreen(&example::data(), None));
     let frame = ex.render().expect("offscreen render");
     // The streamlines as the core reads them (independently of the plugin's loader).
-    let t = Tractogram::read(format!("{}/tracts/tracks300.trk", example::DATA)).unwrap();
+    let t = Tractogram::read(format!("{}/tracts/tracks300.trk", example::data())).unwrap();
     let world = ex.app.world_mut();
     let layer = world.query_filtered::<Entity, With<Tracts>>().single(world).unwrap();
     assert_eq!(world.get::<LayerStatus>(layer).unwrap(), &LayerStatus::Ready { items: 300 });
@@ -134,7 +134,7 @@ fn a_style_change_rebuilds_that_layer_only_and_bad_files_fail_visibly() {
     if gpu_skipped() {
         return;
     }
-    let mut app = headless::headless_app_with_assets(Some(example::DATA));
+    let mut app = headless::headless_app_with_assets(Some(&example::data()));
     app.add_plugins(TractPlugin);
     headless::initialise(&mut app).expect("GPU adapter");
     let server = app.world().resource::<AssetServer>().clone();

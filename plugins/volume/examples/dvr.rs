@@ -15,7 +15,11 @@ use fascicle_render::example::ExampleApp;
 use fascicle_tensors::{Selection, SliceAxis, TensorGlyphPlugin, TensorGlyphShape, TensorGlyphs};
 use fascicle_volume::{VolumeLayer, VolumeMethod, VolumePlugin, VolumeSettings};
 
-pub const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../data");
+/// The repository's data folder: under the package's folder as cargo gives it at run time, else as it was
+/// when built.
+pub fn data() -> String {
+    format!("{}/../../data", std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+}
 
 /// FA from 0.1 (transparent) to 0.8: blue to orange, opacity growing with FA.
 pub fn settings() -> VolumeSettings {
@@ -31,7 +35,7 @@ pub fn settings() -> VolumeSettings {
 }
 
 fn main() -> AppExit {
-    app(ExampleApp::from_args("Fascicle: volume and glyphs", DATA)).run()
+    app(ExampleApp::from_args("Fascicle: volume and glyphs", &data())).run()
 }
 
 pub fn app(mut example: ExampleApp) -> ExampleApp {

@@ -38,7 +38,7 @@ fn the_dvr_example_composites_the_volume_with_its_glyphs() {
     if gpu_skipped() {
         return;
     }
-    let mut ex = example::app(ExampleApp::offscreen(example::DATA, None));
+    let mut ex = example::app(ExampleApp::offscreen(&example::data(), None));
     // Exact output for the comparison: no tonemapping or dithering, float blending.
     ex.app.add_systems(PostStartup, |mut commands: Commands, cameras: Query<Entity, With<Camera3d>>| {
         for c in &cameras {
@@ -60,7 +60,8 @@ fn the_dvr_example_composites_the_volume_with_its_glyphs() {
     let (w, h) = (alone.width, alone.height);
 
     // The volume alone against the f64 marcher (FA read by the core reader).
-    let (fa, _) = fascicle_core::io::nifti::read::<f32>(format!("{}/dti/small_64D_fa.nii.gz", example::DATA)).unwrap();
+    let (fa, _) =
+        fascicle_core::io::nifti::read::<f32>(format!("{}/dti/small_64D_fa.nii.gz", example::data())).unwrap();
     let s = example::settings();
     let pinhole = PinholeCamera {
         eye: at.translation().as_dvec3(),
@@ -125,7 +126,7 @@ fn each_edit_of_a_volume_layer_costs_what_it_changes() {
     if gpu_skipped() {
         return;
     }
-    let mut app = headless::headless_app_with_assets(Some(example::DATA));
+    let mut app = headless::headless_app_with_assets(Some(&example::data()));
     app.add_plugins(VolumePlugin);
     headless::initialise(&mut app).expect("GPU adapter");
     let server = app.world().resource::<AssetServer>().clone();
