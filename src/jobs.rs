@@ -23,7 +23,7 @@ use crate::cache::DataCache;
 use crate::scene::{
     LayerKind, ShSource, SliceAxis, TensorSource, TractColouring, TractMode, TractSource, VolumeSource,
 };
-use fascicle_tracts::PreparedTracts;
+use fascicle_tracts::{LineDetail, PreparedTracts};
 
 /// A job's stage, progress and cancel flag, shared between the job and the panel that shows it, and the parts
 /// of its content it has delivered so far ([`Content::Streamed`]).
@@ -168,7 +168,7 @@ impl Content {
             Content::ShGlyphs(placed) => placed.0.len(),
             Content::TensorGlyphs { glyphs, .. } => glyphs.len(),
             Content::Splats(s) => s.len(),
-            Content::Tracts(t) => t.tractogram.n_streamlines(),
+            Content::Tracts(t) => t.n_streamlines,
             Content::Volume { volume, .. } => volume.n_voxels(),
             Content::Slice { image, .. } => (image.width() * image.height()) as usize,
             Content::Axes { .. } => 3,
@@ -326,13 +326,17 @@ pub const LINE_PART_POINTS: usize = 2_000_000;
 /// A tractogram file as lines, read and drawn part by part: the file is streamed in parts of whole
 /// streamlines (at most [`LINE_PART_POINTS`] points), a batch of parts (one per job thread) is read and then
 /// built in parallel, and each part is delivered to be drawn while the rest is read. The whole tractogram is
-/// never held twice (nor the file's bytes): its points live in the parts alone. One part is returned as it
-/// is; more go through [`JobProgress::parts`].
+/// never held (nor the file's bytes): a part's points are let go once its lines are made
+/// ([`PreparedTracts::drawn_only`]; a tractogram layer only shows the file, ROIs act on tract layers, which
+/// keep theirs). One part is returned as it is; more go through [`JobProgress::parts`].
 fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> {
     use fascicle_core::io::stream::TractogramReader;
     use rayon::prelude::*;
     let mut reader = TractogramReader::open(path).map_err(|e| e.to_string())?;
     progress.stage("reading the streamlines", reader.header().file_bytes as usize)?;
+    // About 12 bytes a point in a .tck or .trk; a TRX header says.
+    let header = reader.header();
+    let detail = LineDetail::for_points(header.points.map_or(header.file_bytes / 12, |p| p as u64));
     let batch = rayon::current_num_threads().max(1);
     let (mut items, mut done) = (0, 0);
     loop {
@@ -348,8 +352,10 @@ fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> 
             return Err(CANCELLED.into());
         }
         let ended = chunks.len() < batch;
-        let mut parts: Vec<Content> =
-            chunks.into_par_iter().map(|t| Content::Tracts(PreparedTracts::lines(t))).collect();
+        let mut parts: Vec<Content> = chunks
+            .into_par_iter()
+            .map(|t| Content::Tracts(PreparedTracts::lines_in_detail(t, None, detail).drawn_only()))
+            .collect();
         if ended && items == 0 && parts.len() == 1 {
             return Ok(parts.remove(0));
         }
@@ -1587,11 +1593,59 @@ mod tests {
         let mut streamlines = 0;
         while let Some(part) = progress.parts.pop() {
             let Content::Tracts(p) = part else { panic!("a part that is not tracts") };
-            assert!(p.tractogram.points.len() <= PART_POINTS);
-            streamlines += p.tractogram.n_streamlines();
+            let t = p.tractogram.expect("a tract layer's part keeps its streamlines");
+            assert!(t.points.len() <= PART_POINTS);
+            streamlines += t.n_streamlines();
         }
         assert_eq!(streamlines, big.n_streamlines());
         std::fs::remove_file(path).ok();
+    }
+
+    /// A tractogram layer streams its file in parts of at most [`LINE_PART_POINTS`] points, each part drawn only
+    /// (its points let go once its lines are made): every streamline arrives once, in order of the parts' counts,
+    /// and each part's lines hold exactly the segments of its streamlines compressed to the line tolerance.
+    #[test]
+    fn tractogram_layers_stream_their_file_and_keep_no_points() {
+        use fascicle_core::compress::{Compression, compress};
+        use fascicle_tracts::{LINE_TOLERANCE_MM, PreparedGeometry, line_segments};
+        let segments = |t: &Tractogram| {
+            let c = compress(t, Compression { tolerance_mm: LINE_TOLERANCE_MM, ..Compression::default() });
+            c.iter().map(|s| s.len() - 1).sum::<usize>()
+        };
+        let check = |content: Content| -> (usize, usize) {
+            let Content::Tracts(p) = content else { panic!("a part that is not tracts") };
+            assert!(p.tractogram.is_none(), "a tractogram layer's part kept its points");
+            let PreparedGeometry::Mesh { mesh, preview } = p.geometry else { panic!("not lines") };
+            assert!(preview.is_some(), "lines without a preview");
+            (p.n_streamlines, line_segments(&mesh))
+        };
+        // One part: DIPY's 300 streamlines.
+        let path = data("tracts/tracks300.trk");
+        let t = Tractogram::read(&path).unwrap();
+        let one = build(&LayerKind::Tractogram { path }, &DataCache::default(), &JobProgress::default()).unwrap();
+        assert_eq!(check(one), (t.n_streamlines(), segments(&t)));
+
+        // Several parts: 2.4M points on wavy lines.
+        let mut big = Tractogram::new();
+        for k in 0..24_000 {
+            let s: Vec<Vec3> = (0..100)
+                .map(|i| Vec3::new(k as f32 * 0.01, i as f32 * 0.5, (i as f32 * 0.3 + k as f32).sin()))
+                .collect();
+            big.push(&s);
+        }
+        let path = std::env::temp_dir().join(format!("fascicle-stream-lines-{}.tck", std::process::id()));
+        fascicle_core::io::tck::write(&path, &big, &[]).unwrap();
+        let progress = JobProgress::default();
+        let content = build(&LayerKind::Tractogram { path: path.clone() }, &DataCache::default(), &progress);
+        std::fs::remove_file(&path).ok();
+        assert!(matches!(content, Ok(Content::Streamed { items }) if items == big.n_streamlines()));
+        let (mut streamlines, mut lines, mut parts) = (0, 0, 0);
+        while let Some(part) = progress.parts.pop() {
+            let (n, l) = check(part);
+            (streamlines, lines, parts) = (streamlines + n, lines + l, parts + 1);
+        }
+        assert!(parts >= 2, "{parts} parts");
+        assert_eq!((streamlines, lines), (big.n_streamlines(), segments(&big)));
     }
 
     /// Tract colourings, checked on the line mesh a layer's job builds: every vertex of a streamline takes the

@@ -24,8 +24,7 @@ use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph
 use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
 use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
 use fascicle_tracts::{
-    MeshSet, PreparedGeometry, TractMeshMaterial, TractPlugin, TractRoi, TractSet, TubeSet, TubeletMaterial,
-    spawn_prepared,
+    MeshSet, PreparedGeometry, TractMeshMaterial, TractPlugin, TractRoi, TubeSet, TubeletMaterial, spawn_prepared,
 };
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume_texture};
 
@@ -470,7 +469,7 @@ fn spawn_rois(commands: &mut Commands, rois: &[fascicle_core::roi::Roi], index: 
     }
 }
 
-/// A tract set's tubes or mesh, and its layer.
+/// A tract set's tubes or mesh (either or neither: every layer entity matches), and its layer.
 type TractParts = (Option<&'static TubeSet>, Option<&'static MeshSet>, &'static LayerEntity);
 
 /// Settings edits of layers whose content stays: uniform writes, style buffers, ROI entities, opacity.
@@ -481,7 +480,7 @@ fn restyle_layers(
     mut glyph_sets: Query<(&mut ShGlyphSet, &LayerEntity)>,
     mut splat_sets: Query<(&mut SplatSet, &LayerEntity)>,
     tensor_sets: Query<(&TensorGlyphSet, &LayerEntity)>,
-    tract_sets: Query<TractParts, With<TractSet>>,
+    tract_sets: Query<TractParts>,
     rois: Query<(Entity, &LayerEntity), With<TractRoi>>,
     layer_entities: Query<(Entity, &LayerEntity), With<SceneLayer>>,
     volume_sets: Query<(&VolumeSet, &LayerEntity)>,

@@ -101,8 +101,8 @@ fn commands_stream_a_large_tractogram_in_bounded_memory() {
     }
 
     // `fascicle view` opens a tractogram as lines: the renderer draws it streamed (5 parts of at most 2M points),
-    // compressed, in one frame once loaded. The file's 120 MB of points are held once; the bound leaves room
-    // for the renderer and the software rasteriser (measured 600-700 MiB at 640x360).
+    // compressed, in one frame once loaded. Each part's points are let go once its lines are made; the bound
+    // leaves room for the renderer and the software rasteriser (measured 600-700 MiB at 640x360).
     let scene = dir.join("lines.ron");
     let png = dir.join("lines.png");
     std::fs::write(

@@ -194,8 +194,9 @@ pub fn use_previews(
 }
 
 /// Applies [`TractDetail`]: each mesh set with a preview draws it or its whole mesh. While previews are shown
-/// a redraw is requested every frame, so that the whole sets return once the view is still, and so on the
-/// frame that switches (a window drawn on demand would otherwise keep the last preview on screen).
+/// a redraw is requested every frame, so that a window drawn on demand reaches the frame that finds the view
+/// still; that frame draws the whole sets (their meshes are uploaded already) and asks for no other, since on
+/// a software adapter a whole-brain frame takes seconds, and as much memory again while it is drawn.
 #[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's parameters")]
 fn tract_detail(
     detail: Res<TractDetail>,
@@ -217,7 +218,6 @@ fn tract_detail(
         sets.iter().filter(|(set, _, shown, _)| set.preview.is_some() && shown.get()).map(|(_, s, _, _)| s.0).sum();
     let since = last_activity.map(|t| now.saturating_sub(t));
     let coarse = detail.enabled && use_previews(since, detail.still_after, segments, limit);
-    let mut switched = false;
     for (set, _, _, mut mesh) in &mut sets {
         let want = match (&set.preview, coarse) {
             (Some(preview), true) => preview,
@@ -225,12 +225,9 @@ fn tract_detail(
         };
         if mesh.0 != *want {
             mesh.0 = want.clone();
-            switched = true;
         }
     }
-    if (coarse || switched)
-        && let Some(mut redraws) = redraws
-    {
+    if coarse && let Some(mut redraws) = redraws {
         redraws.write(bevy::window::RequestRedraw);
     }
 }
@@ -589,7 +586,11 @@ pub fn tract_tubelets(t: &Tractogram, tensors: Option<&[[f32; 6]]>, settings: &T
 /// for the chosen style, the packed tubelets or the mesh, and (with [`PreparedTracts::with_grid`]) the segment
 /// grid of the selection.
 pub struct PreparedTracts {
-    pub tractogram: Arc<Tractogram>,
+    /// The streamlines, kept for ROI selection ([`TractSet`]); None once [`PreparedTracts::drawn_only`] let them
+    /// go.
+    pub tractogram: Option<Arc<Tractogram>>,
+    /// How many streamlines the set draws.
+    pub n_streamlines: usize,
     pub grid: LazyGrid,
     pub geometry: PreparedGeometry,
 }
@@ -605,13 +606,24 @@ pub enum PreparedGeometry {
 
 impl PreparedTracts {
     fn with(tractogram: Arc<Tractogram>, geometry: PreparedGeometry) -> Self {
-        PreparedTracts { grid: LazyGrid::default(), tractogram, geometry }
+        let n_streamlines = tractogram.n_streamlines();
+        PreparedTracts { grid: LazyGrid::default(), tractogram: Some(tractogram), n_streamlines, geometry }
     }
 
     /// With the segment grid built now (for a layer with ROIs: not on the main thread at the first selection).
     pub fn with_grid(self) -> Self {
-        self.grid.get(&self.tractogram);
+        if let Some(t) = &self.tractogram {
+            self.grid.get(t);
+        }
         self
+    }
+
+    /// Without its streamlines: the set is drawn (and its opacity, colours and level of detail work as
+    /// before) but spawns no [`TractSet`], so ROIs do not act on it, and the points are freed as soon as the
+    /// geometry is made (a whole-brain tractogram's 1.2 GB per million streamlines, which a layer that only
+    /// shows a file does not need).
+    pub fn drawn_only(self) -> Self {
+        PreparedTracts { tractogram: None, grid: LazyGrid::default(), ..self }
     }
 
     /// Hyperstreamlines (optional per-point world tensors give the sections).
@@ -646,11 +658,16 @@ impl PreparedTracts {
     }
 
     /// Lines compressed to [`LINE_TOLERANCE_MM`], coloured by `colour` at each vertex when given
-    /// ([`line_mesh_coloured`]).
+    /// ([`line_mesh_coloured`]), with their preview ([`preview_mesh`]).
     pub fn lines_coloured(tractogram: Arc<Tractogram>, colour: Option<PointColour>) -> Self {
-        let mesh = Box::new(line_mesh_coloured(&tractogram, colour, LINE_TOLERANCE_MM));
-        let preview = Some(Box::new(preview_mesh(&tractogram, colour)));
-        PreparedTracts::with(tractogram, PreparedGeometry::Mesh { mesh, preview })
+        PreparedTracts::lines_in_detail(tractogram, colour, LineDetail::default())
+    }
+
+    /// [`PreparedTracts::lines_coloured`] at the tolerance and preview stride of `detail`.
+    pub fn lines_in_detail(tractogram: Arc<Tractogram>, colour: Option<PointColour>, detail: LineDetail) -> Self {
+        let mesh = Box::new(line_mesh_coloured(&tractogram, colour, detail.tolerance_mm));
+        let preview = strided_line_mesh(&tractogram, colour, PREVIEW_TOLERANCE_MM, detail.preview_stride);
+        PreparedTracts::with(tractogram, PreparedGeometry::Mesh { mesh, preview: Some(Box::new(preview)) })
     }
 
     /// Polygon tubes, 16 sides per ring ([`polygon_tube_mesh`]).
@@ -660,16 +677,25 @@ impl PreparedTracts {
     }
 }
 
-/// The selection target of a tractogram: its segment grid and a flag buffer with every streamline selected.
-fn tract_set(
-    buffers: &mut Assets<ShaderBuffer>,
-    tractogram: Arc<Tractogram>,
-    grid: LazyGrid,
-) -> (TractSet, TractSelection) {
-    let n_streamlines = tractogram.n_streamlines();
+/// The flag buffer of `n_streamlines` streamlines, every one selected.
+fn all_selected(buffers: &mut Assets<ShaderBuffer>, n_streamlines: usize) -> Handle<ShaderBuffer> {
     let flags = [1u8, 0, 0, 0].repeat(n_streamlines.max(1));
-    let selected = buffers.add(ShaderBuffer::new(&flags, RenderAssetUsages::default()));
-    (TractSet { tractogram, grid, selected }, TractSelection(vec![true; n_streamlines]))
+    buffers.add(ShaderBuffer::new(&flags, RenderAssetUsages::default()))
+}
+
+/// What a set's shaders read of its selection (the flag buffer) and, for a set that keeps its streamlines,
+/// the selection target ROIs act on.
+struct Selection {
+    flags: Handle<ShaderBuffer>,
+    target: Option<(TractSet, TractSelection)>,
+}
+
+/// The selection of a tractogram: every streamline selected, its segment grid `grid`.
+fn tract_set(buffers: &mut Assets<ShaderBuffer>, tractogram: Arc<Tractogram>, grid: LazyGrid) -> Selection {
+    let n_streamlines = tractogram.n_streamlines();
+    let flags = all_selected(buffers, n_streamlines);
+    let set = TractSet { tractogram, grid, selected: flags.clone() };
+    Selection { flags, target: Some((set, TractSelection(vec![true; n_streamlines]))) }
 }
 
 /// Spawns prepared tracts (tubes, lines or polygon tubes); `opacity` applies to meshes. Returns the set's
@@ -683,8 +709,11 @@ pub fn spawn_prepared(
     prepared: PreparedTracts,
     opacity: f32,
 ) -> Entity {
-    let PreparedTracts { tractogram, grid, geometry } = prepared;
-    let target = tract_set(buffers, tractogram, grid);
+    let PreparedTracts { tractogram, n_streamlines, grid, geometry } = prepared;
+    let target = match tractogram {
+        Some(t) => tract_set(buffers, t, grid),
+        None => Selection { flags: all_selected(buffers, n_streamlines), target: None },
+    };
     match geometry {
         PreparedGeometry::Tubes { packed, n_tubelets, settings, boxes } => {
             let tubes = (&packed[..], n_tubelets, *boxes);
@@ -704,22 +733,23 @@ fn spawn_tube_set(
     meshes: &mut Assets<Mesh>,
     materials: &mut Assets<TubeletMaterial>,
     buffers: &mut Assets<ShaderBuffer>,
-    (set, selection): (TractSet, TractSelection),
+    selection: Selection,
     (packed, n_tubelets, proxies): (&[u8], usize, Mesh),
     settings: TubeSettings,
 ) -> Entity {
     let material = materials.add(TubeletMaterial {
         params: (&settings).into(),
         tubes: buffers.add(ShaderBuffer::new(packed, RenderAssetUsages::RENDER_WORLD)),
-        selected: set.selected.clone(),
+        selected: selection.flags,
     });
     let mut e = commands.spawn((
-        set,
-        selection,
         TubeSet { material: material.clone(), n_tubelets, settings },
         Transform::default(),
         Visibility::default(),
     ));
+    if let Some(target) = selection.target {
+        e.insert(target);
+    }
     if n_tubelets > 0 {
         e.insert((Mesh3d(meshes.add(proxies)), MeshMaterial3d(material), NoFrustumCulling));
     }
@@ -731,26 +761,26 @@ fn spawn_mesh_set(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
     materials: &mut Assets<TractMeshMaterial>,
-    (set, selection): (TractSet, TractSelection),
+    selection: Selection,
     (mesh, preview): (Mesh, Option<Handle<Mesh>>),
     opacity: f32,
 ) -> Entity {
     let params = TractMeshUniform::whole(opacity);
-    let material = materials.add(TractMeshMaterial { params, selected: set.selected.clone() });
+    let material = materials.add(TractMeshMaterial { params, selected: selection.flags });
     let line_segments = line_segments(&mesh);
     let full = meshes.add(mesh);
-    commands
-        .spawn((
-            set,
-            selection,
-            MeshSet { material: material.clone(), full: full.clone(), preview },
-            LineSegments(line_segments),
-            Mesh3d(full),
-            MeshMaterial3d(material),
-            Transform::default(),
-            Visibility::default(),
-        ))
-        .id()
+    let mut e = commands.spawn((
+        MeshSet { material: material.clone(), full: full.clone(), preview },
+        LineSegments(line_segments),
+        Mesh3d(full),
+        MeshMaterial3d(material),
+        Transform::default(),
+        Visibility::default(),
+    ));
+    if let Some(target) = selection.target {
+        e.insert(target);
+    }
+    e.id()
 }
 
 /// Spawns a tractogram as hyperstreamlines (optional per-point world tensors give the sections); returns
@@ -840,6 +870,44 @@ pub fn line_mesh_coloured(t: &Tractogram, colour: Option<PointColour>, tolerance
 pub const PREVIEW_STRIDE: usize = 16;
 /// The compression tolerance of previews, mm: half a millimetre, about a pixel of a whole brain at 1080p.
 pub const PREVIEW_TOLERANCE_MM: f64 = 0.5;
+
+/// How finely a tractogram's lines are drawn: the compression tolerance of the whole lines and the stride of
+/// their preview. A tractogram larger than this machine's memory allows at full detail is drawn coarser
+/// ([`LineDetail::for_points`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LineDetail {
+    /// Compression tolerance of the whole lines, mm (default [`LINE_TOLERANCE_MM`], 0.1).
+    pub tolerance_mm: f64,
+    /// One streamline in this many is in the preview (default [`PREVIEW_STRIDE`], 16).
+    pub preview_stride: usize,
+}
+
+impl Default for LineDetail {
+    fn default() -> Self {
+        Self { tolerance_mm: LINE_TOLERANCE_MM, preview_stride: PREVIEW_STRIDE }
+    }
+}
+
+/// Points of a tractogram drawn at the default detail: 230M (2.3M streamlines of 100 points), about 50M line
+/// segments at 0.1 mm (1.4 GB of vertices and indices). Above, lines are compressed to 0.5 mm.
+pub const FULL_DETAIL_POINTS: u64 = 230_000_000;
+/// Line segments a preview aims at, whatever the tractogram's size (a frame of about 0.4 s on lavapipe).
+pub const PREVIEW_SEGMENTS: u64 = 1_500_000;
+
+impl LineDetail {
+    /// The detail for a tractogram of about `points` points (a header's count, or a file's size over 12
+    /// bytes): the default up to [`FULL_DETAIL_POINTS`]; above, whole lines compressed to
+    /// [`PREVIEW_TOLERANCE_MM`] (about half the segments of 0.1 mm: 10M streamlines in about 3 GB) and a
+    /// preview stride that keeps the preview near [`PREVIEW_SEGMENTS`] (0.5 mm keeps about 11 % of the points
+    /// of a whole-brain tractogram at 1 mm steps).
+    pub fn for_points(points: u64) -> Self {
+        if points <= FULL_DETAIL_POINTS {
+            return Self::default();
+        }
+        let preview_stride = (points * 11 / 100).div_ceil(PREVIEW_SEGMENTS).max(PREVIEW_STRIDE as u64);
+        Self { tolerance_mm: PREVIEW_TOLERANCE_MM, preview_stride: preview_stride as usize }
+    }
+}
 
 /// The preview of `t`'s lines: every [`PREVIEW_STRIDE`]-th streamline (the first, then every 16th), compressed
 /// to [`PREVIEW_TOLERANCE_MM`], in the format and colours of [`line_mesh_coloured`]; each vertex keeps its
