@@ -41,7 +41,7 @@ impl Plugin for FascicleRenderPlugin {
         if app.world().contains_resource::<RenderBaseAdded>() {
             return;
         }
-        app.init_resource::<RenderBaseAdded>();
+        app.init_resource::<RenderBaseAdded>().init_resource::<Unsettled>();
         let adapter = AdapterKind::default();
         app.insert_resource(adapter.clone());
         if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
@@ -49,6 +49,25 @@ impl Plugin for FascicleRenderPlugin {
         }
         shaders::register(app, "fascicle-render", &shaders::SOURCES);
         app.add_plugins((MaterialPlugin::<impostor::SphereImpostorMaterial>::default(), headless::DepthCopyPlugin));
+    }
+}
+
+/// Requests for more frames from systems whose picture is transient and settles over the next frames (tract
+/// previews while the view moves): a window drawn on demand keeps drawing at its busy rate while frames set it
+/// ([`on_demand`] takes it every frame); other apps draw every frame anyway. Unlike a `RequestRedraw` message,
+/// which Bevy's winit runner reads in the two updates after it is written, a request asks for no frame beyond
+/// the next.
+#[derive(Resource, Default, Debug)]
+pub struct Unsettled(bool);
+
+impl Unsettled {
+    /// The picture is not settled: draw the next frame.
+    pub fn request(&mut self) {
+        self.0 = true;
+    }
+    /// Whether a frame asked since the last call (clearing it).
+    pub fn take(&mut self) -> bool {
+        std::mem::take(&mut self.0)
     }
 }
 

@@ -5,7 +5,8 @@
 //!   frames after input or a [`KeepAwake::redraw`] request (a change shown in one frame can need the next, such
 //!   as a mesh uploaded after the frame that spawned it);
 //! - every [`DrawOnDemand::busy_wait`] while something progresses in the background: a plugin layer whose data
-//!   is still loading ([`LayerStatus::Loading`]), or whatever the app marks with [`KeepAwake::busy`] (a fit,
+//!   is still loading ([`LayerStatus::Loading`]), a plugin's picture that has not settled
+//!   ([`crate::Unsettled`]: tract previews), or whatever the app marks with [`KeepAwake::busy`] (a fit,
 //!   tracking, a file dialog), so progress bars move and streamed parts appear;
 //! - otherwise not until the next input event ([`IDLE_WAIT`], an hour, stands for never).
 //!
@@ -94,13 +95,22 @@ impl Plugin for DrawOnDemandPlugin {
         let pending = PendingPipelines::default();
         app.init_resource::<DrawOnDemand>()
             .init_resource::<KeepAwake>()
+            .init_resource::<crate::Unsettled>()
             .init_resource::<NextFrame>()
             .insert_resource(pending.clone())
+            .add_systems(First, forget_redraw_requests.after(bevy::ecs::message::MessageUpdateSystems))
             .add_systems(Last, schedule_next_frame.in_set(ScheduleNextFrame));
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
             render_app.insert_resource(pending).add_systems(Render, count_pending.in_set(RenderSystems::Cleanup));
         }
     }
+}
+
+/// Drops the last frame's `RequestRedraw` messages once winit has read them. Bevy's winit runner reads them
+/// after each update with a new cursor, which also sees the frame before's (messages live two updates), so
+/// every request drew two frames: on a software adapter with a whole-brain tractogram, 6 s each.
+fn forget_redraw_requests(mut redraws: ResMut<Messages<RequestRedraw>>) {
+    redraws.clear();
 }
 
 fn count_pending(cache: Option<Res<PipelineCache>>, pending: Res<PendingPipelines>) {
@@ -152,10 +162,12 @@ fn schedule_next_frame(
     mut redraws: ResMut<Messages<RequestRedraw>>,
     mut state: ResMut<NextFrame>,
     mut settle: Local<u32>,
+    unsettled: Option<ResMut<crate::Unsettled>>,
 ) {
     let input = inputs.any();
     let request = std::mem::take(&mut keep.redraw);
-    let busy = std::mem::take(&mut keep.busy) || layers.iter().any(|s| matches!(s, LayerStatus::Loading));
+    let unsettled = unsettled.is_some_and(|mut u| u.take());
+    let busy = std::mem::take(&mut keep.busy) || unsettled || layers.iter().any(|s| matches!(s, LayerStatus::Loading));
     if !settings.enabled {
         let game = WinitSettings::game();
         if winit.focused_mode != game.focused_mode {
@@ -217,6 +229,29 @@ mod tests {
 
     fn redraws(app: &App) -> usize {
         app.world().resource::<Messages<RequestRedraw>>().iter_current_update_messages().count()
+    }
+
+    /// A `RequestRedraw` is seen by winit's runner after the update that wrote it and not after the next (Bevy's
+    /// runner reads every message still stored, and messages live two updates): one request, one frame. A
+    /// plugin's `Unsettled` request makes the app poll for that frame only.
+    #[test]
+    fn a_redraw_request_draws_one_frame_and_unsettled_polls() {
+        let mut app = app();
+        app.update();
+        let stored = |app: &App| {
+            let mut cursor = bevy::ecs::message::MessageCursor::<RequestRedraw>::default();
+            cursor.read(app.world().resource::<Messages<RequestRedraw>>()).count()
+        };
+        app.world_mut().write_message(RequestRedraw);
+        assert_eq!(stored(&app), 1);
+        app.update();
+        assert_eq!(stored(&app), 0, "the last update's request is still there for the runner to read again");
+
+        app.world_mut().resource_mut::<crate::Unsettled>().request();
+        app.update();
+        assert_eq!(*app.world().resource::<NextFrame>(), NextFrame::Poll);
+        app.update();
+        assert_eq!(*app.world().resource::<NextFrame>(), NextFrame::Idle, "a request lasts one frame");
     }
 
     /// An app with nothing to do asks for no frame and tells winit to wait for input; a loading layer makes it

@@ -193,10 +193,12 @@ pub fn use_previews(
     segments > limit && since_activity.is_some_and(|t| t < still_after)
 }
 
-/// Applies [`TractDetail`]: each mesh set with a preview draws it or its whole mesh. While previews are shown
-/// a redraw is requested every frame, so that a window drawn on demand reaches the frame that finds the view
-/// still; that frame draws the whole sets (their meshes are uploaded already) and asks for no other, since on
-/// a software adapter a whole-brain frame takes seconds, and as much memory again while it is drawn.
+/// Applies [`TractDetail`]: each mesh set with a preview draws it or its whole mesh. While the view moves, the
+/// next frame is asked for ([`fascicle_render::Unsettled`]), so that a window drawn on demand reaches the frame
+/// that finds the view still. That frame keeps the previews and asks for nothing; the frame after it (which a
+/// window drawn on demand draws as it goes idle) draws the whole sets, their meshes uploaded already, and no
+/// frame follows: on a software adapter a whole-brain frame takes seconds, and as much memory again while it is
+/// drawn.
 #[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's parameters")]
 fn tract_detail(
     detail: Res<TractDetail>,
@@ -205,8 +207,8 @@ fn tract_detail(
     moved: Query<(), (With<Camera3d>, Changed<GlobalTransform>)>,
     added: Query<(), Added<MeshSet>>,
     mut sets: Query<(&MeshSet, &LineSegments, &InheritedVisibility, &mut Mesh3d)>,
-    mut last_activity: Local<Option<std::time::Duration>>,
-    redraws: Option<ResMut<Messages<bevy::window::RequestRedraw>>>,
+    (mut last_activity, mut settling): (Local<Option<std::time::Duration>>, Local<bool>),
+    unsettled: Option<ResMut<fascicle_render::Unsettled>>,
 ) {
     let now = time.elapsed();
     if !moved.is_empty() || !added.is_empty() {
@@ -217,7 +219,12 @@ fn tract_detail(
     let segments: usize =
         sets.iter().filter(|(set, _, shown, _)| set.preview.is_some() && shown.get()).map(|(_, s, _, _)| s.0).sum();
     let since = last_activity.map(|t| now.saturating_sub(t));
-    let coarse = detail.enabled && use_previews(since, detail.still_after, segments, limit);
+    let moving = detail.enabled && use_previews(since, detail.still_after, segments, limit);
+    // The first still frame keeps the previews and asks for nothing: a window drawn on demand then draws one
+    // more frame as it goes idle (its update mode changes), and that one, the last, draws the whole sets.
+    let shown = sets.iter().any(|(set, _, _, mesh)| set.preview.as_ref() == Some(&mesh.0));
+    let coarse = moving || (shown && !*settling);
+    *settling = shown && !moving;
     for (set, _, _, mut mesh) in &mut sets {
         let want = match (&set.preview, coarse) {
             (Some(preview), true) => preview,
@@ -227,8 +234,8 @@ fn tract_detail(
             mesh.0 = want.clone();
         }
     }
-    if coarse && let Some(mut redraws) = redraws {
-        redraws.write(bevy::window::RequestRedraw);
+    if moving && let Some(mut unsettled) = unsettled {
+        unsettled.request();
     }
 }
 
