@@ -320,8 +320,9 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
 }
 
 /// The most points of one part of a tractogram opened as lines ([`stream_lines`]): compressed to about a
-/// quarter on smooth tractography, 2M points are some 9 MB of vertices and indices, one upload of a frame.
-pub const LINE_PART_POINTS: usize = 2_000_000;
+/// quarter on smooth tractography, 1M points are some 5 MB of vertices and indices, one upload of a frame
+/// (2M gave `fascicle render` of 1M streamlines 0.3 s and 0.1 GB more: larger transients while parts upload).
+pub const LINE_PART_POINTS: usize = 1_000_000;
 
 /// A tractogram file as lines, read and drawn part by part: the file is streamed in parts of whole
 /// streamlines (at most [`LINE_PART_POINTS`] points), a batch of parts (one per job thread) is read and then
@@ -486,17 +487,27 @@ pub fn neighbour_slices(kind: &LayerKind, dims: [usize; 3]) -> Vec<LayerKind> {
         .collect()
 }
 
-/// The jobs' own rayon threads, one fewer than the cores (at least one): a core stays for the frame. None when
-/// the threads could not be made.
+/// Threads of the jobs' pool ([`set_job_threads`]); 0: one fewer than the cores.
+static JOB_THREADS: AtomicUsize = AtomicUsize::new(0);
+
+/// Sizes the jobs' pool, before its first job (later calls change nothing). By default it has one thread fewer
+/// than the cores, so that a window's frames keep one; `fascicle render`, whose frames wait for the jobs anyway,
+/// gives them every core (1M streamlines read and meshed in about half the time on 2 cores).
+pub fn set_job_threads(n: usize) {
+    JOB_THREADS.store(n, Ordering::Relaxed);
+}
+
+/// The jobs' own rayon threads ([`set_job_threads`]; by default one fewer than the cores, at least one). None
+/// when the threads could not be made.
 fn job_pool() -> Option<&'static rayon::ThreadPool> {
     static POOL: std::sync::OnceLock<Option<rayon::ThreadPool>> = std::sync::OnceLock::new();
     POOL.get_or_init(|| {
         let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(cores.saturating_sub(1).max(1))
-            .thread_name(|i| format!("fascicle-job-{i}"))
-            .build()
-            .ok()
+        let threads = match JOB_THREADS.load(Ordering::Relaxed) {
+            0 => cores.saturating_sub(1).max(1),
+            n => n,
+        };
+        rayon::ThreadPoolBuilder::new().num_threads(threads).thread_name(|i| format!("fascicle-job-{i}")).build().ok()
     })
     .as_ref()
 }

@@ -82,6 +82,8 @@ pub fn run(
     views: ViewOptions,
 ) -> Result<(), String> {
     let (w, h) = crate::cli::parse_size(size)?;
+    // No window to keep a core for: the layers' jobs take all the threads (`--threads` or the cores).
+    crate::jobs::set_job_threads(rayon::current_num_threads());
     let depth_kind = depth_out.map(fascicle_core::io::tractogram::extension);
     if let Some(k) = &depth_kind
         && k != "png"

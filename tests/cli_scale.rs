@@ -100,7 +100,7 @@ fn commands_stream_a_large_tractogram_in_bounded_memory() {
         outputs.push(out);
     }
 
-    // `fascicle view` opens a tractogram as lines: the renderer draws it streamed (5 parts of at most 2M points),
+    // `fascicle view` opens a tractogram as lines: the renderer draws it streamed (10 parts of at most 1M points),
     // compressed, in one frame once loaded. Each part's points are let go once its lines are made; the bound
     // leaves room for the renderer and the software rasteriser (measured 600-700 MiB at 640x360).
     let scene = dir.join("lines.ron");
