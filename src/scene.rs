@@ -411,8 +411,13 @@ impl CameraSpec {
     }
 }
 
+/// Points of a tractogram that [`file_bounds`] reads: 4M (48 MB of a `.tck`).
+pub const FRAMING_POINTS: usize = 4_000_000;
+
 /// The world bounds (RAS+ mm) of a data file: a NIfTI image's voxel grid through its affine (from the header
-/// alone), an MRtrix image's, or a tractogram's points. `None` when the file cannot be read or holds nothing.
+/// alone), an MRtrix image's, a TRX's reference grid, or the points of a tractogram's first streamlines (up to
+/// [`FRAMING_POINTS`]: all of any tractogram under 4M points). `None` when the file cannot be read or holds
+/// nothing.
 pub fn file_bounds(path: &Path) -> Option<(glam::DVec3, glam::DVec3)> {
     let lower = path.to_string_lossy().to_ascii_lowercase();
     let mut lo = glam::DVec3::splat(f64::INFINITY);
@@ -443,10 +448,20 @@ pub fn file_bounds(path: &Path) -> Option<(glam::DVec3, glam::DVec3)> {
             (lo, hi) = (lo.min(p), hi.max(p));
         }
     } else {
-        // Streamed in bounded memory (a whole-brain tractogram is gigabytes).
+        // The points of the first streamlines, up to FRAMING_POINTS: a whole tractogram is gigabytes, and reading
+        // all of it to place the camera kept the window from opening (7-26 s for 10M streamlines, 12 GB). Seeds
+        // spread over the brain make the first streamlines a sample of the whole.
         let mut reader = fascicle_core::io::stream::TractogramReader::open(path).ok()?;
-        let (a, b) = fascicle_core::io::stream::scan(&mut reader, |_| {}).ok()?.bounds?;
-        (lo, hi) = (a.as_dvec3(), b.as_dvec3());
+        let mut seen = 0;
+        while seen < FRAMING_POINTS
+            && let Some(t) = reader.next_chunk(FRAMING_POINTS - seen).ok()?
+            && !t.points.is_empty()
+        {
+            for p in t.points.iter().filter(|p| p.is_finite()) {
+                (lo, hi) = (lo.min(p.as_dvec3()), hi.max(p.as_dvec3()));
+            }
+            seen += t.points.len();
+        }
     }
     (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
 }
@@ -700,6 +715,36 @@ mod tests {
             tensor_source_for(&data.join("dwi/small_64D.nii")),
             TensorSource::Dwi { path: data.join("dwi/small_64D.nii"), bvecs: BvecConvention::Fsl }
         );
+    }
+
+    /// A tractogram frames the camera by its first streamlines' points (up to FRAMING_POINTS): a small file by
+    /// all of them (as `fascicle info` bounds them), a large one without reading past the sample, so a far
+    /// streamline at its end does not count.
+    #[test]
+    fn tractograms_are_framed_by_their_first_points() {
+        use fascicle_core::io::Tractogram;
+        let trk = Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+            .join("data/tracts/tracks300.trk");
+        let t = Tractogram::read(&trk).unwrap();
+        let (lo, hi) = t
+            .points
+            .iter()
+            .fold((glam::Vec3::splat(f32::MAX), glam::Vec3::splat(f32::MIN)), |(a, b), p| (a.min(*p), b.max(*p)));
+        assert_eq!(file_bounds(&trk), Some((lo.as_dvec3(), hi.as_dvec3())));
+
+        let mut big = Tractogram::new();
+        let line: Vec<glam::Vec3> = (0..1000).map(|i| glam::Vec3::new(i as f32 * 0.05, 1.0, 2.0)).collect();
+        for _ in 0..FRAMING_POINTS / 1000 + 10 {
+            big.push(&line);
+        }
+        big.push(&[glam::Vec3::splat(1000.0), glam::Vec3::splat(1001.0)]);
+        let path = std::env::temp_dir().join(format!("fascicle-framing-{}.tck", std::process::id()));
+        fascicle_core::io::tck::write(&path, &big, &[]).unwrap();
+        let bounds = file_bounds(&path);
+        std::fs::remove_file(&path).ok();
+        let want = (glam::DVec3::new(0.0, 1.0, 2.0), glam::DVec3::new(999.0 * 0.05f32 as f64, 1.0, 2.0));
+        let (a, b) = bounds.expect("bounds");
+        assert!(a == want.0 && (b - want.1).length() < 1e-4, "{a} {b}");
     }
 
     /// An MRtrix image frames the camera as its NIfTI does: the same voxel grid in scanner space.
