@@ -531,8 +531,8 @@ struct JobSlot<T> {
 }
 
 /// Starts `f` (a layer's job) on a thread of its own, its parallel work on the jobs' threads
-/// ([`on_job_threads`]), and returns a task that is ready with
-/// its result; a panic in `f` resumes in the task, as if `f` ran there.
+/// ([`on_job_threads`]), and returns a task that is ready with its result; a panic in `f` resumes in the task,
+/// as if `f` ran there.
 ///
 /// The job does not run on Bevy's async compute threads, whose task only waits for it: the render world
 /// compiles its pipelines there and blocks on one of them (the window's upscaling pipeline), so a long job
@@ -1389,9 +1389,7 @@ mod tests {
     }
 
     fn data(path: &str) -> std::path::PathBuf {
-        std::path::Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
-            .join("data")
-            .join(path)
+        crate::repo_path("data").join(path)
     }
 
     /// Tracking on a user's data: from a DWI (tensors fitted in the job, WLS) and from the tensor file that

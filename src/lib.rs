@@ -12,3 +12,11 @@ pub mod render;
 pub mod scene;
 pub mod viewer;
 pub mod views;
+
+/// A path under the repository (the package's folder as cargo gives it when running tests, else as it was when
+/// built), so a test binary built by another clone sharing the target directory reads this clone's files.
+#[cfg(test)]
+pub(crate) fn repo_path(rel: &str) -> std::path::PathBuf {
+    std::path::PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join(rel)
+}

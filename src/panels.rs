@@ -842,11 +842,8 @@ mod tests {
     #[test]
     fn splat_panel_with_barycentric_widget_leaves_an_unedited_kind() {
         let ctx = egui::Context::default();
-        let dir = std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into());
         let mut kind =
-            crate::scene::Scene::load(&std::path::Path::new(&dir).join("scenes/spiral50.ron")).unwrap().layers[0]
-                .kind
-                .clone();
+            crate::scene::Scene::load(&crate::repo_path("scenes/spiral50.ron")).unwrap().layers[0].kind.clone();
         let before = kind.clone();
         let data = LayerData { eigenvalues: Arc::new(vec![[1.0, 0.5, 0.1], [1.0, 1.0, 1.0]]), ..Default::default() };
         let _ = ctx.run_ui(egui::RawInput::default(), |ui| splat_panel(ui, &mut kind, &data));

@@ -682,9 +682,7 @@ mod tests {
     /// as glyphs in the basis its header records, a DWI (bval/bvec beside) as a slice, a tractogram as lines.
     #[test]
     fn files_open_by_their_content() {
-        let data =
-            Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
-                .join("data");
+        let data = crate::repo_path("data");
         let kind = |p: &str| Scene::layer_for_file(&data.join(p)).unwrap().kind;
         assert!(
             matches!(
@@ -723,8 +721,7 @@ mod tests {
     #[test]
     fn tractograms_are_framed_by_their_first_points() {
         use fascicle_core::io::Tractogram;
-        let trk = Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
-            .join("data/tracts/tracks300.trk");
+        let trk = crate::repo_path("data/tracts/tracks300.trk");
         let t = Tractogram::read(&trk).unwrap();
         let (lo, hi) = t
             .points
@@ -750,8 +747,7 @@ mod tests {
     /// An MRtrix image frames the camera as its NIfTI does: the same voxel grid in scanner space.
     #[test]
     fn mif_images_have_the_bounds_of_their_nifti() {
-        let nii = Path::new(&std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
-            .join("data/dti/small_64D_fa.nii.gz");
+        let nii = crate::repo_path("data/dti/small_64D_fa.nii.gz");
         let (v, _) = fascicle_core::io::nifti::read::<f32>(&nii).unwrap();
         let mif = std::env::temp_dir().join(format!("fascicle-bounds-{}.mif", std::process::id()));
         fascicle_core::io::mif::write(&mif, &v, &[]).unwrap();
@@ -764,18 +760,10 @@ mod tests {
     /// 3D view alone, with colour bars.
     #[test]
     fn scene_files_carry_their_views() {
-        let s = Scene::load(Path::new(&format!(
-            "{}/scenes/ortho.ron",
-            std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into())
-        )))
-        .unwrap();
+        let s = Scene::load(&crate::repo_path("scenes/ortho.ron")).unwrap();
         assert!(s.views.ortho && s.views.follow && s.views.colour_bars);
         assert_eq!(s.views.crosshair, Some([5.0, -8.0, 2.0]));
-        let plain = Scene::load(Path::new(&format!(
-            "{}/scenes/spiral50.ron",
-            std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into())
-        )))
-        .unwrap();
+        let plain = Scene::load(&crate::repo_path("scenes/spiral50.ron")).unwrap();
         assert_eq!(plain.views, crate::views::Views::default());
         assert!(!plain.views.ortho && plain.views.colour_bars);
     }

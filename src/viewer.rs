@@ -1176,10 +1176,7 @@ mod tests {
             .insert_resource(Orbit::from_spec(&CameraSpec::default()))
             .add_systems(Update, dropped_files);
         let before = app.world().resource::<ActiveScene>().0.layers.len();
-        let data = std::path::Path::new(
-            &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
-        )
-        .join("data");
+        let data = crate::repo_path("data");
         let window = Entity::PLACEHOLDER;
         app.world_mut()
             .write_message(FileDragAndDrop::DroppedFile { window, path_buf: data.join("tracts/tracks300.trk") });
@@ -1357,10 +1354,7 @@ mod tests {
         use fascicle_core::io::Tractogram;
         use fascicle_core::roi::{Roi, RoiMode, RoiShape};
         use std::sync::Arc;
-        let trk = std::path::Path::new(
-            &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
-        )
-        .join("data/tracts/tracks300.trk");
+        let trk = crate::repo_path("data/tracts/tracks300.trk");
         let t = Tractogram::read(&trk).unwrap();
         let dir = std::env::temp_dir().join(format!("fascicle-save-selection-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();

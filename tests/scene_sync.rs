@@ -11,6 +11,13 @@ use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphSet, ShVoxel};
 
+/// A path under the repository: the package's folder as cargo gives it when running the test (a binary built by
+/// another clone sharing the target directory must read this clone's files), else as it was when built.
+fn repo_path(rel: &str) -> std::path::PathBuf {
+    std::path::PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()))
+        .join(rel)
+}
+
 fn glyph_layer(scene: &mut Scene) -> &mut LayerKind {
     let i = scene.layers.iter().position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. })).expect("glyph layer");
     &mut scene.layers[i].kind
@@ -153,10 +160,7 @@ fn sh_coefficient_file_renders_as_glyphs() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
     }
-    let path = std::path::Path::new(
-        &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
-    )
-    .join("data/sh/func_coef.nii.gz");
+    let path = repo_path("data/sh/func_coef.nii.gz");
     let mut layer = Scene::layer_for_file(&path).unwrap();
     if let LayerKind::ShGlyphs { index, style, .. } = &mut layer.kind {
         *index = Some(1);
@@ -268,11 +272,7 @@ fn full_volume_glyphs_cover_the_field() {
 fn splat_recolouring_rewrites_only_the_styles() {
     use fascicle_core::dti::splat::SplatColourMode;
     use fascicle_tensors::splat::{SplatMaterial, SplatSet, SplatSortStats};
-    let scene = Scene::load(std::path::Path::new(&format!(
-        "{}/scenes/spiral50.ron",
-        std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into())
-    )))
-    .expect("spiral scene");
+    let scene = Scene::load(&repo_path("scenes/spiral50.ron")).expect("spiral scene");
     let Some(mut app) = scene_app(scene) else { return };
     // A camera that renders (the splats are sorted on the GPU, per view drawn).
     let target = headless::add_target_image(&mut app, 64, 48);
@@ -408,10 +408,7 @@ fn rois_act_on_their_own_layer() {
     use fascicle::scene::{CameraSpec, LayerSpec, TractMode, TractSource};
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
     use fascicle_tracts::{TractSelection, TractSet};
-    let path = std::path::Path::new(
-        &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
-    )
-    .join("data/tracts/tracks300.trk");
+    let path = repo_path("data/tracts/tracks300.trk");
     let t = fascicle_core::io::Tractogram::read(&path).unwrap();
     let p = t.streamline(0)[t.streamline(0).len() / 2];
     let sphere = Roi { shape: RoiShape::Sphere { centre: p.to_array(), radius: 5.0 }, mode: RoiMode::Include };
@@ -644,10 +641,7 @@ fn track_density_slices_render() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
     }
-    let path = std::path::Path::new(
-        &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
-    )
-    .join("data/tracts/tracks300.trk");
+    let path = repo_path("data/tracts/tracks300.trk");
     let t = fascicle_core::io::Tractogram::read(&path).unwrap();
     let (lo, hi) =
         t.points.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(a, b), p| (a.min(*p), b.max(*p)));
