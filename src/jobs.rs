@@ -539,6 +539,18 @@ struct JobSlot<T> {
 /// holding one of those threads froze the window until the job ended (7 s of no frames while 1M streamlines
 /// loaded on 2 cores).
 pub fn spawn_job<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> bevy::tasks::Task<T> {
+    spawn_job_on(f, true)
+}
+
+/// [`spawn_job`] for a job with no parallel work (the axes): it runs on its thread alone, never waiting for
+/// the jobs' threads. A job on the pool holds one of its threads until it ends, so on 2 cores (one job
+/// thread) a small job there waited for a whole-brain read, and its late first frame cost a whole frame more
+/// (6 s on lavapipe).
+pub fn spawn_light_job<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> bevy::tasks::Task<T> {
+    spawn_job_on(f, false)
+}
+
+fn spawn_job_on<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static, pooled: bool) -> bevy::tasks::Task<T> {
     let slot = Arc::new(Mutex::new(JobSlot { result: None, waker: None }));
     let done = slot.clone();
     let run = move || {
@@ -555,7 +567,12 @@ pub fn spawn_job<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> b
     let run = Arc::new(Mutex::new(Some(run)));
     let take = |run: &Mutex<Option<_>>| run.lock().unwrap_or_else(|e| e.into_inner()).take();
     let on_thread = run.clone();
-    if thread.spawn(move || take(&on_thread).map(on_job_threads)).is_err()
+    let spawned = thread.spawn(move || match take(&on_thread) {
+        Some(f) if pooled => on_job_threads(f),
+        Some(f) => f(),
+        None => {}
+    });
+    if spawned.is_err()
         && let Some(f) = take(&run)
     {
         match job_pool() {
@@ -1359,6 +1376,44 @@ mod tests {
         let panicking = spawn_job(|| -> u32 { panic!("a job's panic") });
         let joined = std::thread::spawn(move || block_on(panicking)).join();
         assert!(joined.is_err(), "the job's panic resumes in its task");
+    }
+
+    /// A light job (the axes) does not wait for the jobs' threads: it completes while jobs hold every one of
+    /// them, where a pooled job queues behind them.
+    #[test]
+    fn a_light_job_does_not_queue_behind_pooled_jobs() {
+        use bevy::tasks::{AsyncComputeTaskPool, TaskPoolBuilder, block_on};
+        AsyncComputeTaskPool::get_or_init(|| TaskPoolBuilder::new().num_threads(1).build());
+        let threads = job_pool().map_or(1, |p| p.current_num_threads());
+        let (release, wait) = std::sync::mpsc::channel::<()>();
+        let wait = Arc::new(Mutex::new(wait));
+        let (started, holding) = std::sync::mpsc::channel::<()>();
+        let blockers: Vec<_> = (0..threads)
+            .map(|_| {
+                let (wait, started) = (wait.clone(), started.clone());
+                spawn_job(move || {
+                    started.send(()).ok();
+                    let _ = wait.lock().map(|w| w.recv());
+                })
+            })
+            .collect();
+        for _ in 0..threads {
+            holding.recv().unwrap();
+        }
+        let (queued_tx, queued_rx) = std::sync::mpsc::channel::<()>();
+        let queued = spawn_job(move || queued_tx.send(()).ok());
+        assert_eq!(block_on(spawn_light_job(|| 5)), 5);
+        assert!(
+            queued_rx.recv_timeout(std::time::Duration::from_millis(200)).is_err(),
+            "a pooled job ran while every job thread was held: the test shows nothing"
+        );
+        for _ in 0..threads {
+            release.send(()).ok();
+        }
+        for b in blockers {
+            block_on(b);
+        }
+        block_on(queued);
     }
 
     /// Tracts from a file with a tensor field: the phantom's RK4 tracts written to `.tck` and read back with

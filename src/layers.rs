@@ -29,7 +29,7 @@ use fascicle_tracts::{
 use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume_texture};
 
 use crate::cache::DataCache;
-use crate::jobs::{CANCELLED, Content, JobProgress, build, spawn_job};
+use crate::jobs::{CANCELLED, Content, JobProgress, build, spawn_job, spawn_light_job};
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
 use crate::scene::{LayerKind, LayerSpec, Scene};
 
@@ -267,7 +267,9 @@ fn start_job(
 ) {
     let progress = Arc::new(JobProgress::default());
     let (p, c, kind) = (progress.clone(), cache.clone(), structure.clone());
-    let task = spawn_job(move || build(&kind, &c, &p));
+    let job = move || build(&kind, &c, &p);
+    // The axes are made at once, not after the jobs holding the jobs' threads (a whole-brain read).
+    let task = if matches!(structure, LayerKind::Axes { .. }) { spawn_light_job(job) } else { spawn_job(job) };
     commands.entity(layer).insert((LayerJob { progress, structure, task, parts_shown: 0 }, LayerStatus::Loading));
     counts.jobs += 1;
 }

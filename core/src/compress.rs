@@ -40,16 +40,32 @@ pub fn kept_points(points: &[Vec3], c: Compression, kept: &mut Vec<u32>) {
         return;
     }
     let diff = |a: usize, b: usize| (points[a] - points[b]).as_dvec3();
+    // DIPY's test, `|chord x (curr - next)| / |chord| > tolerance`, is decided without a square root or a
+    // division where the squares are clearly apart (relative margin far above their rounding), and computed
+    // as DIPY does where they are close, so that every decision is DIPY's.
+    let tol2 = c.tolerance_mm * c.tolerance_mm;
+    let (above, below) = (1.0 + 1e-9, 1.0 - 1e-9);
     kept.push(0);
     let mut prev = 0;
     for next in 2..n {
         let chord = diff(next, prev);
-        let keep_before = chord.length() > c.max_segment_mm
+        let chord2 = chord.length_squared();
+        let bound = tol2 * chord2;
+        let keep_before = chord2.sqrt() > c.max_segment_mm
             || (prev + 1..next).any(|curr| {
-                if diff(curr, prev).length() == 0.0 {
+                if diff(curr, prev).length_squared() == 0.0 {
                     return false;
                 }
-                let d = chord.cross(diff(curr, next)).length() / chord.length();
+                let cross2 = chord.cross(diff(curr, next)).length_squared();
+                if chord2 > 0.0 && bound.is_normal() && cross2.is_finite() {
+                    if cross2 > bound * above {
+                        return true;
+                    }
+                    if cross2 < bound * below {
+                        return false;
+                    }
+                }
+                let d = cross2.sqrt() / chord2.sqrt();
                 d.is_nan() || d > c.tolerance_mm
             });
         if keep_before {

@@ -110,12 +110,35 @@ impl Plugin for DrawOnDemandPlugin {
 /// after each update with a new cursor, which also sees the frame before's (messages live two updates), so
 /// every request drew two frames: on a software adapter with a whole-brain tractogram, 6 s each.
 fn forget_redraw_requests(mut redraws: ResMut<Messages<RequestRedraw>>) {
+    trace!("update begins");
     redraws.clear();
 }
 
+/// Counts the pipelines the render world is still compiling. At trace level it also names them and marks
+/// the end of each render-world frame: a pipeline specialised late draws a whole frame more, which on a
+/// software adapter with a whole brain costs seconds.
 fn count_pending(cache: Option<Res<PipelineCache>>, pending: Res<PendingPipelines>) {
-    let n = cache.map_or(0, |c| c.waiting_pipelines().count());
+    let n = cache.as_ref().map_or(0, |c| c.waiting_pipelines().count());
     pending.0.store(n, Ordering::Relaxed);
+    if n > 0
+        && let Some(cache) = cache
+        && bevy::log::tracing::enabled!(bevy::log::Level::TRACE)
+    {
+        use bevy::material::descriptor::PipelineDescriptor;
+        let waiting: Vec<usize> = cache.waiting_pipelines().collect();
+        let labels: Vec<String> = waiting
+            .iter()
+            .filter_map(|&id| cache.pipelines().nth(id))
+            .map(|p| match &p.descriptor {
+                PipelineDescriptor::RenderPipelineDescriptor(d) => {
+                    format!("{:?} ({:?}, MSAA {})", d.label, d.primitive.topology, d.multisample.count)
+                }
+                PipelineDescriptor::ComputePipelineDescriptor(d) => format!("{:?}", d.label),
+            })
+            .collect();
+        trace!("render world: pipelines waiting {labels:?}");
+    }
+    trace!("render world: frame queued");
 }
 
 /// Whether anything asks for a frame at once, soon, or not at all.

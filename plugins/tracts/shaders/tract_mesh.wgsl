@@ -66,10 +66,14 @@ fn vertex(v: TractVertex) -> TractVertexOutput {
 
 @fragment
 fn fragment(in: TractVertexOutput) -> @location(0) vec4<f32> {
+    // Only materials that crop can discard (`TractMeshKey`): a fragment stage that can is depth-tested after
+    // it runs, which on lavapipe costs a sixth of a whole-brain frame.
+#ifdef SLAB_CROP
     let from_plane = abs(dot(params.slab.xyz, in.world_position) - params.slab.w);
     if from_plane > select(3.0e38, params.slab_half, params.slab_half > 0.0) {
         discard;
     }
+#endif
 #ifdef VERTEX_NORMALS
     let to_eye = normalize(view.world_position - in.world_position);
     let k = params.ambient + (1.0 - params.ambient) * abs(dot(normalize(in.world_normal), to_eye));

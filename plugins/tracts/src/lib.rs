@@ -225,6 +225,7 @@ fn tract_detail(
     let shown = sets.iter().any(|(set, _, _, mesh)| set.preview.as_ref() == Some(&mesh.0));
     let coarse = moving || (shown && !*settling);
     *settling = shown && !moving;
+    trace!("tract detail: moving {moving}, previews shown {shown}, coarse {coarse}, {segments} segments");
     for (set, _, _, mut mesh) in &mut sets {
         let want = match (&set.preview, coarse) {
             (Some(preview), true) => preview,
@@ -354,11 +355,28 @@ pub fn rgba8([r, g, b]: [f32; 3]) -> [u8; 4] {
 /// Drawing material of tract meshes (lines and polygon tubes) with the compact vertex: `POSITION` (and
 /// `NORMAL` for tubes), [`ATTRIBUTE_STREAMLINE`] and [`ATTRIBUTE_RGBA8`]: 20 bytes a line vertex.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
+#[bind_group_data(TractMeshKey)]
 pub struct TractMeshMaterial {
     #[uniform(0)]
     pub params: TractMeshUniform,
     #[storage(1, read_only)]
     pub selected: Handle<ShaderBuffer>,
+}
+
+/// The pipeline key of [`TractMeshMaterial`]: whether it crops to a slab. Only a cropping material's fragment
+/// stage can discard; one that can is depth-tested after it runs (on lavapipe and on hardware), so the 3D
+/// view's lines, which never crop, skip its cost (a whole-brain frame of 1M streamlines on lavapipe: 5.0 s
+/// instead of 6.0 s).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TractMeshKey {
+    /// `params.slab_half > 0`: the `SLAB_CROP` shader def.
+    pub slab_crop: bool,
+}
+
+impl From<&TractMeshMaterial> for TractMeshKey {
+    fn from(material: &TractMeshMaterial) -> Self {
+        Self { slab_crop: material.params.slab_half > 0.0 }
+    }
 }
 
 impl Material for TractMeshMaterial {
@@ -376,8 +394,13 @@ impl Material for TractMeshMaterial {
         _pipeline: &MaterialPipeline,
         descriptor: &mut RenderPipelineDescriptor,
         layout: &MeshVertexBufferLayoutRef,
-        _key: MaterialPipelineKey<Self>,
+        key: MaterialPipelineKey<Self>,
     ) -> Result<(), SpecializedMeshPipelineError> {
+        if key.bind_group_data.slab_crop
+            && let Some(fragment) = descriptor.fragment.as_mut()
+        {
+            fragment.shader_defs.push("SLAB_CROP".into());
+        }
         let mut attributes = vec![Mesh::ATTRIBUTE_POSITION.at_shader_location(0)];
         if layout.0.contains(Mesh::ATTRIBUTE_NORMAL) {
             attributes.push(Mesh::ATTRIBUTE_NORMAL.at_shader_location(1));
@@ -895,21 +918,34 @@ impl Default for LineDetail {
     }
 }
 
-/// Points of a tractogram drawn at the default detail: 230M (2.3M streamlines of 100 points), about 50M line
-/// segments at 0.1 mm (1.4 GB of vertices and indices). Above, lines are compressed to 0.5 mm.
-pub const FULL_DETAIL_POINTS: u64 = 230_000_000;
+/// Points of a tractogram drawn at the default detail: 50M (500k streamlines of 100 points), about 11M line
+/// segments at 0.1 mm, a whole frame of about 3 s on lavapipe with 2 cores. Above, lines are compressed to
+/// [`WHOLE_BRAIN_TOLERANCE_MM`].
+pub const FULL_DETAIL_POINTS: u64 = 50_000_000;
+/// The compression tolerance of tractograms over [`FULL_DETAIL_POINTS`], mm: a quarter of a millimetre, a
+/// pixel of a whole brain (about 180 mm) seen in a 720-pixel view. It keeps 13 % of the points of a
+/// whole-brain tractogram at 1 mm steps where 0.1 mm keeps 22 %: 1M streamlines draw 13M segments instead of
+/// 22M (a whole frame of about 4 s instead of 6.4 s on lavapipe).
+pub const WHOLE_BRAIN_TOLERANCE_MM: f64 = 0.25;
+/// Points above which lines are compressed to [`PREVIEW_TOLERANCE_MM`]: 230M (2.3M streamlines of 100
+/// points), about 25M segments at 0.5 mm (0.7 GB of vertices and indices).
+pub const COARSE_DETAIL_POINTS: u64 = 230_000_000;
 /// Line segments a preview aims at, whatever the tractogram's size (a frame of about 0.4 s on lavapipe).
 pub const PREVIEW_SEGMENTS: u64 = 1_500_000;
 
 impl LineDetail {
     /// The detail for a tractogram of about `points` points (a header's count, or a file's size over 12
-    /// bytes): the default up to [`FULL_DETAIL_POINTS`]; above, whole lines compressed to
+    /// bytes): the default up to [`FULL_DETAIL_POINTS`]; up to [`COARSE_DETAIL_POINTS`], whole lines
+    /// compressed to [`WHOLE_BRAIN_TOLERANCE_MM`] and the default preview; above, whole lines compressed to
     /// [`PREVIEW_TOLERANCE_MM`] (about half the segments of 0.1 mm: 10M streamlines in about 3 GB) and a
     /// preview stride that keeps the preview near [`PREVIEW_SEGMENTS`] (0.5 mm keeps about 11 % of the points
     /// of a whole-brain tractogram at 1 mm steps).
     pub fn for_points(points: u64) -> Self {
         if points <= FULL_DETAIL_POINTS {
             return Self::default();
+        }
+        if points <= COARSE_DETAIL_POINTS {
+            return Self { tolerance_mm: WHOLE_BRAIN_TOLERANCE_MM, ..Self::default() };
         }
         let preview_stride = (points * 11 / 100).div_ceil(PREVIEW_SEGMENTS).max(PREVIEW_STRIDE as u64);
         Self { tolerance_mm: PREVIEW_TOLERANCE_MM, preview_stride: preview_stride as usize }
@@ -1082,6 +1118,25 @@ pub fn selected_tractogram(set: &TractSet, selection: &TractSelection) -> Tracto
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The detail coarsens with size, never finer for a larger file: 0.1 mm for the 33k-streamline bundle,
+    /// 0.25 mm for 1M streamlines of 104 points, 0.5 mm for 10M with a preview stride keeping about
+    /// [`PREVIEW_SEGMENTS`].
+    #[test]
+    fn detail_coarsens_with_the_tractogram_size() {
+        assert_eq!(LineDetail::for_points(3_400_000), LineDetail::default());
+        let whole_brain = LineDetail::for_points(104_000_000);
+        assert_eq!((whole_brain.tolerance_mm, whole_brain.preview_stride), (0.25, PREVIEW_STRIDE));
+        let huge = LineDetail::for_points(1_040_000_000);
+        assert_eq!(huge.tolerance_mm, PREVIEW_TOLERANCE_MM);
+        let preview_segments = 1_040_000_000.0 * 0.11 / huge.preview_stride as f64;
+        assert!((1.3e6..=1.5e6).contains(&preview_segments), "{preview_segments}");
+        let sizes = [0, FULL_DETAIL_POINTS, FULL_DETAIL_POINTS + 1, COARSE_DETAIL_POINTS, COARSE_DETAIL_POINTS + 1];
+        for w in sizes.windows(2) {
+            let (a, b) = (LineDetail::for_points(w[0]), LineDetail::for_points(w[1]));
+            assert!(a.tolerance_mm <= b.tolerance_mm && a.preview_stride <= b.preview_stride, "{w:?}");
+        }
+    }
 
     /// A preview holds streamlines 0, 16, 32 of 40, each vertex one of that streamline's points, in fewer
     /// segments than the whole mesh (a coarser tolerance), its ends kept.

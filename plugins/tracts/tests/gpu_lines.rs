@@ -205,3 +205,51 @@ fn line_previews_draw_while_the_view_moves_and_the_whole_set_returns_when_still(
     app.update();
     assert_eq!(shown(&mut app), (false, true), "the preview is drawn while the camera moves");
 }
+
+/// Runs of lit columns on row 60: one per line seen.
+fn lit_runs(c: &headless::Capture) -> usize {
+    let cols = lit_columns(c);
+    cols.iter().zip(cols.iter().skip(1)).filter(|(a, b)| **b > **a + 1).count() + usize::from(!cols.is_empty())
+}
+
+/// A slab crops by position in the fragment stage (only a cropping material can discard: `TractMeshKey`):
+/// 17 lines along y at (x, z) = (k, k), k = -8..8, seen from +x. The set itself shows all 17; its slab of
+/// normal x, centre 0 and half thickness 2.5 mm, drawn alone, the 5 with |x| <= 2.5.
+#[test]
+fn a_slab_shows_the_streamlines_within_it_and_the_set_all() {
+    use bevy::camera::visibility::RenderLayers;
+    use fascicle_tracts::TractSlab;
+    let diagonal = || {
+        let mut t = Tractogram::new();
+        for k in -8..=8 {
+            t.points.extend((0..9).map(|j| Vec3::new(k as f32, -8.0 + 2.0 * j as f32, k as f32)));
+            t.offsets.push(t.points.len());
+        }
+        t
+    };
+    let render = |slab: bool| {
+        let (mut app, target) = headless::gpu_test_app(W, H)?;
+        app.add_plugins(TractPlugin);
+        app.add_systems(
+            Startup,
+            move |mut commands: Commands,
+                  mut meshes: ResMut<Assets<Mesh>>,
+                  mut materials: ResMut<Assets<TractMeshMaterial>>,
+                  mut buffers: ResMut<Assets<ShaderBuffer>>| {
+                let t = Arc::new(diagonal());
+                let set = spawn_lines(&mut commands, &mut meshes, &mut materials, &mut buffers, t, 1.0);
+                if slab {
+                    // The set is drawn on another layer: the camera sees the slab only.
+                    commands.entity(set).insert(RenderLayers::layer(1));
+                    commands.spawn(TractSlab { set, normal: Vec3::X, offset: 0.0, half_thickness: 2.5 });
+                }
+            },
+        );
+        headless::spawn_test_camera(&mut app, target.clone(), Vec3::new(EYE_Z, 0.0, 0.0), Vec3::ZERO);
+        Some(headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}")))
+    };
+    let Some(set) = render(false) else { return };
+    let Some(slab) = render(true) else { return };
+    assert_eq!(lit_runs(&set), 17, "the set's lines: columns {:?}", lit_columns(&set));
+    assert_eq!(lit_runs(&slab), 5, "the slab's lines: columns {:?}", lit_columns(&slab));
+}
