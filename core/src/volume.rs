@@ -2,6 +2,9 @@
 
 use glam::{DMat4, DVec3};
 
+/// Voxels per parallel work item of the voxel-wise fits (tensors, SH, peaks), and per progress report.
+pub const PROGRESS_BLOCK: usize = 256;
+
 /// A scalar type a volume can hold after decoding: the on-disk type is converted (and scaled by
 /// `scl_slope`/`scl_inter`) into this one.
 pub trait Scalar: Copy + Send + Sync + Default + PartialOrd + std::fmt::Debug + 'static {

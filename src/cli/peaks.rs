@@ -4,12 +4,12 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use fascicle_core::Error;
 use fascicle_core::io::{nifti, peaks};
-use fascicle_core::sh::{OdfKind, PeakParams, ShGrid};
+use fascicle_core::sh::{self, OdfKind, OdfModel, PeakParams, PeakVolume, ShBasis, ShGrid, Sphere};
+use fascicle_core::{Error, Volume};
+use glam::DMat4;
 
-use super::fit::{DwiArgs, load, read_mask};
-use super::track::{dwi_odf_peaks, odf_peaks, sh_coefficients};
+use super::fit::{DwiArgs, Loaded, load, progress_bar, read_mask};
 
 /// The file layout of `fascicle peaks`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -156,4 +156,46 @@ pub fn run(a: PeaksArgs) -> Result<(), Error> {
         }
     }
     Ok(())
+}
+
+/// ODF peaks of voxel-major SH coefficients, with directions in the voxel frame. MRtrix's tournier07
+/// coefficients are in scanner coordinates, so their peaks are rotated back through the image's frame.
+pub(crate) fn odf_peaks(
+    sh: ShGrid<'_>,
+    world_from_voxel: DMat4,
+    params: &PeakParams,
+    mask: Option<&[bool]>,
+) -> Result<PeakVolume, Error> {
+    let pb = progress_bar(sh.dims.iter().product(), "peaks", "voxels");
+    let mut peaks = sh::peaks_from_sh(sh, &Sphere::dipy_default(), params, mask, &|n| pb.inc(n as u64))?;
+    pb.finish_and_clear();
+    if matches!(sh.basis, ShBasis::Tournier07 { .. }) {
+        let to_voxel = fascicle_core::io::peaks::direction_frame(world_from_voxel).inverse();
+        for d in peaks.dirs.iter_mut().filter(|d| **d != [0.0; 3]) {
+            let v = (to_voxel * glam::Vec3::from(*d).as_dvec3()).normalize();
+            *d = [v.x as f32, v.y as f32, v.z as f32];
+        }
+    }
+    Ok(peaks)
+}
+
+/// The CSA or Q-ball peaks of a loaded DWI (fitted in DIPY's default basis, in f64).
+pub(crate) fn dwi_odf_peaks(l: &Loaded, kind: OdfKind, l_max: usize, params: &PeakParams) -> Result<PeakVolume, Error> {
+    let basis = ShBasis::Descoteaux07 { legacy: true };
+    let model = OdfModel::new(&l.gtab, kind, l_max, sh::fit::DEFAULT_SMOOTH, basis)?;
+    let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
+    let coeffs = sh::fit_odf_coefficients(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
+    pb.finish_and_clear();
+    let sh = ShGrid { dims: l.dwi.dims3(), coeffs: &coeffs, l_max, basis };
+    odf_peaks(sh, l.dwi.world_from_voxel, params, l.mask.as_deref())
+}
+
+/// The SH coefficients of an image (X,Y,Z,n), voxel-major in f64.
+pub(crate) fn sh_coefficients(vol: &Volume<f32>) -> Result<(Vec<f64>, usize), Error> {
+    let n = vol.n_channels();
+    let l_max = sh::l_max_for(n).filter(|_| vol.shape.len() == 4).ok_or_else(|| {
+        Error::Shape(format!("an SH image is (X,Y,Z,n) with n = 6, 15, 28, 45, ...; this one is {:?}", vol.shape))
+    })?;
+    let nv = vol.n_voxels();
+    Ok(((0..nv * n).map(|s| f64::from(vol.data[s / n + nv * (s % n)])).collect(), l_max))
 }

@@ -7,7 +7,7 @@ use std::time::Instant;
 use clap::Args;
 use fascicle_core::dti::{self, FitMethod};
 use fascicle_core::io::{Tractogram, gradients::DEFAULT_B0_THRESHOLD, nifti, tck, tractogram::extension, trk};
-use fascicle_core::sh::{self, OdfKind, OdfModel, PeakParams, PeakVolume, ShBasis, ShGrid, Sphere};
+use fascicle_core::sh::{OdfKind, PeakVolume, ShGrid};
 use fascicle_core::tracking::{
     DirectionField, PeakField, TensorField, TensorInterpolation, TrackParams, Tracker, Tracks, read_seeds,
     seeds_from_mask, to_voxel,
@@ -16,7 +16,8 @@ use fascicle_core::volume::voxel_size;
 use fascicle_core::{Error, Volume};
 use glam::DMat4;
 
-use super::fit::{DwiArgs, Loaded, load, progress_bar, read_mask};
+use super::fit::{DwiArgs, load, progress_bar, read_mask};
+use super::peaks::{dwi_odf_peaks, odf_peaks, sh_coefficients};
 
 /// The model a DWI is fitted with before tracking.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -185,52 +186,10 @@ pub(crate) fn field_from_dwi(
     Ok(Prepared { field, world_from_voxel: dwi.world_from_voxel, dims: fit.dims })
 }
 
-/// ODF peaks of voxel-major SH coefficients, with directions in the voxel frame. MRtrix's tournier07
-/// coefficients are in scanner coordinates, so their peaks are rotated back through the image's frame.
-pub(crate) fn odf_peaks(
-    sh: ShGrid<'_>,
-    world_from_voxel: DMat4,
-    params: &PeakParams,
-    mask: Option<&[bool]>,
-) -> Result<PeakVolume, Error> {
-    let pb = progress_bar(sh.dims.iter().product(), "peaks", "voxels");
-    let mut peaks = sh::peaks_from_sh(sh, &Sphere::dipy_default(), params, mask, &|n| pb.inc(n as u64))?;
-    pb.finish_and_clear();
-    if matches!(sh.basis, ShBasis::Tournier07 { .. }) {
-        let to_voxel = fascicle_core::io::peaks::direction_frame(world_from_voxel).inverse();
-        for d in peaks.dirs.iter_mut().filter(|d| **d != [0.0; 3]) {
-            let v = (to_voxel * glam::Vec3::from(*d).as_dvec3()).normalize();
-            *d = [v.x as f32, v.y as f32, v.z as f32];
-        }
-    }
-    Ok(peaks)
-}
-
-/// The CSA or Q-ball peaks of a loaded DWI (fitted in DIPY's default basis, in f64).
-pub(crate) fn dwi_odf_peaks(l: &Loaded, kind: OdfKind, l_max: usize, params: &PeakParams) -> Result<PeakVolume, Error> {
-    let basis = ShBasis::Descoteaux07 { legacy: true };
-    let model = OdfModel::new(&l.gtab, kind, l_max, sh::fit::DEFAULT_SMOOTH, basis)?;
-    let pb = progress_bar(l.dwi.n_voxels(), if kind == OdfKind::Csa { "CSA" } else { "Q-ball" }, "voxels");
-    let coeffs = sh::fit_odf_coefficients(&l.dwi, &model, l.mask.as_deref(), &|n| pb.inc(n as u64))?;
-    pb.finish_and_clear();
-    let sh = ShGrid { dims: l.dwi.dims3(), coeffs: &coeffs, l_max, basis };
-    odf_peaks(sh, l.dwi.world_from_voxel, params, l.mask.as_deref())
-}
-
 /// ODF peaks as a field: GFA stops, peaks at or below --min-peak-value left out, gated at --max-angle.
 fn odf_peak_field(peaks: &PeakVolume, voxel_size: glam::DVec3, a: &TrackArgs) -> Result<Field, Error> {
     let field = PeakField::from_peaks(peaks, voxel_size, &peaks.gfa, a.min_peak_value)?;
     Ok(Field::Peaks(field.with_max_angle(a.max_angle)))
-}
-
-/// The SH coefficients of an image (X,Y,Z,n), voxel-major in f64.
-pub(crate) fn sh_coefficients(vol: &Volume<f32>) -> Result<(Vec<f64>, usize), Error> {
-    let n = vol.n_channels();
-    let l_max = sh::l_max_for(n).filter(|_| vol.shape.len() == 4).ok_or_else(|| {
-        Error::Shape(format!("an SH image is (X,Y,Z,n) with n = 6, 15, 28, 45, ...; this one is {:?}", vol.shape))
-    })?;
-    let nv = vol.n_voxels();
-    Ok(((0..nv * n).map(|s| f64::from(vol.data[s / n + nv * (s % n)])).collect(), l_max))
 }
 
 fn prepare(a: &TrackArgs) -> Result<(Prepared, Option<Vec<bool>>), Error> {

@@ -15,10 +15,7 @@ pub use fit::{FitFailure, FitMethod, TensorFit, TensorModel};
 
 use crate::error::{Error, Result};
 use crate::io::GradientTable;
-use crate::volume::{Scalar, Volume};
-
-/// Voxels per parallel work item (and per progress report).
-pub const PROGRESS_BLOCK: usize = 256;
+use crate::volume::{PROGRESS_BLOCK, Scalar, Volume};
 
 /// A fitted tensor field: one entry per spatial voxel, in the DWI's voxel order and grid.
 #[derive(Clone, Debug)]

@@ -85,34 +85,6 @@ impl Tractogram {
         self.points.extend_from_slice(pts);
         self.offsets.push(self.points.len());
     }
-
-    /// Reads `.trk`, `.tck` (or `.trk.gz` / `.tck.gz`) or `.trx` by extension.
-    pub fn read(path: impl AsRef<Path>) -> Result<Self> {
-        let path = path.as_ref();
-        match extension(path).as_str() {
-            "trk" => Ok(super::trk::read(path)?.0),
-            "tck" => Ok(super::tck::read(path)?.0),
-            "trx" => Ok(super::trx::read(path)?.0),
-            other => Err(Error::format(
-                path,
-                format!("unknown tractogram extension '{other}' (expected .trk, .tck, .trx, or .gz)"),
-            )),
-        }
-    }
-
-    /// [`Tractogram::read`] from a file's bytes in memory; `path` (its extension) picks the format.
-    pub fn read_bytes(bytes: &[u8], path: impl AsRef<Path>) -> Result<Self> {
-        let path = path.as_ref();
-        match extension(path).as_str() {
-            "trk" => Ok(super::trk::read_bytes(bytes, path)?.0),
-            "tck" => Ok(super::tck::read_bytes(bytes, path)?.0),
-            "trx" => Ok(super::trx::read_bytes(bytes, path)?.0),
-            other => Err(Error::format(
-                path,
-                format!("unknown tractogram extension '{other}' (expected .trk, .tck, .trx, or .gz)"),
-            )),
-        }
-    }
 }
 
 /// Lower-case file extension (empty when there is none); for a gzipped file the one before `.gz` (`trk` for

@@ -22,6 +22,7 @@
 //! antipodally symmetric, so the box is symmetric about the centre; `|ψ|` covers both lobe rules), by local
 //! ascent from the best of 2,562 directions: a box hugging the glyph instead of its bounding sphere's cube.
 
+pub use super::glyph::glyph_box;
 use glam::DVec3;
 
 use super::glyph::{Glyph, Hit, Lobes, eval_cartesian};
@@ -233,83 +234,8 @@ pub fn cast_poly(g: &Glyph, o: DVec3, d: DVec3, span: (f64, f64), knobs: PolyCas
     Some(Hit { t: hi, point, normal, negative })
 }
 
-/// How many of the best samples are considered as starts of the ascent in [`glyph_box`].
-const STARTS_POOL: usize = 64;
-
 /// The first hit inside the glyph's box ([`glyph_box`]), by [`cast_poly`].
 pub fn cast_in_box(g: &Glyph, half: DVec3, o: DVec3, d: DVec3, knobs: PolyCast, lobes: Lobes) -> Option<Hit> {
     let span = ray_box_interval(o, d, g.centre, half)?;
     cast_poly(g, o, d, span, knobs, lobes)
-}
-
-/// Half extents of the glyph's axis-aligned box about its centre: for each axis `a`, the largest
-/// `|ψ(u)| |u_a|`, found by projected gradient ascent on the sphere from the best of 2,562 directions, and
-/// widened by `1e-6` of the largest radius for rounding.
-pub fn glyph_box(coeffs: &[f64], l_max: usize) -> DVec3 {
-    glyph_box_from(coeffs, l_max, &super::glyph::bound_psi(coeffs, l_max))
-}
-
-/// [`glyph_box`] with ψ at the sample directions given.
-pub(crate) fn glyph_box_from(coeffs: &[f64], l_max: usize, psi: &[f64]) -> DVec3 {
-    let (dirs, delta) = super::glyph::bound_sample();
-    let shrink = 1.0 - 0.5 * ((l_max + 1) as f64 * delta).powi(2);
-    let rmax = psi.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let mut half = DVec3::ZERO;
-    for a in 0..3 {
-        let objective = |u: DVec3| {
-            let (p, g) = eval_cartesian(coeffs, l_max, u);
-            // h = (ψ u_a)², its Cartesian gradient, projected on the sphere below.
-            let e = DVec3::AXES[a];
-            (p * p * u[a] * u[a], 2.0 * p * u[a] * (u[a] * g + p * e))
-        };
-        // Start from the best samples of up to three distinct lobes (distinct lobes can be close in value;
-        // antipodes and neighbours of a chosen start are the same lobe of h).
-        let score = |i: usize| (psi[i] * dirs[i][a]).abs();
-        let mut starts: Vec<usize> = Vec::with_capacity(3);
-        let mut by_score: Vec<usize> = (0..dirs.len()).collect();
-        let pool = STARTS_POOL.min(by_score.len());
-        by_score.select_nth_unstable_by(pool - 1, |&i, &j| score(j).total_cmp(&score(i)));
-        by_score.truncate(STARTS_POOL);
-        by_score.sort_unstable_by(|&i, &j| score(j).total_cmp(&score(i)));
-        for &i in &by_score {
-            if starts.len() == 3 {
-                break;
-            }
-            if starts.iter().all(|&k| dirs[k].dot(dirs[i]).abs() < 0.94) {
-                starts.push(i);
-            }
-        }
-        let mut best = 0.0f64;
-        for &i in &starts {
-            // ψ u_a has degree l_max + 1: by Bernstein's inequality (as in `render_bound`) no point of this
-            // start's lobe exceeds its best sample by more than 1 / shrink. Skip lobes that cannot win.
-            if best > 0.0 && shrink > 0.05 && (score(i) / shrink).powi(2) <= best {
-                continue;
-            }
-            let mut u = dirs[i];
-            let (mut h, mut grad) = objective(u);
-            let mut step = 0.05;
-            for _ in 0..60 {
-                let tangent = grad - grad.dot(u) * u;
-                if tangent.length() < 1e-14 * (1.0 + h) {
-                    break;
-                }
-                let cand = (u + step * tangent / tangent.length()).normalize();
-                let (hc, gc) = objective(cand);
-                if hc > h {
-                    (u, h, grad) = (cand, hc, gc);
-                    step *= 1.5;
-                } else {
-                    step *= 0.3;
-                    // 1e-7 rad from the maximum: h is within ~1e-14 of it (h is flat there).
-                    if step < 1e-7 {
-                        break;
-                    }
-                }
-            }
-            best = best.max(h);
-        }
-        half[a] = best.sqrt() + 1e-6 * rmax;
-    }
-    half
 }

@@ -189,7 +189,7 @@ pub fn fit_odf_coefficients<T: Scalar>(
     }
     let n = model.n_coeffs();
     let mut per_voxel = vec![0f64; nvox * n];
-    const BLOCK: usize = crate::dti::PROGRESS_BLOCK;
+    const BLOCK: usize = crate::volume::PROGRESS_BLOCK;
     per_voxel.par_chunks_mut(n * BLOCK).enumerate().for_each_init(
         || (vec![0.0f64; nvol], vec![0.0f64; model.dwi.len()]),
         |(sig, scratch), (block, outs)| {

@@ -221,7 +221,7 @@ pub fn peaks_from_sh(
         indices: vec![-1; nvox * k],
         gfa: vec![0.0; nvox],
     };
-    const BLOCK: usize = crate::dti::PROGRESS_BLOCK;
+    const BLOCK: usize = crate::volume::PROGRESS_BLOCK;
     out.dirs
         .par_chunks_mut(k * BLOCK)
         .zip(out.values.par_chunks_mut(k * BLOCK))

@@ -588,28 +588,6 @@ pub struct CircleField {
     pub centre: DVec3,
 }
 
-impl CircleField {
-    /// The convergence experiment: a tracker and seed that trace one full turn of the circle of radius `r`
-    /// (two half turns of `n_half` steps from the seed, which both end at the antipode `exact`).
-    pub fn one_turn(
-        &self,
-        r: f64,
-        n_half: usize,
-        integrator: super::Integrator,
-    ) -> crate::Result<(super::Tracker<'_, Self>, DVec3, DVec3)> {
-        let h = std::f64::consts::PI * r / n_half.max(1) as f64;
-        let params = super::TrackParams {
-            step_mm: h,
-            integrator,
-            max_angle_deg: 90.0,
-            max_length_mm: 2.0 * std::f64::consts::PI * r + h / 2.0,
-            ..Default::default()
-        };
-        let tracker = super::Tracker::new(self, glam::DMat4::IDENTITY, params)?;
-        Ok((tracker, self.centre + DVec3::new(r, 0.0, 0.0), self.centre - DVec3::new(r, 0.0, 0.0)))
-    }
-}
-
 impl DirectionField for CircleField {
     fn dims(&self) -> [usize; 3] {
         self.dims

@@ -4,7 +4,7 @@
 use glam::{DMat3, DMat4, DVec3};
 use rayon::prelude::*;
 
-use super::field::{DirectionField, in_grid};
+use super::field::{CircleField, DirectionField, in_grid};
 use crate::dti::eigen::LowerTri;
 use crate::error::{Error, Result};
 use crate::io::Tractogram;
@@ -425,4 +425,26 @@ fn concat(blocks: Vec<Tracks>) -> Tracks {
         out.rejected.extend_from_slice(&b.rejected);
     }
     out
+}
+
+impl CircleField {
+    /// The convergence experiment: a tracker and seed that trace one full turn of the circle of radius `r`
+    /// (two half turns of `n_half` steps from the seed, which both end at the antipode `exact`).
+    pub fn one_turn(
+        &self,
+        r: f64,
+        n_half: usize,
+        integrator: Integrator,
+    ) -> crate::Result<(Tracker<'_, Self>, DVec3, DVec3)> {
+        let h = std::f64::consts::PI * r / n_half.max(1) as f64;
+        let params = TrackParams {
+            step_mm: h,
+            integrator,
+            max_angle_deg: 90.0,
+            max_length_mm: 2.0 * std::f64::consts::PI * r + h / 2.0,
+            ..Default::default()
+        };
+        let tracker = Tracker::new(self, glam::DMat4::IDENTITY, params)?;
+        Ok((tracker, self.centre + DVec3::new(r, 0.0, 0.0), self.centre - DVec3::new(r, 0.0, 0.0)))
+    }
 }

@@ -12,8 +12,7 @@
 
 use std::collections::HashMap;
 use std::num::NonZeroU64;
-use std::sync::Arc;
-use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
+use std::sync::atomic::Ordering;
 
 use bevy::camera::visibility::RenderLayers;
 use bevy::prelude::*;
@@ -32,61 +31,8 @@ use bevy::render::view::{ExtractedView, ViewUniform, ViewUniformOffset, ViewUnif
 use bevy::render::{Extract, RenderApp, RenderStartup};
 
 use crate::shaders;
+pub use crate::sort_order::{GpuSortStats, SplatSortMode, padded_len};
 use crate::splat::{SplatMaterial, SplatSet};
-
-/// How splat sets are sorted (a resource; the viewer uses the default).
-#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum SplatSortMode {
-    /// The GPU on a hardware adapter; the CPU on a software rasteriser (lavapipe, llvmpipe, WARP), where the
-    /// CPU's radix sort is faster than an emulated GPU running the bitonic network (`bench splats`: 100k
-    /// splats orbit at 145 ms a frame with the CPU sort, 261 ms with the GPU's, on lavapipe).
-    #[default]
-    Auto,
-    /// A compute pass per view (the CPU where the adapter has no compute shaders).
-    Gpu,
-    /// The CPU's radix argsort, the order uploaded (4 bytes per splat) when the view direction changes.
-    Cpu,
-}
-
-/// What the GPU sort has done, shared by the main and render worlds (a resource in both).
-#[derive(Resource, Clone, Default)]
-pub struct GpuSortStats(Arc<Shared>);
-
-#[derive(Default)]
-struct Shared {
-    sorts: AtomicU64,
-    /// 0 not known yet, 1 compute shaders available, 2 not.
-    compute: AtomicU8,
-    /// The adapter is a software rasteriser.
-    software: std::sync::atomic::AtomicBool,
-    last_forward: std::sync::Mutex<Option<Vec3>>,
-}
-
-impl GpuSortStats {
-    /// Sorts done on the GPU so far.
-    pub fn sorts(&self) -> u64 {
-        self.0.sorts.load(Ordering::Relaxed)
-    }
-    /// The world view direction of the last GPU sort.
-    pub fn last_forward(&self) -> Option<Vec3> {
-        *self.0.last_forward.lock().unwrap_or_else(|e| e.into_inner())
-    }
-    /// Whether `mode` sorts on the GPU on this adapter (as far as is known: before the renderer has started,
-    /// `Gpu` says yes and `Auto` no).
-    pub fn uses_gpu(&self, mode: SplatSortMode) -> bool {
-        let compute = self.0.compute.load(Ordering::Relaxed);
-        match mode {
-            SplatSortMode::Cpu => false,
-            SplatSortMode::Gpu => compute != 2,
-            SplatSortMode::Auto => compute == 1 && !self.0.software.load(Ordering::Relaxed),
-        }
-    }
-}
-
-/// The padded length of a set's order: a power of two, at least one block (512).
-pub fn padded_len(n: usize) -> usize {
-    n.max(512).next_power_of_two()
-}
 
 /// GPU placement of a set. Keep in sync with `SetParams` in `shaders/splat_sort.wgsl`.
 #[derive(Clone, Copy, Debug, PartialEq, ShaderType)]

@@ -14,6 +14,7 @@ use fascicle_core::dti::glyph::{MIN_EXPONENT, TensorGlyph, TensorShape};
 pub mod gpu_sort;
 pub mod layer;
 pub mod shaders;
+pub mod sort_order;
 pub mod splat;
 
 pub use fascicle_render::layer::{LayerStatus, Selection, SliceAxis};

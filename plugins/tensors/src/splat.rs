@@ -18,8 +18,8 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use crate::gpu_sort::{GpuSortStats, SplatSortMode, padded_len};
 use crate::shaders;
+use crate::sort_order::{GpuSortStats, SplatSortMode, padded_len};
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
 use bevy::mesh::MeshVertexBufferLayoutRef;
