@@ -319,7 +319,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
     }
 }
 
-/// The most points of one part of a tractogram opened as lines ([`stream_lines`]): compressed to about a
+/// The most points of one part of a tractogram opened as lines (`stream_lines`): compressed to about a
 /// quarter on smooth tractography, 1M points are some 5 MB of vertices and indices, one upload of a frame
 /// (2M gave `fascicle render` of 1M streamlines 0.3 s and 0.1 GB more: larger transients while parts upload).
 pub const LINE_PART_POINTS: usize = 1_000_000;
@@ -513,7 +513,7 @@ fn job_pool() -> Option<&'static rayon::ThreadPool> {
 }
 
 /// Runs `f` (a layer's job) with its parallel work (fits, tracking, glyph placement) on the jobs' own rayon
-/// threads ([`job_pool`]). The main thread's parallel work (ROI selection as tract parts arrive, as an ROI is
+/// threads (`job_pool`). The main thread's parallel work (ROI selection as tract parts arrive, as an ROI is
 /// dragged) uses the global pool: were the jobs there too, a frame would wait until their queued work was done
 /// (a 2.2 s frame while the large bench scene built). Without the pool (threads could not be made), `f` runs on
 /// the global one.

@@ -71,7 +71,7 @@ pub struct LayerJob {
     pub progress: Arc<JobProgress>,
     structure: LayerKind,
     task: Task<Result<Content, String>>,
-    /// Parts of its content shown so far ([`stream_parts`]): the layer's old content is gone.
+    /// Parts of its content shown so far (`stream_parts`): the layer's old content is gone.
     pub parts_shown: usize,
 }
 

@@ -340,6 +340,27 @@ pub fn run(o: ScaleOptions) -> Result<(), Error> {
             );
         }
     }
+    for &n in sizes {
+        // Every size, the tractogram read in place: a child process, so its memory is that of the step alone.
+        let file = dir.join(format!("brain{n}.tck"));
+        warm(&file);
+        let me = std::env::current_exe().map_err(|e| Error::Param(format!("this program's path: {e}")))?;
+        let (_, peak, out) =
+            measure(Command::new(me).args(["scale", "--drag-mapped", file.to_str().unwrap_or_default()]))?;
+        let median_ms: f64 = out.split_whitespace().nth(1).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN);
+        log(
+            Row {
+                n,
+                format: "tck",
+                task: "roi_drag",
+                tool: "select, mapped file",
+                wall_s: median_ms / 1e3,
+                peak_mib: peak,
+                result: out.trim().to_string(),
+            },
+            &mut rows,
+        );
+    }
     let mut table = String::from(
         "| streamlines | file | task | tool | wall (s) | peak memory (MiB) | result |\n|---|---|---|---|---|---|---|\n",
     );
@@ -369,5 +390,35 @@ pub fn run(o: ScaleOptions) -> Result<(), Error> {
         }
         std::fs::write(csv, text).map_err(|e| Error::Param(format!("{}: {e}", csv.display())))?;
     }
+    Ok(())
+}
+
+/// ROI drag steps on a `.tck` read in place ([`fascicle_core::io::mapped::MappedTck`]) with the streamline-cell
+/// index built once ([`fascicle_core::roi_index::StreamlineCells`], 4 mm cells): the bench's child process for
+/// the "select, mapped file" row. Prints `median M ms, worst W ms (K kept; index built in B s, I MiB)`.
+pub fn drag_mapped(file: &Path) -> Result<(), Error> {
+    use fascicle_core::io::mapped::MappedTck;
+    use fascicle_core::roi_index::StreamlineCells;
+    let t = MappedTck::open(file)?;
+    let t0 = Instant::now();
+    let bounds = t.bounds().unwrap_or_default();
+    let index = StreamlineCells::build(t.n_streamlines(), |s| t.streamline(s), bounds, 4.0);
+    let build = t0.elapsed().as_secs_f64();
+    let mut times = vec![];
+    let mut kept = 0;
+    for k in 0..40 {
+        let centre = [-20.0 + k as f32, 0.0, 0.0];
+        let rois = [Roi { shape: RoiShape::Sphere { centre, radius: 10.0 }, mode: RoiMode::Include }];
+        let t1 = Instant::now();
+        kept = index.select(t.n_streamlines(), |s| t.streamline(s), &rois).iter().filter(|k| **k).count();
+        times.push(t1.elapsed().as_secs_f64() * 1e3);
+    }
+    times.sort_by(f64::total_cmp);
+    println!(
+        "median {:.1} ms, worst {:.1} ms ({kept} kept; index built in {build:.1} s, {:.0} MiB)",
+        times[20],
+        times[39],
+        index.heap_bytes() as f64 / 1048576.0
+    );
     Ok(())
 }

@@ -155,6 +155,10 @@ pub enum BenchCommand {
         /// Only write the missing tractograms, then exit (the bench runs itself so to keep its own memory small).
         #[arg(long, hide = true)]
         write_only: bool,
+        /// Only time ROI drag steps on this `.tck`, read in place with the streamline-cell index, then exit (the
+        /// bench runs itself so to measure that process's memory alone).
+        #[arg(long, hide = true)]
+        drag_mapped: Option<PathBuf>,
     },
     /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory and
     /// asset counts (the soak test). Fails when a layer reports an error or the second half of the run grows:
@@ -179,7 +183,8 @@ pub enum BenchCommand {
 
 pub fn run(cmd: BenchCommand) -> Result<(), Error> {
     match cmd {
-        BenchCommand::Scale { sizes, dir, python, csv, drag_max, write_only } => {
+        BenchCommand::Scale { drag_mapped: Some(file), .. } => crate::bench_scale::drag_mapped(&file),
+        BenchCommand::Scale { sizes, dir, python, csv, drag_max, write_only, drag_mapped: None } => {
             crate::bench_scale::run(crate::bench_scale::ScaleOptions {
                 sizes: &sizes,
                 dir: &dir,

@@ -24,7 +24,9 @@ pub const UNIT_MM: f64 = 1.0;
 /// One control point: position in [0, 1] of the value range, linear RGB and opacity per `UNIT_MM`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TfPoint {
+    /// Position in [0, 1] of the value range.
     pub x: f64,
+    /// Linear RGB and opacity per `UNIT_MM`.
     pub rgba: [f64; 4],
 }
 
@@ -32,7 +34,10 @@ pub struct TfPoint {
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct TransferFunction {
+    /// The value range `[lo, hi]` mapped to `x` in [0, 1], in the volume's units. Defaults to `[0, 1]`.
     pub range: [f64; 2],
+    /// Control points, in any order (sorted by `x` on evaluation); values outside them take the nearest
+    /// point's. Defaults to the FA context ramp of five points.
     pub points: Vec<TfPoint>,
 }
 
@@ -81,7 +86,10 @@ impl TransferFunction {
 /// A tabulated transfer function.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Lut {
+    /// Linear RGB and opacity per `UNIT_MM` at evenly spaced normalised positions `i / (len - 1)`;
+    /// [`LUT_SIZE`] of them from [`TransferFunction::lut`].
     pub entries: Vec<[f64; 4]>,
+    /// The value range `[lo, hi]` the entries span, in the volume's units.
     pub range: [f64; 2],
 }
 
@@ -133,7 +141,9 @@ pub fn sample(vol: &Volume<f32>, p: DVec3) -> f64 {
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct ClipBox {
+    /// Lower fractions per voxel axis (x, y, z), clamped to [0, 1]. Defaults to `[0, 0, 0]`.
     pub min: [f64; 3],
+    /// Upper fractions per voxel axis (x, y, z), clamped to [0, 1]. Defaults to `[1, 1, 1]`.
     pub max: [f64; 3],
 }
 
@@ -274,12 +284,16 @@ pub struct ShearWarpView {
     pub base: f64,
     /// First plane, step between planes (+1 or -1), number of planes.
     pub first: f64,
+    /// Step from one composited plane to the next along `axis`: +1 or -1 (voxels), front to back.
     pub step: f64,
+    /// Number of planes composited (0 when none is in front of the eye).
     pub planes: usize,
     /// The intermediate image: the in-plane coordinates (the axes after `axis`, cyclically) of its first
     /// pixel's corner, its pixel size (voxels), its size in pixels (0 when no plane is in front of the eye).
     pub origin: glam::DVec2,
+    /// Size of an intermediate pixel along the two in-plane axes (voxels); 1 when no plane is in front.
     pub spacing: glam::DVec2,
+    /// Intermediate image width and height (pixels), `[0, 0]` when no plane is in front of the eye.
     pub size: [u32; 2],
 }
 

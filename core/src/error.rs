@@ -6,11 +6,22 @@ use std::path::PathBuf;
 /// Errors from reading, validating and fitting diffusion data.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
+    /// Opening, reading, writing or creating a file (or directory) failed in the operating system.
     #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        /// The file or directory the operation was on.
+        path: PathBuf,
+        /// The operating system's error (missing file, permission denied, ...).
+        source: std::io::Error,
+    },
     /// A file exists and was read, but its content is not what its format requires.
     #[error("{path}: {reason}")]
-    Format { path: PathBuf, reason: String },
+    Format {
+        /// The file whose content is at fault.
+        path: PathBuf,
+        /// What is wrong with it, naming the field or value at fault.
+        reason: String,
+    },
     /// Arrays or files that must agree in size do not.
     #[error("shape mismatch: {0}")]
     Shape(String),
@@ -19,6 +30,7 @@ pub enum Error {
     Param(String),
 }
 
+/// The core's result type: [`Error`] unless another error type is named.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {

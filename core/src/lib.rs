@@ -6,6 +6,8 @@
 //!
 //! Everything is checked against DIPY's own arrays (see `tests/`); nothing here panics on bad input.
 
+#![warn(missing_docs)]
+
 pub mod compress;
 pub mod dti;
 pub mod dvr;
@@ -14,6 +16,7 @@ pub mod io;
 pub mod linalg;
 pub mod phantom;
 pub mod roi;
+pub mod roi_index;
 pub mod sh;
 pub mod tdi;
 pub mod tracking;

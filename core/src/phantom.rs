@@ -11,13 +11,19 @@ use crate::volume::Volume;
 
 /// Fibre eigenvalues (mm²/s) and the isotropic background diffusivity.
 pub const FIBRE_EVALS: [f64; 3] = [1.7e-3, 0.3e-3, 0.3e-3];
+/// Diffusivity of the isotropic background (mm²/s).
 pub const BACKGROUND_MD: f64 = 0.8e-3;
 
 /// The phantom's tensors and the true fibre directions per voxel (voxel axes).
 pub struct Phantom {
+    /// Grid size in voxels (x, y, z).
     pub dims: [usize; 3],
+    /// Voxel indices to world RAS+ mm: 2 mm isotropic, axes aligned, the grid centred on the origin.
     pub world_from_voxel: DMat4,
+    /// One tensor per voxel, x fastest, in mm²/s on the voxel axes: the mean of its fibres' tensors, or the
+    /// isotropic background.
     pub tensors: Vec<LowerTri>,
+    /// Per voxel (x fastest), the unit directions of the fibres through it: none, one or two (crossings).
     pub fibres: Vec<Vec<DVec3>>,
 }
 

@@ -17,32 +17,45 @@ use rayon::prelude::*;
 /// A region's shape, in the tractogram's world space (RAS+ mm).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum RoiShape {
+    /// A ball: the points within `radius` of `centre`, boundary included.
     Sphere {
+        /// Centre, RAS+ mm.
         centre: [f32; 3],
+        /// Radius, mm.
         radius: f32,
     },
     /// Axis-aligned box.
     Box {
+        /// The corner of least coordinates, RAS+ mm.
         min: [f32; 3],
+        /// The corner of greatest coordinates, RAS+ mm (faces included).
         max: [f32; 3],
     },
     /// The infinite plane through `point` with normal `normal`.
     Plane {
+        /// A point of the plane, RAS+ mm.
         point: [f32; 3],
+        /// The plane's normal, any non-zero length (only the side of a point is tested).
         normal: [f32; 3],
     },
 }
 
+/// What a region does to the streamlines that meet it (`tckedit -include` / `-exclude`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum RoiMode {
+    /// Kept streamlines meet the region (every include region, when there are several). The default.
     #[default]
     Include,
+    /// Streamlines that meet the region are dropped.
     Exclude,
 }
 
+/// A region of interest: a shape and what it does.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Roi {
+    /// Where the region is (RAS+ mm).
     pub shape: RoiShape,
+    /// Include (the default) or exclude.
     pub mode: RoiMode,
 }
 
@@ -458,7 +471,9 @@ impl MaskRegion {
 /// A region of a [`Criteria`]: a shape, or a mask image.
 #[derive(Clone, Debug)]
 pub enum Region {
+    /// A sphere, box or plane.
     Shape(RoiShape),
+    /// The non-zero voxels of a mask image (`tckedit` with an image as the region).
     Mask(std::sync::Arc<MaskRegion>),
 }
 
@@ -482,8 +497,11 @@ impl Region {
 /// cannot be combined with `ends_only`.
 #[derive(Clone, Debug, Default)]
 pub struct Criteria {
+    /// Regions a kept streamline meets, every one (default none).
     pub include: Vec<Region>,
+    /// Regions a kept streamline meets none of (default none).
     pub exclude: Vec<Region>,
+    /// Only the first and last points are tested (`-ends_only`; default false).
     pub ends_only: bool,
 }
 

@@ -13,7 +13,9 @@ use crate::io::Tractogram;
 /// The grid a density map is counted on.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TdiGrid {
+    /// Grid size in voxels (x, y, z).
     pub dims: [usize; 3],
+    /// Voxel indices (integer = voxel centre) to world RAS+ mm, the tractogram's space.
     pub world_from_voxel: DMat4,
 }
 

@@ -30,6 +30,7 @@ pub struct Tubelet {
     pub centre: DVec3,
     /// Local frame to world.
     pub rotation: DQuat,
+    /// Half the segment's length (mm): the end centres lie at local x = ±`half_length`.
     pub half_length: f64,
     /// Semi-axes along local y and z at the left end, then at the right end (mm).
     pub radii: [f64; 4],
@@ -70,6 +71,7 @@ impl Tubelet {
         DVec3::new(self.half_length + ext(self.cuts[0]).max(ext(self.cuts[1])), r, r)
     }
 
+    /// A world point (mm) in the tubelet's local frame (centre at the origin, x along the segment).
     pub fn to_local(&self, p: DVec3) -> DVec3 {
         self.rotation.inverse() * (p - self.centre)
     }

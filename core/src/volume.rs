@@ -8,7 +8,9 @@ pub const PROGRESS_BLOCK: usize = 256;
 /// A scalar type a volume can hold after decoding: the on-disk type is converted (and scaled by
 /// `scl_slope`/`scl_inter`) into this one.
 pub trait Scalar: Copy + Send + Sync + Default + PartialOrd + std::fmt::Debug + 'static {
+    /// Converts from `f64` (to the nearest representable value for `f32`).
     fn from_f64(v: f64) -> Self;
+    /// Converts to `f64` exactly.
     fn to_f64(self) -> f64;
 }
 impl Scalar for f32 {
@@ -32,8 +34,11 @@ impl Scalar for f64 {
 /// indices (integer = voxel centre) to RAS+ millimetres.
 #[derive(Clone, Debug)]
 pub struct Volume<T = f32> {
+    /// Size along each of the 1 to 7 axes: x, y, z, then any further axes (volumes, components).
     pub shape: Vec<usize>,
+    /// The values, x fastest (NIfTI order); `shape.iter().product()` long.
     pub data: Vec<T>,
+    /// Voxel indices (integer = voxel centre) to world RAS+ mm.
     pub world_from_voxel: DMat4,
 }
 

@@ -15,6 +15,7 @@ const CORNERS: [DVec2; 3] = [DVec2::new(0.0, 0.0), DVec2::new(1.0, 0.0), DVec2::
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct BarycentricTf {
+    /// Denominator of the Westin measures that place a tensor in the triangle; defaults to the trace.
     pub denominator: WestinDenominator,
     /// Centre of the opacity bump as (cl, cp, cs) (normalised to sum 1).
     pub centre: [f64; 3],

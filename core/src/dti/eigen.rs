@@ -15,7 +15,10 @@ pub type LowerTri = [f64; 6];
 /// Eigenvalues sorted largest first, with unit eigenvectors forming a right-handed frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Eigen {
+    /// Eigenvalues `[l1, l2, l3]`, `l1 >= l2 >= l3`, in the tensor's units (mm²/s for a fitted tensor).
     pub values: [f64; 3],
+    /// Unit eigenvectors `[e1, e2, e3]`, `vectors[i]` belonging to `values[i]`, in the tensor's frame;
+    /// `e1 × e2 = e3`.
     pub vectors: [DVec3; 3],
 }
 

@@ -19,7 +19,9 @@ use crate::linalg::{cholesky_solve, pinv};
 /// Which estimator to use.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum FitMethod {
+    /// Ordinary least squares on the log signal.
     Ols,
+    /// Weighted least squares, weights the OLS-predicted signal (Chung 2006); the default, as in DIPY.
     #[default]
     Wls,
 }
@@ -45,7 +47,9 @@ pub struct TensorFit {
     /// The tensor as fitted, before eigenvalue clipping. DIPY's `lower_triangular(quadratic_form)` (what
     /// `tensor.nii.gz` holds) is [`TensorFit::tensor`], rebuilt from the clipped eigenvalues.
     pub lower_tri: LowerTri,
+    /// Fitted non-diffusion-weighted signal `exp(ln S0)`, in the input signal's units.
     pub s0: f64,
+    /// Eigen-system of `lower_tri`, eigenvalues clipped below to the model's `min_diffusivity`.
     pub eigen: Eigen,
 }
 
@@ -68,6 +72,7 @@ pub enum FitFailure {
 /// A gradient table turned into everything the per-voxel fit needs.
 #[derive(Clone, Debug)]
 pub struct TensorModel {
+    /// The estimator, OLS or WLS.
     pub method: FitMethod,
     /// Design matrix, one row per volume.
     pub design: Vec<[f64; 7]>,
@@ -77,11 +82,16 @@ pub struct TensorModel {
     col_scale: [f64; 7],
     /// Per row, the 28 products `xs_a xs_b` (a <= b) of the equilibrated row.
     pairs: Vec<[f64; NPAIR]>,
+    /// Signals are clipped below to this before the logarithm; [`MIN_SIGNAL`] (1e-4), as DIPY.
     pub min_signal: f64,
+    /// Fitted eigenvalues are clipped below to this (mm²/s for b in s/mm²): `1e-6 / -min(X)`, DIPY's
+    /// `min_diffusivity`; 0 when the design has no negative entry.
     pub min_diffusivity: f64,
 }
 
 impl TensorModel {
+    /// Builds the design matrix and its pseudo-inverse for `gtab`; an error when the table has fewer than 6
+    /// diffusion-weighted volumes or 7 in all.
     pub fn new(gtab: &GradientTable, method: FitMethod) -> Result<Self> {
         let design: Vec<[f64; 7]> = gtab
             .bvals
@@ -136,6 +146,7 @@ impl TensorModel {
         Ok(Self { method, design, ols_pinv, col_scale, pairs, min_signal: MIN_SIGNAL, min_diffusivity })
     }
 
+    /// Volumes in the gradient table, the length `fit_voxel` expects of `signal` and `log_s`.
     pub fn n_volumes(&self) -> usize {
         self.design.len()
     }

@@ -22,9 +22,11 @@ pub const MIN_EXPONENT: f64 = 0.02;
 /// Which surface a tensor glyph is.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum TensorShape {
+    /// The ellipsoid with the glyph's radii along its eigenvectors.
     Ellipsoid,
     /// Kindlmann's superquadric with sharpness γ (3 is his default; 0 gives ellipsoids).
     Superquadric {
+        /// Sharpness γ, >= 0; the default shape has 3.
         gamma: f64,
     },
 }
@@ -38,13 +40,17 @@ impl Default for TensorShape {
 /// A tensor glyph in world space.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TensorGlyph {
+    /// Centre in world space.
     pub centre: DVec3,
     /// Unit eigenvectors e1, e2, e3 (right-handed).
     pub axes: [DVec3; 3],
+    /// Semi-axes along `axes` (world units): `scale · max(l_i, floor · l1) / l1`, the largest `scale`.
     pub radii: [f64; 3],
     /// Westin measures (l1 denominator, as Kindlmann) and FA.
     pub cl: f64,
+    /// Westin planarity `(l2 - l3) / l1`, in [0, 1].
     pub cp: f64,
+    /// Fractional anisotropy of the clipped eigenvalues, in [0, 1].
     pub fa: f64,
 }
 
@@ -63,8 +69,11 @@ pub fn tensor_glyph(centre: DVec3, t: &LowerTri, scale: f64, floor: f64) -> Opti
 /// A ray-glyph hit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TensorHit {
+    /// Distance along the ray from its origin (world units, the ray's direction being unit).
     pub t: f64,
+    /// Hit point in world space, `origin + t · dir`.
     pub point: DVec3,
+    /// Unit outward surface normal at `point` (world space).
     pub normal: DVec3,
 }
 

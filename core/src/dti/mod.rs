@@ -20,7 +20,9 @@ use crate::volume::{PROGRESS_BLOCK, Scalar, Volume};
 /// A fitted tensor field: one entry per spatial voxel, in the DWI's voxel order and grid.
 #[derive(Clone, Debug)]
 pub struct TensorVolume {
+    /// Grid size in voxels (x, y, z); `voxels` is indexed x fastest.
     pub dims: [usize; 3],
+    /// Voxel indices (integer = voxel centre) to world RAS+ mm, the DWI's affine.
     pub world_from_voxel: glam::DMat4,
     /// `None` outside the mask; `Some(Err(..))` where the fit failed (NaN signal, singular system).
     pub voxels: Vec<Option<Result<TensorFit, FitFailure>>>,

@@ -27,16 +27,19 @@ pub const ATTENUATION_K: f64 = 1.3862943611198906;
 /// current colour and opacity (from a [`SplatColouring`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Splat {
+    /// Centre in world space (mm).
     pub centre: DVec3,
     /// World covariance (mm²).
     pub cov: DMat3,
     /// Linear RGB.
     pub colour: DVec3,
+    /// Peak opacity in [0, 1], before depth attenuation.
     pub opacity: f64,
     /// The tensor's eigenvalues, largest first.
     pub values: [f64; 3],
     /// Unit major and minor eigenvectors (world frame).
     pub e1: DVec3,
+    /// Unit minor eigenvector (world frame), of the smallest eigenvalue.
     pub e3: DVec3,
     /// The largest variance of `cov` (mm²): depth attenuation measures depth extent in units of the
     /// splat's largest standard deviation, so it does not depend on the splat's size.
@@ -44,6 +47,7 @@ pub struct Splat {
 }
 
 impl Splat {
+    /// Fractional anisotropy of `values`, in [0, 1].
     pub fn fa(&self) -> f64 {
         fa(&self.values)
     }
@@ -106,7 +110,10 @@ pub enum SplatColourMode {
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct SplatColouring {
+    /// Where colour and opacity come from. Defaults to [`SplatColourMode::Fa`].
     pub mode: SplatColourMode,
+    /// The transfer function of [`SplatColourMode::Barycentric`] (unused by the other modes); defaults to
+    /// [`BarycentricTf::default`].
     #[serde(default)]
     pub tf: BarycentricTf,
 }
@@ -146,9 +153,13 @@ impl SplatColouring {
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct LitTensor {
+    /// Weight of the unlit colour. Defaults to 0.3.
     pub ambient: f64,
+    /// Weight of the diffuse term `d`. Defaults to 0.7.
     pub diffuse: f64,
+    /// Weight of the white specular term `s`. Defaults to 0.3.
     pub specular: f64,
+    /// Blinn-Phong exponent `N`. Defaults to 20.
     pub shininess: f64,
 }
 
@@ -189,9 +200,13 @@ pub struct SplatRender {
 /// (0, 0) at the top left.
 #[derive(Clone, Copy, Debug)]
 pub struct SplatCamera {
+    /// World (mm) to the camera's view frame: rigid, the camera at the origin looking down -z.
     pub view_from_world: DMat4,
+    /// Vertical field of view (radians).
     pub fov_y: f64,
+    /// Image width (pixels).
     pub width: u32,
+    /// Image height (pixels).
     pub height: u32,
 }
 
@@ -204,6 +219,7 @@ pub struct Footprint {
     pub conic: [f64; 3],
     /// Distance of the centre in front of the camera (mm).
     pub depth: f64,
+    /// Peak opacity at the centre: the splat's opacity, depth-attenuated when attenuation is on.
     pub alpha0: f64,
 }
 

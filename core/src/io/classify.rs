@@ -19,7 +19,10 @@ use crate::{Result, Volume};
 
 /// NIfTI intent codes used here.
 pub const INTENT_SYMMATRIX: i32 = 1005;
+/// NIfTI intent code `NIFTI_INTENT_VECTOR`: each voxel holds a vector (read as peaks when the volumes come in
+/// threes).
 pub const INTENT_VECTOR: i32 = 1007;
+/// NIfTI intent code `NIFTI_INTENT_RGB_VECTOR`: each voxel holds an RGB colour (an RGB map).
 pub const INTENT_RGB_VECTOR: i32 = 2003;
 /// NIfTI datatypes RGB24 and RGBA32.
 const DT_RGB24: i16 = 128;
@@ -38,6 +41,7 @@ pub enum TensorOrder {
 }
 
 impl TensorOrder {
+    /// Every order, DIPY's first (the one kept when several fit equally well).
     pub const ALL: [TensorOrder; 3] = [TensorOrder::Dipy, TensorOrder::Fsl, TensorOrder::Mrtrix];
 
     /// For each DIPY slot (Dxx Dxy Dyy Dxz Dyz Dzz), the volume of this order that holds it.
@@ -67,19 +71,29 @@ impl TensorOrder {
 pub enum ImageKind {
     /// Diffusion-weighted volumes with their gradient table beside the image.
     Dwi {
+        /// The b-values file beside the image (`x.bval`).
         bval: PathBuf,
+        /// The b-vectors file beside the image (`x.bvec`).
         bvec: PathBuf,
     },
+    /// A diffusion tensor image: 6 volumes holding the unique elements of the symmetric matrix.
     Tensor {
+        /// The order of the 6 elements in the volumes ([`TensorOrder::to_dipy`] reorders them).
         order: TensorOrder,
     },
     /// SH coefficients; `basis` when the header or a sidecar records it.
     Sh {
+        /// The even maximum SH order whose coefficient count (1, 6, 15, 28, 45, ...) is the number of volumes.
         l_max: usize,
+        /// The basis the header (`descrip`) or a JSON sidecar records (tournier07 for MRtrix images); `None`
+        /// when unknown.
         basis: Option<ShBasis>,
     },
+    /// Peak directions: MRtrix's 3N volumes, DIPY's (X,Y,Z,N,3) `_dirs` or an FSL dtifit eigenvector (`_V1`).
     Peaks,
+    /// An RGB colour map (RGB datatype, RGB-vector intent, or 3 volumes named "rgb").
     Rgb,
+    /// A single volume (a 3D image, or 4D with one volume).
     Scalar,
     /// Another 4D series (as many volumes as the shape says).
     Series,
@@ -103,6 +117,7 @@ impl ImageKind {
 /// A classification and the evidence for it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Classified {
+    /// The kind decided on; when [`Classified::ambiguous`] is not empty, the best guess among its alternatives.
     pub kind: ImageKind,
     /// What decided it, for messages and `info`.
     pub reason: String,

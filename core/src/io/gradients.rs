@@ -66,6 +66,7 @@ pub struct GradientTable {
     pub bvals: Vec<f64>,
     /// Unit gradient directions in the image's voxel axes (zero for b0 volumes).
     pub bvecs: Vec<DVec3>,
+    /// b-value in s/mm^2 at or below which a volume is a b0 (callers usually pass [`DEFAULT_B0_THRESHOLD`], 50).
     pub b0_threshold: f64,
 }
 
@@ -217,12 +218,15 @@ impl GradientTable {
         Self::new(bvals, bvecs, b0_threshold)
     }
 
+    /// Number of volumes (b0s included).
     pub fn len(&self) -> usize {
         self.bvals.len()
     }
+    /// Whether the table has no volumes (never, for a table built by [`GradientTable::new`]).
     pub fn is_empty(&self) -> bool {
         self.bvals.is_empty()
     }
+    /// Whether volume `i` is a b0: its b-value is at most `b0_threshold`. Panics if `i >= len()`.
     pub fn is_b0(&self, i: usize) -> bool {
         self.bvals[i] <= self.b0_threshold
     }

@@ -19,8 +19,12 @@ use crate::volume::{Scalar, Volume};
 /// What a `.mif` header holds beyond the data.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct MifHeader {
+    /// `dim`: the size of each axis in header order (x, y, z, then volumes; at least 3).
     pub dims: Vec<usize>,
+    /// `vox`: the voxel size of each axis as written, in mm for the spatial ones (the affine takes 1 mm where a
+    /// value is not finite and positive).
     pub vox: Vec<f64>,
+    /// `datatype` as written, e.g. `Float32LE`, `UInt16BE`.
     pub datatype: String,
     /// The diffusion scheme (`dw_scheme`): x, y, z, b per volume, in scanner coordinates.
     pub dw_scheme: Vec<[f64; 4]>,
@@ -84,6 +88,8 @@ fn dw_scheme_row(v: &str, path: &Path) -> Result<[f64; 4]> {
         .map_err(|_| Error::format(path, format!("dw_scheme row '{v}' does not have 4 values")))
 }
 
+/// Reads a `.mif` or `.mif.gz` (gzip told by its bytes) into NIfTI storage order, values scaled by `scaling`,
+/// the affine `transform` times the voxel sizes (voxel indices to scanner RAS+ mm), with its header.
 pub fn read<T: Scalar>(path: impl AsRef<Path>) -> Result<(Volume<T>, MifHeader)> {
     let path = path.as_ref();
     let raw = std::fs::read(path).map_err(|e| Error::io(path, e))?;

@@ -2,6 +2,7 @@
 
 pub mod classify;
 pub mod gradients;
+pub mod mapped;
 pub mod mif;
 pub mod nifti;
 pub mod peaks;

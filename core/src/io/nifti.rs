@@ -16,8 +16,11 @@ use crate::volume::{Scalar, Volume};
 /// Which header fields produced `world_from_voxel`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AffineSource {
+    /// The sform rows (`srow_x/y/z`), taken when `sform_code > 0`.
     Sform,
+    /// The qform (quaternion, offset and pixdim; the standard's method 2), taken when only `qform_code > 0`.
     Qform,
+    /// Neither code set: the voxel sizes `pixdim[1..4]` on the diagonal, no rotation or translation (method 1).
     Pixdim,
 }
 
@@ -26,21 +29,36 @@ pub enum AffineSource {
 pub struct NiftiHeader {
     /// 1 or 2.
     pub version: u8,
+    /// Whether the file is big-endian (told by the byte order of `sizeof_hdr`).
     pub big_endian: bool,
+    /// The NIfTI datatype code (2 uint8, 4 int16, 16 float32, 64 float64, 128 rgb24, ...: [`datatype_name`]).
     pub datatype: i16,
+    /// `dim[1..=dim[0]]`: the size of each of the 1 to 7 axes, x first.
     pub shape: Vec<usize>,
+    /// `pixdim` as stored: `[0]` qfac (negative flips the qform's third axis), `[1..4]` voxel sizes, `[4]` the
+    /// time step, in the units of `xyzt_units`.
     pub pixdim: [f64; 8],
+    /// Scaling of the stored values, `value = stored * scl_slope + scl_inter`; 0 or not finite means none.
     pub scl_slope: f64,
+    /// Offset added after `scl_slope` (unused when the slope means no scaling).
     pub scl_inter: f64,
+    /// The qform's space: 0 unknown, 1 scanner, 2 aligned, 3 Talairach, 4 MNI.
     pub qform_code: i32,
+    /// The sform's space, coded as `qform_code`.
     pub sform_code: i32,
+    /// Which fields gave `world_from_voxel` (sform, else qform, else pixdim).
     pub affine_source: AffineSource,
+    /// Voxel indices (integer = voxel centre) to world RAS+ mm, in the space the sform or qform code names.
     pub world_from_voxel: DMat4,
+    /// Units of `pixdim`: space in bits 0-2 (1 m, 2 mm, 3 µm), time in bits 3-5 (8 s, 16 ms, 24 µs).
     pub xyzt_units: i32,
+    /// The free-text description (up to 80 bytes, trimmed); `fascicle fit` records the SH basis here.
     pub descrip: String,
     /// NIfTI intent (e.g. 1005 symmetric matrix, 1007 vector, 2003 RGB) and its 16-character name.
     pub intent_code: i32,
+    /// The intent's name (up to 16 bytes, trimmed; e.g. one containing "peak" marks a peaks image).
     pub intent_name: String,
+    /// Byte offset of the voxel data from the start of the (decompressed) file.
     pub vox_offset: u64,
 }
 
@@ -405,8 +423,11 @@ fn decode<T: Scalar>(bytes: &[u8], path: &Path) -> Result<(Volume<T>, NiftiHeade
 /// On-disk element type for writing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum WriteType {
+    /// uint8 (datatype 2): values rounded and clamped to 0..=255.
     U8,
+    /// float32 (datatype 16).
     F32,
+    /// float64 (datatype 64).
     F64,
 }
 
@@ -422,7 +443,9 @@ pub fn write<T: Scalar>(path: impl AsRef<Path>, vol: &Volume<T>, ty: WriteType) 
 pub struct WriteMeta {
     /// 1 scanner, 2 aligned, 3 Talairach, 4 MNI (the codes of the input, to keep them).
     pub sform_code: i16,
+    /// The qform's space, coded as `sform_code`. Defaults to 1 (scanner).
     pub qform_code: i16,
+    /// NIfTI intent code (0 none, 1005 symmetric matrix, 1007 vector, 2003 RGB vector). Defaults to 0.
     pub intent_code: i16,
     /// Up to 15 characters.
     pub intent_name: String,
@@ -450,7 +473,7 @@ impl WriteMeta {
     }
 }
 
-/// [`write`] with the header's codes, intent and description given.
+/// [`write()`] with the header's codes, intent and description given.
 pub fn write_with<T: Scalar>(path: impl AsRef<Path>, vol: &Volume<T>, ty: WriteType, meta: &WriteMeta) -> Result<()> {
     let path = path.as_ref();
     if vol.shape.is_empty() || vol.shape.len() > 7 {

@@ -21,7 +21,10 @@ use crate::volume::Volume;
 /// Which file layout.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PeaksLayout {
+    /// One image of `3N` volumes, amplitude-scaled vectors in world axes (FSL's `_V1` eigenvectors, in voxel
+    /// axes, are reported as this layout too).
     Mrtrix,
+    /// DIPY's `PREFIX_dirs` (X,Y,Z,N,3) unit vectors in voxel axes, amplitudes from `PREFIX_values`.
     Dipy,
 }
 
@@ -29,11 +32,18 @@ pub enum PeaksLayout {
 /// their amplitudes (0 where absent).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PeakImage {
+    /// Spatial size in voxels, `[nx, ny, nz]`.
     pub dims: [usize; 3],
+    /// Peak slots per voxel (N).
     pub npeaks: usize,
+    /// Unit directions in voxel axes, voxel-major: peak `p` of flat voxel `v` (x fastest) at `v * npeaks + p`.
     pub dirs: Vec<[f32; 3]>,
+    /// Amplitude of each entry of `dirs`, same indexing: the MRtrix vector length, DIPY's `_values` (1 when
+    /// absent), or the FA beside an FSL eigenvector (1 without).
     pub amplitudes: Vec<f32>,
+    /// The image's voxel indices to world RAS+ mm.
     pub world_from_voxel: DMat4,
+    /// The layout the file was read in.
     pub layout: PeaksLayout,
 }
 

@@ -71,6 +71,7 @@ impl Format {
 /// What a tractogram's header says, before any streamline is read.
 #[derive(Clone, Debug)]
 pub struct StreamHeader {
+    /// The file's format, told by its extension.
     pub format: Format,
     /// Streamlines the header promises: `n_count` of a `.trk` (when not 0), `NB_STREAMLINES` of a TRX; None for
     /// a `.tck`, whose `count` is advisory (MRtrix writes it when a run ends; other tools get it wrong).
@@ -887,6 +888,7 @@ pub struct WriteOptions {
     /// Names of the values per point and per streamline that chunks carry, to be written where the format
     /// holds them (`.trk`: at most 10 each; `.trx`: `dpv/`, `dps/`; `.tck`: none).
     pub scalars: Vec<String>,
+    /// Names of the values per streamline, in the order chunks carry them (`.trk`: at most 10). Defaults to none.
     pub properties: Vec<String>,
     /// Precision of TRX positions (default float32).
     pub trx_positions: Option<trx::PositionType>,

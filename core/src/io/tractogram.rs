@@ -20,10 +20,12 @@ pub struct Tractogram {
 }
 
 impl Tractogram {
+    /// An empty tractogram, ready for `push`: `offsets` holds its leading 0 (which `Default` leaves out).
     pub fn new() -> Self {
         Self { offsets: vec![0], ..Default::default() }
     }
 
+    /// Number of streamlines (0 for an empty `offsets`).
     pub fn n_streamlines(&self) -> usize {
         self.offsets.len().saturating_sub(1)
     }
@@ -33,6 +35,7 @@ impl Tractogram {
         &self.points[self.offsets[i]..self.offsets[i + 1]]
     }
 
+    /// The points of each streamline, in order.
     pub fn iter(&self) -> impl Iterator<Item = &[Vec3]> + '_ {
         (0..self.n_streamlines()).map(|i| self.streamline(i))
     }

@@ -22,13 +22,19 @@ const HDR: usize = 1000;
 /// The header fields that place the streamlines in space.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrkHeader {
+    /// The header's `version` (1 or 2; this crate writes 2).
     pub version: i32,
+    /// Whether the file is big-endian (told by the byte order of `hdr_size`).
     pub big_endian: bool,
+    /// Size of the reference grid in voxels, x, y, z.
     pub dims: [i16; 3],
+    /// Voxel edge lengths in mm, x, y, z (checked positive).
     pub voxel_size: [f32; 3],
+    /// Orientation of the voxel axes as three letters of R/L A/P S/I, upper case (e.g. "LAS"; "LPS" when empty).
     pub voxel_order: String,
     /// Row-major 4x4 as stored; see [`TrkHeader::rasmm_from_voxmm`].
     pub vox_to_ras: DMat4,
+    /// Number of streamlines the header promises; 0 when not recorded (the file is read to its end).
     pub n_count: i32,
 }
 

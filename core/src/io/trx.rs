@@ -24,6 +24,7 @@ use crate::error::{Error, Result};
 pub struct TrxHeader {
     /// The reference grid: dimensions and voxel-to-RAS+ affine.
     pub dims: [usize; 3],
+    /// `VOXEL_TO_RASMM`: the reference grid's voxel indices (integer = voxel centre) to RAS+ mm.
     pub voxel_to_rasmm: DMat4,
     /// Named groups of streamline indices.
     pub groups: Vec<(String, Vec<u32>)>,
@@ -32,8 +33,11 @@ pub struct TrxHeader {
 /// The precision positions are written in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PositionType {
+    /// `positions.3.float16`: half the size, steps of 1/16 mm at 64-128 mm from the origin.
     F16,
+    /// `positions.3.float32` (the stream writer's default).
     F32,
+    /// `positions.3.float64`.
     F64,
 }
 

@@ -22,8 +22,16 @@ use crate::error::{Error, Result};
 /// A real symmetric SH basis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 pub enum ShBasis {
-    Descoteaux07 { legacy: bool },
-    Tournier07 { legacy: bool },
+    /// DIPY's basis: `√2 K cos(|m|φ)` for m < 0, `√2 K sin(mφ)` for m > 0.
+    Descoteaux07 {
+        /// DIPY's legacy variant (its default), without the `(-1)^m` factor on m < 0.
+        legacy: bool,
+    },
+    /// MRtrix's basis: `√2 K sin(|m|φ)` for m < 0, `√2 K cos(mφ)` for m > 0.
+    Tournier07 {
+        /// MRtrix 0.2's variant, without the `√2` on m ≠ 0 (so not orthonormal).
+        legacy: bool,
+    },
 }
 
 impl Default for ShBasis {
@@ -34,6 +42,7 @@ impl Default for ShBasis {
 }
 
 impl ShBasis {
+    /// The four bases: descoteaux07 legacy, descoteaux07, tournier07 legacy, tournier07.
     pub const ALL: [ShBasis; 4] = [
         ShBasis::Descoteaux07 { legacy: true },
         ShBasis::Descoteaux07 { legacy: false },
@@ -50,6 +59,8 @@ impl ShBasis {
         }
     }
 
+    /// Display name, also written in SH image headers ([`super::sh_descrip`]): "descoteaux07", "descoteaux07 legacy",
+    /// "tournier07" or "tournier07 legacy".
     pub fn name(&self) -> String {
         format!("{}{}", self.convention(), if self.legacy() { " legacy" } else { "" })
     }
@@ -117,6 +128,7 @@ pub struct ShScratch {
 }
 
 impl ShScratch {
+    /// Scratch for the bases of even order `l_max` (`n_coeffs(l_max)` functions per evaluation).
     pub fn new(l_max: usize) -> Self {
         let n = tri(l_max, l_max) + 1;
         Self { l_max, p: vec![0.0; n], q: vec![0.0; n] }

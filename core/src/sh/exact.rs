@@ -54,10 +54,13 @@ pub fn ray_box_interval(o: DVec3, d: DVec3, c: DVec3, e: DVec3) -> Option<(f64, 
 pub struct RayPlane {
     /// The ray's distance from the centre, the parameter of its closest point, and the unit vector to it.
     pub b: f64,
+    /// The ray parameter `t` of its closest point to the centre (`-oc · d`).
     pub tc: f64,
+    /// The unit vector from the centre towards that closest point; any unit vector orthogonal to `d` when `b = 0`.
     pub e: DVec3,
     /// `ψ(θ) = Σ_n a_n cos nφ + b_n sin nφ`, `n = 0..=k/2`.
     pub cos: Vec<f64>,
+    /// The sine coefficients `b_n`, `n = 0..=k/2` (`b_0 = 0`).
     pub sin: Vec<f64>,
 }
 
@@ -132,6 +135,7 @@ impl RayPlane {
     pub fn theta(&self, t: f64) -> f64 {
         (t - self.tc).atan2(self.b)
     }
+    /// The ray parameter of angle `theta`: `tc + b tan θ`.
     pub fn t_of(&self, theta: f64) -> f64 {
         self.tc + self.b * theta.tan()
     }
@@ -156,7 +160,10 @@ impl RayPlane {
 /// ±π/2 on all of it) is sampled uniformly in `t` at `samples` points instead.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PolyCast {
+    /// Sets the smallest θ step, `span / (4 samples)`, and the step cap, `64 samples`; a ray through the centre is
+    /// sampled at this many points in `t`. 4,096 in [`PolyCast::REFERENCE`].
     pub samples: u32,
+    /// Bisections in `t` refining the bracketed root (60 in [`PolyCast::REFERENCE`]: to f64 rounding).
     pub refine: u32,
 }
 

@@ -19,9 +19,12 @@ use crate::io::GradientTable;
 use crate::linalg::pinv;
 use crate::volume::{Scalar, Volume};
 
+/// Which ODF an [`OdfModel`] fits.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum OdfKind {
+    /// Constant solid angle (Aganj 2010): the fit of `ln(-ln E)`, then `c_0 = 1/(2√π)` (unit integral).
     Csa,
+    /// Q-ball (Descoteaux 2007): the Funk-Radon transform of E.
     Qball,
 }
 
@@ -30,9 +33,12 @@ pub const DEFAULT_SMOOTH: f64 = 0.006;
 /// DIPY's `min_signal` for ODF models.
 pub const MIN_SIGNAL: f32 = 1e-5;
 
+/// A CSA or Q-ball ODF fit for one gradient table, as DIPY's `CsaOdfModel` / `QballModel`.
 #[derive(Clone, Debug)]
 pub struct OdfModel {
+    /// Which ODF is fitted.
     pub kind: OdfKind,
+    /// The even maximum SH order of the fit.
     pub l_max: usize,
     /// Basis of the returned coefficients.
     pub basis: ShBasis,
@@ -54,6 +60,8 @@ fn legendre_at_zero(l: usize) -> f64 {
 }
 
 impl OdfModel {
+    /// Precomputes the fit matrix for `gtab`'s diffusion-weighted directions: `l_max` even and >= 2, `smooth` the
+    /// Laplace-Beltrami weight ([`DEFAULT_SMOOTH`]), `basis` that of the returned coefficients. Needs a b0 volume.
     pub fn new(gtab: &GradientTable, kind: OdfKind, l_max: usize, smooth: f64, basis: ShBasis) -> Result<Self> {
         if !l_max.is_multiple_of(2) || l_max == 0 {
             return Err(Error::Param(format!("l_max must be even and >= 2, got {l_max}")));
@@ -104,6 +112,7 @@ impl OdfModel {
         Ok(Self { kind, l_max, basis, fit_matrix, b0, dwi })
     }
 
+    /// Coefficients per voxel, `n_coeffs(l_max)` (15 at l_max 4, 45 at 8).
     pub fn n_coeffs(&self) -> usize {
         n_coeffs(self.l_max)
     }

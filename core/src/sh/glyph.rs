@@ -114,6 +114,7 @@ pub struct ChebyshevForm {
 }
 
 impl ChebyshevForm {
+    /// The map for even order `l_max`: one square matrix per band `m = 0..=l_max`.
     pub fn new(l_max: usize) -> Self {
         use super::legendre::{legendre_table, tri};
         use std::f64::consts::{PI, SQRT_2};
@@ -244,6 +245,7 @@ pub struct GlyphStyle {
     pub scale: f64,
     /// `a_00` is divided by this (>= 1) to weaken the isotropic part.
     pub sharpen: f64,
+    /// What each glyph's size is normalised by. Defaults to [`Normalise::PerGlyph`].
     pub normalise: Normalise,
     /// Normalise by each glyph's largest lobe (the sampled bound [`render_bound`]) instead of the looser
     /// Cauchy-Schwarz bound `rmax`, so that the largest lobe reaches `scale`.
@@ -279,10 +281,16 @@ impl GlyphStyle {
 /// for the proxy and the ray's bounding sphere ([`render_bound`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Glyph {
+    /// The glyph's centre, world mm.
     pub centre: DVec3,
+    /// The even SH order of `coeffs` (at most [`MAX_GLYPH_L`]).
     pub l_max: usize,
+    /// Coefficients in [`GLYPH_BASIS`], sharpened (shifted for [`Normalise::MinMax`]) and scaled so that ψ is
+    /// the radius in mm.
     pub coeffs: Vec<f64>,
+    /// The Cauchy-Schwarz bound on `|ψ|` of `coeffs` ([`bound_rmax`]), in mm.
     pub rmax: f64,
+    /// The sampled bound on `|ψ|` ([`render_bound`], at most `rmax`), in mm: the ray's bounding sphere.
     pub rbound: f64,
     /// Half extents of the glyph's axis-aligned box about its centre ([`glyph_box`], at most
     /// `rbound` per axis): the renderer's proxy.
@@ -459,6 +467,7 @@ pub fn make_glyphs<'a>(
 pub struct Hit {
     /// Distance along the (unit) ray.
     pub t: f64,
+    /// The hit point `o + t d`, in the ray's frame.
     pub point: DVec3,
     /// Unit outward normal.
     pub normal: DVec3,
@@ -675,9 +684,13 @@ pub fn glyph_mesh(g: &Glyph, order: u32, lobes: Lobes) -> (Vec<DVec3>, Vec<DVec3
 /// `2 half_size` square centred on `centre`, perpendicular to `normal` (any orientation).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct GlyphPlane {
+    /// The plane's centre, world mm; a grid point.
     pub centre: [f64; 3],
+    /// The plane's normal in world axes (any non-zero length; normalised on use).
     pub normal: [f64; 3],
+    /// Half the side of the square, in mm (at most 2,048 `spacing`s).
     pub half_size: f64,
+    /// Distance between neighbouring glyph positions, in mm (> 0).
     pub spacing: f64,
 }
 

@@ -28,7 +28,9 @@ const DEFAULT_EDGES: &str = include_str!("../../data/spheres/default_sphere_edge
 /// Unit vertices and the edges between neighbours.
 #[derive(Clone, Debug)]
 pub struct Sphere {
+    /// Unit directions (DIPY's default: one hemisphere, 362).
     pub vertices: Vec<DVec3>,
+    /// Pairs of neighbouring vertices, as indices into `vertices`.
     pub edges: Vec<[u32; 2]>,
 }
 
@@ -72,6 +74,7 @@ impl Default for PeakParams {
 }
 
 impl PeakParams {
+    /// Checks the ranges: threshold in [0, 1], separation angle in [0, 90] degrees, `npeaks` >= 1.
     pub fn validate(&self) -> Result<()> {
         if !(0.0..=1.0).contains(&self.relative_peak_threshold) {
             return Err(Error::Param(format!(
@@ -160,7 +163,9 @@ pub fn gfa_sampled(odf: &[f64]) -> f64 {
 /// Peaks of every voxel of an SH field.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PeakVolume {
+    /// Grid size in voxels, (X, Y, Z); voxels in NIfTI order.
     pub dims: [usize; 3],
+    /// Peak slots per voxel ([`PeakParams::npeaks`]); voxel `v`'s slots are `v npeaks .. (v + 1) npeaks`.
     pub npeaks: usize,
     /// Per voxel, `npeaks` unit directions in the frame of the SH coefficients (zero where absent).
     pub dirs: Vec<[f32; 3]>,
@@ -182,9 +187,13 @@ impl PeakVolume {
 /// SH coefficients of a grid, voxel-major (`n_coeffs(l_max)` per voxel, NIfTI voxel order, in `basis`).
 #[derive(Clone, Copy, Debug)]
 pub struct ShGrid<'a> {
+    /// Grid size in voxels, (X, Y, Z).
     pub dims: [usize; 3],
+    /// `X·Y·Z·n_coeffs(l_max)` coefficients: voxel `v`'s are `coeffs[v n .. (v + 1) n]`.
     pub coeffs: &'a [f64],
+    /// The even maximum SH order.
     pub l_max: usize,
+    /// The basis of `coeffs`.
     pub basis: ShBasis,
 }
 

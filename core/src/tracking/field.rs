@@ -62,8 +62,10 @@ pub fn in_grid(dims: [usize; 3], p: DVec3) -> bool {
 /// How tensors are blended between voxel centres.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum TensorInterpolation {
+    /// The six components blended linearly (the default; DIPY's choice). FA dips between crossing orientations.
     #[default]
     Componentwise,
+    /// The matrix logarithms blended (Arsigny 2006): no swelling, positive-definiteness kept.
     LogEuclidean,
 }
 
@@ -444,6 +446,7 @@ impl PeakField {
         self
     }
 
+    /// Peak slots per voxel (1 for a field made from tensors).
     pub fn npeaks(&self) -> usize {
         self.npeaks
     }
@@ -584,7 +587,9 @@ impl DirectionField for PeakField {
 /// integrators' convergence orders against exact streamlines.
 #[derive(Clone, Copy, Debug)]
 pub struct CircleField {
+    /// Grid size in voxels, (X, Y, Z).
     pub dims: [usize; 3],
+    /// A point on the axis of the circles, in voxel coordinates.
     pub centre: DVec3,
 }
 

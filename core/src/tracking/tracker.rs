@@ -52,8 +52,10 @@ pub enum StopReason {
 }
 
 impl StopReason {
+    /// Every reason, in declaration (and `Ord`) order.
     pub const ALL: [StopReason; 6] =
         [Self::LowFa, Self::OutsideVolume, Self::OutsideMask, Self::Angle, Self::MaxLength, Self::NoDirection];
+    /// A short description for summaries: "FA below threshold", "left the volume", ...
     pub fn name(self) -> &'static str {
         match self {
             Self::LowFa => "FA below threshold",
@@ -81,10 +83,16 @@ pub enum Rejection {
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct TrackParams {
+    /// Step length along the streamline, in mm (> 0). Defaults to 0.5.
     pub step_mm: f64,
+    /// Tracks stop where the interpolated stopping scalar (FA; GFA or the like for a peak field) is at or below
+    /// this; seeds at or below it are rejected. Defaults to 0.2.
     pub fa_threshold: f64,
+    /// Largest turn between consecutive steps, in degrees, in (0, 180]. Defaults to 60.
     pub max_angle_deg: f64,
+    /// The integration scheme. Defaults to [`Integrator::Rk4`].
     pub integrator: Integrator,
+    /// Streamlines shorter than this (in mm, `(points - 1) · step_mm`) are rejected. Defaults to 0.
     pub min_length_mm: f64,
     /// Whole streamline; each half gets at most half of it.
     pub max_length_mm: f64,
@@ -146,6 +154,7 @@ pub struct Tracks {
 }
 
 impl Tracks {
+    /// Total points over all streamlines.
     pub fn n_points(&self) -> usize {
         self.tractogram.points.len()
     }
@@ -176,10 +185,13 @@ const SEED_BLOCK: usize = 64;
 
 /// The tracker: a field, where it sits in the world, an optional mask, and the parameters.
 pub struct Tracker<'a, F: DirectionField> {
+    /// The direction field followed, sampled in voxel coordinates.
     pub field: &'a F,
+    /// The field grid's affine, voxel indices to world RAS+ mm: output points and tensors go through it.
     pub world_from_voxel: DMat4,
     /// One entry per voxel (NIfTI order); tracks stop on leaving it (nearest voxel).
     pub mask: Option<&'a [bool]>,
+    /// Step, stopping and length parameters (validated by [`Tracker::new`]).
     pub params: TrackParams,
     /// Record the field's tensor at every output point ([`Tracks::tensors`]; default true). The
     /// hyperstreamline renderer needs them; a plain tractogram does not, and they cost a blend and a
@@ -194,6 +206,7 @@ struct Half {
 }
 
 impl<'a, F: DirectionField> Tracker<'a, F> {
+    /// A tracker with no mask, recording tensors; `Err` for invalid `params` or a singular or non-finite affine.
     pub fn new(field: &'a F, world_from_voxel: DMat4, params: TrackParams) -> Result<Self> {
         params.validate()?;
         if !world_from_voxel.is_finite() || world_from_voxel.determinant() == 0.0 {

@@ -15,6 +15,7 @@ use crate::layer::LayerStatus;
 
 /// An example's App and where its frame goes.
 pub struct ExampleApp {
+    /// The Bevy App: the example adds its plugins, systems and scene to it before [`ExampleApp::run`].
     pub app: App,
     /// Offscreen: the PNG to write (if any) and the image every camera renders into.
     offscreen: Option<(Option<PathBuf>, Handle<Image>)>,
@@ -22,6 +23,7 @@ pub struct ExampleApp {
 
 /// Offscreen frame size.
 pub const WIDTH: u32 = 640;
+/// Offscreen frame height, pixels ([`WIDTH`] is the width).
 pub const HEIGHT: u32 = 480;
 
 impl ExampleApp {

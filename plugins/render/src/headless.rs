@@ -32,12 +32,16 @@ use bevy::window::{ExitCondition, WindowPlugin};
 /// An RGBA8 (sRGB-encoded) image read back from the GPU, rows top to bottom.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Capture {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
+    /// R, G, B, A bytes of each pixel, rows top to bottom, each row left to right: `4 * width * height` bytes.
     pub rgba: Vec<u8>,
 }
 
 impl Capture {
+    /// The RGBA bytes of pixel (x, y), y = 0 at the top; panics outside the image.
     pub fn pixel(&self, x: u32, y: u32) -> [u8; 4] {
         let i = 4 * (y * self.width + x) as usize;
         [self.rgba[i], self.rgba[i + 1], self.rgba[i + 2], self.rgba[i + 3]]
@@ -61,12 +65,17 @@ impl Capture {
 /// bottom (1 at the near plane, falling towards 0 at infinity; 0 where nothing was drawn).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DepthMap {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
+    /// Reverse-Z NDC depth (0..1) of each pixel, rows top to bottom, each row left to right: `width * height`
+    /// values.
     pub ndc: Vec<f32>,
 }
 
 impl DepthMap {
+    /// The NDC depth of pixel (x, y), y = 0 at the top; panics outside the map.
     pub fn at(&self, x: u32, y: u32) -> f32 {
         self.ndc[(y * self.width + x) as usize]
     }
@@ -114,8 +123,12 @@ impl DepthMap {
 /// a `Camera3d` whose depth usages include `COPY_SRC` ([`depth_copy_camera`]).
 #[derive(Component, Clone, ExtractComponent)]
 pub struct DepthCopy {
+    /// The buffer the depth is copied into: `height` rows of [`DepthCopy::bytes_per_row`] bytes, one
+    /// little-endian `f32` per pixel and rows padded to 256 bytes ([`add_depth_copy`] makes it).
     pub buffer: Handle<ShaderBuffer>,
+    /// The camera's depth texture width, pixels; a texture of another size (or multisampled) is not copied.
     pub width: u32,
+    /// The camera's depth texture height, pixels.
     pub height: u32,
 }
 

@@ -24,8 +24,11 @@ pub struct ImpostorUniform {
 
 const _: () = assert!(std::mem::size_of::<ImpostorUniform>() == 32);
 
+/// One ray-cast sphere (`shaders/sphere_impostor.wgsl`), drawn on a cube mesh placed by
+/// [`SphereImpostorMaterial::proxy_transform`]; no prepass, no shadows, both faces drawn.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct SphereImpostorMaterial {
+    /// The sphere and its shading (uniform binding 0).
     #[uniform(0)]
     pub params: ImpostorUniform,
 }

@@ -12,7 +12,10 @@ pub enum LayerStatus {
     #[default]
     Loading,
     /// Drawn: `items` glyphs (or streamlines, or voxels).
-    Ready { items: usize },
+    Ready {
+        /// How many glyphs (or streamlines, or voxels) are drawn.
+        items: usize,
+    },
     /// The data could not be loaded or turned into glyphs; the message names the file and the problem.
     Failed(String),
 }
@@ -64,7 +67,9 @@ pub fn changed_assets<A: Asset>(events: &mut MessageReader<AssetEvent<A>>) -> st
 /// A voxel axis.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum SliceAxis {
+    /// The first voxel axis (i); sagittal slices for data stored near RAS+.
     X,
+    /// The second voxel axis (j); coronal slices for data stored near RAS+.
     Y,
     /// Axial: the default.
     #[default]
@@ -72,6 +77,7 @@ pub enum SliceAxis {
 }
 
 impl SliceAxis {
+    /// The axis' position in a voxel index `[i, j, k]`: 0, 1 or 2.
     pub fn index(self) -> usize {
         match self {
             SliceAxis::X => 0,
@@ -85,12 +91,30 @@ impl SliceAxis {
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Selection {
     /// One slice (`index` `None`: the middle one), every `spacing`-th voxel along the two in-plane axes.
-    Slice { axis: SliceAxis, index: Option<usize>, spacing: usize },
+    Slice {
+        /// The axis normal to the slice.
+        axis: SliceAxis,
+        /// The slice's voxel index along `axis`; `None`: the middle one (`dims[axis] / 2`).
+        index: Option<usize>,
+        /// Every `spacing`-th voxel along each in-plane axis, from 0 (at least 1; the default is 1).
+        spacing: usize,
+    },
     /// Every `spacing`-th voxel along each axis.
-    Volume { spacing: usize },
+    Volume {
+        /// Every `spacing`-th voxel along each axis, from 0 (at least 1).
+        spacing: usize,
+    },
     /// Every voxel of `thickness` neighbouring slices centred on one (`index` `None`: the middle one), as
     /// splats are drawn.
-    Slab { axis: SliceAxis, index: Option<usize>, thickness: usize },
+    Slab {
+        /// The axis normal to the slab.
+        axis: SliceAxis,
+        /// The centre slice's voxel index along `axis`; `None`: the middle one (`dims[axis] / 2`).
+        index: Option<usize>,
+        /// Slices in the slab (at least 1): `(thickness - 1) / 2` before the centre one and `thickness / 2`
+        /// after it, clipped to the grid.
+        thickness: usize,
+    },
 }
 
 impl Default for Selection {

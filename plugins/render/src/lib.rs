@@ -10,8 +10,10 @@
 //!   pipeline to compile; used by `fascicle render` and by every plugin's tests.
 //! - [`layer`]: what every data layer shares: its status (loading, ready, failed), its voxel selection and
 //!   the per-stage work counters.
-//! - [`reference`]: f64 CPU references of the shared shader math, for tests.
+//! - [`reference`](mod@reference): f64 CPU references of the shared shader math, for tests.
 //! - [`AdapterKind`]: whether the renderer is a software rasteriser, for plugins that lower their cost there.
+
+#![warn(missing_docs)]
 
 pub mod example;
 pub mod headless;

@@ -6,16 +6,23 @@ use glam::{DMat4, DVec3, DVec4};
 /// A perspective camera as Bevy builds it: `clip_from_view` is an infinite reverse-Z perspective.
 #[derive(Clone, Copy, Debug)]
 pub struct PinholeCamera {
+    /// Camera position, world.
     pub eye: DVec3,
+    /// The world point the camera looks at (centre of the image).
     pub target: DVec3,
+    /// World direction that appears upwards in the image (need not be unit or orthogonal to the view axis).
     pub up: DVec3,
     /// Vertical field of view, radians.
     pub fov_y: f64,
+    /// Image width, pixels (with `height`, the aspect ratio).
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
 }
 
 impl PinholeCamera {
+    /// The camera's pose: view space (right-handed, looking down -z, y up) to world, as Bevy's
+    /// `Transform::looking_at`.
     pub fn world_from_view(&self) -> DMat4 {
         DMat4::look_at_rh(self.eye, self.target, self.up).inverse()
     }

@@ -7,10 +7,15 @@
 use bevy::asset::uuid_handle;
 use bevy::prelude::*;
 
+/// `shaders/lib/ray.wgsl` (`fascicle::ray`): view rays, ray-sphere and ray-box hits, fragment depth.
 pub const RAY: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a01");
+/// `shaders/lib/lighting.wgsl` (`fascicle::lighting`): the headlight (Lambert, light at the eye).
 pub const LIGHTING: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a02");
+/// `shaders/lib/colormap.wgsl` (`fascicle::colormap`): grey, direction colour, viridis.
 pub const COLORMAP: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a03");
+/// `shaders/sphere_impostor.wgsl`: the fragment stage of [`crate::impostor::SphereImpostorMaterial`].
 pub const SPHERE_IMPOSTOR: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a04");
+/// `shaders/lib/proxy.wgsl` (`fascicle::proxy`): the vertex stage shared by instanced proxy-mesh glyphs.
 pub const PROXY: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a08");
 
 /// A shader a crate owns: its fixed handle, its path under the crate's `shaders/` folder (the name errors

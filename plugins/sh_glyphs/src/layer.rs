@@ -29,7 +29,11 @@ use crate::{RayCastSettings, ShGlyphMaterial, ShGlyphSet, fill_glyph_set, update
 /// voxel-to-world affine (RAS+ mm).
 #[derive(Asset, TypePath, Clone, Debug)]
 pub struct ShField {
+    /// The coefficients, `X x Y x Z x n` (`data[x + X*(y + Y*(z + Z*j))]` for coefficient `j`), with the
+    /// image's `world_from_voxel` (voxel indices to RAS+ mm).
     pub coeffs: Arc<Volume<f32>>,
+    /// The SH basis of `coeffs`. DIPY's bases follow the voxel axes; [`field_glyphs`] turns them into world
+    /// axes through the affine.
     pub basis: ShBasis,
 }
 
@@ -45,6 +49,7 @@ impl ShField {
         Ok(Self { coeffs: Arc::new(coeffs), basis })
     }
 
+    /// The maximum (even) SH order the coefficient count implies (45 coefficients: 8).
     pub fn l_max(&self) -> usize {
         sh::l_max_for(self.coeffs.n_channels()).unwrap_or(0)
     }
@@ -55,6 +60,8 @@ impl ShField {
 #[derive(Component, Clone, Debug, Default)]
 #[require(Selection, GlyphShape, RayCastSettings, LayerStatus, Transform, Visibility)]
 pub struct ShGlyphs {
+    /// The SH field drawn, usually `AssetServer::load("csa.nii.gz")`. Swapping it, or the asset being
+    /// modified, rebuilds and re-uploads the layer's glyphs.
     pub field: Handle<ShField>,
 }
 
@@ -87,6 +94,8 @@ pub enum ShGlyphSystems {
 /// `fascicle fit csa` records it in its header description).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct ShFieldSettings {
+    /// The basis assumed when the header records none. Defaults to `None`: DIPY's default, descoteaux07
+    /// legacy.
     pub basis: Option<ShBasis>,
 }
 

@@ -39,6 +39,8 @@
 //! The math (basis conversion, sharpening, normalisation, rmax, the ray caster in f64) lives in
 //! `fascicle_core::sh::glyph`, which is also the test reference.
 
+#![warn(missing_docs)]
+
 use bevy::asset::RenderAssetUsages;
 use bevy::mesh::MeshTag;
 use bevy::prelude::*;
@@ -97,6 +99,7 @@ pub enum GlyphMethod {
 #[derive(Component, Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct RayCastSettings {
+    /// How the ray's first hit is found. Defaults to [`GlyphMethod::Exact`].
     pub method: GlyphMethod,
     /// Exact method: the quality knob. Steps along the ray are certified by a Lipschitz bound and at least
     /// `span / (4 samples)`: only a pair of roots closer than that (a lobe tip thinner) can be missed.
@@ -105,7 +108,9 @@ pub struct RayCastSettings {
     pub h: f32,
     /// Bisection steps after the bracketing (both methods).
     pub refine: u32,
+    /// How negative values of ψ are drawn. Defaults to [`Lobes::Clamp`] (not drawn).
     pub lobes: Lobes,
+    /// How glyphs are coloured. Defaults to [`GlyphColour::Direction`].
     pub colour: GlyphColour,
     /// Ambient fraction of the headlight shading.
     pub ambient: f32,
@@ -134,24 +139,39 @@ impl Default for RayCastSettings {
 /// GPU parameters. Keep in sync with `GlyphParams` in `shaders/sh_glyph.wgsl`.
 #[derive(Clone, Copy, Debug, ShaderType)]
 pub struct ShGlyphUniform {
+    /// Maximum (even) SH order of the set's glyphs.
     pub l_max: u32,
+    /// f32 coefficients per glyph in the `coeffs` buffer: `(l_max + 1)(l_max + 2) / 2`.
     pub stride: u32,
+    /// Bisection steps after the bracketing (at most 32).
     pub refine: u32,
+    /// 0: clamp negative lobes, 1: `|ψ|` with negative lobes marked ([`Lobes`]).
     pub lobes: u32,
+    /// Linear method: search step, in units of the glyph's render bound (at least 1e-4).
     pub h: f32,
+    /// Ambient fraction of the headlight shading.
     pub ambient: f32,
+    /// 0: direction RGB, 1: normal as colour, 2: flat grey, 3: GFA through viridis ([`GlyphColour`]).
     pub colour_mode: u32,
+    /// Linear method: most search steps per ray, `ceil(2 / h) + 2` (the chord through the bounding sphere
+    /// is at most twice the render bound).
     pub max_steps: u32,
+    /// Layer-wide size factor: ψ, the render bound and the box are multiplied by it (1 unless finite and
+    /// positive).
     pub size: f32,
     /// 0: linear search, 1: exact (polynomial form).
     pub method: u32,
+    /// Exact method: the quality knob, [`RayCastSettings::samples`] clamped to 1..=1024.
     pub samples: u32,
+    /// Phong specular weight of the headlight (exponent 32; at least 0).
     pub specular: f32,
 }
 
 const _: () = assert!(std::mem::size_of::<ShGlyphUniform>() == 48);
 
 impl ShGlyphUniform {
+    /// The uniform of a set of order `l_max` drawn with `s`, out-of-range settings clamped (see each
+    /// field).
     pub fn new(l_max: usize, s: &RayCastSettings) -> Self {
         let h = s.h.max(1e-4);
         Self {
@@ -186,6 +206,7 @@ impl ShGlyphUniform {
 /// The material of one glyph set.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct ShGlyphMaterial {
+    /// The ray caster's parameters (binding 0), from the layer's [`RayCastSettings`].
     #[uniform(0)]
     pub params: ShGlyphUniform,
     /// Three `vec4` per glyph: `(centre, rbound)` (the render bound, `Glyph::rbound`),
@@ -203,7 +224,9 @@ fascicle_render::proxy_glyph_material!(ShGlyphMaterial, shaders::SH_GLYPH);
 /// One displayed glyph: its index in the set's buffers and, when it came from a volume, its voxel.
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ShVoxel {
+    /// The glyph's index in its set's buffers (also its `MeshTag`).
     pub index: u32,
+    /// The voxel `[x, y, z]` (indices into the field's grid) it was built from; `None` when not from a volume.
     pub voxel: Option<[u32; 3]>,
 }
 
@@ -211,10 +234,15 @@ pub struct ShVoxel {
 /// for rewriting the small per-glyph header when highlights change).
 #[derive(Component, Clone, Debug)]
 pub struct ShGlyphSet {
+    /// The material every glyph of the set draws with: the uniform and the glyph buffers.
     pub material: Handle<ShGlyphMaterial>,
+    /// Maximum SH order of the set (the largest `Glyph::l_max`); fixes the buffer's per-glyph stride.
     pub l_max: usize,
+    /// Number of glyphs, and of [`ShVoxel`] children.
     pub len: usize,
+    /// The CPU copy of the glyphs, in buffer order (centres in RAS+ mm, before the `size` factor).
     pub glyphs: std::sync::Arc<Vec<Glyph>>,
+    /// How negative lobes are drawn, as in the uniform, so that picking matches the picture.
     pub lobes: Lobes,
     /// The layer-wide size factor the uniform holds ([`RayCastSettings::size`]).
     pub size: f64,

@@ -5,8 +5,11 @@ use bevy::asset::uuid_handle;
 use bevy::prelude::*;
 use fascicle_render::shaders::ShaderSource;
 
+/// `shaders/sh_glyph.wgsl`: the vertex and fragment shader of [`ShGlyphMaterial`](crate::ShGlyphMaterial), the
+/// per-pixel SH ray caster.
 pub const SH_GLYPH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a06");
 
+/// The shaders this crate owns, inserted under their handles when [`ShGlyphPlugin`](crate::ShGlyphPlugin) is built.
 pub const SOURCES: [ShaderSource; 1] = [(SH_GLYPH, "sh_glyph.wgsl", include_str!("../shaders/sh_glyph.wgsl"))];
 
 pub(crate) fn register(app: &mut App) {

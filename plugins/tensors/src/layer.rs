@@ -38,6 +38,8 @@ use crate::{TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, fill_tenso
 /// DIPY's `TensorModel` write them.
 #[derive(Asset, TypePath, Clone, Debug)]
 pub struct TensorField {
+    /// The tensors, `X x Y x Z x 6` (`data[x + X*(y + Y*(z + Z*c))]` for component `c` in DIPY's order), in
+    /// the file's units, with the image's `world_from_voxel` (voxel indices to RAS+ mm).
     pub tensors: Arc<Volume<f32>>,
 }
 
@@ -102,6 +104,8 @@ pub fn read_field(bytes: Vec<u8>, path: &Path) -> Result<TensorField, String> {
 #[derive(Component, Clone, Debug, Default)]
 #[require(Selection, TensorGlyphShape, TensorGlyphSettings, LayerStatus, Transform, Visibility)]
 pub struct TensorGlyphs {
+    /// The tensor field drawn, usually `AssetServer::load("dti_tensors.nii.gz")`. Swapping it, or the asset being
+    /// modified, rebuilds and re-uploads the layer's glyphs.
     pub field: Handle<TensorField>,
 }
 
@@ -135,6 +139,8 @@ impl Default for TensorGlyphShape {
     Visibility
 )]
 pub struct TensorSplats {
+    /// The tensor field drawn, usually `AssetServer::load("dti_tensors.nii.gz")`. Swapping it, or the asset being
+    /// modified, rebuilds and re-uploads the layer's splats.
     pub field: Handle<TensorField>,
 }
 
@@ -144,6 +150,7 @@ pub struct TensorSplats {
 pub struct SplatShape {
     /// The largest standard deviation as a fraction of the selection's cell.
     pub size: f64,
+    /// Voxels with FA below this get no splat. Defaults to 0.
     pub min_fa: f64,
 }
 
@@ -167,7 +174,11 @@ pub struct SplatCounts(pub StageCounts);
 /// propagation: it needs the camera's and the sets' global transforms).
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum TensorSystems {
+    /// Builds, repacks and restyles the [`TensorGlyphs`] and [`TensorSplats`] layers that changed (before
+    /// transform propagation).
     Prepare,
+    /// Re-sorts on the CPU the splat sets whose view direction changed
+    /// ([`sort_splats`](crate::splat::sort_splats); after transform propagation).
     Sort,
 }
 

@@ -4,6 +4,8 @@
 //! for ellipsoids, search and bisection for superquadrics) and writes true depth. The math and the test
 //! references are in `fascicle_core::dti::glyph`.
 
+#![warn(missing_docs)]
+
 use bevy::asset::RenderAssetUsages;
 use bevy::mesh::MeshTag;
 use bevy::prelude::*;
@@ -66,11 +68,15 @@ pub enum TensorColour {
 #[derive(Component, Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct TensorGlyphSettings {
+    /// Ellipsoid or superquadric. Defaults to Kindlmann's superquadric with γ = 3.
     pub shape: TensorShape,
     /// Superquadric search step in units of the glyph's bound.
     pub h: f32,
+    /// Superquadric bisection steps after the search brackets the hit (at most 32). Defaults to 5.
     pub refine: u32,
+    /// How glyphs are coloured. Defaults to [`TensorColour::Direction`].
     pub colour: TensorColour,
+    /// Ambient fraction of the headlight shading. Defaults to 0.25.
     pub ambient: f32,
 }
 
@@ -83,13 +89,22 @@ impl Default for TensorGlyphSettings {
 /// GPU parameters. Keep in sync with `TensorParams` in `shaders/tensor_glyph.wgsl`.
 #[derive(Clone, Copy, Debug, ShaderType)]
 pub struct TensorGlyphUniform {
+    /// 0: ellipsoid, 1: superquadric ([`TensorShape`]).
     pub shape: u32,
+    /// Superquadric sharpness γ (0 for ellipsoids).
     pub gamma: f32,
+    /// Superquadric search step, in units of the glyph's bound (at least 1e-4).
     pub h: f32,
+    /// Superquadric bisection steps after the bracketing (at most 32).
     pub refine: u32,
+    /// 0: |e1| RGB weighted by FA, 1: FA through viridis, 2: normal as colour ([`TensorColour`]).
     pub colour_mode: u32,
+    /// Ambient fraction of the headlight shading.
     pub ambient: f32,
+    /// Most superquadric search steps per ray, `ceil(2 / h) + 2` (the chord through the bounding sphere is at
+    /// most twice the bound).
     pub max_steps: u32,
+    /// Floor of the superquadric exponents α, β (`fascicle_core::dti::glyph::MIN_EXPONENT`, 0.02).
     pub min_exponent: f32,
 }
 
@@ -119,8 +134,10 @@ impl From<&TensorGlyphSettings> for TensorGlyphUniform {
     }
 }
 
+/// The material of one tensor glyph set, drawn on the shared cube proxy by `shaders/tensor_glyph.wgsl`.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct TensorGlyphMaterial {
+    /// The ray caster's parameters (binding 0), from the layer's [`TensorGlyphSettings`].
     #[uniform(0)]
     pub params: TensorGlyphUniform,
     /// Five `vec4` per glyph: (centre, bound), (e1, r1), (e2, r2), (e3, r3), (cl, cp, fa, 0).
@@ -133,18 +150,26 @@ fascicle_render::proxy_glyph_material!(TensorGlyphMaterial, shaders::TENSOR_GLYP
 /// One tensor sample on screen: its index in the set's buffer, its voxel, and what systems select on.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct TensorSample {
+    /// The glyph's index in its set's buffer (also its `MeshTag`).
     pub index: u32,
+    /// The voxel `[x, y, z]` (indices into the field's grid) it was built from; `None` when not from a volume.
     pub voxel: Option<[u32; 3]>,
+    /// Fractional anisotropy, in [0, 1].
     pub fa: f32,
+    /// Westin linearity `(l1 - l2) / l1`, in [0, 1].
     pub cl: f32,
+    /// Westin planarity `(l2 - l3) / l1`, in [0, 1].
     pub cp: f32,
 }
 
 /// A tensor glyph set: the parent of its [`TensorSample`] entities.
 #[derive(Component, Clone, Debug)]
 pub struct TensorGlyphSet {
+    /// The material every glyph of the set draws with: the uniform and the glyph buffer.
     pub material: Handle<TensorGlyphMaterial>,
+    /// The shape the buffer was packed for (a glyph's bound depends on it).
     pub shape: TensorShape,
+    /// Number of glyphs, and of [`TensorSample`] children.
     pub len: usize,
 }
 

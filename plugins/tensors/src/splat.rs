@@ -44,6 +44,8 @@ pub struct SplatSettings {
     /// Lit-tensor shading.
     #[serde(default)]
     pub lit: bool,
+    /// Lit-tensor weights and exponent, used when `lit`. Defaults to [`LitTensor::default`] (ambient 0.3,
+    /// diffuse 0.7, specular 0.3, shininess 20).
     #[serde(default)]
     pub lighting: LitTensor,
     /// Colour and opacity per splat (a change rewrites the style buffer only).
@@ -73,14 +75,23 @@ impl SplatSettings {
 /// GPU parameters. Keep in sync with `SplatParams` in `shaders/tensor_splat.wgsl`.
 #[derive(Clone, Copy, Debug, ShaderType)]
 pub struct SplatUniform {
+    /// 1: depth attenuation on ([`SplatSettings::attenuation`]), 0: off.
     pub attenuation: u32,
+    /// Depth-attenuation constant `K = -ln 0.25` ([`ATTENUATION_K`]).
     pub k: f32,
+    /// Screen-space dilation added to every footprint's covariance, pixels² ([`DILATION_PX2`]).
     pub dilation: f32,
+    /// Factor on every splat's opacity ([`SplatSettings::opacity`]).
     pub opacity_scale: f32,
+    /// 1: lit-tensor shading ([`SplatSettings::lit`]), 0: the unlit colour.
     pub lit: u32,
+    /// Lit tensors: weight of the unlit colour ([`LitTensor::ambient`]).
     pub ambient: f32,
+    /// Lit tensors: weight of the diffuse term ([`LitTensor::diffuse`]).
     pub diffuse: f32,
+    /// Lit tensors: weight of the white specular term ([`LitTensor::specular`]).
     pub specular: f32,
+    /// Lit tensors: Blinn-Phong exponent `N` ([`LitTensor::shininess`]).
     pub shininess: f32,
 }
 
@@ -100,8 +111,11 @@ impl From<&SplatSettings> for SplatUniform {
     }
 }
 
+/// The material of one splat set, drawn by `shaders/tensor_splat.wgsl` in the transparent phase with
+/// premultiplied alpha, tested against the opaque depth without writing it.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct SplatMaterial {
+    /// The splat parameters (binding 0), from the layer's [`SplatSettings`].
     #[uniform(0)]
     pub params: SplatUniform,
     /// Five `vec4` per splat: (centre, cl), (xx, xy, xz, yy), (yz, zz, cp, cs), (e1, 1/s²), (e3, 0).
@@ -150,6 +164,7 @@ impl Material for SplatMaterial {
 /// A splat set: one entity, one draw.
 #[derive(Component, Clone, Debug)]
 pub struct SplatSet {
+    /// The set's material: the uniform and the splat, style and order buffers.
     pub material: Handle<SplatMaterial>,
     /// The splats (colour and opacity as last styled).
     pub splats: Arc<Vec<Splat>>,
@@ -158,9 +173,11 @@ pub struct SplatSet {
 }
 
 impl SplatSet {
+    /// Number of splats in the set.
     pub fn len(&self) -> usize {
         self.splats.len()
     }
+    /// Whether the set has no splats.
     pub fn is_empty(&self) -> bool {
         self.splats.is_empty()
     }

@@ -52,9 +52,18 @@ pub enum TractStyle {
     /// Hyperstreamlines: ray-cast tubelets (round without per-point tensors).
     Tubelets(TubeSettings),
     /// Line segments coloured by direction.
-    Lines { opacity: f32 },
+    Lines {
+        /// Alpha of the lines, 0..1 (clamped); below 1 they are blended.
+        opacity: f32,
+    },
     /// Polygon tubes of `scale` mm radius, 16 sides.
-    PolygonTubes { scale: f64, opacity: f32 },
+    PolygonTubes {
+        /// Cross-section scale, mm, as [`TubeSettings::scale`]; drawn without tensors, so the tubes are round
+        /// with radius `scale / 4`.
+        scale: f64,
+        /// Alpha of the tubes, 0..1 (clamped); below 1 they are blended.
+        opacity: f32,
+    },
 }
 
 impl Default for TractStyle {
@@ -67,6 +76,7 @@ impl Default for TractStyle {
 #[derive(Component, Clone, Debug, Default)]
 #[require(TractStyle, LayerStatus, Transform, Visibility)]
 pub struct Tracts {
+    /// The streamlines to draw (a `.trk`, `.tck` or `.trx` file loaded by [`TractogramLoader`]).
     pub tractogram: Handle<TractogramAsset>,
 }
 
@@ -78,7 +88,9 @@ pub struct TractCounts(pub StageCounts);
 /// [`TractSystems::Select`] re-evaluates ROIs.
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum TractSystems {
+    /// Spawns (or respawns) the drawn set of each layer whose asset or style changed.
     Prepare,
+    /// Re-evaluates ROI selections and rewrites the sets' flag buffers ([`crate::apply_rois`]).
     Select,
 }
 

@@ -10,6 +10,8 @@
 //! when an ROI or a tract set changes, and rewrites the 4-byte-per-streamline flag buffer that both vertex
 //! shaders (tubelet, tract mesh) read; nothing else is re-uploaded.
 
+#![warn(missing_docs)]
+
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
@@ -40,6 +42,7 @@ pub use layer::{TractCounts, TractStyle, TractSystems, TractogramAsset, Tractogr
 pub struct TubeSettings {
     /// Cross-section scale (mm): a semi-axis is `scale · l_k / l1` (at least 5 % of it).
     pub scale: f64,
+    /// How tubelets are coloured (default [`TubeColour::Direction`]).
     pub colour: TubeColour,
     /// How a pixel's ray finds the surface: the bracketed tracer, or the seed's sphere tracing (the baseline).
     pub method: TubeMethod,
@@ -47,8 +50,11 @@ pub struct TubeSettings {
     pub iterations: u32,
     /// Convergence tolerance, in units of the tubelet's largest radius.
     pub eps: f32,
+    /// Ambient fraction of the headlight shading, 0..1: `base · (ambient + (1 - ambient) · n·v)` (default 0.3).
     pub ambient: f32,
+    /// Weight of the white highlight `specular · (n·v)^shininess` added to the shading (default 0.25).
     pub specular: f32,
+    /// Exponent of the highlight (default 24).
     pub shininess: f32,
 }
 
@@ -70,10 +76,15 @@ impl Default for TubeSettings {
 /// GPU parameters. Keep in sync with `TubeParams` in `shaders/tubelet.wgsl`.
 #[derive(Clone, Copy, Debug, ShaderType)]
 pub struct TubeUniform {
+    /// [`TubeSettings::iterations`], at least 1.
     pub iterations: u32,
+    /// [`TubeSettings::eps`]: convergence tolerance, in units of the tubelet's largest radius.
     pub eps: f32,
+    /// [`TubeSettings::ambient`]: ambient fraction of the headlight shading.
     pub ambient: f32,
+    /// [`TubeSettings::specular`]: weight of the highlight.
     pub specular: f32,
+    /// [`TubeSettings::shininess`]: exponent of the highlight.
     pub shininess: f32,
     /// 0 bracketed, 1 sphere tracing.
     pub method: u32,
@@ -95,12 +106,18 @@ impl From<&TubeSettings> for TubeUniform {
     }
 }
 
+/// Drawing material of a hyperstreamline set ([`TubeSet`], `shaders/tubelet.wgsl`): on the [`boxes`] proxy
+/// mesh, each tubelet ray cast per pixel, writing its true depth.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct TubeletMaterial {
+    /// The ray caster's settings (uniform binding 0).
     #[uniform(0)]
     pub params: TubeUniform,
+    /// The tubelets as [`pack`] lays them out, seven `vec4<f32>` (112 bytes) each (storage binding 1).
     #[storage(1, read_only)]
     pub tubes: Handle<ShaderBuffer>,
+    /// One `u32` per streamline, 1 when selected, 0 hidden (storage binding 2; the set's
+    /// [`TractSet::selected`]).
     #[storage(2, read_only)]
     pub selected: Handle<ShaderBuffer>,
 }
@@ -112,6 +129,7 @@ fascicle_render::proxy_glyph_material!(TubeletMaterial, shaders::TUBELET);
 /// The streamlines of a tract layer and what the ROIs select of them, however they are drawn.
 #[derive(Component, Clone)]
 pub struct TractSet {
+    /// The streamlines (world RAS+ mm), shared with the layer's asset.
     pub tractogram: Arc<Tractogram>,
     /// The segment grid ROIs are tested on, built when an ROI first acts on the set.
     pub grid: LazyGrid,
@@ -135,14 +153,18 @@ impl LazyGrid {
 /// A tract set drawn as hyperstreamlines (tubelets): one entity, one draw.
 #[derive(Component, Clone)]
 pub struct TubeSet {
+    /// The set's material: its settings, tubelet buffer and selection flags.
     pub material: Handle<TubeletMaterial>,
+    /// How many tubelets the set draws (0: the entity has no mesh and draws nothing).
     pub n_tubelets: usize,
+    /// The settings the tubelets were made and are drawn with.
     pub settings: TubeSettings,
 }
 
 /// A tract set drawn as a mesh in direction colours, lines or polygon tubes: one entity, one draw.
 #[derive(Component, Clone)]
 pub struct MeshSet {
+    /// The set's material (opacity, selection flags), shared by the whole mesh and the preview.
     pub material: Handle<TractMeshMaterial>,
     /// The whole set's mesh; the entity's [`Mesh3d`] holds it unless [`TractDetail`] shows the preview.
     pub full: Handle<Mesh>,
@@ -299,6 +321,7 @@ fn line_msaa(
 /// GPU parameters of tract meshes. Keep in sync with `TractMeshParams` in `shaders/tract_mesh.wgsl`.
 #[derive(Clone, Copy, Debug, PartialEq, ShaderType)]
 pub struct TractMeshUniform {
+    /// Alpha of every fragment, 0..1; below 1 the material blends.
     pub opacity: f32,
     /// Ambient term of the tubes' headlight shading (lines are unshaded).
     pub ambient: f32,
@@ -357,8 +380,11 @@ pub fn rgba8([r, g, b]: [f32; 3]) -> [u8; 4] {
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 #[bind_group_data(TractMeshKey)]
 pub struct TractMeshMaterial {
+    /// Opacity, shading and slab crop (uniform binding 0).
     #[uniform(0)]
     pub params: TractMeshUniform,
+    /// One `u32` per streamline, 1 when selected, 0 hidden (storage binding 1; the set's
+    /// [`TractSet::selected`]).
     #[storage(1, read_only)]
     pub selected: Handle<ShaderBuffer>,
 }
@@ -431,11 +457,16 @@ pub struct TractRoi(pub Roi);
 /// The cost of the last ROI re-selection.
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct RoiStats {
+    /// How many re-selections have run since the App started.
     pub evaluations: u64,
+    /// Wall-clock time of the last re-selection, ms.
     pub last_ms: f64,
+    /// Streamlines selected after the last re-selection, summed over every tract set.
     pub selected: usize,
 }
 
+/// Tract layers ([`Tracts`]) and tract sets: their materials and shaders, ROI selection ([`apply_rois`]),
+/// [`LineMsaa`], [`TractDetail`] and [`TractSlab`]s; adds [`fascicle_render::FascicleRenderPlugin`] if missing.
 pub struct TractPlugin;
 
 impl Plugin for TractPlugin {
@@ -621,7 +652,9 @@ pub struct PreparedTracts {
     pub tractogram: Option<Arc<Tractogram>>,
     /// How many streamlines the set draws.
     pub n_streamlines: usize,
+    /// The segment grid ROIs are tested on: built by [`PreparedTracts::with_grid`], otherwise on first use.
     pub grid: LazyGrid,
+    /// What is drawn: the packed tubelets or the mesh.
     pub geometry: PreparedGeometry,
 }
 
@@ -629,9 +662,25 @@ pub struct PreparedTracts {
 pub enum PreparedGeometry {
     /// Hyperstreamlines: the packed tubelet buffer, their count, the settings they were made with, and the
     /// proxy boxes (8 vertices each; built here, off the main thread, not at spawn).
-    Tubes { packed: Vec<u8>, n_tubelets: usize, settings: TubeSettings, boxes: Box<Mesh> },
+    Tubes {
+        /// The tubelets as [`pack`] lays them out: seven `vec4<f32>` (112 bytes) each.
+        packed: Vec<u8>,
+        /// How many tubelets `packed` holds (0: the set draws nothing).
+        n_tubelets: usize,
+        /// The settings the tubelets were made with.
+        settings: TubeSettings,
+        /// The proxy mesh ([`boxes`]): 8 vertices (slot, corner, 0) and 12 triangles per tubelet.
+        boxes: Box<Mesh>,
+    },
     /// Lines or polygon tubes, and for lines the preview [`TractDetail`] may draw instead.
-    Mesh { mesh: Box<Mesh>, preview: Option<Box<Mesh>> },
+    Mesh {
+        /// The whole set: an indexed line list ([`line_mesh_coloured`]) or the triangles of polygon tubes
+        /// ([`polygon_tube_mesh`]).
+        mesh: Box<Mesh>,
+        /// Lines only: every [`LineDetail::preview_stride`]-th streamline compressed to
+        /// [`PREVIEW_TOLERANCE_MM`] (as [`preview_mesh`]); `None` for polygon tubes.
+        preview: Option<Box<Mesh>>,
+    },
 }
 
 impl PreparedTracts {

@@ -36,6 +36,7 @@ pub struct ScalarVolume(pub Arc<Volume<f32>>);
 /// DWI's b0).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct ScalarVolumeSettings {
+    /// Which 3D volume of a 4D image to load (index along its fourth axis). Defaults to 0.
     pub volume: usize,
 }
 
@@ -88,6 +89,8 @@ pub fn volume_of(vol: Volume<f32>, k: usize) -> Result<Volume<f32>, String> {
 #[derive(Component, Clone, Debug, Default)]
 #[require(VolumeSettings, LayerStatus, Transform, Visibility)]
 pub struct VolumeLayer {
+    /// The scalar volume drawn, usually `AssetServer::load("fa.nii.gz")`. Swapping it, or the asset being
+    /// modified, rebuilds and re-uploads the 3D texture.
     pub volume: Handle<ScalarVolume>,
 }
 

@@ -6,6 +6,8 @@
 //! behind them and are tinted by what lies in front. A new method is one more `VolumeMethod` branch in the
 //! shader and one more mesh here.
 
+#![warn(missing_docs)]
+
 use bevy::asset::RenderAssetUsages;
 use bevy::camera::visibility::{NoFrustumCulling, RenderLayers};
 use bevy::core_pipeline::core_3d::{main_opaque_pass_3d, main_transparent_pass_3d};
@@ -73,6 +75,7 @@ pub enum VolumeMethod {
 }
 
 impl VolumeMethod {
+    /// Every method, in the order of their shader codes (`dims.w` 0 to 5).
     pub const ALL: [VolumeMethod; 6] = [
         VolumeMethod::Raycast,
         VolumeMethod::Slicing,
@@ -111,7 +114,10 @@ impl VolumeMethod {
 #[derive(Component, Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct VolumeSettings {
+    /// How the volume is drawn. Defaults to [`VolumeMethod::Raycast`].
     pub method: VolumeMethod,
+    /// Value to linear RGB and opacity per mm. Defaults to [`TransferFunction::default`]: FA as context,
+    /// over `[0, 1]`.
     pub tf: TransferFunction,
     /// Step (ray casting) or slice spacing target (slicing), mm.
     pub step: f64,
@@ -154,6 +160,7 @@ impl Default for VolumeSettings {
 }
 
 impl VolumeSettings {
+    /// The ray-marching knobs of these settings for the f64 reference (`fascicle_core::dvr::march`).
     pub fn march(&self) -> MarchParams {
         MarchParams {
             step: self.step,
@@ -169,38 +176,63 @@ impl VolumeSettings {
 /// GPU parameters. Keep in sync with `VolumeParams` in `shaders/volume.wgsl`.
 #[derive(Clone, Copy, Debug, ShaderType)]
 pub struct VolumeUniform {
+    /// World RAS+ mm to voxel coordinates (the inverse of `world_from_voxel`).
     pub voxel_from_world: Mat4,
+    /// Voxel coordinates (integer = voxel centre) to world RAS+ mm.
     pub world_from_voxel: Mat4,
+    /// xyz: the volume's dimensions, voxels; w: the method's code (0 ray casting, 1 slicing, 2 2D slicing,
+    /// 3 splatting, 4 tetrahedra, 5 shear-warp).
     pub dims: Vec4,
+    /// World bounding sphere of the volume's box: centre (xyz) and radius (w), mm.
     pub sphere: Vec4,
     /// The clip box in voxel coordinates (xyz; w unused).
     pub clip_lo: Vec4,
+    /// The clip box's upper corner in voxel coordinates (xyz; w unused).
     pub clip_hi: Vec4,
     /// Cell projection: cells per voxel axis (xyz; w unused).
     pub cells: UVec4,
+    /// The transfer function's value range `[lo, hi]`, in the volume's units, mapped to the LUT's [0, 1].
     pub range: Vec2,
+    /// Ray-casting step or slice spacing target, mm.
     pub step: f32,
+    /// Early ray termination at this accumulated opacity (> 1: off).
     pub termination: f32,
+    /// 1: dithered ray starts or slice samples, 0: off.
     pub jitter: u32,
+    /// 1: gradient (Lambert headlight) shading, 0: off.
     pub shading: u32,
+    /// 1: pre-integrated classification (ray casting), 0: post-classification.
     pub preintegrated: u32,
+    /// Slicing: view-aligned slices across the bounding sphere, `ceil(2 r / step)` in 1..=4096.
     pub n_slices: u32,
+    /// Entries per axis of the pre-integration table ([`TABLE_N`]).
     pub table_n: u32,
+    /// Ambient term of gradient shading ([`AMBIENT`]).
     pub ambient: f32,
+    /// Splatting: standard deviation of the Gaussian kernel, voxels (clamped to 0.05..=4).
     pub kernel: f32,
+    /// Cell projection: edge of a cell, voxels (at least 1).
     pub cell: u32,
 }
 
+/// The material of one volume layer, drawn by `shaders/volume.wgsl` in the transparent phase with
+/// premultiplied alpha; rays stop at the opaque layers' depth ([`OpaqueDepth`]).
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct VolumeMaterial {
+    /// The drawing parameters (binding 0), from the layer's [`VolumeSettings`] and the volume's grid.
     #[uniform(0)]
     pub params: VolumeUniform,
+    /// The scalar volume as an R32Float 3D texture, read unfiltered ([`volume_texture`]).
     #[texture(1, dimension = "3d", sample_type = "float", filterable = false)]
     pub volume: Handle<Image>,
+    /// The transfer function's lookup table: 256 `vec4` (linear RGB, opacity per mm) over `params.range`.
     #[storage(2, read_only)]
     pub lut: Handle<ShaderBuffer>,
+    /// The pre-integration table: `table_n` x `table_n` premultiplied `vec4` segments (front value major)
+    /// for the current step.
     #[storage(3, read_only)]
     pub table: Handle<ShaderBuffer>,
+    /// The camera's depth after the opaque pass ([`OpaqueDepth`]), where rays stop.
     #[texture(4, sample_type = "depth")]
     pub opaque_depth: Handle<Image>,
     /// Shear-warp's intermediate image (written by its compute pass; 1x1 for other methods).
@@ -252,9 +284,13 @@ pub struct OpaqueDepth(pub Handle<Image>);
 /// A volume layer: one entity.
 #[derive(Component, Clone, Debug)]
 pub struct VolumeSet {
+    /// The layer's material: uniform, 3D texture, transfer-function tables and the depth copy.
     pub material: Handle<VolumeMaterial>,
+    /// The volume's dimensions `[X, Y, Z]`, voxels.
     pub dims: [usize; 3],
+    /// Voxel coordinates (integer = voxel centre) to world RAS+ mm.
     pub world_from_voxel: glam::DMat4,
+    /// The settings the material was last written with (an edit is compared with them to find its cost).
     pub settings: VolumeSettings,
     /// Counts of the volume's values in [`HISTOGRAM_BINS`] bins over the transfer function's range.
     pub histogram: std::sync::Arc<Vec<u32>>,
@@ -331,6 +367,8 @@ pub fn histogram(values: &[f32], range: [f64; 2], bins: usize) -> Vec<u32> {
     h
 }
 
+/// Registers the volume material and the [`VolumeLayer`] systems, and copies the 3D camera's depth
+/// between the opaque and transparent passes ([`OpaqueDepth`]). Cameras that see a volume lose their MSAA.
 pub struct VolumePlugin;
 
 impl Plugin for VolumePlugin {
@@ -512,6 +550,7 @@ fn bounding_sphere(dims: [usize; 3], world_from_voxel: glam::DMat4) -> (glam::DV
 }
 
 impl VolumeUniform {
+    /// The uniform of a `dims` volume placed by `world_from_voxel` (voxel coordinates to RAS+ mm), drawn with `s`.
     pub fn new(dims: [usize; 3], world_from_voxel: glam::DMat4, s: &VolumeSettings) -> Self {
         let (centre, r) = bounding_sphere(dims, world_from_voxel);
         let (lo, hi) = s.clip.voxel_bounds(dims);

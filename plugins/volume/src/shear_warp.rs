@@ -4,8 +4,8 @@
 //! volume's box is drawn and each fragment warps, reading the intermediate image bilinearly where its ray
 //! meets that plane (`shaders/volume.wgsl`, method 5). A pixel whose ray meets an opaque surface inside the
 //! volume is ray-marched up to it instead (a few pixels: glyphs inside the volume). Compositing happens at the
-//! volume's resolution ([`VolumeSettings::intermediate`] pixels per voxel), not the screen's: that is the
-//! method's speed and its blur.
+//! volume's resolution ([`crate::VolumeSettings::intermediate`] pixels per voxel), not the screen's: that is
+//! the method's speed and its blur.
 //!
 //! The pass runs in `Core3d` before the transparent pass, once per view
 //! that sees the volume; the warp's parameters (axis, plane, the image's placement) are written by the pass
