@@ -227,11 +227,85 @@ impl RoiShape {
     }
 }
 
-/// A uniform grid over a tractogram's segments: per cell, the segments whose bounding box overlaps it.
-pub struct SegmentGrid {
+/// The cells of a uniform grid over a box, at most 1024 an axis: the frame [`SegmentGrid`] and
+/// [`crate::roi_index::StreamlineCells`] bin into. Points beyond the box fall in the border cells, which
+/// therefore reach to infinity when a region is tested against them.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Cells {
     lo: Vec3,
     cell: f32,
     dims: [usize; 3],
+}
+
+impl Cells {
+    /// Cells of about `cell` mm (at least 1 µm) from `lo` to `hi`.
+    pub(crate) fn over(lo: Vec3, hi: Vec3, cell: f32) -> Self {
+        let cell = cell.max(1e-3);
+        let dims = ((hi - lo) / cell).floor().to_array().map(|v| (v as usize + 1).min(1024));
+        Self { lo, cell, dims }
+    }
+
+    /// How many cells there are.
+    pub(crate) fn count(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    /// The cell of `p`, clamped to the grid.
+    pub(crate) fn index(&self, p: Vec3) -> [usize; 3] {
+        let q = ((p - self.lo) / self.cell).floor();
+        [0, 1, 2].map(|k| (q[k].max(0.0) as usize).min(self.dims[k] - 1))
+    }
+
+    /// The cell's position in x-fastest order.
+    pub(crate) fn linear(&self, [x, y, z]: [usize; 3]) -> usize {
+        x + self.dims[0] * (y + self.dims[1] * z)
+    }
+
+    /// The cell range (inclusive) under a region's bounds; the whole grid for a plane.
+    pub(crate) fn under(&self, shape: &RoiShape) -> ([usize; 3], [usize; 3]) {
+        match shape.bounds() {
+            Some((blo, bhi)) => (self.index(blo), self.index(bhi)),
+            None => ([0; 3], self.dims.map(|d| d - 1)),
+        }
+    }
+
+    /// Whether cell `k` may hold what meets `shape` there. A segment meeting the region does so at a point of
+    /// its bounding box, so in some cell that meets the region: the cells that do not can be skipped.
+    pub(crate) fn meets(&self, shape: &RoiShape, k: [usize; 3]) -> bool {
+        let mut lo = self.lo + self.cell * Vec3::new(k[0] as f32, k[1] as f32, k[2] as f32);
+        let mut hi = lo + Vec3::splat(self.cell);
+        for a in 0..3 {
+            // The outermost cells also hold what the index clamp puts there (beyond a grid capped at 1024
+            // cells per axis). Large but finite, so that a plane's test stays finite.
+            if k[a] == 0 {
+                lo[a] = -1e30;
+            }
+            if k[a] + 1 == self.dims[a] {
+                hi[a] = 1e30;
+            }
+        }
+        shape.meets_box(lo, hi)
+    }
+
+    /// The cells meeting `shape`, as the linear positions of those in each z layer of [`Self::under`].
+    pub(crate) fn meeting(&self, shape: &RoiShape) -> impl Iterator<Item = (usize, Vec<usize>)> + '_ {
+        let (a, b) = self.under(shape);
+        let shape = *shape;
+        (a[2]..=b[2]).map(move |z| {
+            let mut cells = Vec::new();
+            for y in a[1]..=b[1] {
+                for x in (a[0]..=b[0]).filter(|&x| self.meets(&shape, [x, y, z])) {
+                    cells.push(self.linear([x, y, z]));
+                }
+            }
+            (z, cells)
+        })
+    }
+}
+
+/// A uniform grid over a tractogram's segments: per cell, the segments whose bounding box overlaps it.
+pub struct SegmentGrid {
+    cells: Cells,
     /// CSR over cells: `starts[c]..starts[c + 1]` in `segments`.
     starts: Vec<u32>,
     /// Index of a segment's first point.
@@ -251,33 +325,27 @@ impl SegmentGrid {
         if lo.x > hi.x {
             (lo, hi) = (Vec3::ZERO, Vec3::ZERO);
         }
-        let cell = cell.max(1e-3);
-        let dims = ((hi - lo) / cell).floor().to_array().map(|v| (v as usize + 1).min(1024));
+        let cells = Cells::over(lo, hi, cell);
         let mut owner = vec![0u32; points.len()];
         for s in 0..offsets.len().saturating_sub(1) {
             owner[offsets[s]..offsets[s + 1]].fill(s as u32);
         }
-        let index = |p: Vec3| -> [usize; 3] {
-            let q = ((p - lo) / cell).floor();
-            [0, 1, 2].map(|k| (q[k].max(0.0) as usize).min(dims[k] - 1))
-        };
         let cells_of = |i: usize| {
             let (a, b) = (points[i], points[i + 1]);
-            let (ia, ib) = (index(a.min(b)), index(a.max(b)));
-            (ia, ib)
+            (cells.index(a.min(b)), cells.index(a.max(b)))
         };
         let segs: Vec<usize> = (0..offsets.len().saturating_sub(1))
             .flat_map(|s| offsets[s]..offsets[s + 1].saturating_sub(1).max(offsets[s]))
             .filter(|&i| points[i].is_finite() && points[i + 1].is_finite())
             .collect();
-        let n_cells = dims[0] * dims[1] * dims[2];
+        let n_cells = cells.count();
         let mut count = vec![0u32; n_cells + 1];
         let visit = |i: usize, f: &mut dyn FnMut(usize)| {
             let (a, b) = cells_of(i);
             for z in a[2]..=b[2] {
                 for y in a[1]..=b[1] {
                     for x in a[0]..=b[0] {
-                        f(x + dims[0] * (y + dims[1] * z));
+                        f(cells.linear([x, y, z]));
                     }
                 }
             }
@@ -296,58 +364,16 @@ impl SegmentGrid {
                 fill[c] += 1;
             });
         }
-        Self { lo, cell, dims, starts: count, segments, owner }
-    }
-
-    /// The cell range (inclusive) under a region's bounds; the whole grid for a plane.
-    fn cells_under(&self, shape: &RoiShape) -> ([usize; 3], [usize; 3]) {
-        let (blo, bhi) = match shape.bounds() {
-            Some(b) => b,
-            None => (
-                self.lo,
-                self.lo + self.cell * Vec3::new(self.dims[0] as f32, self.dims[1] as f32, self.dims[2] as f32),
-            ),
-        };
-        let index = |p: Vec3| -> [usize; 3] {
-            let q = ((p - self.lo) / self.cell).floor();
-            [0, 1, 2].map(|k| (q[k].max(0.0) as usize).min(self.dims[k] - 1))
-        };
-        (index(blo), index(bhi))
-    }
-
-    /// Whether cell `(x, y, z)` may hold a segment meeting `shape` where it meets it. A segment meeting the
-    /// region does so at a point of its bounding box, so in some cell that meets the region: the cells that
-    /// do not can be skipped.
-    fn cell_meets(&self, shape: &RoiShape, x: usize, y: usize, z: usize) -> bool {
-        let k = [x, y, z];
-        let mut lo = self.lo + self.cell * Vec3::new(x as f32, y as f32, z as f32);
-        let mut hi = lo + Vec3::splat(self.cell);
-        for a in 0..3 {
-            // The outermost cells also hold what the index clamp puts there (beyond a grid capped at 1024
-            // cells per axis). Large but finite, so that a plane's test stays finite.
-            if k[a] == 0 {
-                lo[a] = -1e30;
-            }
-            if k[a] + 1 == self.dims[a] {
-                hi[a] = 1e30;
-            }
-        }
-        shape.meets_box(lo, hi)
+        Self { cells, starts: count, segments, owner }
     }
 
     /// How many segment entries the cells that meet a region hold (what [`Self::meeting_mask_among`] scans).
     pub fn segments_under(&self, shape: &RoiShape) -> usize {
-        let (a, b) = self.cells_under(shape);
-        let mut total = 0usize;
-        for z in a[2]..=b[2] {
-            for y in a[1]..=b[1] {
-                for x in (a[0]..=b[0]).filter(|&x| self.cell_meets(shape, x, y, z)) {
-                    let c = x + self.dims[0] * (y + self.dims[1] * z);
-                    total += (self.starts[c + 1] - self.starts[c]) as usize;
-                }
-            }
-        }
-        total
+        self.cells
+            .meeting(shape)
+            .flat_map(|(_, cells)| cells)
+            .map(|c| (self.starts[c + 1] - self.starts[c]) as usize)
+            .sum()
     }
 
     /// Per streamline, whether a segment meets `shape`, testing only streamlines with `candidates[s]` (the
@@ -355,22 +381,19 @@ impl SegmentGrid {
     pub fn meeting_mask_among(&self, points: &[Vec3], shape: &RoiShape, candidates: &[bool]) -> Vec<bool> {
         use std::sync::atomic::{AtomicBool, Ordering};
         let n = candidates.len();
-        let (a, b) = self.cells_under(shape);
         let marks: Vec<AtomicBool> = (0..n).map(|_| AtomicBool::new(false)).collect();
-        (a[2]..=b[2]).into_par_iter().for_each(|z| {
-            for y in a[1]..=b[1] {
-                for x in (a[0]..=b[0]).filter(|&x| self.cell_meets(shape, x, y, z)) {
-                    let c = x + self.dims[0] * (y + self.dims[1] * z);
-                    for &i in &self.segments[self.starts[c] as usize..self.starts[c + 1] as usize] {
-                        let i = i as usize;
-                        let s = self.owner[i] as usize;
-                        if s < n
-                            && candidates[s]
-                            && !marks[s].load(Ordering::Relaxed)
-                            && shape.meets_step(points[i], points[i + 1])
-                        {
-                            marks[s].store(true, Ordering::Relaxed);
-                        }
+        let layers: Vec<(usize, Vec<usize>)> = self.cells.meeting(shape).collect();
+        layers.into_par_iter().for_each(|(_, layer)| {
+            for c in layer {
+                for &i in &self.segments[self.starts[c] as usize..self.starts[c + 1] as usize] {
+                    let i = i as usize;
+                    let s = self.owner[i] as usize;
+                    if s < n
+                        && candidates[s]
+                        && !marks[s].load(Ordering::Relaxed)
+                        && shape.meets_step(points[i], points[i + 1])
+                    {
+                        marks[s].store(true, Ordering::Relaxed);
                     }
                 }
             }

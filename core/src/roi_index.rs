@@ -10,13 +10,11 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::roi::{Roi, RoiMode, RoiShape};
+use crate::roi::{Cells, Roi, RoiMode, RoiShape};
 
 /// Per grid cell, the streamlines with a point in it or a segment whose bounding box meets it.
 pub struct StreamlineCells {
-    lo: Vec3,
-    cell: f32,
-    dims: [usize; 3],
+    cells: Cells,
     /// CSR over cells: `starts[c]..starts[c + 1]` in `ids`.
     starts: Vec<u64>,
     /// Streamline indices, each at most once per cell.
@@ -35,11 +33,9 @@ impl StreamlineCells {
         bounds: (Vec3, Vec3),
         cell: f32,
     ) -> Self {
-        let (lo, hi) = bounds;
-        let cell = cell.max(1e-3);
-        let dims = ((hi - lo) / cell).floor().to_array().map(|v| (v.max(0.0) as usize + 1).min(1024));
-        let grid = Self { lo, cell, dims, starts: Vec::new(), ids: Vec::new(), n };
-        let n_cells = dims[0] * dims[1] * dims[2];
+        let cells = Cells::over(bounds.0, bounds.1, cell);
+        let grid = Self { cells, starts: Vec::new(), ids: Vec::new(), n };
+        let n_cells = cells.count();
         let counts: Vec<AtomicU64> = (0..n_cells).map(|_| AtomicU64::new(0)).collect();
         (0..n).into_par_iter().for_each_init(Vec::new, |cells, s| {
             grid.cells_of(streamline(s), cells);
@@ -71,68 +67,37 @@ impl StreamlineCells {
         self.starts.len() * 8 + self.ids.len() * 4
     }
 
-    fn index(&self, p: Vec3) -> [usize; 3] {
-        let q = ((p - self.lo) / self.cell).floor();
-        [0, 1, 2].map(|k| if q[k] >= 0.0 { (q[k] as usize).min(self.dims[k] - 1) } else { 0 })
-    }
-
     /// The distinct cells of a streamline's points and of its segments' bounding boxes, into `out`.
     fn cells_of(&self, pts: &[Vec3], out: &mut Vec<u32>) {
         out.clear();
-        let linear = |[x, y, z]: [usize; 3]| (x + self.dims[0] * (y + self.dims[1] * z)) as u32;
+        let cells = &self.cells;
         for (k, p) in pts.iter().enumerate().filter(|(_, p)| p.is_finite()) {
-            let a = self.index(*p);
             match pts.get(k + 1).filter(|q| q.is_finite()) {
                 Some(q) => {
-                    let (lo, hi) = (self.index(p.min(*q)), self.index(p.max(*q)));
+                    let (lo, hi) = (cells.index(p.min(*q)), cells.index(p.max(*q)));
                     for z in lo[2]..=hi[2] {
                         for y in lo[1]..=hi[1] {
                             for x in lo[0]..=hi[0] {
-                                out.push(linear([x, y, z]));
+                                out.push(cells.linear([x, y, z]) as u32);
                             }
                         }
                     }
                 }
-                None => out.push(linear(a)),
+                None => out.push(cells.linear(cells.index(*p)) as u32),
             }
         }
         out.sort_unstable();
         out.dedup();
     }
 
-    /// Whether cell `(x, y, z)` may hold a point or segment meeting `shape` (the border cells reach to
-    /// infinity: they also hold what lies beyond the grid).
-    fn cell_meets(&self, shape: &RoiShape, k: [usize; 3]) -> bool {
-        let mut lo = self.lo + self.cell * Vec3::new(k[0] as f32, k[1] as f32, k[2] as f32);
-        let mut hi = lo + Vec3::splat(self.cell);
-        for a in 0..3 {
-            if k[a] == 0 {
-                lo[a] = -1e30;
-            }
-            if k[a] + 1 == self.dims[a] {
-                hi[a] = 1e30;
-            }
-        }
-        shape.meets_box(lo, hi)
-    }
-
     /// The streamlines indexed in the cells that meet `shape` (ascending, each once): a superset of those
     /// that meet it. Deduplicated in a bit set of all streamlines (no sort), so the candidates come in file
     /// order, which is also the order their points lie in memory.
     pub fn candidates(&self, shape: &RoiShape) -> Vec<u32> {
-        let (a, b) = match shape.bounds() {
-            Some((blo, bhi)) => (self.index(blo), self.index(bhi)),
-            None => ([0; 3], [self.dims[0] - 1, self.dims[1] - 1, self.dims[2] - 1]),
-        };
         let mut bits = vec![0u64; self.n.div_ceil(64)];
-        for z in a[2]..=b[2] {
-            for y in a[1]..=b[1] {
-                for x in (a[0]..=b[0]).filter(|&x| self.cell_meets(shape, [x, y, z])) {
-                    let c = x + self.dims[0] * (y + self.dims[1] * z);
-                    for &s in &self.ids[self.starts[c] as usize..self.starts[c + 1] as usize] {
-                        bits[s as usize / 64] |= 1 << (s % 64);
-                    }
-                }
+        for c in self.cells.meeting(shape).flat_map(|(_, cells)| cells) {
+            for &s in &self.ids[self.starts[c] as usize..self.starts[c + 1] as usize] {
+                bits[s as usize / 64] |= 1 << (s % 64);
             }
         }
         bits.iter()
