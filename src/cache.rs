@@ -53,8 +53,11 @@ struct Inner {
 /// reused, `evictions` values dropped for the byte budget.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct CacheStats {
+    /// Values computed and kept (a file read, a model fitted).
     pub loads: u64,
+    /// Lookups answered by a held, unchanged value.
     pub hits: u64,
+    /// Values dropped to keep within the byte budget.
     pub evictions: u64,
 }
 
@@ -73,6 +76,7 @@ impl Default for DataCache {
 }
 
 impl DataCache {
+    /// An empty cache holding at most about `bytes` bytes of values (the most recent one is kept even past it).
     pub fn with_budget(bytes: usize) -> Self {
         DataCache { inner: Arc::default(), budget: bytes }
     }
@@ -82,6 +86,7 @@ impl DataCache {
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// What the cache has done since it was made.
     pub fn stats(&self) -> CacheStats {
         self.lock().stats
     }
@@ -97,6 +102,7 @@ impl DataCache {
         self.lock().entries.len()
     }
 
+    /// Whether no value is held.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }

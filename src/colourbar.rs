@@ -20,6 +20,7 @@ use crate::scene::{LayerKind, Scene, TractColouring, VolumeSource};
 
 /// A bar's size in pixels.
 pub const BAR_W: u32 = 200;
+/// A bar's height in pixels: label, gradient and range.
 pub const BAR_H: u32 = 48;
 /// Rows of the gradient within the bar image.
 pub const GRADIENT_ROWS: std::ops::Range<u32> = 17..31;
@@ -60,8 +61,11 @@ impl ColourMap {
 /// One colour bar: the layer's name, its map and the values at its two ends.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Bar {
+    /// The layer's name, written at the top left.
     pub label: String,
+    /// How the layer's values become colours.
     pub map: ColourMap,
+    /// The values at the gradient's left and right ends (the map's positions 0 and 1).
     pub range: (f64, f64),
 }
 

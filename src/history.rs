@@ -64,10 +64,12 @@ impl SceneHistory {
         Some(next)
     }
 
+    /// Whether there is a step to undo.
     pub fn can_undo(&self) -> bool {
         !self.undo.is_empty()
     }
 
+    /// Whether there is an undone step to redo (no edit came since the undo).
     pub fn can_redo(&self) -> bool {
         !self.redo.is_empty()
     }
@@ -76,6 +78,8 @@ impl SceneHistory {
 /// Files opened recently, newest first, kept in `path` (none: in memory only).
 #[derive(Resource, Debug, Default)]
 pub struct RecentFiles {
+    /// The files, newest first, at most [`RECENT_FILES`] (canonical paths where [`RecentFiles::add`] could
+    /// make them so).
     pub files: Vec<PathBuf>,
     path: Option<PathBuf>,
 }

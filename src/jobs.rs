@@ -33,6 +33,7 @@ pub struct JobProgress {
     done: AtomicUsize,
     total: AtomicUsize,
     cancelled: AtomicBool,
+    /// Content delivered while the job runs, for the main thread to show as it comes ([`Content::Streamed`]).
     pub parts: Parts,
     /// The voxel grid the content comes from, once read (the crosshair's voxel on it).
     grid: Mutex<Option<crate::views::VoxelGrid>>,
@@ -55,6 +56,7 @@ impl Parts {
         self.0.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Delivers `part`, after those waiting.
     pub fn push(&self, part: Content) {
         self.lock().push_back(part);
     }
@@ -64,10 +66,12 @@ impl Parts {
         self.lock().pop_front()
     }
 
+    /// Number of parts waiting.
     pub fn len(&self) -> usize {
         self.lock().len()
     }
 
+    /// Whether no part is waiting.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -119,10 +123,12 @@ impl JobProgress {
         (stage, (total > 0).then(|| (done as f32 / total as f32).min(1.0)))
     }
 
+    /// Asks the job to stop: its next stage check fails with [`CANCELLED`].
     pub fn cancel(&self) {
         self.cancelled.store(true, Ordering::Relaxed);
     }
 
+    /// Whether the job was cancelled.
     pub fn is_cancelled(&self) -> bool {
         self.cancelled.load(Ordering::Relaxed)
     }
@@ -132,8 +138,11 @@ impl JobProgress {
 pub enum Content {
     /// Placed glyphs and their voxels, shared with the cache.
     ShGlyphs(Arc<(Vec<Glyph>, Vec<[u32; 3]>)>),
+    /// Tensor glyphs of a slice (or of the spiral phantom).
     TensorGlyphs {
+        /// The glyphs, in the world frame.
         glyphs: Vec<TensorGlyph>,
+        /// Each glyph's voxel (indices; a spiral glyph's number as `[i, 0, 0]`), in the same order.
         voxels: Vec<[u32; 3]>,
     },
     /// Colour and opacity unset: the layer's colouring is applied at upload.
@@ -142,21 +151,29 @@ pub enum Content {
     Tracts(fascicle_tracts::PreparedTracts),
     /// A scalar volume and its 3D texture.
     Volume {
+        /// The scalar volume, shared with the cache.
         volume: Arc<Volume<f32>>,
+        /// Its values as a 3D texture.
         texture: Box<Image>,
     },
+    /// One slice of an image, shown as a textured quad.
     Slice {
+        /// The slice, windowed to display black and white (sRGB).
         image: Box<Image>,
+        /// World positions (RAS+ mm) of its four outer voxel corners, counter-clockwise from voxel (0, 0).
         corners: [Vec3; 4],
         /// The image it was cut from: window edits and the 2D views cut new slices from it.
         source: crate::views::SliceSource,
     },
+    /// The world axes from the origin: X red, Y green, Z blue.
     Axes {
+        /// Length of each axis (mm).
         length_mm: f32,
     },
     /// Everything went through the job's [`JobProgress::parts`] (each a `Tracts` part) while it ran;
     /// `items` in all.
     Streamed {
+        /// Items delivered in all (as [`Content::items`] counts them).
         items: usize,
     },
 }
@@ -180,7 +197,9 @@ impl Content {
 /// Streamlines and, when the source has them, per-point world tensors (hyperstreamline sections).
 #[derive(Clone)]
 pub struct TractData {
+    /// The streamlines (world RAS+ mm).
     pub tractogram: Arc<Tractogram>,
+    /// One world-frame tensor per point of `tractogram` (lower-triangular), when the source has them.
     pub tensors: Option<Arc<Vec<[f32; 6]>>>,
 }
 

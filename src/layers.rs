@@ -68,6 +68,7 @@ impl SceneLayer {
 /// A layer's content being built in the background.
 #[derive(Component)]
 pub struct LayerJob {
+    /// Its stage, progress, cancel flag and delivered parts, shared with the running job.
     pub progress: Arc<JobProgress>,
     structure: LayerKind,
     task: Task<Result<Content, String>>,
@@ -81,6 +82,7 @@ pub struct LayerJob {
 pub struct Prefetches(pub Arc<std::sync::atomic::AtomicUsize>);
 
 impl Prefetches {
+    /// Number of prefetch tasks still running.
     pub fn running(&self) -> usize {
         self.0.load(std::sync::atomic::Ordering::Relaxed)
     }
@@ -94,8 +96,11 @@ pub struct RetryLayers(pub Vec<usize>);
 /// layer's settings, `reindexed` layers moved without a rebuild, `parts` parts of content shown as they came.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LayerSyncCounts {
+    /// Background builds started.
     pub jobs: u64,
+    /// Settings edits applied in place, to content that stays.
     pub restyles: u64,
+    /// Layers moved to another index without a rebuild.
     pub reindexed: u64,
     /// Parts of content shown while their jobs ran ([`crate::jobs::Parts`]).
     pub parts: u64,
@@ -114,6 +119,8 @@ pub enum SceneSystems {
     Finish,
 }
 
+/// Shows the [`ActiveScene`]: adds the render plugins and the views, the layer resources ([`DataCache`],
+/// [`LayerErrors`], ...) and the [`SceneSystems`] that sync layers to entities.
 pub struct ScenePlugin;
 
 impl Plugin for ScenePlugin {

@@ -1,6 +1,8 @@
 //! The `fascicle` application: command line, interactive viewer and headless renderer, composed from the
 //! core crate and the render plugins.
 
+#![warn(missing_docs)]
+
 pub mod cache;
 pub mod cli;
 pub mod colourbar;

@@ -23,8 +23,11 @@ use crate::scene::{LayerKind, ShSource, SliceAxis, TractColouring};
 /// the layer's spawned entities report back (e.g. the samples' eigenvalues for a scattergram).
 #[derive(Clone, Copy)]
 pub struct LayerPanel {
+    /// Short name of the panel (e.g. `slice`, `tensor glyphs`); not shown in the viewer.
     pub name: &'static str,
+    /// Whether the panel edits a layer of this kind.
     pub applies: fn(&LayerKind) -> bool,
+    /// Draws the controls, editing the kind in place, given what the layer reported.
     pub show: fn(&mut egui::Ui, &mut LayerKind, &LayerData),
 }
 

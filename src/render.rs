@@ -74,6 +74,8 @@ pub fn parse_point(s: &str) -> Result<[f32; 3], String> {
     }
 }
 
+/// `fascicle render`: renders `scene` (else the default scene) at `size` ("WxH" pixels) with `views` applied, and
+/// writes the PNG to `out` and, if given, the depth to `depth_out` (.png 16-bit NDC depth or .npy float32 view depth).
 pub fn run(
     scene: Option<&Path>,
     out: &Path,

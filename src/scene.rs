@@ -17,9 +17,12 @@ use fascicle_tracts::TubeSettings;
 use fascicle_volume::VolumeSettings;
 use serde::{Deserialize, Serialize};
 
+/// A scene: what a scene file holds.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Scene {
+    /// The layers, in list order (later ones over earlier ones in the 2D views).
     pub layers: Vec<LayerSpec>,
+    /// The 3D view's camera; [`CameraSpec::default`] when absent.
     #[serde(default)]
     pub camera: CameraSpec,
     /// The layout (3D alone or with three orthogonal 2D views), the crosshair and the colour bars.
@@ -27,8 +30,10 @@ pub struct Scene {
     pub views: crate::views::Views,
 }
 
+/// One layer of a scene: its name, visibility, opacity and what it shows.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LayerSpec {
+    /// The name the viewer lists it by and its colour bar shows.
     pub name: String,
     /// Defaults to true.
     #[serde(default = "yes")]
@@ -36,6 +41,7 @@ pub struct LayerSpec {
     /// 0..1. Defaults to 1.
     #[serde(default = "one")]
     pub opacity: f32,
+    /// What the layer shows, from which source, with which settings.
     pub kind: LayerKind,
 }
 
@@ -49,11 +55,14 @@ fn one_usize() -> usize {
     1
 }
 
+/// What a layer shows, with its parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum LayerKind {
     /// One slice of a scalar volume, drawn in its place in world space.
     Slice {
+        /// The image.
         source: VolumeSource,
+        /// The voxel axis the slice is cut across; default Z (axial).
         #[serde(default)]
         axis: SliceAxis,
         /// The slice; the middle one when absent.
@@ -65,14 +74,23 @@ pub enum LayerKind {
         window: Option<(f32, f32)>,
     },
     /// Streamlines as lines coloured by local direction.
-    Tractogram { path: PathBuf },
+    Tractogram {
+        /// The tractogram file.
+        path: PathBuf,
+    },
     /// World axes from the origin: R red, A green, S blue.
-    Axes { length_mm: f32 },
+    Axes {
+        /// Length of each axis, mm.
+        length_mm: f32,
+    },
     /// Ray-cast ODF glyphs, one per voxel of a slice of an SH field.
     ShGlyphs {
+        /// The SH field.
         source: ShSource,
+        /// The voxel axis the slice is cut across; default Z (axial).
         #[serde(default)]
         axis: SliceAxis,
+        /// The slice; the middle one when absent.
         #[serde(default)]
         index: Option<usize>,
         /// Every `spacing`-th voxel along each in-plane axis (1 = every voxel).
@@ -87,34 +105,45 @@ pub enum LayerKind {
         /// Every voxel of the field (every `spacing`-th along each axis) instead of a plane.
         #[serde(default)]
         full_volume: bool,
+        /// Glyph size, sharpening and normalisation (a change rebuilds the glyphs).
         #[serde(default)]
         style: GlyphStyle,
+        /// The ray caster's method, knobs and colour (a uniform update only).
         #[serde(default)]
         render: RayCastSettings,
     },
     /// Tensor splats (EWA Gaussian footprints), one per voxel of a slab of `thickness` slices around a slice,
     /// coloured by FA (viridis) with opacity `opacity · FA`.
     TensorSplats {
+        /// The tensor field.
         source: TensorSource,
+        /// The voxel axis the slab is cut across; default Z (axial).
         #[serde(default)]
         axis: SliceAxis,
+        /// The slab's centre slice; the middle one when absent.
         #[serde(default)]
         index: Option<usize>,
+        /// Slices in the slab, centred on `index`; default 1.
         #[serde(default = "one_usize")]
         thickness: usize,
         /// Largest standard deviation as a fraction of the voxel size.
         #[serde(default = "splat_size")]
         size: f64,
+        /// Only voxels with FA at or above this; default 0.
         #[serde(default)]
         min_fa: f64,
+        /// Depth attenuation, opacity, lighting and colouring (no rebuild).
         #[serde(default)]
         render: SplatSettings,
     },
     /// Fibre tracts drawn as hyperstreamlines (ray-cast tubelets), polygon tubes or lines, with ROIs.
     Tracts {
+        /// Where the streamlines come from.
         source: TractSource,
+        /// How they are drawn; default hyperstreamlines.
         #[serde(default)]
         mode: TractMode,
+        /// Cross-section scale and colour (a change rebuilds); method, iterations, tolerance and shading (uniform).
         #[serde(default)]
         render: TubeSettings,
         /// Include/exclude regions (AND): editing them re-selects, nothing is rebuilt.
@@ -127,17 +156,23 @@ pub enum LayerKind {
     /// Direct volume rendering of a scalar volume (ray casting or 3D-texture slicing), composited with the
     /// opaque layers by depth.
     Volume {
+        /// The image.
         source: VolumeSource,
+        /// Method and step (a change rebuilds), transfer function and toggles (buffer and uniform updates).
         #[serde(default)]
         render: VolumeSettings,
     },
     /// Ray-cast tensor glyphs (ellipsoids or superquadrics), one per voxel of a slice.
     TensorGlyphs {
+        /// The tensor field.
         source: TensorSource,
+        /// The voxel axis the slice is cut across; default Z (axial).
         #[serde(default)]
         axis: SliceAxis,
+        /// The slice; the middle one when absent.
         #[serde(default)]
         index: Option<usize>,
+        /// Every `spacing`-th voxel along each in-plane axis (1 = every voxel, the default).
         #[serde(default = "one_usize")]
         spacing: usize,
         /// Largest radius as a fraction of the voxel size.
@@ -146,6 +181,7 @@ pub enum LayerKind {
         /// Only voxels with FA at or above this.
         #[serde(default)]
         min_fa: f64,
+        /// Ellipsoid or superquadric (a change rebuilds); gamma, search knobs, colour and shading (uniform).
         #[serde(default)]
         render: TensorGlyphSettings,
     },
@@ -230,11 +266,16 @@ impl LayerKind {
 pub enum TractSource {
     /// RK4 tracking (1 mm steps, FA 0.2) of the built-in phantom's tensors from every `seed_spacing`-th
     /// voxel with FA ≥ 0.3 of its middle axial slice; each point carries its tensor.
-    PhantomRk4 { seed_spacing: usize },
+    PhantomRk4 {
+        /// Seeds on every `seed_spacing`-th voxel along each in-plane axis (0 counts as 1).
+        seed_spacing: usize,
+    },
     /// A `.trk`/`.tck` file. With `tensors`, each point carries the tensor of that field where it lies
     /// (hyperstreamline sections); without, sections are circular.
     File {
+        /// The tractogram file.
         path: PathBuf,
+        /// The tensor field that gives each point its section; none: circular sections.
         #[serde(default)]
         tensors: Option<TensorSource>,
     },
@@ -242,9 +283,12 @@ pub enum TractSource {
     /// background with progress; each point carries its tensor. Changing an ROI re-selects these streamlines;
     /// changing the field, seeds or parameters tracks again.
     Track {
+        /// The tensor field tracked through.
         tensors: TensorSource,
+        /// Where streamlines start; default every 2nd voxel with FA at least 0.3.
         #[serde(default)]
         seeds: Seeds,
+        /// Integrator, step, stopping and length limits; default RK4 at 0.5 mm, FA 0.2, 60 degrees, 0..250 mm.
         #[serde(default)]
         params: fascicle_core::tracking::TrackParams,
     },
@@ -252,7 +296,9 @@ pub enum TractSource {
     /// peak through its voxel centre, the voxel's largest peak `length` voxels long, the others in proportion
     /// to their amplitudes. Drawn as lines by default.
     Peaks {
+        /// The peaks image.
         path: PathBuf,
+        /// Length of each voxel's largest peak, voxels; default 0.9.
         #[serde(default = "default_peak_length")]
         length: f32,
     },
@@ -267,18 +313,30 @@ pub enum TractColouring {
     /// Each streamline in the colour of the direction from its first to its last point (|x|, |y|, |z|).
     Ends,
     /// Each streamline by its length on viridis, 0 to `max_mm`.
-    Length { max_mm: f32 },
+    Length {
+        /// The length shown at viridis' top end, mm.
+        max_mm: f32,
+    },
     /// A scalar image (FA, MD, ...) sampled (trilinear) at every point, on viridis over `window`.
-    Scalar { source: VolumeSource, window: (f32, f32) },
+    Scalar {
+        /// The image sampled.
+        source: VolumeSource,
+        /// The values at viridis' two ends.
+        window: (f32, f32),
+    },
     /// A value per streamline on viridis over `window`: the weights of `weights` (a `tcksift2` file, one per
     /// streamline of the file) or, without it, the tractogram's own per-streamline array `name` (a TRX's
     /// `dps`, a `.trk`'s properties). Streamlines whose value is below `min` are not shown (a change rebuilds).
     Value {
+        /// A weights file (`tcksift2`), one value per streamline; none: the tractogram's array `name`.
         #[serde(default)]
         weights: Option<PathBuf>,
+        /// The tractogram's per-streamline array, used without `weights`.
         #[serde(default)]
         name: String,
+        /// The values at viridis' two ends.
         window: (f32, f32),
+        /// Streamlines whose value is below this are not shown; none: all are.
         #[serde(default)]
         min: Option<f32>,
     },
@@ -288,10 +346,22 @@ pub enum TractColouring {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum Seeds {
     /// Every `spacing`-th voxel along each axis whose FA is at least `min_fa`.
-    Grid { spacing: usize, min_fa: f64 },
+    Grid {
+        /// Every `spacing`-th voxel along each axis.
+        spacing: usize,
+        /// Lowest FA of a seed voxel.
+        min_fa: f64,
+    },
     /// `per_voxel` seeds in each voxel whose centre lies in the sphere (world mm), spread on a regular
     /// sub-grid.
-    Sphere { centre: [f32; 3], radius: f32, per_voxel: usize },
+    Sphere {
+        /// The sphere's centre, world mm (RAS+).
+        centre: [f32; 3],
+        /// The sphere's radius, mm.
+        radius: f32,
+        /// Seeds in each voxel.
+        per_voxel: usize,
+    },
 }
 
 impl Default for Seeds {
@@ -328,13 +398,16 @@ pub enum TensorSource {
     /// A tensor image (X,Y,Z,6) as `fascicle fit dti` and DIPY write it (lower triangle), or in FSL's or
     /// MRtrix3's element order.
     Nifti {
+        /// The tensor image.
         path: PathBuf,
+        /// The order of its six elements; default DIPY's.
         #[serde(default)]
         order: TensorOrder,
     },
     /// Tensors fitted (weighted least squares) to a DWI with its `.bval`/`.bvec` beside it (or a `.mif`'s
     /// `dw_scheme`).
     Dwi {
+        /// The DWI.
         path: PathBuf,
         /// Frame of the `.bvec` file (default FSL's: x negated on images with a positive determinant).
         #[serde(default)]
@@ -342,7 +415,10 @@ pub enum TensorSource {
     },
     /// The seed's synthetic spiral of `n` tensors (`fascicle_core::phantom::spiral`); the slice settings
     /// are ignored and sizes are fractions of 8 mm.
-    Spiral { n: usize },
+    Spiral {
+        /// Tensors along the spiral.
+        n: usize,
+    },
 }
 
 /// Where SH coefficients come from.
@@ -350,32 +426,45 @@ pub enum TensorSource {
 pub enum ShSource {
     /// CSA ODFs fitted (DIPY's CsaOdfModel, smooth 0.006) to a noiseless multi-tensor DWI of the built-in
     /// phantom (64 directions, b 1000).
-    PhantomCsa { l_max: usize },
+    PhantomCsa {
+        /// Highest SH order fitted (even).
+        l_max: usize,
+    },
     /// A coefficient image (X,Y,Z,n) as `fascicle fit csa`, DIPY or MRtrix write it, in `basis` (DIPY's default,
     /// descoteaux07 legacy, when absent).
     Nifti {
+        /// The coefficient image.
         path: PathBuf,
+        /// The SH basis of its coefficients; default DIPY's (descoteaux07, legacy).
         #[serde(default)]
         basis: ShBasis,
     },
 }
 
+/// Where a scalar (or colour) volume comes from.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum VolumeSource {
     /// FA of the built-in ring/cross phantom.
     PhantomFa,
     /// A NIfTI file; `volume` picks the 4th-dimension index (0 when absent).
     Nifti {
+        /// The image file.
         path: PathBuf,
+        /// Index along the 4th dimension; default 0.
         #[serde(default)]
         volume: usize,
     },
     /// A colour image (RGB24, or three volumes of red, green, blue), shown in colour.
-    Rgb { path: PathBuf },
+    Rgb {
+        /// The image file.
+        path: PathBuf,
+    },
     /// The track-density map of a tract source (streamlines per voxel, each counted once per voxel, as
     /// MRtrix3's `tckmap`) on an axis-aligned grid of `voxel_mm` voxels covering the streamlines.
     Density {
+        /// The streamlines counted.
         tracts: TractSource,
+        /// Voxel size of the map's grid, mm; default 1.
         #[serde(default = "default_density_voxel")]
         voxel_mm: f64,
     },
@@ -387,8 +476,11 @@ pub use fascicle_render::layer::SliceAxis;
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct CameraSpec {
+    /// The camera's position, world mm; default (-70, -120, 80).
     pub eye: [f32; 3],
+    /// The point looked at, world mm; default the origin.
     pub target: [f32; 3],
+    /// The camera's up direction, world (RAS+); default +z (superior).
     pub up: [f32; 3],
     /// Vertical field of view in degrees. Defaults to 45.
     pub fov_y_deg: f32,
@@ -556,11 +648,13 @@ impl Scene {
         }
     }
 
+    /// Reads a scene file (RON); the message names the file and what is wrong.
     pub fn load(path: &Path) -> Result<Self, String> {
         let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
         ron::from_str(&text).map_err(|e| format!("{}: not a scene file: {e}", path.display()))
     }
 
+    /// Writes the scene to `path` as pretty-printed RON.
     pub fn save(&self, path: &Path) -> Result<(), String> {
         let text = ron::ser::to_string_pretty(self, ron::ser::PrettyConfig::default()).map_err(|e| e.to_string())?;
         std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))

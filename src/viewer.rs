@@ -165,6 +165,9 @@ fn auto_screenshot(mut commands: Commands, mut shot: ResMut<AutoScreenshot>) {
     }
 }
 
+/// `fascicle view` (and `fascicle` alone): the viewer window on `files` (none: the default scene; scene files
+/// replace the scene, data files add layers), until it closes; with `screenshot`, the window is saved there as
+/// PNG at frame 240 and the viewer exits.
 pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     let (scene, errors) = initial_scene(&files);
     let orbit = Orbit::from_spec(&scene.camera);

@@ -57,6 +57,7 @@ impl Default for Views {
 
 /// Render layers of the 2D views (index: the world axis a view looks along) and of the colour bars.
 pub const VIEW_LAYERS: [usize; 3] = [1, 2, 3];
+/// Render layer of the colour bars' overlay ([`BarView`]).
 pub const BAR_LAYER: usize = 4;
 
 /// The scene's 3D camera: the viewer's orbit camera, or the headless renderer's.
@@ -81,8 +82,11 @@ pub struct ViewRegion {
 /// The crosshair in world mm, resolved (the scene's, or the images' centre), and the box the 2D views frame.
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
 pub struct Crosshair {
+    /// The crosshair, world mm (RAS+).
     pub world: Vec3,
+    /// Lowest corner of the framed box, world mm: the visible slice layers' voxels, else 50 mm below the crosshair.
     pub lo: Vec3,
+    /// Highest corner of the framed box, world mm: the visible slice layers' voxels, else 50 mm above the crosshair.
     pub hi: Vec3,
 }
 
@@ -95,11 +99,14 @@ impl Default for Crosshair {
 /// The voxel grid a layer's content comes from (set by its job): the crosshair's voxel on it.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct VoxelGrid {
+    /// The affine from voxel indices to world mm (RAS+).
     pub world_from_voxel: DMat4,
+    /// Voxels along each voxel axis.
     pub dims: [usize; 3],
 }
 
 impl VoxelGrid {
+    /// The grid of volume `v`: its affine and its three spatial dimensions.
     pub fn of<T: fascicle_core::volume::Scalar>(v: &Volume<T>) -> Self {
         Self { world_from_voxel: v.world_from_voxel, dims: v.dims3() }
     }
@@ -136,7 +143,9 @@ impl VoxelGrid {
 /// What a slice layer shows, kept on its entity: the 2D views and window edits cut new slices from it.
 #[derive(Component, Clone)]
 pub struct SliceSource {
+    /// The image in memory the slices are cut from.
     pub volume: Arc<Volume<f32>>,
+    /// Which of its volumes the slices show: one in grey, or three as RGB.
     pub channels: Channels,
     /// The window used when the layer sets none (its minimum and 99.5th percentile).
     pub auto_window: (f32, f32),
@@ -175,6 +184,8 @@ pub fn cells(region: URect) -> [URect; 4] {
     [cell(true, false), cell(false, false), cell(false, true), cell(true, true)]
 }
 
+/// The 2D views and colour bars: the [`ViewRegion`] and [`Crosshair`] resources and the systems that lay out,
+/// place and fill the views after [`SceneSystems::Finish`] (following the crosshair before [`SceneSystems::Sync`]).
 pub struct ViewsPlugin;
 
 impl Plugin for ViewsPlugin {
@@ -489,11 +500,15 @@ fn place_ortho_cameras(
 /// A layer's slice in 2D view `axis`, and what it was cut with.
 #[derive(Component, Clone, Debug, PartialEq)]
 pub struct ViewSlice {
+    /// The world axis the 2D view looks along (0 sagittal, 1 coronal, 2 axial).
     pub axis: usize,
     /// The voxel axis and index of the slice.
     pub voxel_axis: usize,
+    /// The slice's voxel index along `voxel_axis`.
     pub index: usize,
+    /// The values shown black and white.
     pub window: (f32, f32),
+    /// The layer's opacity, 0..1.
     pub opacity: f32,
 }
 

@@ -49,6 +49,8 @@ fn sh_bases(input: &Path, output: &Path, asked: Option<ShBasis>) -> Result<Optio
     Ok(Some((from, to)))
 }
 
+/// Runs `fascicle convert`: `input` to `output`, images or tractograms by their names; an SH image into
+/// `sh_basis` (None: MRtrix3's into a `.mif`, else the input's basis).
 pub fn run(input: &Path, output: &Path, sh_basis: Option<ShBasis>) -> Result<(), Error> {
     super::check_output(output)?;
     if is_image(input) && is_image(output) {

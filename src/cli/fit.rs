@@ -10,6 +10,8 @@ use fascicle_core::sh::{self, OdfKind, OdfModel};
 use fascicle_core::{Error, Volume};
 use indicatif::{ProgressBar, ProgressStyle};
 
+/// The DWI input of `fit`: the image, its gradient table (b-values, b-vectors and their frame), a mask and
+/// the b0 threshold.
 #[derive(Args, Debug)]
 pub struct DwiArgs {
     /// 4D diffusion-weighted image (.nii/.nii.gz, or .mif/.mif.gz with its dw_scheme).
@@ -34,11 +36,13 @@ pub struct DwiArgs {
     pub b0_threshold: f64,
 }
 
+/// The models `fascicle fit` fits.
 #[derive(Subcommand, Debug)]
 pub enum FitCommand {
     /// Diffusion tensor: writes PREFIX_tensor, _evals, _evecs, _fa, _md, _ad, _rd, _rgb, _cl, _cp, _cs, _mode
     /// (.nii.gz); a PREFIX that is a directory (or ends in /) gets tensor.nii.gz, fa.nii.gz, ... inside it.
     Dti {
+        /// The DWI, its gradients and mask.
         #[command(flatten)]
         input: DwiArgs,
         /// Estimator.
@@ -54,8 +58,10 @@ pub enum FitCommand {
     Qball(OdfArgs),
 }
 
+/// The options of `fit csa` and `fit qball`.
 #[derive(Args, Debug)]
 pub struct OdfArgs {
+    /// The DWI, its gradients and mask.
     #[command(flatten)]
     pub input: DwiArgs,
     /// Maximum (even) SH order.
@@ -144,6 +150,8 @@ pub(crate) fn progress_bar(n: usize, what: &str, unit: &str) -> ProgressBar {
     pb
 }
 
+/// Runs `fascicle fit`: fits the chosen model to every voxel (in the mask) and writes its NIfTI maps and JSON
+/// sidecar.
 pub fn run(cmd: FitCommand) -> Result<(), Error> {
     match cmd {
         FitCommand::Dti { input, method, out } => fit_dti(&input, method.into(), &out),

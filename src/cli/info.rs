@@ -6,6 +6,7 @@ use fascicle_core::Error;
 use fascicle_core::io::stream::{self, Format, StreamHeader, Summary, TractogramReader};
 use fascicle_core::io::{nifti, tractogram};
 
+/// Runs `fascicle info`: prints what `path` holds on stdout, as text or (with `json`) as [`info_json`]'s object.
 pub fn run(path: &Path, json: bool) -> Result<(), Error> {
     if json {
         println!("{}", serde_json::to_string_pretty(&info_json(path)?).unwrap_or_default());

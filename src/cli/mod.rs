@@ -13,9 +13,11 @@ use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
 
+/// The parsed command line: an optional subcommand (none opens the viewer) and the global options.
 #[derive(Parser, Debug)]
 #[command(name = "fascicle", version, about = "Interactive GPU visualisation of diffusion MRI")]
 pub struct Cli {
+    /// The subcommand; `None` opens the viewer on the default phantom scene.
     #[command(subcommand)]
     pub command: Option<Command>,
     /// Overwrite output files that already exist (refused otherwise).
@@ -32,7 +34,9 @@ pub struct Cli {
 /// The options every subcommand shares, set once from the command line.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Globals {
+    /// Overwrite output files that already exist (`--force`); default false.
     pub force: bool,
+    /// No progress bars or summaries on stderr (`--quiet`); default false.
     pub quiet: bool,
 }
 
@@ -50,6 +54,7 @@ pub fn set_globals(cli: &Cli) -> Result<(), String> {
     Ok(())
 }
 
+/// The shared options [`set_globals`] recorded (all false before it is called).
 pub fn globals() -> Globals {
     GLOBALS.get().copied().unwrap_or_default()
 }
@@ -111,6 +116,7 @@ pub enum BasisArg {
 }
 
 impl BasisArg {
+    /// The basis of this family, in its legacy variant when `legacy` is true.
     pub fn with_legacy(self, legacy: bool) -> fascicle_core::sh::ShBasis {
         match self {
             BasisArg::Descoteaux07 => fascicle_core::sh::ShBasis::Descoteaux07 { legacy },
@@ -144,6 +150,7 @@ impl From<ShBasisName> for fascicle_core::sh::ShBasis {
     }
 }
 
+/// The subcommands of `fascicle`.
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Open the viewer with files (NIfTI, .trk/.tck, scene .ron); the default phantom scene without any.
@@ -179,6 +186,7 @@ pub enum Command {
     },
     /// Fit a model to a DWI.
     Fit {
+        /// The model to fit.
         #[command(subcommand)]
         model: fit::FitCommand,
     },

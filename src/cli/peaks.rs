@@ -45,6 +45,7 @@ pub struct PeakArgs {
 }
 
 impl PeakArgs {
+    /// These settings as the core's peak-finding parameters.
     pub fn params(&self) -> PeakParams {
         PeakParams {
             relative_peak_threshold: self.relative_peak_threshold,
@@ -54,6 +55,7 @@ impl PeakArgs {
     }
 }
 
+/// The options of `fascicle peaks`.
 #[derive(Args, Debug)]
 pub struct PeaksArgs {
     /// 4D DWI to fit (gradients: --bval and --bvec, the files beside it, or a .mif's dw_scheme).
@@ -87,6 +89,7 @@ pub struct PeaksArgs {
     /// 3D mask: voxels > 0 get peaks.
     #[arg(long)]
     pub mask: Option<PathBuf>,
+    /// Peak-finding settings.
     #[command(flatten)]
     pub peak: PeakArgs,
     /// Output layout.
@@ -97,6 +100,7 @@ pub struct PeaksArgs {
     pub out: PathBuf,
 }
 
+/// Runs `fascicle peaks`: finds the ODF peaks of --dwi or --sh and writes them in the chosen layout.
 pub fn run(a: PeaksArgs) -> Result<(), Error> {
     let params = a.peak.params();
     params.validate()?;

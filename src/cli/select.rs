@@ -15,6 +15,7 @@ use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape};
 use glam::DMat4;
 use rayon::prelude::*;
 
+/// The options of `fascicle select`.
 #[derive(clap::Args, Debug)]
 pub struct SelectArgs {
     /// Input tractogram (.tck, .trk, gzipped, or .trx).
@@ -294,6 +295,8 @@ pub fn pipe(
     Ok((read, written))
 }
 
+/// Runs `fascicle select`: streams the input through the regions (and --min-weight) into --out, with a summary
+/// on stdout.
 pub fn run(a: SelectArgs) -> Result<(), Error> {
     let criteria = criteria(&a)?;
     super::check_output(&a.out)?;

@@ -42,6 +42,7 @@ pub enum FieldInterpolation {
     LogEuclidean,
 }
 
+/// The options of `fascicle track`.
 #[derive(Args, Debug)]
 pub struct TrackArgs {
     /// 4D DWI to fit and track (--model); gradients: --bval and --bvec, the files beside it, or a .mif's dw_scheme.
@@ -331,6 +332,8 @@ pub(crate) fn write_tracks(
     }
 }
 
+/// Runs `fascicle track`: prepares the direction field, seeds, tracks and writes the tractogram, with a summary
+/// on stderr.
 pub fn run(a: TrackArgs) -> Result<(), Error> {
     let params = TrackParams {
         step_mm: a.step_mm,
