@@ -395,7 +395,7 @@ pub fn drag_mapped(file: &Path) -> Result<(), Error> {
     let index = StreamlineCells::build(t.n_streamlines(), |s| t.streamline(s), bounds, 4.0);
     let build = t0.elapsed().as_secs_f64();
     let (median, worst, kept) =
-        drag_steps(|rois| index.select(t.n_streamlines(), |s| t.streamline(s), rois).iter().filter(|k| **k).count());
+        drag_steps(|rois| index.select(|s| t.streamline(s), rois).iter().filter(|k| **k).count());
     let mib = index.heap_bytes() as f64 / 1048576.0;
     println!("median {median:.1} ms, worst {worst:.1} ms ({kept} kept; index built in {build:.1} s, {mib:.0} MiB)");
     Ok(())

@@ -288,7 +288,7 @@ impl Cells {
     }
 
     /// The cells meeting `shape`, as the linear positions of those in each z layer of [`Self::under`].
-    pub(crate) fn meeting(&self, shape: &RoiShape) -> impl Iterator<Item = (usize, Vec<usize>)> + '_ {
+    pub(crate) fn meeting(&self, shape: &RoiShape) -> impl Iterator<Item = Vec<usize>> + '_ {
         let (a, b) = self.under(shape);
         let shape = *shape;
         (a[2]..=b[2]).map(move |z| {
@@ -298,8 +298,20 @@ impl Cells {
                     cells.push(self.linear([x, y, z]));
                 }
             }
-            (z, cells)
+            cells
         })
+    }
+
+    /// Calls `f` with the linear position of every cell that the bounding box of the segment `a`-`b` meets.
+    pub(crate) fn spanned(&self, a: Vec3, b: Vec3, mut f: impl FnMut(usize)) {
+        let (lo, hi) = (self.index(a.min(b)), self.index(a.max(b)));
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    f(self.linear([x, y, z]));
+                }
+            }
+        }
     }
 }
 
@@ -330,26 +342,13 @@ impl SegmentGrid {
         for s in 0..offsets.len().saturating_sub(1) {
             owner[offsets[s]..offsets[s + 1]].fill(s as u32);
         }
-        let cells_of = |i: usize| {
-            let (a, b) = (points[i], points[i + 1]);
-            (cells.index(a.min(b)), cells.index(a.max(b)))
-        };
         let segs: Vec<usize> = (0..offsets.len().saturating_sub(1))
             .flat_map(|s| offsets[s]..offsets[s + 1].saturating_sub(1).max(offsets[s]))
             .filter(|&i| points[i].is_finite() && points[i + 1].is_finite())
             .collect();
         let n_cells = cells.count();
         let mut count = vec![0u32; n_cells + 1];
-        let visit = |i: usize, f: &mut dyn FnMut(usize)| {
-            let (a, b) = cells_of(i);
-            for z in a[2]..=b[2] {
-                for y in a[1]..=b[1] {
-                    for x in a[0]..=b[0] {
-                        f(cells.linear([x, y, z]));
-                    }
-                }
-            }
-        };
+        let visit = |i: usize, f: &mut dyn FnMut(usize)| cells.spanned(points[i], points[i + 1], f);
         for &i in &segs {
             visit(i, &mut |c| count[c + 1] += 1);
         }
@@ -369,11 +368,7 @@ impl SegmentGrid {
 
     /// How many segment entries the cells that meet a region hold (what [`Self::meeting_mask_among`] scans).
     pub fn segments_under(&self, shape: &RoiShape) -> usize {
-        self.cells
-            .meeting(shape)
-            .flat_map(|(_, cells)| cells)
-            .map(|c| (self.starts[c + 1] - self.starts[c]) as usize)
-            .sum()
+        self.cells.meeting(shape).flatten().map(|c| (self.starts[c + 1] - self.starts[c]) as usize).sum()
     }
 
     /// Per streamline, whether a segment meets `shape`, testing only streamlines with `candidates[s]` (the
@@ -382,8 +377,8 @@ impl SegmentGrid {
         use std::sync::atomic::{AtomicBool, Ordering};
         let n = candidates.len();
         let marks: Vec<AtomicBool> = (0..n).map(|_| AtomicBool::new(false)).collect();
-        let layers: Vec<(usize, Vec<usize>)> = self.cells.meeting(shape).collect();
-        layers.into_par_iter().for_each(|(_, layer)| {
+        let layers: Vec<Vec<usize>> = self.cells.meeting(shape).collect();
+        layers.into_par_iter().for_each(|layer| {
             for c in layer {
                 for &i in &self.segments[self.starts[c] as usize..self.starts[c + 1] as usize] {
                     let i = i as usize;

@@ -34,12 +34,11 @@ impl StreamlineCells {
         cell: f32,
     ) -> Self {
         let cells = Cells::over(bounds.0, bounds.1, cell);
-        let grid = Self { cells, starts: Vec::new(), ids: Vec::new(), n };
         let n_cells = cells.count();
         let counts: Vec<AtomicU64> = (0..n_cells).map(|_| AtomicU64::new(0)).collect();
-        (0..n).into_par_iter().for_each_init(Vec::new, |cells, s| {
-            grid.cells_of(streamline(s), cells);
-            for &c in cells.iter() {
+        (0..n).into_par_iter().for_each_init(Vec::new, |buf, s| {
+            cells_of(&cells, streamline(s), buf);
+            for &c in buf.iter() {
                 counts[c as usize].fetch_add(1, Ordering::Relaxed);
             }
         });
@@ -51,15 +50,15 @@ impl StreamlineCells {
         let fill: Vec<AtomicU64> = starts[..n_cells].iter().map(|&s| AtomicU64::new(s)).collect();
         let total = starts[n_cells] as usize;
         let ids: Vec<AtomicU32> = (0..total).map(|_| AtomicU32::new(0)).collect();
-        (0..n).into_par_iter().for_each_init(Vec::new, |cells, s| {
-            grid.cells_of(streamline(s), cells);
-            for &c in cells.iter() {
+        (0..n).into_par_iter().for_each_init(Vec::new, |buf, s| {
+            cells_of(&cells, streamline(s), buf);
+            for &c in buf.iter() {
                 let at = fill[c as usize].fetch_add(1, Ordering::Relaxed);
                 ids[at as usize].store(s as u32, Ordering::Relaxed);
             }
         });
         let ids = ids.into_iter().map(AtomicU32::into_inner).collect();
-        Self { starts, ids, ..grid }
+        Self { cells, starts, ids, n }
     }
 
     /// Bytes the index holds.
@@ -67,35 +66,12 @@ impl StreamlineCells {
         self.starts.len() * 8 + self.ids.len() * 4
     }
 
-    /// The distinct cells of a streamline's points and of its segments' bounding boxes, into `out`.
-    fn cells_of(&self, pts: &[Vec3], out: &mut Vec<u32>) {
-        out.clear();
-        let cells = &self.cells;
-        for (k, p) in pts.iter().enumerate().filter(|(_, p)| p.is_finite()) {
-            match pts.get(k + 1).filter(|q| q.is_finite()) {
-                Some(q) => {
-                    let (lo, hi) = (cells.index(p.min(*q)), cells.index(p.max(*q)));
-                    for z in lo[2]..=hi[2] {
-                        for y in lo[1]..=hi[1] {
-                            for x in lo[0]..=hi[0] {
-                                out.push(cells.linear([x, y, z]) as u32);
-                            }
-                        }
-                    }
-                }
-                None => out.push(cells.linear(cells.index(*p)) as u32),
-            }
-        }
-        out.sort_unstable();
-        out.dedup();
-    }
-
     /// The streamlines indexed in the cells that meet `shape` (ascending, each once): a superset of those
     /// that meet it. Deduplicated in a bit set of all streamlines (no sort), so the candidates come in file
     /// order, which is also the order their points lie in memory.
     pub fn candidates(&self, shape: &RoiShape) -> Vec<u32> {
         let mut bits = vec![0u64; self.n.div_ceil(64)];
-        for c in self.cells.meeting(shape).flat_map(|(_, cells)| cells) {
+        for c in self.cells.meeting(shape).flatten() {
             for &s in &self.ids[self.starts[c] as usize..self.starts[c + 1] as usize] {
                 bits[s as usize / 64] |= 1 << (s % 64);
             }
@@ -107,9 +83,10 @@ impl StreamlineCells {
             .collect()
     }
 
-    /// Which of the `n` streamlines the ROIs select, as [`crate::roi::select`] decides (every include met,
-    /// no exclude met; with no include, every streamline not excluded), testing only candidates' points.
-    pub fn select<'a>(&self, n: usize, streamline: impl Fn(usize) -> &'a [Vec3] + Sync, rois: &[Roi]) -> Vec<bool> {
+    /// Which of the indexed streamlines the ROIs select, as [`crate::roi::select`] decides (every include
+    /// met, no exclude met; with no include, every streamline not excluded), testing only candidates' points.
+    pub fn select<'a>(&self, streamline: impl Fn(usize) -> &'a [Vec3] + Sync, rois: &[Roi]) -> Vec<bool> {
+        let n = self.n;
         let meets = |shape: &RoiShape, ids: &[u32]| -> Vec<u32> {
             ids.par_iter().copied().filter(|&s| shape.meets_streamline(streamline(s as usize))).collect()
         };
@@ -134,6 +111,19 @@ impl StreamlineCells {
         }
         keep
     }
+}
+
+/// The distinct cells of a streamline's points and of its segments' bounding boxes, into `out`.
+fn cells_of(cells: &Cells, pts: &[Vec3], out: &mut Vec<u32>) {
+    out.clear();
+    for (k, p) in pts.iter().enumerate().filter(|(_, p)| p.is_finite()) {
+        match pts.get(k + 1).filter(|q| q.is_finite()) {
+            Some(q) => cells.spanned(*p, *q, |c| out.push(c as u32)),
+            None => out.push(cells.linear(cells.index(*p)) as u32),
+        }
+    }
+    out.sort_unstable();
+    out.dedup();
 }
 
 #[cfg(test)]
@@ -171,7 +161,7 @@ mod tests {
         ];
         for rois in &cases {
             let want = select(&t.points, &t.offsets, &grid, rois);
-            let got = index.select(t.n_streamlines(), |s| t.streamline(s), rois);
+            let got = index.select(|s| t.streamline(s), rois);
             let kept = want.iter().filter(|k| **k).count();
             assert_eq!(got, want, "{rois:?}: {kept} kept by the segment grid");
         }

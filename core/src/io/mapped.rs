@@ -4,7 +4,7 @@
 //! every writer here produce); other files are read with [`crate::io::tck`] or streamed
 //! ([`crate::io::stream::TractogramReader`]).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use glam::Vec3;
 
@@ -12,7 +12,6 @@ use crate::error::{Error, Result};
 
 /// A Float32LE `.tck` file mapped in memory, with the index of its streamlines.
 pub struct MappedTck {
-    path: PathBuf,
     map: memmap2::Mmap,
     /// Byte offset of the first point.
     data: usize,
@@ -65,12 +64,7 @@ impl MappedTck {
             starts.push(points.len() as u64 + 1);
         }
         let bounds = (lo.x <= hi.x).then_some((lo, hi));
-        Ok(Self { path: path.to_path_buf(), map, data: layout.offset, starts, bounds })
-    }
-
-    /// The file's path.
-    pub fn path(&self) -> &Path {
-        &self.path
+        Ok(Self { map, data: layout.offset, starts, bounds })
     }
 
     /// Streamlines in the file (empty ones included, as MRtrix counts them).
