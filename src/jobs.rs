@@ -12,7 +12,7 @@ use bevy::math::Vec3;
 use fascicle_core::Volume;
 use fascicle_core::dti::glyph::TensorGlyph;
 use fascicle_core::dti::splat::Splat;
-use fascicle_core::io::{Tractogram, nifti};
+use fascicle_core::io::Tractogram;
 use fascicle_core::sh::glyph::{Glyph, GlyphPlane, GlyphStyle, Sampling, make_glyphs, sample_plane};
 use fascicle_core::sh::{self, OdfKind, OdfModel, ShBasis};
 use fascicle_sh_glyphs::{Selection, ShField, ShFieldSettings, field_glyphs};
@@ -24,6 +24,7 @@ use crate::scene::{
     LayerKind, ShSource, SliceAxis, TensorSource, TractColouring, TractMode, TractSource, VolumeSource,
 };
 use fascicle_tracts::{LineDetail, PreparedTracts};
+use fascicle_views::{Channels, auto_window};
 
 /// A job's stage, progress and cancel flag, shared between the job and the panel that shows it, and the parts
 /// of its content it has delivered so far ([`Content::Streamed`]).
@@ -36,7 +37,7 @@ pub struct JobProgress {
     /// Content delivered while the job runs, for the main thread to show as it comes ([`Content::Streamed`]).
     pub parts: Parts,
     /// The voxel grid the content comes from, once read (the crosshair's voxel on it).
-    grid: Mutex<Option<crate::views::VoxelGrid>>,
+    grid: Mutex<Option<fascicle_views::VoxelGrid>>,
 }
 
 /// Parts of a layer's content that its job delivers while it runs, oldest first: streamlines as they are
@@ -90,12 +91,12 @@ pub const CANCELLED: &str = "cancelled";
 
 impl JobProgress {
     /// Records the voxel grid the layer's content is cut from.
-    pub fn set_grid(&self, grid: crate::views::VoxelGrid) {
+    pub fn set_grid(&self, grid: fascicle_views::VoxelGrid) {
         *self.grid.lock().unwrap_or_else(|e| e.into_inner()) = Some(grid);
     }
 
     /// The voxel grid the content is cut from, once the job has read it.
-    pub fn grid(&self) -> Option<crate::views::VoxelGrid> {
+    pub fn grid(&self) -> Option<fascicle_views::VoxelGrid> {
         *self.grid.lock().unwrap_or_else(|e| e.into_inner())
     }
 
@@ -156,14 +157,14 @@ pub enum Content {
         /// Its values as a 3D texture.
         texture: Box<Image>,
     },
-    /// One slice of an image, shown as a textured quad.
+    /// An image to slice (a slice layer: the views plugin cuts its slices).
     Slice {
-        /// The slice, windowed to display black and white (sRGB).
-        image: Box<Image>,
-        /// World positions (RAS+ mm) of its four outer voxel corners, counter-clockwise from voxel (0, 0).
-        corners: [Vec3; 4],
-        /// The image it was cut from: window edits and the 2D views cut new slices from it.
-        source: crate::views::SliceSource,
+        /// The image, shared with the cache.
+        volume: Arc<Volume<f32>>,
+        /// The volumes shown.
+        channels: Channels,
+        /// The window shown when the layer sets none (found here, off the main thread).
+        auto_window: (f32, f32),
     },
     /// The world axes from the origin: X red, Y green, Z blue.
     Axes {
@@ -187,7 +188,7 @@ impl Content {
             Content::Splats(s) => s.len(),
             Content::Tracts(t) => t.n_streamlines,
             Content::Volume { volume, .. } => volume.n_voxels(),
-            Content::Slice { image, .. } => (image.width() * image.height()) as usize,
+            Content::Slice { volume, .. } => volume.n_voxels(),
             Content::Axes { .. } => 3,
             Content::Streamed { items } => *items,
         }
@@ -208,7 +209,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
     match kind {
         LayerKind::ShGlyphs { source, axis, index, spacing, plane, sampling, full_volume, style, .. } => {
             let field = sh_field(cache, source, progress)?;
-            progress.set_grid(crate::views::VoxelGrid::of(&field.coeffs));
+            progress.set_grid(fascicle_views::VoxelGrid::of(&field.coeffs));
             // Placed glyphs are kept too (keyed by the layer's structure): stepping back to a slice, or onto
             // one that was prefetched (`prefetch_neighbours`), costs a copy.
             // A slice given as "the middle one" is keyed by its index, as its neighbours are.
@@ -317,7 +318,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             progress.stage("making the texture", 0)?;
             Ok(Content::Volume { texture: Box::new(fascicle_volume::volume_texture(&volume)), volume })
         }
-        LayerKind::Slice { source, axis, index, window: _ } => {
+        LayerKind::Slice { source, .. } => {
             let (vol, channel, window) = match source {
                 VolumeSource::PhantomFa => (phantom_fa(cache)?, Channels::One(0), Some((0.0, 1.0))),
                 VolumeSource::Nifti { path, volume } => {
@@ -326,12 +327,10 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 VolumeSource::Rgb { path } => (image_with_volume(cache, path, 2, progress)?, Channels::Rgb, None),
                 VolumeSource::Density { .. } => (scalar_volume(cache, source, progress)?, Channels::One(0), None),
             };
-            progress.stage("slicing", 0)?;
-            progress.set_grid(crate::views::VoxelGrid::of(&vol));
-            let auto = window.unwrap_or_else(|| auto_window(&vol, channel));
-            let (image, corners) = slice_image(&vol, channel, *axis, *index, auto)?;
-            let source = crate::views::SliceSource { volume: vol, channels: channel, auto_window: auto };
-            Ok(Content::Slice { image: Box::new(image), corners, source })
+            progress.stage("finding the window", 0)?;
+            progress.set_grid(fascicle_views::VoxelGrid::of(&vol));
+            let auto_window = window.unwrap_or_else(|| auto_window(&vol, channel));
+            Ok(Content::Slice { volume: vol, channels: channel, auto_window })
         }
         LayerKind::Tractogram { path } => stream_lines(path, progress),
         LayerKind::Axes { length_mm } => Ok(Content::Axes { length_mm: *length_mm }),
@@ -794,11 +793,10 @@ pub fn tensor_field(cache: &DataCache, source: &TensorSource, progress: &JobProg
                 &[path],
                 |f: &TensorField| volume_bytes(&f.tensors),
                 || {
-                    let (mut vol, _) = nifti::read::<f32>(path).map_err(|e| e.to_string())?;
-                    if vol.n_channels() == 6 {
-                        order.to_dipy(&mut vol);
-                    }
-                    TensorField::new(vol).map_err(|e| format!("{}: {e}", path.display()))
+                    // The tensor plugin's reader: NIfTI or MRtrix, in the order given, into the voxel frame.
+                    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+                    let settings = fascicle_tensors::TensorFieldSettings { order: Some(*order) };
+                    fascicle_tensors::layer::read_field(bytes, path, &settings)
                 },
             )?
         }
@@ -893,7 +891,7 @@ pub fn tensor_glyphs(
         return Ok((glyphs, voxels));
     }
     let field = tensor_field(cache, source, progress)?;
-    progress.set_grid(crate::views::VoxelGrid::of(&field.tensors));
+    progress.set_grid(fascicle_views::VoxelGrid::of(&field.tensors));
     progress.stage("placing glyphs", 0)?;
     let selection = Selection::Slice { axis, index, spacing };
     field_tensor_glyphs(&field, &selection, &TensorGlyphShape { size, min_fa, ..Default::default() })
@@ -922,7 +920,7 @@ pub fn slab_splats(
             .collect());
     }
     let field = tensor_field(cache, source, progress)?;
-    progress.set_grid(crate::views::VoxelGrid::of(&field.tensors));
+    progress.set_grid(fascicle_views::VoxelGrid::of(&field.tensors));
     progress.stage("placing splats", 0)?;
     let selection = Selection::Slab { axis, index, thickness };
     field_splats(&field, &selection, &SplatShape { size, min_fa })
@@ -1271,105 +1269,6 @@ pub fn peak_segments(path: &Path, length: f32) -> Result<Tractogram, String> {
         }
     }
     Ok(t)
-}
-
-/// Which volumes of an image a slice shows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Channels {
-    /// One volume, in grey.
-    One(usize),
-    /// The first three as red, green, blue (one window for all three).
-    Rgb,
-}
-
-/// The window a slice shows when its layer sets none: the image's minimum and 99.5th percentile (of its
-/// finite values, over the channels shown).
-pub fn auto_window(vol: &Volume<f32>, channel: Channels) -> (f32, f32) {
-    let nvox = vol.n_voxels();
-    let channels: &[usize] = match channel {
-        Channels::One(c) => &[c],
-        Channels::Rgb => &[0, 1, 2],
-    };
-    let mut vals: Vec<f32> = channels
-        .iter()
-        .filter(|&&c| c < vol.n_channels())
-        .flat_map(|&c| vol.data[nvox * c..nvox * (c + 1)].iter().copied())
-        .filter(|x| x.is_finite())
-        .collect();
-    if vals.is_empty() {
-        return (0.0, 1.0);
-    }
-    let k = (vals.len() - 1) * 995 / 1000;
-    let (below, &mut hi, _) = vals.select_nth_unstable_by(k, f32::total_cmp);
-    let lo = below.iter().copied().fold(hi, f32::min);
-    (lo, if hi > lo { hi } else { lo + 1.0 })
-}
-
-/// An image of one slice (values mapped linearly from `window` to display black and white: stored as sRGB)
-/// and the world positions of its four outer voxel corners, counter-clockwise from voxel (0, 0).
-pub fn slice_image(
-    vol: &Volume<f32>,
-    channel: Channels,
-    axis: SliceAxis,
-    index: Option<usize>,
-    window: (f32, f32),
-) -> Result<(Image, [Vec3; 4]), String> {
-    let d = vol.dims3();
-    let (ax, u, v) = match axis {
-        SliceAxis::X => (0, 1, 2),
-        SliceAxis::Y => (1, 0, 2),
-        SliceAxis::Z => (2, 0, 1),
-    };
-    let k = index.unwrap_or(d[ax] / 2);
-    if k >= d[ax] {
-        return Err(format!("slice {k} is outside the volume's {} slices along {axis:?}", d[ax]));
-    }
-    let nvox = vol.n_voxels();
-    let at = |i: usize, j: usize, channel: usize| {
-        let mut p = [0usize; 3];
-        p[ax] = k;
-        p[u] = i;
-        p[v] = j;
-        vol.data[p[0] + d[0] * (p[1] + d[1] * p[2]) + nvox * channel]
-    };
-    let channels: Vec<usize> = match channel {
-        Channels::One(c) => vec![c],
-        Channels::Rgb => vec![0, 1, 2],
-    };
-    if let Some(c) = channels.iter().find(|&&c| c >= vol.n_channels()) {
-        return Err(format!("volume {c} requested, the image has {}", vol.n_channels()));
-    }
-    let (lo, hi) = window;
-    let hi = if hi > lo { hi } else { lo + f32::EPSILON.max(lo.abs() * 1e-6) };
-    let (w, h) = (d[u], d[v]);
-    let level = |x: f32| {
-        let g = if x.is_finite() { ((x - lo) / (hi - lo)).clamp(0.0, 1.0) } else { 0.0 };
-        (g * 255.0).round() as u8
-    };
-    let mut px = Vec::with_capacity(w * h * 4);
-    for j in 0..h {
-        for i in 0..w {
-            match channel {
-                Channels::One(c) => {
-                    let b = level(at(i, j, c));
-                    px.extend_from_slice(&[b, b, b, 255]);
-                }
-                Channels::Rgb => {
-                    px.extend_from_slice(&[level(at(i, j, 0)), level(at(i, j, 1)), level(at(i, j, 2)), 255])
-                }
-            }
-        }
-    }
-    let image = crate::colourbar::srgb_image(w as u32, h as u32, px);
-    let corner = |a: f64, b: f64| {
-        let mut p = [0f64; 3];
-        p[ax] = k as f64;
-        p[u] = a;
-        p[v] = b;
-        vol.world_from_voxel.transform_point3(glam::DVec3::from_array(p)).as_vec3()
-    };
-    let (a1, b1) = (w as f64 - 0.5, h as f64 - 0.5);
-    Ok((image, [corner(-0.5, -0.5), corner(a1, -0.5), corner(a1, b1), corner(-0.5, b1)]))
 }
 
 #[cfg(test)]
@@ -1752,7 +1651,7 @@ mod tests {
         for (i, v) in vol.data.iter_mut().enumerate() {
             *v = (40.0 + 2.0 * (i % 50) as f32) / 100.0;
         }
-        nifti::write(&ramp, &vol, nifti::WriteType::F32).unwrap();
+        fascicle_core::io::nifti::write(&ramp, &vol, fascicle_core::io::nifti::WriteType::F32).unwrap();
         // (position, colour, streamline in the drawn set) of each vertex of the layer's line mesh.
         type Vertices = (Vec<[f32; 3]>, Vec<[f32; 4]>, Vec<usize>);
         let colours = |colouring: TractColouring| -> Vertices {
@@ -1873,7 +1772,7 @@ mod tests {
                 v.data[dst * n..(dst + 1) * n].copy_from_slice(&dipy.tensors.data[slot * n..(slot + 1) * n]);
             }
             let out = dir.join(format!("{order:?}.nii.gz"));
-            nifti::write(&out, &v, nifti::WriteType::F32).unwrap();
+            fascicle_core::io::nifti::write(&out, &v, fascicle_core::io::nifti::WriteType::F32).unwrap();
             let source = crate::scene::tensor_source_for(&out);
             assert_eq!(source, TensorSource::Nifti { path: out.clone(), order });
             assert_eq!(tensor_field(&cache, &source, &p).unwrap().tensors.data, dipy.tensors.data);

@@ -14,8 +14,6 @@
 
 use std::sync::Arc;
 
-use bevy::asset::RenderAssetUsages;
-use bevy::mesh::{Indices, PrimitiveTopology};
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use bevy::tasks::{Task, futures::check_ready};
@@ -26,12 +24,17 @@ use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, s
 use fascicle_tracts::{
     MeshSet, PreparedGeometry, TractMeshMaterial, TractPlugin, TractRoi, TubeSet, TubeletMaterial, spawn_prepared,
 };
-use fascicle_volume::{OpaqueDepth, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume_texture};
+use fascicle_views::slice::{set_opacity, unlit};
+use fascicle_views::{
+    ColourBar, ColourMap, LayerOrder, MainView, SliceLayer, SliceSettings, SliceSource, ViewSystems, Views,
+    ViewsPlugin, VoxelGrid,
+};
+use fascicle_volume::{OpaqueDepth, ScalarVolume, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume_texture};
 
 use crate::cache::DataCache;
 use crate::jobs::{CANCELLED, Content, JobProgress, build, spawn_job, spawn_light_job};
 use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
-use crate::scene::{LayerKind, LayerSpec, Scene};
+use crate::scene::{LayerKind, LayerSpec, Scene, TractColouring};
 
 /// The scene being shown.
 #[derive(Resource, Clone, Debug)]
@@ -146,7 +149,9 @@ impl Plugin for ScenePlugin {
         {
             s.large_threshold = s.large_threshold.min(4 << 20);
         }
-        app.add_plugins(crate::views::ViewsPlugin);
+        if !app.is_plugin_added::<ViewsPlugin>() {
+            app.add_plugins(ViewsPlugin);
+        }
         app.init_resource::<LayerErrors>()
             .init_resource::<DataCache>()
             .init_resource::<RetryLayers>()
@@ -154,12 +159,16 @@ impl Plugin for ScenePlugin {
             .init_resource::<Restyles>()
             .init_resource::<LayerSyncCounts>()
             .init_resource::<LayerDataMap>()
-            .configure_sets(Update, (SceneSystems::Sync, SceneSystems::Finish).chain())
+            .configure_sets(Update, (SceneSystems::Sync, SceneSystems::Finish, ViewSystems).chain())
             .add_systems(
                 Update,
                 (
-                    (sync_layers.run_if(scene_or_retries_changed), restyle_layers).chain().in_set(SceneSystems::Sync),
-                    (stream_parts, finish_jobs, report_errors, report_layer_data).chain().in_set(SceneSystems::Finish),
+                    (follow_crosshair, sync_layers.run_if(scene_or_retries_changed), restyle_layers, sync_views)
+                        .chain()
+                        .in_set(SceneSystems::Sync),
+                    (stream_parts, finish_jobs, mark_layers, report_errors, report_layer_data)
+                        .chain()
+                        .in_set(SceneSystems::Finish),
                 ),
             );
     }
@@ -239,7 +248,6 @@ fn sync_layers(
                     SceneLayer { spec: spec.clone(), built: None, tried: Some(structures[i].clone()) },
                     LayerEntity(i),
                     visibility,
-                    Name::new(format!("layer {}", spec.name)),
                 ))
                 .id();
             start_job(&mut commands, e, structures[i].clone(), &cache, &mut counts);
@@ -322,8 +330,8 @@ const PART_BUDGET: std::time::Duration = std::time::Duration::from_millis(8);
 /// Removes what layer `e` shows and, for a tract layer, gives it its ROIs again (children of the layer: they
 /// act on all its tract sets).
 fn clear_content(commands: &mut Commands, e: Entity, index: usize, spec: &LayerSpec) {
-    // The image a slice was cut from goes with it (new slice content brings its own).
-    commands.entity(e).despawn_related::<Children>().remove::<crate::views::SliceSource>();
+    // A slice layer's image goes with it (new slice content brings its own).
+    commands.entity(e).despawn_related::<Children>().remove::<SliceLayer>();
     if let LayerKind::Tracts { rois, .. } = &spec.kind {
         spawn_rois(commands, rois, index, e);
     }
@@ -355,7 +363,7 @@ fn finish_jobs(
         // The grid of the new content, or none (a rebuilt layer of another kind keeps no stale grid).
         match job.progress.grid() {
             Some(grid) => commands.entity(e).insert(grid),
-            None => commands.entity(e).remove::<crate::views::VoxelGrid>(),
+            None => commands.entity(e).remove::<VoxelGrid>(),
         };
         // Streamed content is in place already (its first part cleared the old); anything else replaces it.
         if !matches!(result, Ok(Content::Streamed { .. })) || job.parts_shown == 0 {
@@ -395,6 +403,7 @@ struct Uploads<'w> {
     tube_materials: ResMut<'w, Assets<TubeletMaterial>>,
     mesh_materials: ResMut<'w, Assets<TractMeshMaterial>>,
     volume_materials: ResMut<'w, Assets<VolumeMaterial>>,
+    volumes: ResMut<'w, Assets<ScalarVolume>>,
     depth: Option<Res<'w, OpaqueDepth>>,
 }
 
@@ -437,11 +446,13 @@ impl Uploads<'_> {
                 let (images, materials) = (&mut self.images, &mut self.volume_materials);
                 spawn_volume_texture(c, m, images, materials, b, depth, &volume, *texture, render)
             }
-            (Content::Slice { image, corners, source }, _) => {
-                c.entity(layer).insert(source);
-                let mut mat = unlit(spec.opacity);
-                mat.base_color_texture = Some(self.images.add(*image));
-                c.spawn((Mesh3d(m.add(quad(corners))), MeshMaterial3d(self.materials.add(mat)))).id()
+            (Content::Slice { volume, channels, auto_window }, LayerKind::Slice { .. }) => {
+                // A slice layer of the views plugin, with the window found by the job.
+                let handle = self.volumes.add(ScalarVolume(volume.clone()));
+                let source = SliceSource { asset: handle.id(), volume, channels, auto_window };
+                let settings = SliceSettings { channels, ..slice_settings(spec) };
+                c.entity(layer).insert((SliceLayer { volume: handle }, settings, source));
+                return Ok(());
             }
             (Content::Axes { length_mm: l }, _) => {
                 let w = l / 40.0;
@@ -494,11 +505,10 @@ fn restyle_layers(
     layer_entities: Query<(Entity, &LayerEntity), With<SceneLayer>>,
     volume_sets: Query<(&VolumeSet, &LayerEntity)>,
     parts: Query<(&MeshMaterial3d<StandardMaterial>, &LayerEntity)>,
-    slice_sources: Query<(&crate::views::SliceSource, &LayerEntity)>,
+    mut slices: Query<(&mut SliceSettings, &LayerEntity)>,
     mut upload: Uploads,
 ) {
     let Uploads {
-        images,
         buffers,
         glyph_materials,
         tensor_materials,
@@ -540,20 +550,11 @@ fn restyle_layers(
                     set.write_style(render, true, volume_materials, buffers);
                 }
             }
-            (LayerKind::Slice { window: a, .. }, LayerKind::Slice { window, axis, index, .. }) if a != window => {
-                // One slice cut again from the image in memory, into the texture it shows.
-                let cut = slice_sources
-                    .iter()
-                    .find(|(_, le)| le.0 == i)
-                    .and_then(|(source, _)| source.cut(*axis, *index, source.window(*window)).ok());
-                if let Some((image, _)) = cut {
-                    for (mat, _) in parts.iter().filter(|(_, le)| le.0 == i) {
-                        if let Some(texture) = materials.get(&mat.0).and_then(|m| m.base_color_texture.clone())
-                            && let Some(mut img) = images.get_mut(&texture)
-                        {
-                            *img = image.clone();
-                        }
-                    }
+            (LayerKind::Slice { .. }, LayerKind::Slice { .. }) => {
+                // Axis, index, window, opacity: the views plugin cuts the slice again from the image in memory.
+                for (mut settings, _) in slices.iter_mut().filter(|(_, le)| le.0 == i) {
+                    let want = SliceSettings { channels: settings.channels, ..slice_settings(&after) };
+                    settings.set_if_neq(want);
                 }
             }
             (LayerKind::Tracts { render: a, rois: ra, .. }, LayerKind::Tracts { render, rois: rb, .. }) => {
@@ -636,35 +637,140 @@ fn report_layer_data(
     }
 }
 
-pub(crate) fn set_opacity(m: &mut StandardMaterial, opacity: f32) {
-    let a = opacity.clamp(0.0, 1.0);
-    m.base_color.set_alpha(a);
-    m.alpha_mode = if a < 1.0 { AlphaMode::Blend } else { AlphaMode::Opaque };
+/// A slice layer's settings from its spec (channels: the first volume; the job knows the image's).
+fn slice_settings(spec: &LayerSpec) -> SliceSettings {
+    match &spec.kind {
+        LayerKind::Slice { axis, index, window, .. } => {
+            SliceSettings { axis: *axis, index: *index, window: *window, opacity: spec.opacity, ..default() }
+        }
+        _ => SliceSettings { opacity: spec.opacity, ..default() },
+    }
 }
 
-pub(crate) fn unlit(opacity: f32) -> StandardMaterial {
-    let mut m = StandardMaterial { base_color: Color::WHITE, unlit: true, cull_mode: None, ..default() };
-    set_opacity(&mut m, opacity);
-    m
+/// The [`Views`] resource of the views plugin, from the scene's.
+fn sync_views(scene: Res<ActiveScene>, mut views: ResMut<Views>) {
+    if scene.is_changed() {
+        views.set_if_neq(scene.0.views);
+    }
 }
 
-pub(crate) fn quad(c: [Vec3; 4]) -> Mesh {
-    let n = (c[1] - c[0]).cross(c[3] - c[0]).normalize_or_zero();
-    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, c.to_vec())
-        .with_inserted_attribute(Mesh::ATTRIBUTE_NORMAL, vec![n; 4])
-        .with_inserted_attribute(Mesh::ATTRIBUTE_UV_0, vec![[0.0f32, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
-        .with_inserted_indices(Indices::U32(vec![0, 1, 2, 0, 2, 3]))
+/// What the views plugin reads from a layer entity: its [`LayerOrder`] (the layer's index), its [`Name`] (the
+/// layer's, the label of its bar) and, for layers other than slices (whose bars the plugin makes), its
+/// [`ColourBar`].
+#[allow(clippy::type_complexity, reason = "a Bevy system's query")]
+fn mark_layers(
+    mut commands: Commands,
+    layers: Query<
+        (Entity, &LayerEntity, &SceneLayer, Option<&ColourBar>, Option<&Name>),
+        Or<(Changed<LayerEntity>, Changed<SceneLayer>)>,
+    >,
+) {
+    for (e, le, layer, bar, name) in &layers {
+        let spec = layer.spec();
+        let mut entity = commands.entity(e);
+        entity.insert(LayerOrder(le.0 as u32));
+        if name.is_none_or(|n| n.as_str() != spec.name) {
+            entity.insert(Name::new(spec.name.clone()));
+        }
+        if matches!(spec.kind, LayerKind::Slice { .. }) {
+            continue;
+        }
+        let want = colour_bar(spec);
+        if want.as_ref() != bar {
+            match want {
+                Some(b) => entity.insert(b),
+                None => entity.remove::<ColourBar>(),
+            };
+        }
+    }
+}
+
+/// The colour bar of a colour-mapped layer other than a slice: a volume's transfer function over its range,
+/// FA/GFA-coloured glyphs and splats and scalar-coloured tracts on viridis.
+pub fn colour_bar(layer: &LayerSpec) -> Option<ColourBar> {
+    use fascicle_core::dti::splat::SplatColourMode;
+    let bar = |map, range: (f64, f64)| Some(ColourBar { label: layer.name.clone(), map, range });
+    match &layer.kind {
+        LayerKind::Volume { render, .. } => {
+            let [lo, hi] = render.tf.range;
+            bar(ColourMap::Transfer(Box::new(render.tf.clone())), (lo, hi))
+        }
+        LayerKind::ShGlyphs { render, .. } if render.colour == fascicle_sh_glyphs::GlyphColour::Gfa => {
+            bar(ColourMap::Viridis, (0.0, 1.0))
+        }
+        LayerKind::TensorGlyphs { render, .. } if render.colour == fascicle_tensors::TensorColour::Fa => {
+            bar(ColourMap::Viridis, (0.0, 1.0))
+        }
+        LayerKind::TensorSplats { render, .. } if render.colouring.mode == SplatColourMode::Fa => {
+            bar(ColourMap::Viridis, (0.0, 1.0))
+        }
+        LayerKind::Tracts {
+            colouring: TractColouring::Scalar { window: (lo, hi), .. } | TractColouring::Value { window: (lo, hi), .. },
+            ..
+        } => bar(ColourMap::Viridis, (f64::from(*lo), f64::from(*hi))),
+        _ => None,
+    }
+}
+
+/// With [`Views::follow`], moves the slice of every slice, glyph and tensor layer to the crosshair's voxel
+/// (on the layer's own grid, along its own axis).
+fn follow_crosshair(
+    mut scene: ResMut<ActiveScene>,
+    grids: Query<(&LayerEntity, &VoxelGrid)>,
+    mut last: Local<Option<Vec3>>,
+) {
+    let views = scene.0.views;
+    let Some(world) = views.crosshair.map(Vec3::from_array).filter(|_| views.follow) else {
+        *last = None;
+        return;
+    };
+    if *last == Some(world) {
+        return;
+    }
+    *last = Some(world);
+    let mut edited = scene.0.layers.clone();
+    for (le, grid) in &grids {
+        let Some(layer) = edited.get_mut(le.0) else { continue };
+        let (axis, index) = match &mut layer.kind {
+            LayerKind::Slice { axis, index, .. }
+            | LayerKind::ShGlyphs { axis, index, plane: None, full_volume: false, .. }
+            | LayerKind::TensorGlyphs { axis, index, .. }
+            | LayerKind::TensorSplats { axis, index, .. } => (*axis, index),
+            _ => continue,
+        };
+        let k = axis.index();
+        if let Some(i) = grid.index_at(world, k) {
+            *index = Some(i);
+        }
+    }
+    if edited != scene.0.layers {
+        scene.0.layers = edited;
+    }
+}
+
+/// The clear colour of viewer and renderer.
+pub const BACKGROUND: Color = Color::linear_rgb(0.02, 0.02, 0.025);
+
+/// The near plane of the scene camera ([`camera_from_spec`]), world mm.
+pub const NEAR: f32 = 0.5;
+
+/// Camera components shared by viewer and headless renderer, so both produce the same image: no tone mapping
+/// or dithering, and blending in a float target (rounded to 8 bits once, at the end).
+pub fn view_camera() -> impl Bundle {
+    (
+        Camera3d::default(),
+        Camera { clear_color: ClearColorConfig::Custom(BACKGROUND), ..default() },
+        // A float (f16) target: slices, splats and glyph layers blend without 8-bit banding.
+        fascicle_views::exact_output(),
+        MainView,
+    )
 }
 
 /// Camera transform and projection for a scene's camera spec.
 pub fn camera_from_spec(spec: &crate::scene::CameraSpec) -> (Transform, Projection) {
     let eye = Vec3::from_array(spec.eye);
     let tf = Transform::from_translation(eye).looking_at(Vec3::from_array(spec.target), Vec3::from_array(spec.up));
-    let proj = Projection::Perspective(PerspectiveProjection {
-        fov: spec.fov_y_deg.to_radians(),
-        near: crate::render::NEAR,
-        ..default()
-    });
+    let proj =
+        Projection::Perspective(PerspectiveProjection { fov: spec.fov_y_deg.to_radians(), near: NEAR, ..default() });
     (tf, proj)
 }

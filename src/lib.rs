@@ -5,7 +5,6 @@
 
 pub mod cache;
 pub mod cli;
-pub mod colourbar;
 pub mod history;
 pub mod jobs;
 pub mod layers;
@@ -13,7 +12,6 @@ pub mod panels;
 pub mod render;
 pub mod scene;
 pub mod viewer;
-pub mod views;
 
 /// A path under the repository (the package's folder as cargo gives it when running tests, else as it was when
 /// built), so a test binary built by another clone sharing the target directory reads this clone's files.

@@ -6,11 +6,9 @@ use bevy::prelude::*;
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless::{self, Capture, DepthMap};
 
-use crate::layers::{ActiveScene, LayerErrors, ScenePlugin, camera_from_spec};
+pub use crate::layers::NEAR;
+use crate::layers::{ActiveScene, LayerErrors, ScenePlugin, camera_from_spec, view_camera};
 use crate::scene::Scene;
-
-/// The clear colour of viewer and renderer.
-pub const BACKGROUND: Color = Color::linear_rgb(0.02, 0.02, 0.025);
 
 /// A headless app showing `scene` through its camera into a `width x height` image: (app, target, camera).
 pub fn scene_app(scene: &Scene, width: u32, height: u32) -> (App, Handle<Image>, Entity) {
@@ -18,10 +16,8 @@ pub fn scene_app(scene: &Scene, width: u32, height: u32) -> (App, Handle<Image>,
     app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(scene.clone()));
     let target = headless::add_target_image(&mut app, width, height);
     let (tf, proj) = camera_from_spec(&scene.camera);
-    let cam = app
-        .world_mut()
-        .spawn((crate::viewer::view_camera(), bevy::camera::RenderTarget::Image(target.clone().into()), tf, proj))
-        .id();
+    let cam =
+        app.world_mut().spawn((view_camera(), bevy::camera::RenderTarget::Image(target.clone().into()), tf, proj)).id();
     (app, target, cam)
 }
 
@@ -114,6 +110,3 @@ pub fn run(
     }
     Ok(())
 }
-
-/// The near plane of the scene camera (`layers::camera_from_spec`).
-pub const NEAR: f32 = 0.5;

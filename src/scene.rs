@@ -27,7 +27,7 @@ pub struct Scene {
     pub camera: CameraSpec,
     /// The layout (3D alone or with three orthogonal 2D views), the crosshair and the colour bars.
     #[serde(default)]
-    pub views: crate::views::Views,
+    pub views: fascicle_views::Views,
 }
 
 /// One layer of a scene: its name, visibility, opacity and what it shows.
@@ -252,9 +252,10 @@ impl LayerKind {
                 source: source.clone(),
                 render: VolumeSettings { method: render.method, step: render.step, ..VolumeSettings::default() },
             },
-            // The window is a restyle: the slice is cut again from the image the layer holds.
-            LayerKind::Slice { source, axis, index, .. } => {
-                LayerKind::Slice { source: source.clone(), axis: *axis, index: *index, window: None }
+            // Axis, index and window are restyles: the views plugin cuts the slice again from the image the layer
+            // holds (`fascicle_views::SliceSettings`).
+            LayerKind::Slice { source, .. } => {
+                LayerKind::Slice { source: source.clone(), axis: SliceAxis::Z, index: None, window: None }
             }
             other => other.clone(),
         }
@@ -858,7 +859,7 @@ mod tests {
         assert!(s.views.ortho && s.views.follow && s.views.colour_bars);
         assert_eq!(s.views.crosshair, Some([5.0, -8.0, 2.0]));
         let plain = Scene::load(&crate::repo_path("scenes/spiral50.ron")).unwrap();
-        assert_eq!(plain.views, crate::views::Views::default());
+        assert_eq!(plain.views, fascicle_views::Views::default());
         assert!(!plain.views.ortho && plain.views.colour_bars);
     }
 

@@ -25,27 +25,14 @@ use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::on_demand::{DrawOnDemand, DrawOnDemandPlugin, KeepAwake, NextFrame, ScheduleNextFrame};
 
 use crate::history::{RecentFiles, SceneHistory};
-use crate::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin};
+use crate::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin, view_camera};
 use crate::panels::LayerPanels;
-use crate::render::BACKGROUND;
 use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene, Seeds, TractSource};
-use crate::views::{Crosshair, MainView, OrthoView, SliceSource, ViewRegion, VoxelGrid, pick_in_view};
 use fascicle_core::roi::{RoiShape, SegmentGrid, select};
 use fascicle_render::layer::LayerStatus;
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
 use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
-
-/// Camera components shared by viewer and headless renderer, so both produce the same image: no tone mapping
-/// or dithering, and blending in a float target (rounded to 8 bits once, at the end).
-pub fn view_camera() -> impl Bundle {
-    (
-        Camera3d::default(),
-        Camera { clear_color: ClearColorConfig::Custom(BACKGROUND), ..default() },
-        // A float (f16) target: slices, splats and glyph layers blend without 8-bit banding.
-        crate::views::exact_output(),
-        MainView,
-    )
-}
+use fascicle_views::{Crosshair, MainView, OrthoView, SliceSource, ViewRegion, VoxelGrid, pick_in_view};
 
 #[derive(Resource, Debug, PartialEq)]
 struct Orbit {
@@ -346,7 +333,7 @@ fn view_input(
             if let Some((i, source)) = top
                 && let LayerKind::Slice { window, .. } = &mut scene.0.layers[i].kind
             {
-                *window = Some(crate::views::window_level(source.window(*window), motion.delta));
+                *window = Some(fascicle_views::window_level(source.window(*window), motion.delta));
             }
         }
         _ => {}
@@ -359,7 +346,7 @@ fn view_input(
 /// The world ray under the window's cursor through the 3D camera (its viewport beside the panel or in the
 /// four-view grid).
 fn cursor_ray(window: &Window, (cam, tf): (&Camera, &GlobalTransform)) -> Option<Ray3d> {
-    crate::views::cursor_ray(cam, tf, window.cursor_position()?)
+    fascicle_views::cursor_ray(cam, tf, window.cursor_position()?)
 }
 
 /// What a Shift + left-drag can hold: one of a tract layer's ROIs, the sphere its tracking is seeded from, or

@@ -548,3 +548,102 @@ fn track_scalars_both_ways() {
     let info = run("tsfinfo", &["-count", &s(&ours)]);
     assert!(info.contains("500"), "tsfinfo: {info}");
 }
+
+/// The SH glyph plugin's reader takes an MRtrix3 `.mif` as MRtrix3's basis in scanner axes: the ODFs it reads
+/// from `data/sh/small_64D_csa_l6.mif` evaluate along world directions to what MRtrix3's `sh2amp` gives for the
+/// same file (1e-5 of the largest amplitude), at every voxel with signal.
+#[test]
+fn sh_mif_reads_in_the_glyph_plugin_as_sh2amp_evaluates_it() {
+    use fascicle_core::sh;
+    use fascicle_sh_glyphs::layer::{ShFieldSettings, read_field};
+    if !mrtrix() {
+        return;
+    }
+    let file = data("sh/small_64D_csa_l6.mif");
+    let field = read_field(std::fs::read(&file).unwrap(), &file, &ShFieldSettings::default()).unwrap();
+    assert_eq!(field.basis, sh::ShBasis::Tournier07 { legacy: false });
+    let world: Vec<glam::DVec3> = sh::sphere::fibonacci(30);
+    let dirs = scratch("sh_mif_dirs.txt");
+    std::fs::write(&dirs, world.iter().map(|d| format!("{} {} {}\n", d.x, d.y, d.z)).collect::<String>()).unwrap();
+    let amps = scratch("sh_mif_amps.mif");
+    run("sh2amp", &["-quiet", "-force", file.to_str().unwrap(), dirs.to_str().unwrap(), amps.to_str().unwrap()]);
+    let amps = mif::read_image::<f32>(&amps).unwrap();
+    let c = &field.coeffs;
+    let (n, k, d) = (c.n_voxels(), c.n_channels(), c.dims3());
+    let (inv, na, da) = (amps.world_from_voxel.inverse(), amps.n_voxels(), amps.dims3());
+    let (mut worst, mut scale, mut voxels) = (0f64, 0f64, 0);
+    for v in 0..n {
+        let coeffs: Vec<f64> = (0..k).map(|j| f64::from(c.data[v + n * j])).collect();
+        if coeffs[0] <= 0.0 {
+            continue;
+        }
+        voxels += 1;
+        let i = glam::DVec3::new((v % d[0]) as f64, ((v / d[0]) % d[1]) as f64, (v / (d[0] * d[1])) as f64);
+        let r = inv.transform_point3(c.world_from_voxel.transform_point3(i)).round();
+        let w = r.x as usize + da[0] * (r.y as usize + da[1] * r.z as usize);
+        for (q, u) in world.iter().enumerate() {
+            let ours = sh::eval(field.basis, &coeffs, *u).unwrap();
+            scale = scale.max(ours.abs());
+            worst = worst.max((ours - f64::from(amps.data[w + na * q])).abs());
+        }
+    }
+    println!("glyph plugin vs sh2amp: worst {worst:.2e} of {scale:.3} over {voxels} voxels");
+    assert!(voxels > 500 && worst <= 1e-5 * scale, "worst {worst} of {scale}");
+}
+
+/// A tensor image as MRtrix3 stores one (D11 D22 D33 D12 D13 D23, scanner axes), written here from DIPY's fit of
+/// `small_64D` (voxel axes, on an oblique affine) by explicit rotation: the tensor plugin's reader gives back
+/// DIPY's voxel-frame tensors (1e-6 of the largest element), and MRtrix3's own `tensor2metric -vector` on that
+/// file gives principal directions that the plugin's world tensors share (|cos| > 0.999 where FA > 0.3).
+#[test]
+fn tensor_mif_reads_in_the_tensor_plugin_in_mrtrix_frame() {
+    use fascicle_core::dti::eigen::eigh;
+    if !mrtrix() {
+        return;
+    }
+    let (dipy, _) = nifti::read::<f32>(data("dti/small_64D_tensor.nii.gz")).unwrap();
+    let n = dipy.n_voxels();
+    let rot = fascicle_core::linalg::polar_rotation(glam::DMat3::from_mat4(dipy.world_from_voxel));
+    assert!((rot - glam::DMat3::IDENTITY).abs().to_cols_array().iter().any(|x| *x > 0.1), "the affine is oblique");
+    let mut scanner = dipy.clone();
+    for v in 0..n {
+        let t: [f64; 6] = std::array::from_fn(|c| f64::from(dipy.data[v + n * c]));
+        let m = glam::DMat3::from_cols_array(&[t[0], t[1], t[3], t[1], t[2], t[4], t[3], t[4], t[5]]);
+        let w = rot * m * rot.transpose();
+        let mrtrix = [w.x_axis.x, w.y_axis.y, w.z_axis.z, w.x_axis.y, w.x_axis.z, w.y_axis.z];
+        for (c, x) in mrtrix.into_iter().enumerate() {
+            scanner.data[v + n * c] = x as f32;
+        }
+    }
+    let file = scratch("tensor_mrtrix.mif");
+    mif::write(&file, &scanner, &[]).unwrap();
+    let settings = fascicle_tensors::TensorFieldSettings::default();
+    let field = fascicle_tensors::layer::read_field(std::fs::read(&file).unwrap(), &file, &settings).unwrap();
+    let big = dipy.data.iter().fold(0f32, |a, x| a.max(x.abs()));
+    let off = field.tensors.data.iter().zip(&dipy.data).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    assert!(off <= 1e-6 * big, "voxel-frame tensors off by {off} of {big}");
+
+    let v1 = scratch("tensor_mrtrix_v1.mif");
+    let fa = scratch("tensor_mrtrix_fa.mif");
+    let f = file.to_str().unwrap();
+    run("tensor2metric", &["-quiet", "-force", f, "-vector", v1.to_str().unwrap(), "-fa", fa.to_str().unwrap()]);
+    let (v1, fa) = (mif::read_image::<f32>(&v1).unwrap(), mif::read_image::<f32>(&fa).unwrap());
+    let (inv, nm, dm) = (v1.world_from_voxel.inverse(), v1.n_voxels(), v1.dims3());
+    let d = dipy.dims3();
+    let voxels: Vec<[usize; 3]> = (0..n).map(|v| [v % d[0], (v / d[0]) % d[1], v / (d[0] * d[1])]).collect();
+    let mut checked = 0;
+    for ((centre, t), _) in field.world_tensors(&voxels).into_iter().zip(&voxels) {
+        let r = inv.transform_point3(centre).round();
+        let w = r.x as usize + dm[0] * (r.y as usize + dm[1] * r.z as usize);
+        if fa.data[w] <= 0.3 {
+            continue;
+        }
+        let theirs =
+            glam::DVec3::new(f64::from(v1.data[w]), f64::from(v1.data[w + nm]), f64::from(v1.data[w + 2 * nm]));
+        let ours = eigh(&t).unwrap().vectors[0];
+        let cos = ours.dot(theirs.normalize()).abs();
+        assert!(cos > 0.999, "principal direction at {centre}: ours {ours}, MRtrix3's {theirs}");
+        checked += 1;
+    }
+    assert!(checked > 50, "{checked} voxels with FA > 0.3");
+}

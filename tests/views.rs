@@ -6,13 +6,13 @@
 
 use bevy::math::{DMat4, DVec3};
 use bevy::prelude::*;
-use fascicle::colourbar::{BAR_W, GRADIENT_ROWS, bar_rect};
 use fascicle::jobs::PHANTOM_DIMS;
 use fascicle::layers::{ActiveScene, LayerSyncCounts, SceneLayer};
 use fascicle::scene::{LayerKind, Scene};
-use fascicle::views::{OrthoView, ViewSlice, pick_in_view, view_axes};
 use fascicle_core::Volume;
 use fascicle_render::headless::{self, Capture};
+use fascicle_views::colourbar::{BAR_W, GRADIENT_ROWS, bar_rect};
+use fascicle_views::{OrthoView, ViewSlice, pick_in_view, view_axes};
 
 const W: u32 = 640;
 const H: u32 = 480;
@@ -206,9 +206,9 @@ fn a_click_moves_the_crosshair_and_the_slices_follow() {
     // The 3D view sits in the bottom-right cell: the window position of that cell's centre looks along the
     // camera's axis (no second subtraction of the viewport's offset).
     let world = app.world_mut();
-    let mut q = world.query_filtered::<(&Camera, &GlobalTransform), With<fascicle::views::MainView>>();
+    let mut q = world.query_filtered::<(&Camera, &GlobalTransform), With<fascicle_views::MainView>>();
     let (cam, tf) = q.single(world).unwrap();
-    let ray = fascicle::views::cursor_ray(cam, tf, Vec2::new(480.0, 360.0)).unwrap();
+    let ray = fascicle_views::cursor_ray(cam, tf, Vec2::new(480.0, 360.0)).unwrap();
     assert!(ray.direction.as_vec3().angle_between(tf.forward().as_vec3()) < 1e-3, "{ray:?}");
 
     // 40 px right of and 30 px above the axial view's centre.

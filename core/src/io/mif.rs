@@ -317,6 +317,16 @@ pub fn read_image<T: Scalar>(path: impl AsRef<Path>) -> Result<Volume<T>> {
     if is_mif(path) { read(path).map(|(v, _)| v) } else { super::nifti::read(path).map(|(v, _)| v) }
 }
 
+/// [`read_image`] from a file's bytes, `path` naming it (for the format and for messages): what the asset
+/// loaders use.
+pub fn read_image_bytes<T: Scalar>(bytes: Vec<u8>, path: &Path) -> Result<Volume<T>> {
+    if is_mif(path) {
+        read_bytes(bytes, path).map(|(v, _)| v)
+    } else {
+        super::nifti::read_bytes(bytes, path).map(|(v, _)| v)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -20,6 +20,11 @@ pub enum LayerStatus {
     Failed(String),
 }
 
+/// Where a layer stacks among the others, for what draws layers in turn (the 2D views' slices, the colour bars):
+/// a higher order is drawn over a lower one and its bar above theirs. Default 0; ties keep no fixed order.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Deref, DerefMut)]
+pub struct LayerOrder(pub u32);
+
 impl LayerStatus {
     /// The status of a layer whose data asset is `handle`, while it is not (yet) in its `Assets`.
     pub fn of_pending<A: Asset>(server: &AssetServer, handle: &Handle<A>) -> Self {

@@ -90,16 +90,17 @@ pub enum ShGlyphSystems {
     Highlight,
 }
 
-/// Settings of the `.nii`/`.nii.gz` loader: the basis when the file does not record one (a file written by
-/// `fascicle fit csa` records it in its header description).
+/// Settings of the SH image loader: the basis when the file does not record one (a NIfTI written by
+/// `fascicle fit csa` records it in its header description; a `.mif` is MRtrix3's).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct ShFieldSettings {
-    /// The basis assumed when the header records none. Defaults to `None`: DIPY's default, descoteaux07
-    /// legacy.
+    /// The basis assumed when the header records none. Defaults to `None`: for a NIfTI DIPY's default,
+    /// descoteaux07 legacy (voxel axes); for a `.mif` MRtrix3's, tournier07 (world axes).
     pub basis: Option<ShBasis>,
 }
 
-/// Loads `.nii` / `.nii.gz` SH coefficient images as [`ShField`]s, off the main thread.
+/// Loads `.nii` / `.nii.gz` and MRtrix `.mif` / `.mif.gz` SH coefficient images as [`ShField`]s, off the
+/// main thread.
 #[derive(Default, TypePath)]
 pub struct ShFieldLoader;
 
@@ -120,15 +121,23 @@ impl AssetLoader for ShFieldLoader {
     }
 
     fn extensions(&self) -> &[&str] {
-        &["nii", "nii.gz"]
+        &["nii", "nii.gz", "mif", "mif.gz"]
     }
 }
 
-/// An [`ShField`] from a NIfTI file's bytes: the basis the header records, else `settings.basis`, else
-/// DIPY's default (descoteaux07).
+/// An [`ShField`] from a file's bytes (`path` names it: `.mif`/`.mif.gz` as MRtrix3's, else NIfTI). The basis:
+/// for a NIfTI the one its header records, else `settings.basis`, else DIPY's default (descoteaux07 legacy);
+/// for a `.mif` `settings.basis`, else MRtrix3's (tournier07).
 pub fn read_field(bytes: Vec<u8>, path: &Path, settings: &ShFieldSettings) -> Result<ShField, String> {
-    let (vol, header) = fascicle_core::io::nifti::read_bytes::<f32>(bytes, path).map_err(|e| e.to_string())?;
-    let basis = sh::recorded_basis(&header.descrip).or(settings.basis).unwrap_or_default();
+    use fascicle_core::io::{mif, nifti};
+    let (vol, basis) = if mif::is_mif(path) {
+        // MRtrix3 writes its own basis, in world axes.
+        let (vol, _) = mif::read_bytes::<f32>(bytes, path).map_err(|e| e.to_string())?;
+        (vol, settings.basis.unwrap_or(ShBasis::Tournier07 { legacy: false }))
+    } else {
+        let (vol, header) = nifti::read_bytes::<f32>(bytes, path).map_err(|e| e.to_string())?;
+        (vol, sh::recorded_basis(&header.descrip).or(settings.basis).unwrap_or_default())
+    };
     ShField::new(vol, basis).map_err(|e| format!("{}: {e}", path.display()))
 }
 

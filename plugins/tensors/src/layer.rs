@@ -25,6 +25,7 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::Volume;
 use fascicle_core::dti::glyph::{TensorGlyph, tensor_glyph};
 use fascicle_core::dti::splat::{Splat, tensor_splat};
+use fascicle_core::io::classify::TensorOrder;
 use fascicle_render::layer::{
     LayerStatus, LoadError, Selection, SliceAxis, StageCounts, changed_assets, loaded_or_pending, read_all,
 };
@@ -72,30 +73,72 @@ impl TensorField {
     }
 }
 
-/// Loads `.nii` / `.nii.gz` tensor images as [`TensorField`]s, off the main thread.
+/// Settings of the tensor image loader: the element order when it is not the format's own.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct TensorFieldSettings {
+    /// The order of the 6 volumes. Defaults to `None`: for a NIfTI DIPY's (Dxx Dxy Dyy Dxz Dyz Dzz), for a
+    /// `.mif` MRtrix3's (D11 D22 D33 D12 D13 D23).
+    pub order: Option<TensorOrder>,
+}
+
+/// Loads tensor images as [`TensorField`]s, off the main thread: `.nii` / `.nii.gz` (in the voxel frame, as
+/// DIPY and FSL write them) and MRtrix `.mif` / `.mif.gz` (`dwi2tensor`'s, in the scanner frame: turned into
+/// the voxel frame on load).
 #[derive(Default, TypePath)]
 pub struct TensorFieldLoader;
 
 impl AssetLoader for TensorFieldLoader {
     type Asset = TensorField;
-    type Settings = ();
+    type Settings = TensorFieldSettings;
     type Error = LoadError;
 
-    async fn load(&self, reader: &mut dyn Reader, _: &(), ctx: &mut LoadContext<'_>) -> Result<TensorField, LoadError> {
+    async fn load(
+        &self,
+        reader: &mut dyn Reader,
+        settings: &TensorFieldSettings,
+        ctx: &mut LoadContext<'_>,
+    ) -> Result<TensorField, LoadError> {
         let path = ctx.path().path().to_path_buf();
         let bytes = read_all(reader, &path).await?;
-        read_field(bytes, &path).map_err(LoadError)
+        read_field(bytes, &path, settings).map_err(LoadError)
     }
 
     fn extensions(&self) -> &[&str] {
-        &["nii", "nii.gz"]
+        &["nii", "nii.gz", "mif", "mif.gz"]
     }
 }
 
-/// A [`TensorField`] from a NIfTI file's bytes.
-pub fn read_field(bytes: Vec<u8>, path: &Path) -> Result<TensorField, String> {
-    let (vol, _) = fascicle_core::io::nifti::read_bytes::<f32>(bytes, path).map_err(|e| e.to_string())?;
+/// A [`TensorField`] from a file's bytes (`path` names it: `.mif`/`.mif.gz` as MRtrix3's, else NIfTI), its
+/// volumes reordered into DIPY's order and, for a `.mif`, turned from the scanner frame into the voxel frame.
+pub fn read_field(bytes: Vec<u8>, path: &Path, settings: &TensorFieldSettings) -> Result<TensorField, String> {
+    use fascicle_core::io::mif;
+    let is_mif = mif::is_mif(path);
+    let mut vol = mif::read_image_bytes::<f32>(bytes, path).map_err(|e| e.to_string())?;
+    if vol.shape.len() < 4 || vol.n_channels() != 6 {
+        return Err(format!("{}: {:?} is not a tensor image (X,Y,Z,6 volumes)", path.display(), vol.shape));
+    }
+    let default = if is_mif { TensorOrder::Mrtrix } else { TensorOrder::Dipy };
+    settings.order.unwrap_or(default).to_dipy(&mut vol);
+    if is_mif {
+        world_to_voxel_frame(&mut vol);
+    }
     TensorField::new(vol).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Turns DIPY-ordered tensors from the world (scanner) frame into the voxel frame: `R^T D R`, with `R` the
+/// rotation of the affine's polar decomposition (what [`TensorField::world_tensors`] applies the other way).
+pub fn world_to_voxel_frame(vol: &mut Volume<f32>) {
+    let rot = fascicle_core::linalg::polar_rotation(DMat3::from_mat4(vol.world_from_voxel));
+    let n = vol.n_voxels();
+    for i in 0..n {
+        let t: [f64; 6] = std::array::from_fn(|c| f64::from(vol.data[i + n * c]));
+        let m = DMat3::from_cols_array(&[t[0], t[1], t[3], t[1], t[2], t[4], t[3], t[4], t[5]]);
+        let v = rot.transpose() * m * rot;
+        let out = [v.x_axis.x, v.x_axis.y, v.y_axis.y, v.x_axis.z, v.y_axis.z, v.z_axis.z];
+        for (c, x) in out.into_iter().enumerate() {
+            vol.data[i + n * c] = x as f32;
+        }
+    }
 }
 
 /// The data component of a tensor glyph layer: ray-cast ellipsoids or superquadrics, one per selected voxel.
@@ -457,7 +500,7 @@ mod tests {
         let v = Volume { shape: vec![2, 2, 2, 28], data: vec![0.0; 8 * 28], world_from_voxel: DMat4::IDENTITY };
         let e = TensorField::new(v).unwrap_err();
         assert!(e.contains("[2, 2, 2, 28]") && e.contains("not a tensor image"), "{e}");
-        let e = read_field(b"not a nifti".to_vec(), Path::new("x.nii")).unwrap_err();
+        let e = read_field(b"not a nifti".to_vec(), Path::new("x.nii"), &TensorFieldSettings::default()).unwrap_err();
         assert!(e.contains("x.nii"), "{e}");
     }
 }

@@ -21,8 +21,8 @@ pub mod splat;
 
 pub use fascicle_render::layer::{LayerStatus, Selection, SliceAxis};
 pub use layer::{
-    SplatCounts, SplatShape, TensorField, TensorFieldLoader, TensorGlyphCounts, TensorGlyphShape, TensorGlyphs,
-    TensorSplats, TensorSystems,
+    SplatCounts, SplatShape, TensorField, TensorFieldLoader, TensorFieldSettings, TensorGlyphCounts, TensorGlyphShape,
+    TensorGlyphs, TensorSplats, TensorSystems,
 };
 pub use splat::SplatSettings;
 

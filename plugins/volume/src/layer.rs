@@ -32,7 +32,7 @@ use crate::{
 #[derive(Asset, TypePath, Clone, Debug, Deref)]
 pub struct ScalarVolume(pub Arc<Volume<f32>>);
 
-/// Settings of the `.nii`/`.nii.gz` loader: which 3D volume of a 4D image to take (0: the first, e.g. a
+/// Settings of the image loader: which 3D volume of a 4D image to take (0: the first, e.g. a
 /// DWI's b0).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct ScalarVolumeSettings {
@@ -40,7 +40,7 @@ pub struct ScalarVolumeSettings {
     pub volume: usize,
 }
 
-/// Loads `.nii` / `.nii.gz` images as [`ScalarVolume`]s, off the main thread.
+/// Loads `.nii` / `.nii.gz` and MRtrix `.mif` / `.mif.gz` images as [`ScalarVolume`]s, off the main thread.
 #[derive(Default, TypePath)]
 pub struct ScalarVolumeLoader;
 
@@ -57,14 +57,14 @@ impl AssetLoader for ScalarVolumeLoader {
     ) -> Result<ScalarVolume, LoadError> {
         let path = ctx.path().path().to_path_buf();
         let bytes = read_all(reader, &path).await?;
-        let (vol, _) =
-            fascicle_core::io::nifti::read_bytes::<f32>(bytes, &path).map_err(|e| LoadError(e.to_string()))?;
+        let vol =
+            fascicle_core::io::mif::read_image_bytes::<f32>(bytes, &path).map_err(|e| LoadError(e.to_string()))?;
         let vol = volume_of(vol, settings.volume).map_err(|e| LoadError(format!("{}: {e}", path.display())))?;
         Ok(ScalarVolume(Arc::new(vol)))
     }
 
     fn extensions(&self) -> &[&str] {
-        &["nii", "nii.gz"]
+        &["nii", "nii.gz", "mif", "mif.gz"]
     }
 }
 
@@ -105,10 +105,17 @@ pub enum VolumeSystems {
     Prepare,
 }
 
+/// Registers the [`ScalarVolume`] asset and its loader, once: for the plugins that read scalar images (this
+/// one, and the views plugin's slice layers) in whichever order an app adds them.
+pub fn init_scalar_volumes(app: &mut App) {
+    if !app.world().contains_resource::<Assets<ScalarVolume>>() {
+        app.init_asset::<ScalarVolume>().register_asset_loader(ScalarVolumeLoader);
+    }
+}
+
 pub(crate) fn build(app: &mut App) {
-    app.init_asset::<ScalarVolume>()
-        .register_asset_loader(ScalarVolumeLoader)
-        .init_resource::<VolumeCounts>()
+    init_scalar_volumes(app);
+    app.init_resource::<VolumeCounts>()
         .configure_sets(
             PostUpdate,
             VolumeSystems::Prepare

@@ -1,6 +1,6 @@
-//! Colour bars: one for every colour-mapped layer (scalar slices in grey over their window, a volume's
-//! transfer function over its range, FA/GFA-coloured glyphs and splats and scalar-coloured tracts on viridis),
-//! drawn into the 3D view by an overlay camera, in the viewer and in headless renders alike.
+//! Colour bars: one for every layer carrying a [`ColourBar`] (scalar slices in grey over their window, a
+//! volume's transfer function over its range, FA/GFA-coloured glyphs and splats and scalar-coloured tracts on
+//! viridis), drawn into the 3D view by an overlay camera, in a window and in headless renders alike.
 //!
 //! A bar is an image made here on the CPU (its label and range written in a 5x7 pixel font, so no text
 //! renderer is needed), shown pixel for pixel on a quad: the gradient's column `i` of [`BAR_W`] shows the map
@@ -10,13 +10,10 @@
 use bevy::asset::RenderAssetUsages;
 use bevy::image::{Image, ImageSampler};
 use bevy::math::{URect, UVec2};
+use bevy::prelude::Component;
 use bevy::render::render_resource::{Extent3d, TextureDimension, TextureFormat};
-use fascicle_core::dti::splat::{SplatColourMode, viridis};
+use fascicle_core::dti::splat::viridis;
 use fascicle_core::dvr::TransferFunction;
-use fascicle_sh_glyphs::GlyphColour;
-use fascicle_tensors::TensorColour;
-
-use crate::scene::{LayerKind, Scene, TractColouring, VolumeSource};
 
 /// A bar's size in pixels.
 pub const BAR_W: u32 = 200;
@@ -58,51 +55,18 @@ impl ColourMap {
     }
 }
 
-/// One colour bar: the layer's name, its map and the values at its two ends.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Bar {
+/// The colour bar of a layer: its name, its map and the values at its two ends. Put on a layer entity, it is
+/// drawn over the 3D view while the entity is not hidden and [`crate::Views::colour_bars`] is on, stacked by
+/// [`fascicle_render::layer::LayerOrder`]. Slice layers of one channel get theirs from the plugin (grey over
+/// their window); any other layer gets one when the app inserts it.
+#[derive(Component, Clone, Debug, PartialEq)]
+pub struct ColourBar {
     /// The layer's name, written at the top left.
     pub label: String,
     /// How the layer's values become colours.
     pub map: ColourMap,
     /// The values at the gradient's left and right ends (the map's positions 0 and 1).
     pub range: (f64, f64),
-}
-
-/// The bars of a scene's visible colour-mapped layers, in layer order. `slice_window(i)` is the window a slice
-/// layer `i` shows when it sets none (its automatic window, known once it is loaded).
-pub fn scene_bars(scene: &Scene, slice_window: impl Fn(usize) -> Option<(f32, f32)>) -> Vec<Bar> {
-    let mut bars = vec![];
-    for (i, layer) in scene.layers.iter().enumerate().filter(|(_, l)| l.visible) {
-        let bar = |map, range: (f64, f64)| Bar { label: layer.name.clone(), map, range };
-        match &layer.kind {
-            LayerKind::Slice { source, window, .. } if !matches!(source, VolumeSource::Rgb { .. }) => {
-                if let Some((lo, hi)) = window.or_else(|| slice_window(i)) {
-                    bars.push(bar(ColourMap::Grey, (f64::from(lo), f64::from(hi))));
-                }
-            }
-            LayerKind::Volume { render, .. } => {
-                let [lo, hi] = render.tf.range;
-                bars.push(bar(ColourMap::Transfer(Box::new(render.tf.clone())), (lo, hi)));
-            }
-            LayerKind::ShGlyphs { render, .. } if render.colour == GlyphColour::Gfa => {
-                bars.push(bar(ColourMap::Viridis, (0.0, 1.0)))
-            }
-            LayerKind::TensorGlyphs { render, .. } if render.colour == TensorColour::Fa => {
-                bars.push(bar(ColourMap::Viridis, (0.0, 1.0)))
-            }
-            LayerKind::TensorSplats { render, .. } if render.colouring.mode == SplatColourMode::Fa => {
-                bars.push(bar(ColourMap::Viridis, (0.0, 1.0)))
-            }
-            LayerKind::Tracts {
-                colouring:
-                    TractColouring::Scalar { window: (lo, hi), .. } | TractColouring::Value { window: (lo, hi), .. },
-                ..
-            } => bars.push(bar(ColourMap::Viridis, (f64::from(*lo), f64::from(*hi)))),
-            _ => {}
-        }
-    }
-    bars
 }
 
 /// Where bar `i` (0 at the bottom) lies in a view of `size` pixels: the bottom-right corner, stacked upwards.
@@ -116,7 +80,7 @@ pub fn bar_rect(size: UVec2, i: u32) -> Option<URect> {
 
 /// The bar as an sRGB image of `BAR_W x BAR_H`: the label (top left), the gradient, the range's two ends
 /// (bottom left and right); transparent elsewhere, text white on a dark outline.
-pub fn bar_image(bar: &Bar) -> Image {
+pub fn bar_image(bar: &ColourBar) -> Image {
     let (w, h) = (BAR_W as usize, BAR_H as usize);
     let mut px = vec![0u8; w * h * 4];
     // A dark, half-transparent backing behind the text.
@@ -309,7 +273,7 @@ mod tests {
 
     #[test]
     fn a_bar_image_holds_its_gradient_and_its_text() {
-        let bar = Bar { label: "FA".into(), map: ColourMap::Grey, range: (0.0, 0.8) };
+        let bar = ColourBar { label: "FA".into(), map: ColourMap::Grey, range: (0.0, 0.8) };
         let img = bar_image(&bar);
         let px = img.data.as_ref().unwrap();
         let at = |x: u32, y: u32| {

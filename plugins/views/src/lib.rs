@@ -1,6 +1,7 @@
-//! Orthogonal views: the 3D view and three 2D views (sagittal, coronal, axial) of the scalar images at a
-//! crosshair, as mrview's and FSLeyes' ortho layouts; and the colour bars of the 3D view. The same systems run
-//! in the viewer and in the headless renderer, so `fascicle render` shows what the window shows.
+//! Slice layers, orthogonal views and colour bars as a Bevy plugin: the 3D view and three 2D views (sagittal,
+//! coronal, axial) of the slice layers' images at a crosshair, as mrview's and FSLeyes' ortho layouts, and the
+//! colour bars of the 3D view. Fascicle's viewer and its headless renderer use this plugin as any Bevy app
+//! can: add [`ViewsPlugin`], mark the 3D camera [`MainView`], spawn [`SliceLayer`]s, set [`Views`].
 //!
 //! - Every camera marked [`MainView`] gets three orthographic cameras ([`OrthoView`], each on its own render
 //!   layer) and an overlay camera for the colour bars ([`BarView`]), all drawing into its target. They are laid
@@ -10,14 +11,18 @@
 //!   screen's right; sagittal views from the subject's left, anterior to the left). For every visible slice
 //!   layer it shows the slice of that image through the crosshair, cut along the image's voxel axis closest to
 //!   the view's axis (so permuted or flipped images show the right plane), with the layer's window and
-//!   opacity. Two lines mark the crosshair. Tract layers drawn as lines or polygon tubes show cropped to a slab
-//!   around the view's plane ([`Views::slab_mm`]), over the image.
-//! - A left click or drag in a 2D view moves the crosshair within that view's plane; the wheel steps it one
-//!   voxel through the plane; a right drag sets the window of the top slice layer (horizontal: width,
-//!   vertical: level), as in mrview. With [`Views::follow`], the slices of the slice, glyph and tensor layers
-//!   follow the crosshair.
+//!   opacity, later [`LayerOrder`]s over earlier ones. Two lines mark the crosshair. Tract sets drawn as lines
+//!   or polygon tubes show cropped to a slab around the view's plane ([`Views::slab_mm`]), over the image.
+//! - Input stays with the app; [`pick_in_view`] gives the crosshair's new place under a click in a 2D view,
+//!   [`window_level`] a window after a right drag (as mrview's), [`cursor_ray`] the ray under the cursor.
+//! - Every layer entity carrying a [`ColourBar`] and not hidden shows its bar over the 3D view (bottom right,
+//!   stacked by [`LayerOrder`]) while [`Views::colour_bars`] is on; slice layers of one channel get theirs from
+//!   the plugin.
+//!
+//! All systems run in `Update`, in [`ViewSystems`]: an app that makes its layers in `Update` orders them
+//! before it.
 
-use std::sync::Arc;
+#![warn(missing_docs)]
 
 use bevy::camera::visibility::RenderLayers;
 use bevy::camera::{RenderTarget, ScalingMode, Viewport};
@@ -27,20 +32,25 @@ use bevy::prelude::*;
 use fascicle_core::Volume;
 use serde::{Deserialize, Serialize};
 
-use crate::colourbar::{self, Bar};
-use crate::jobs::{Channels, slice_image};
-use crate::layers::{ActiveScene, LayerEntity, SceneLayer, SceneSystems};
-use crate::scene::{LayerKind, SliceAxis};
+pub mod colourbar;
+pub mod slice;
 
-/// The layout and crosshair of a scene: saved in its scene file.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub use colourbar::{ColourBar, ColourMap};
+pub use fascicle_render::layer::{LayerOrder, LayerStatus, SliceAxis};
+pub use slice::{Channels, SliceBar, SliceCounts, SliceLayer, SliceSettings, SliceSource, auto_window, slice_image};
+
+use slice::{quad_mesh, set_opacity, unlit};
+
+/// The layout and crosshair, as a resource the plugin's systems follow (an app's scene file may save it).
+#[derive(Resource, Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct Views {
     /// Three orthogonal 2D views beside the 3D view.
     pub ortho: bool,
     /// The crosshair in world mm (RAS+); the centre of the images when absent.
     pub crosshair: Option<[f32; 3]>,
-    /// The slices of slice, glyph and tensor layers follow the crosshair.
+    /// The slices of slice, glyph and tensor layers follow the crosshair (for the app to apply: the layers'
+    /// settings are its own).
     pub follow: bool,
     /// A colour bar for every colour-mapped layer, in the 3D view.
     pub colour_bars: bool,
@@ -60,7 +70,8 @@ pub const VIEW_LAYERS: [usize; 3] = [1, 2, 3];
 /// Render layer of the colour bars' overlay ([`BarView`]).
 pub const BAR_LAYER: usize = 4;
 
-/// The scene's 3D camera: the viewer's orbit camera, or the headless renderer's.
+/// The 3D camera the views belong to (one per app): it gets the three 2D cameras and the bar overlay on its
+/// target, and the 3D cell of the layout.
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct MainView;
 
@@ -79,7 +90,8 @@ pub struct ViewRegion {
     pub left: u32,
 }
 
-/// The crosshair in world mm, resolved (the scene's, or the images' centre), and the box the 2D views frame.
+/// The crosshair in world mm, resolved ([`Views::crosshair`], or the images' centre), and the box the 2D views
+/// frame.
 #[derive(Resource, Clone, Copy, Debug, PartialEq)]
 pub struct Crosshair {
     /// The crosshair, world mm (RAS+).
@@ -96,7 +108,8 @@ impl Default for Crosshair {
     }
 }
 
-/// The voxel grid a layer's content comes from (set by its job): the crosshair's voxel on it.
+/// The voxel grid a layer's content comes from (slice layers get theirs from the plugin; an app may give any
+/// layer one): the crosshair's voxel on it.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct VoxelGrid {
     /// The affine from voxel indices to world mm (RAS+).
@@ -140,29 +153,6 @@ impl VoxelGrid {
     }
 }
 
-/// What a slice layer shows, kept on its entity: the 2D views and window edits cut new slices from it.
-#[derive(Component, Clone)]
-pub struct SliceSource {
-    /// The image in memory the slices are cut from.
-    pub volume: Arc<Volume<f32>>,
-    /// Which of its volumes the slices show: one in grey, or three as RGB.
-    pub channels: Channels,
-    /// The window used when the layer sets none (its minimum and 99.5th percentile).
-    pub auto_window: (f32, f32),
-}
-
-impl SliceSource {
-    /// The window shown: the layer's own, or the automatic one.
-    pub fn window(&self, set: Option<(f32, f32)>) -> (f32, f32) {
-        set.unwrap_or(self.auto_window)
-    }
-
-    /// Slice `index` along voxel axis `axis` in `window`: its image and world corners.
-    pub fn cut(&self, axis: SliceAxis, index: Option<usize>, window: (f32, f32)) -> Result<(Image, [Vec3; 4]), String> {
-        slice_image(&self.volume, self.channels, axis, index, window)
-    }
-}
-
 /// The camera of a 2D view: where it looks from (unit vector from the crosshair to the eye) and its up.
 pub fn view_axes(a: usize) -> (Vec3, Vec3) {
     match a {
@@ -184,17 +174,27 @@ pub fn cells(region: URect) -> [URect; 4] {
     [cell(true, false), cell(false, false), cell(false, true), cell(true, true)]
 }
 
-/// The 2D views and colour bars: the [`ViewRegion`] and [`Crosshair`] resources and the systems that lay out,
-/// place and fill the views after [`SceneSystems::Finish`] (following the crosshair before [`SceneSystems::Sync`]).
+/// The plugin's systems, in `Update`.
+#[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct ViewSystems;
+
+/// Slice layers, the 2D views and colour bars: the [`Views`], [`ViewRegion`], [`Crosshair`] and
+/// [`SliceCounts`] resources and the systems ([`ViewSystems`]) that sync slice layers and lay out, place and
+/// fill the views.
 pub struct ViewsPlugin;
 
 impl Plugin for ViewsPlugin {
     fn build(&self, app: &mut App) {
-        app.init_resource::<ViewRegion>().init_resource::<Crosshair>().add_systems(
-            Update,
-            (
-                follow_crosshair.before(SceneSystems::Sync),
+        fascicle_volume::layer::init_scalar_volumes(app);
+        app.init_resource::<Views>()
+            .init_resource::<ViewRegion>()
+            .init_resource::<Crosshair>()
+            .init_resource::<SliceCounts>()
+            .add_observer(slice::forget_slice)
+            .add_systems(
+                Update,
                 (
+                    slice::sync_slices,
                     spawn_view_cameras,
                     layout_views,
                     resolve_crosshair,
@@ -205,9 +205,8 @@ impl Plugin for ViewsPlugin {
                     bars,
                 )
                     .chain()
-                    .after(SceneSystems::Finish),
-            ),
-        );
+                    .in_set(ViewSystems),
+            );
     }
 }
 
@@ -221,28 +220,37 @@ fn view_camera_bundle(order: isize, layer: usize, clear_color: ClearColorConfig)
     (
         Camera3d::default(),
         Camera { order, is_active: false, clear_color, ..default() },
-        exact_output(),
+        Tonemapping::None,
+        DebandDither::Disabled,
         RenderLayers::layer(layer),
     )
 }
 
-/// Gives every new main camera its 2D views and its colour-bar overlay, on the same target.
-fn spawn_view_cameras(mut commands: Commands, mains: Query<(Option<&RenderTarget>, Option<&Msaa>), Added<MainView>>) {
-    for (target, msaa) in &mains {
+/// A new main camera: its clear colour, target, MSAA and whether it is HDR.
+type NewMain = (&'static Camera, Option<&'static RenderTarget>, Option<&'static Msaa>, Has<bevy::camera::Hdr>);
+
+/// Gives every new main camera its 2D views (cleared as it is) and its colour-bar overlay, on the same target.
+/// They are HDR when it is: cameras sharing a target must share its intermediate textures, or a later camera
+/// writes over the earlier ones' pixels.
+fn spawn_view_cameras(mut commands: Commands, mains: Query<NewMain, Added<MainView>>) {
+    for (main, target, msaa, hdr) in &mains {
         let msaa = msaa.copied().unwrap_or_default();
+        let clear = match &main.clear_color {
+            ClearColorConfig::None => ClearColorConfig::Default,
+            other => *other,
+        };
         for a in 0..3 {
             let mut e = commands.spawn((
-                view_camera_bundle(
-                    -3 + a as isize,
-                    VIEW_LAYERS[a],
-                    ClearColorConfig::Custom(crate::render::BACKGROUND),
-                ),
+                view_camera_bundle(-3 + a as isize, VIEW_LAYERS[a], clear),
                 OrthoView(a),
                 Projection::Orthographic(OrthographicProjection::default_3d()),
                 msaa,
             ));
             if let Some(t) = target {
                 e.insert(t.clone());
+            }
+            if hdr {
+                e.insert(bevy::camera::Hdr);
             }
         }
         let mut e = commands.spawn((
@@ -258,6 +266,9 @@ fn spawn_view_cameras(mut commands: Commands, mains: Query<(Option<&RenderTarget
         ));
         if let Some(t) = target {
             e.insert(t.clone());
+        }
+        if hdr {
+            e.insert(bevy::camera::Hdr);
         }
     }
 }
@@ -282,7 +293,7 @@ fn set_viewport(camera: &mut Camera, r: URect) {
 #[allow(clippy::type_complexity, reason = "a Bevy system's queries")]
 fn layout_views(
     mut commands: Commands,
-    scene: Res<ActiveScene>,
+    views: Res<Views>,
     region: Res<ViewRegion>,
     mut main: Query<(&mut Camera, Option<&Msaa>), With<MainView>>,
     mut others: Query<
@@ -295,7 +306,7 @@ fn layout_views(
     let left = region.left.min(size.x.saturating_sub(1));
     let region = URect::new(left, 0, size.x, size.y.max(1));
     let grid = cells(region);
-    let ortho = scene.0.views.ortho;
+    let ortho = views.ortho;
     let main_rect = if ortho { grid[3] } else { region };
     if region.min == UVec2::ZERO && region.size() == size && !ortho {
         if main.viewport.is_some() {
@@ -323,20 +334,20 @@ fn layout_views(
     }
 }
 
-/// The crosshair of the scene (or the middle of the slice layers' images) and the box the 2D views frame.
+/// The crosshair of [`Views`] (or the middle of the slice layers' images) and the box the 2D views frame.
 fn resolve_crosshair(
-    scene: Res<ActiveScene>,
-    grids: Query<(&VoxelGrid, &SceneLayer), With<SliceSource>>,
+    views: Res<Views>,
+    grids: Query<(&VoxelGrid, &Visibility), With<SliceLayer>>,
     mut crosshair: ResMut<Crosshair>,
 ) {
     let mut lo = Vec3::splat(f32::INFINITY);
     let mut hi = Vec3::splat(f32::NEG_INFINITY);
-    for (g, _) in grids.iter().filter(|(_, l)| l.spec().visible) {
+    for (g, _) in grids.iter().filter(|(_, v)| **v != Visibility::Hidden) {
         let (a, b) = g.world_box();
         lo = lo.min(a);
         hi = hi.max(b);
     }
-    let world = scene.0.views.crosshair.map(Vec3::from_array);
+    let world = views.crosshair.map(Vec3::from_array);
     let new = if lo.x.is_finite() {
         Crosshair { world: world.unwrap_or((lo + hi) / 2.0), lo, hi }
     } else {
@@ -394,9 +405,9 @@ fn spawn_view_marks(
             ));
         }
         for (edge, letter) in edge_letters(a).into_iter().enumerate() {
-            let image = crate::colourbar::text_image(letter);
+            let image = colourbar::text_image(letter);
             let size = UVec2::new(image.width(), image.height());
-            let mut m = crate::layers::unlit(1.0);
+            let mut m = unlit(1.0);
             m.alpha_mode = AlphaMode::Blend;
             m.base_color_texture = Some(images.add(image));
             commands.spawn((
@@ -516,23 +527,23 @@ pub struct ViewSlice {
 #[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's queries and data")]
 fn view_slices(
     mut commands: Commands,
-    scene: Res<ActiveScene>,
+    views: Res<Views>,
     crosshair: Res<Crosshair>,
-    layers: Query<(Entity, &LayerEntity, &SceneLayer, &SliceSource, &VoxelGrid)>,
+    layers: Query<(Entity, Option<&LayerOrder>, &SliceSettings, &SliceSource, &VoxelGrid), With<SliceLayer>>,
     slices: Query<(Entity, &ViewSlice, &ChildOf, &Mesh3d, &MeshMaterial3d<StandardMaterial>)>,
     mut meshes: ResMut<Assets<Mesh>>,
     mut images: ResMut<Assets<Image>>,
     mut materials: ResMut<Assets<StandardMaterial>>,
 ) {
-    if !scene.0.views.ortho {
+    if !views.ortho {
         for (e, ..) in &slices {
             commands.entity(e).despawn();
         }
         return;
     }
-    for (layer, le, sl, source, grid) in &layers {
-        let LayerKind::Slice { window, .. } = &sl.spec().kind else { continue };
-        let window = source.window(*window);
+    for (layer, order, settings, source, grid) in &layers {
+        let window = source.window(settings.window);
+        let order = order.copied().unwrap_or_default().0;
         for a in 0..3 {
             let existing = slices.iter().find(|(_, v, parent, ..)| parent.parent() == layer && v.axis == a);
             let k = grid.axis_along(a);
@@ -542,7 +553,7 @@ fn view_slices(
                 }
                 continue;
             };
-            let want = ViewSlice { axis: a, voxel_axis: k, index, window, opacity: sl.spec().opacity };
+            let want = ViewSlice { axis: a, voxel_axis: k, index, window, opacity: settings.opacity };
             if existing.is_some_and(|(_, v, ..)| *v == want) {
                 continue;
             }
@@ -552,21 +563,21 @@ fn view_slices(
             };
             // Later layers over earlier ones: a small step towards the eye per layer.
             let (from, _) = view_axes(a);
-            let corners = corners.map(|p| p + from * 0.01 * le.0 as f32);
-            let mesh = crate::layers::quad(corners);
+            let corners = corners.map(|p| p + from * 0.01 * order as f32);
+            let mesh = quad_mesh(corners);
             match existing {
                 Some((e, _, _, mesh3d, mat)) => {
                     if let Some(mut m) = meshes.get_mut(&mesh3d.0) {
                         *m = mesh;
                     }
                     if let Some(mut m) = materials.get_mut(&mat.0) {
-                        crate::layers::set_opacity(&mut m, want.opacity);
+                        set_opacity(&mut m, want.opacity);
                         m.base_color_texture = Some(images.add(image));
                     }
                     commands.entity(e).insert(want);
                 }
                 None => {
-                    let mut m = crate::layers::unlit(want.opacity);
+                    let mut m = unlit(want.opacity);
                     m.base_color_texture = Some(images.add(image));
                     commands.spawn((
                         want,
@@ -585,7 +596,7 @@ fn view_slices(
 #[derive(Component, Clone, Copy, Debug)]
 struct ViewSlab(usize);
 
-/// The slab thickness of 2D view `a`: the scene's, else one voxel of the top slice layer along the view's axis,
+/// The slab thickness of 2D view `a`: [`Views::slab_mm`], else one voxel of the top slice layer along the view's axis,
 /// else 2 mm.
 pub fn slab_thickness(views: &Views, top: Option<&VoxelGrid>, a: usize) -> f32 {
     if let Some(t) = views.slab_mm.filter(|t| *t > 0.0) {
@@ -600,26 +611,26 @@ pub fn slab_thickness(views: &Views, top: Option<&VoxelGrid>, a: usize) -> f32 {
 /// cropped (not drawn in the 2D views).
 fn view_tract_slabs(
     mut commands: Commands,
-    scene: Res<ActiveScene>,
+    views: Res<Views>,
     crosshair: Res<Crosshair>,
     sets: Query<Entity, With<fascicle_tracts::MeshSet>>,
     mut slabs: Query<(Entity, &ViewSlab, &mut fascicle_tracts::TractSlab)>,
-    slice_layers: Query<(&LayerEntity, &VoxelGrid), With<SliceSource>>,
+    slice_layers: Query<(Option<&LayerOrder>, &VoxelGrid), With<SliceLayer>>,
 ) {
-    if !scene.0.views.ortho {
+    if !views.ortho {
         for (e, ..) in &slabs {
             commands.entity(e).despawn();
         }
         return;
     }
-    let top = slice_layers.iter().max_by_key(|(le, _)| le.0).map(|(_, g)| *g);
+    let top = slice_layers.iter().max_by_key(|(order, _)| order.copied().unwrap_or_default()).map(|(_, g)| *g);
     for set in &sets {
         for a in 0..3 {
             let want = fascicle_tracts::TractSlab {
                 set,
                 normal: Vec3::AXES[a],
                 offset: crosshair.world[a],
-                half_thickness: 0.5 * slab_thickness(&scene.0.views, top.as_ref(), a),
+                half_thickness: 0.5 * slab_thickness(&views, top.as_ref(), a),
             };
             match slabs.iter_mut().find(|(_, v, s)| v.0 == a && s.set == set) {
                 Some((_, _, mut slab)) => {
@@ -640,17 +651,24 @@ struct BarQuad;
 /// The colour bars now shown.
 #[derive(Default)]
 struct ShownBars {
-    bars: Vec<Bar>,
+    bars: Vec<ColourBar>,
     size: UVec2,
 }
 
-/// Shows the scene's colour bars over the 3D view (bottom right, stacked upwards).
+/// What moves the bars: a bar, an order or a visibility changed.
+type BarsMoved = Or<(Changed<ColourBar>, Changed<LayerOrder>, Changed<Visibility>)>;
+
+/// A layer's bar, and whether it is shown.
+type BarOf = (&'static ColourBar, Option<&'static LayerOrder>, &'static Visibility);
+
+/// Shows the layers' colour bars over the 3D view (bottom right, stacked upwards by [`LayerOrder`]).
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
 fn bars(
     mut commands: Commands,
-    scene: Res<ActiveScene>,
-    sources: Query<(&LayerEntity, &SliceSource)>,
-    new_sources: Query<(), Changed<SliceSource>>,
+    views: Res<Views>,
+    layers: Query<BarOf>,
+    changed: Query<(), BarsMoved>,
+    mut removed: RemovedComponents<ColourBar>,
     mut overlay: Query<&mut Camera, With<BarView>>,
     quads: Query<Entity, With<BarQuad>>,
     mut meshes: ResMut<Assets<Mesh>>,
@@ -660,12 +678,19 @@ fn bars(
 ) {
     let Ok(mut cam) = overlay.single_mut() else { return };
     let size = cam.physical_viewport_size().unwrap_or_default();
-    // The bars follow the scene, the slices' automatic windows and the view's size.
-    if !scene.is_changed() && new_sources.is_empty() && size == shown.size {
+    // The bars follow the layers' bars, their order and visibility, the switch and the view's size.
+    let removed = removed.read().count() > 0;
+    if !views.is_changed() && changed.is_empty() && !removed && size == shown.size {
         return;
     }
-    let bars = if scene.0.views.colour_bars {
-        colourbar::scene_bars(&scene.0, |i| sources.iter().find(|(le, _)| le.0 == i).map(|(_, s)| s.auto_window))
+    let bars = if views.colour_bars {
+        let mut shown: Vec<(LayerOrder, &ColourBar)> = layers
+            .iter()
+            .filter(|(.., v)| **v != Visibility::Hidden)
+            .map(|(bar, order, _)| (order.copied().unwrap_or_default(), bar))
+            .collect();
+        shown.sort_by_key(|(order, _)| *order);
+        shown.into_iter().map(|(_, bar)| bar.clone()).collect()
     } else {
         vec![]
     };
@@ -685,10 +710,10 @@ fn bars(
     for (i, bar) in bars.iter().enumerate() {
         let Some(r) = colourbar::bar_rect(size, i as u32) else { break };
         let corners = [at(r.min.x, r.max.y), at(r.max.x, r.max.y), at(r.max.x, r.min.y), at(r.min.x, r.min.y)];
-        let mut mesh = crate::layers::quad(corners);
+        let mut mesh = quad_mesh(corners);
         // The image's first row is its top.
         mesh.insert_attribute(Mesh::ATTRIBUTE_UV_0, vec![[0.0f32, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]]);
-        let mut m = crate::layers::unlit(1.0);
+        let mut m = unlit(1.0);
         m.alpha_mode = AlphaMode::Blend;
         m.base_color_texture = Some(images.add(colourbar::bar_image(bar)));
         commands.spawn((
@@ -699,42 +724,6 @@ fn bars(
         ));
     }
     *shown = ShownBars { bars, size };
-}
-
-/// With [`Views::follow`], moves the slice of every slice, glyph and tensor layer to the crosshair's voxel
-/// (on the layer's own grid, along its own axis).
-fn follow_crosshair(
-    mut scene: ResMut<ActiveScene>,
-    grids: Query<(&LayerEntity, &VoxelGrid)>,
-    mut last: Local<Option<Vec3>>,
-) {
-    let views = scene.0.views;
-    let Some(world) = views.crosshair.map(Vec3::from_array).filter(|_| views.follow) else {
-        *last = None;
-        return;
-    };
-    if *last == Some(world) {
-        return;
-    }
-    *last = Some(world);
-    let mut edited = scene.0.layers.clone();
-    for (le, grid) in &grids {
-        let Some(layer) = edited.get_mut(le.0) else { continue };
-        let (axis, index) = match &mut layer.kind {
-            LayerKind::Slice { axis, index, .. }
-            | LayerKind::ShGlyphs { axis, index, plane: None, full_volume: false, .. }
-            | LayerKind::TensorGlyphs { axis, index, .. }
-            | LayerKind::TensorSplats { axis, index, .. } => (*axis, index),
-            _ => continue,
-        };
-        let k = axis.index();
-        if let Some(i) = grid.index_at(world, k) {
-            *index = Some(i);
-        }
-    }
-    if edited != scene.0.layers {
-        scene.0.layers = edited;
-    }
 }
 
 /// A window after a right drag of `delta` pixels: right widens it (less contrast), up lowers its centre

@@ -1,0 +1,187 @@
+//! The views plugin from a plain Bevy app (the `four_views` example), rendered headless on the GPU (lavapipe in
+//! CI): the axial 2D view shows the FA image read by the core reader through the crosshair, display grey linear
+//! in the window (a closed form, pixel for pixel); the colour bars show the slice's window and the glyphs'
+//! scale; each edit of a slice layer costs what it changes; a bad slice fails visibly; a layer that stops
+//! being a slice loses what the plugin gave it.
+
+#[allow(dead_code)]
+#[path = "../examples/four_views.rs"]
+mod example;
+
+use bevy::prelude::*;
+use fascicle_render::example::ExampleApp;
+use fascicle_render::headless::{self, Capture};
+use fascicle_render::reference::srgb8;
+use fascicle_views::colourbar::{BAR_W, GRADIENT_ROWS, bar_rect};
+use fascicle_views::{
+    ColourBar, ColourMap, LayerStatus, OrthoView, SliceCounts, SliceLayer, SliceSettings, ViewSlice, cells,
+};
+use glam::DVec3;
+
+fn gpu_skipped() -> bool {
+    let skipped = headless::gpu_tests_skipped();
+    if skipped {
+        eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
+    }
+    skipped
+}
+
+fn rendered() -> (ExampleApp, Capture) {
+    let mut ex = example::app(ExampleApp::offscreen(&example::data(), None));
+    let capture = ex.render().unwrap_or_else(|e| panic!("{e}"));
+    (ex, capture)
+}
+
+fn slice_entity(world: &mut World) -> Entity {
+    world.query_filtered::<Entity, With<SliceLayer>>().single(world).expect("one slice layer")
+}
+
+/// The display level (sRGB byte) of FA `v` in the example's window: linear from black to white.
+fn level(v: f64) -> f64 {
+    let (lo, hi) = (f64::from(example::WINDOW.0), f64::from(example::WINDOW.1));
+    (((v - lo) / (hi - lo)).clamp(0.0, 1.0) * 255.0).round()
+}
+
+#[test]
+fn the_axial_view_shows_the_image_through_the_crosshair_in_its_window() {
+    if gpu_skipped() {
+        return;
+    }
+    let (mut ex, img) = rendered();
+    let (fa, _) =
+        fascicle_core::io::nifti::read::<f32>(format!("{}/dti/small_64D_fa.nii.gz", example::data())).unwrap();
+    let m = fa.world_from_voxel;
+    let inv = m.inverse();
+    let d = fa.dims3();
+    let world = ex.app.world_mut();
+    let (cam, at) = world
+        .query::<(&Camera, &GlobalTransform, &OrthoView)>()
+        .iter(world)
+        .find(|(.., v)| v.0 == 2)
+        .map(|(c, t, _)| (c.clone(), *t))
+        .expect("the axial view's camera");
+    // The voxel axis nearest world z and the crosshair's slice along it.
+    let axis = (0..3).max_by(|&i, &j| m.col(i).z.abs().total_cmp(&m.col(j).z.abs())).unwrap();
+    let cross = DVec3::from_array(example::CROSSHAIR.map(f64::from));
+    let k = inv.transform_point3(cross)[axis].round();
+    let normal = m.col(axis).truncate();
+    let on_plane = {
+        let mut v = DVec3::ZERO;
+        v[axis] = k;
+        m.transform_point3(v)
+    };
+    let cell = cells(URect::new(0, 0, img.width, img.height))[2];
+    let (mut checked, mut worst) = (0, 0.0f64);
+    for y in cell.min.y + 24..cell.max.y - 24 {
+        for x in cell.min.x + 24..cell.max.x - 24 {
+            let ray = cam.viewport_to_world(&at, Vec2::new(x as f32 + 0.5, y as f32 + 0.5)).unwrap();
+            let (o, dir) = (ray.origin.as_dvec3(), ray.direction.as_dvec3());
+            let p = o + dir * (on_plane - o).dot(normal) / dir.dot(normal);
+            // Away from the crosshair lines.
+            if (p.x - cross.x).abs() < 1.0 || (p.y - cross.y).abs() < 1.0 {
+                continue;
+            }
+            let v = inv.transform_point3(p);
+            // Inside the grid and away from voxel borders (nearest sampling is exact only there).
+            let inside = (0..3).filter(|&a| a != axis).all(|a| v[a] > -0.4 && v[a] < d[a] as f64 - 0.6);
+            let clear = (0..3).filter(|&a| a != axis).all(|a| (v[a] - v[a].round()).abs() < 0.35);
+            if !inside || !clear {
+                continue;
+            }
+            let mut idx = [0usize; 3];
+            for a in 0..3 {
+                idx[a] = if a == axis { k as usize } else { v[a].round() as usize };
+            }
+            let want = level(f64::from(fa.data[idx[0] + d[0] * (idx[1] + d[1] * idx[2])]));
+            let got = img.pixel(x, y);
+            let e = (0..3).map(|c| (f64::from(got[c]) - want).abs()).fold(0.0, f64::max);
+            worst = worst.max(e);
+            checked += 1;
+        }
+    }
+    assert!(checked > 10_000, "{checked} pixels checked");
+    // The 3D view (drawn by the main camera into the same target, under the bars) shows the GFA-coloured glyphs.
+    let cell = cells(URect::new(0, 0, img.width, img.height))[3];
+    let coloured = (cell.min.y..cell.max.y - 120)
+        .flat_map(|y| (cell.min.x..cell.max.x).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let p = img.pixel(x, y);
+            p[..3].iter().max().unwrap() - p[..3].iter().min().unwrap() > 40
+        })
+        .count();
+    assert!(coloured > 2_000, "{coloured} coloured pixels in the 3D view");
+    assert!(worst <= 1.0, "largest difference {worst} levels over {checked} pixels");
+}
+
+#[test]
+fn the_bars_show_the_window_and_the_glyphs_scale() {
+    if gpu_skipped() {
+        return;
+    }
+    let (mut ex, img) = rendered();
+    let world = ex.app.world_mut();
+    let e = slice_entity(world);
+    let bar = world.get::<ColourBar>(e).expect("the slice's bar").clone();
+    assert_eq!(bar, ColourBar { label: "FA".into(), map: ColourMap::Grey, range: (0.0, 1.0) });
+    // Bar 0 (the slice, order 0) at the bottom of the 3D cell, the glyphs' above it.
+    let cell = cells(URect::new(0, 0, img.width, img.height))[3];
+    let y = GRADIENT_ROWS.start + 3;
+    for (i, ramp) in [(0, false), (1, true)] {
+        let r = bar_rect(cell.size(), i).expect("the bar fits");
+        for x in [0, 50, 120, BAR_W - 1] {
+            let got = img.pixel(cell.min.x + r.min.x + x, cell.min.y + r.min.y + y);
+            let t = f64::from(x) / f64::from(BAR_W - 1);
+            // Grey: display level linear in t; viridis: the core's f64 map, shown in sRGB.
+            let want: [f64; 3] = if ramp {
+                fascicle_core::dti::splat::viridis(t).to_array().map(srgb8)
+            } else {
+                [(t * 255.0).round(); 3]
+            };
+            assert!((0..3).all(|c| (f64::from(got[c]) - want[c]).abs() <= 1.0), "bar {i} at {t}: {got:?} {want:?}");
+        }
+    }
+}
+
+#[test]
+fn slice_edits_cost_what_they_change_and_a_bad_slice_fails_visibly() {
+    if gpu_skipped() {
+        return;
+    }
+    let (mut ex, _) = rendered();
+    let app = &mut ex.app;
+    let e = slice_entity(app.world_mut());
+    let counts = |app: &App| *app.world().resource::<SliceCounts>();
+    let before = counts(app);
+    assert_eq!(before.sources, 1, "the image taken in once: {before:?}");
+
+    // The window: one cut of the 3D view's slice, the 2D views cut again, the bar follows; no new source.
+    app.world_mut().get_mut::<SliceSettings>(e).unwrap().window = Some((0.2, 0.6));
+    app.update();
+    let after = counts(app);
+    assert_eq!((after.cuts, after.sources, after.restyles), (before.cuts + 1, before.sources, before.restyles));
+    let world = app.world_mut();
+    let windows: Vec<(f32, f32)> = world.query::<&ViewSlice>().iter(world).map(|v| v.window).collect();
+    assert_eq!(windows, vec![(0.2, 0.6); 3]);
+    assert_eq!(world.get::<ColourBar>(e).unwrap().range, (f64::from(0.2f32), f64::from(0.6f32)));
+
+    // Opacity: a material write, no cut.
+    app.world_mut().get_mut::<SliceSettings>(e).unwrap().opacity = 0.5;
+    app.update();
+    let opacity = counts(app);
+    assert_eq!((opacity.cuts, opacity.restyles), (after.cuts, after.restyles + 1));
+
+    // A slice the image does not have: the layer says so.
+    app.world_mut().get_mut::<SliceSettings>(e).unwrap().index = Some(40);
+    app.update();
+    match app.world().get::<LayerStatus>(e) {
+        Some(LayerStatus::Failed(m)) => assert!(m.contains("slice 40 is outside"), "{m}"),
+        s => panic!("{s:?}"),
+    }
+
+    // No longer a slice layer: its slices, source and bar go with it.
+    app.world_mut().entity_mut(e).remove::<SliceLayer>();
+    app.update();
+    let world = app.world_mut();
+    assert_eq!(world.query::<&ViewSlice>().iter(world).count(), 0);
+    assert!(world.get::<ColourBar>(e).is_none() && world.get::<fascicle_views::SliceSource>(e).is_none());
+}
