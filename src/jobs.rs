@@ -7,7 +7,6 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
-use bevy::image::Image;
 use bevy::math::Vec3;
 use fascicle_core::Volume;
 use fascicle_core::dti::glyph::TensorGlyph;
@@ -150,12 +149,10 @@ pub enum Content {
     Splats(Vec<Splat>),
     /// Streamlines with their segment grid and geometry built (as the layer's mode draws them).
     Tracts(fascicle_tracts::PreparedTracts),
-    /// A scalar volume and its 3D texture.
+    /// A scalar volume (a volume layer of the volume plugin: it makes the texture).
     Volume {
         /// The scalar volume, shared with the cache.
         volume: Arc<Volume<f32>>,
-        /// Its values as a 3D texture.
-        texture: Box<Image>,
     },
     /// An image to slice (a slice layer: the views plugin cuts its slices).
     Slice {
@@ -316,7 +313,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::Volume { source, .. } => {
             let volume = scalar_volume(cache, source, progress)?;
             progress.stage("making the texture", 0)?;
-            Ok(Content::Volume { texture: Box::new(fascicle_volume::volume_texture(&volume)), volume })
+            Ok(Content::Volume { volume })
         }
         LayerKind::Slice { source, .. } => {
             let (vol, channel, window) = match source {

@@ -29,7 +29,7 @@ use fascicle_views::{
     ColourBar, ColourMap, LayerOrder, MainView, SliceLayer, SliceSettings, SliceSource, ViewSystems, Views,
     ViewsPlugin, VoxelGrid,
 };
-use fascicle_volume::{OpaqueDepth, ScalarVolume, VolumeMaterial, VolumePlugin, VolumeSet, spawn_volume_texture};
+use fascicle_volume::{ScalarVolume, VolumeLayer, VolumePlugin, VolumeSet, VolumeSettings};
 
 use crate::cache::DataCache;
 use crate::jobs::{CANCELLED, Content, JobProgress, build, spawn_job, spawn_light_job};
@@ -331,7 +331,7 @@ const PART_BUDGET: std::time::Duration = std::time::Duration::from_millis(8);
 /// act on all its tract sets).
 fn clear_content(commands: &mut Commands, e: Entity, index: usize, spec: &LayerSpec) {
     // A slice layer's image goes with it (new slice content brings its own).
-    commands.entity(e).despawn_related::<Children>().remove::<SliceLayer>();
+    commands.entity(e).despawn_related::<Children>().remove::<(SliceLayer, VolumeLayer)>();
     if let LayerKind::Tracts { rois, .. } = &spec.kind {
         spawn_rois(commands, rois, index, e);
     }
@@ -394,7 +394,6 @@ fn finish_jobs(
 #[derive(bevy::ecs::system::SystemParam)]
 struct Uploads<'w> {
     meshes: ResMut<'w, Assets<Mesh>>,
-    images: ResMut<'w, Assets<Image>>,
     materials: ResMut<'w, Assets<StandardMaterial>>,
     buffers: ResMut<'w, Assets<ShaderBuffer>>,
     glyph_materials: ResMut<'w, Assets<ShGlyphMaterial>>,
@@ -402,9 +401,7 @@ struct Uploads<'w> {
     splat_materials: ResMut<'w, Assets<SplatMaterial>>,
     tube_materials: ResMut<'w, Assets<TubeletMaterial>>,
     mesh_materials: ResMut<'w, Assets<TractMeshMaterial>>,
-    volume_materials: ResMut<'w, Assets<VolumeMaterial>>,
     volumes: ResMut<'w, Assets<ScalarVolume>>,
-    depth: Option<Res<'w, OpaqueDepth>>,
 }
 
 impl Uploads<'_> {
@@ -441,10 +438,11 @@ impl Uploads<'_> {
                 let (tubes, meshes) = (&mut self.tube_materials, &mut self.mesh_materials);
                 spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity)
             }
-            (Content::Volume { volume, texture }, LayerKind::Volume { render, .. }) => {
-                let depth = self.depth.as_deref().ok_or("the volume plugin has not started")?;
-                let (images, materials) = (&mut self.images, &mut self.volume_materials);
-                spawn_volume_texture(c, m, images, materials, b, depth, &volume, *texture, render)
+            (Content::Volume { volume }, LayerKind::Volume { render, .. }) => {
+                // A volume layer of the volume plugin: it makes the texture and reacts to each setting.
+                let handle = self.volumes.add(ScalarVolume(volume));
+                c.entity(layer).insert((VolumeLayer { volume: handle }, render.clone()));
+                return Ok(());
             }
             (Content::Slice { volume, channels, auto_window }, LayerKind::Slice { .. }) => {
                 // A slice layer of the views plugin, with the window found by the job.
@@ -503,7 +501,7 @@ fn restyle_layers(
     tract_sets: Query<TractParts>,
     rois: Query<(Entity, &LayerEntity), With<TractRoi>>,
     layer_entities: Query<(Entity, &LayerEntity), With<SceneLayer>>,
-    volume_sets: Query<(&VolumeSet, &LayerEntity)>,
+    mut volume_settings: Query<(&mut VolumeSettings, &LayerEntity)>,
     parts: Query<(&MeshMaterial3d<StandardMaterial>, &LayerEntity)>,
     mut slices: Query<(&mut SliceSettings, &LayerEntity)>,
     mut upload: Uploads,
@@ -515,7 +513,6 @@ fn restyle_layers(
         splat_materials,
         tube_materials,
         mesh_materials,
-        volume_materials,
         materials,
         ..
     } = &mut upload;
@@ -545,9 +542,9 @@ fn restyle_layers(
                 }
             }
             (LayerKind::Volume { render: a, .. }, LayerKind::Volume { render, .. }) if a != render => {
-                for (set, _) in volume_sets.iter().filter(|(_, le)| le.0 == i) {
-                    // The transfer function's table and pre-integration table, and the uniform.
-                    set.write_style(render, true, volume_materials, buffers);
+                // The volume plugin writes what changed: the uniform, the tables or the proxy mesh.
+                for (mut settings, _) in volume_settings.iter_mut().filter(|(_, le)| le.0 == i) {
+                    settings.set_if_neq(render.clone());
                 }
             }
             (LayerKind::Slice { .. }, LayerKind::Slice { .. }) => {
@@ -616,11 +613,15 @@ fn report_errors(
     errors.0 = failed.into_iter().map(|(_, m)| m).collect();
 }
 
+/// What refreshes the panels' layer data: content (re)spawned, or a volume's histogram redone.
+type LayerDataMoved = Or<(Added<LayerEntity>, Changed<VolumeSet>)>;
+
 /// Refreshes what spawned layers report to their panels when a layer's content was (re)spawned.
 fn report_layer_data(
-    added: Query<(), Added<LayerEntity>>,
+    added: Query<(), LayerDataMoved>,
     sets: Query<(&SplatSet, &LayerEntity)>,
-    volumes: Query<(&VolumeSet, &LayerEntity)>,
+    volumes: Query<(&VolumeSet, &ChildOf)>,
+    layers: Query<&LayerEntity, With<SceneLayer>>,
     mut map: ResMut<LayerDataMap>,
 ) {
     if added.is_empty() {
@@ -632,8 +633,11 @@ fn report_layer_data(
         let values = set.splats.iter().step_by(stride).map(|s| s.values).collect();
         map.0.insert(le.0, LayerData { eigenvalues: Arc::new(values), ..default() });
     }
-    for (set, le) in &volumes {
-        map.0.insert(le.0, LayerData { histogram: set.histogram.clone(), ..default() });
+    // A volume layer's set is the volume plugin's child of the layer entity.
+    for (set, parent) in &volumes {
+        if let Ok(le) = layers.get(parent.parent()) {
+            map.0.insert(le.0, LayerData { histogram: set.histogram.clone(), ..default() });
+        }
     }
 }
 

@@ -246,12 +246,11 @@ impl LayerKind {
                 rois: vec![],
                 colouring: colouring.clone(),
             },
-            // Method and step change the mesh (slices) and the pre-integration table: rebuild. The transfer
-            // function and the toggles are uniform and buffer updates.
-            LayerKind::Volume { source, render } => LayerKind::Volume {
-                source: source.clone(),
-                render: VolumeSettings { method: render.method, step: render.step, ..VolumeSettings::default() },
-            },
+            // Every setting is the volume plugin's to apply (`VolumeSettings`: a uniform, the tables, the proxy
+            // mesh); only the image is structural.
+            LayerKind::Volume { source, .. } => {
+                LayerKind::Volume { source: source.clone(), render: VolumeSettings::default() }
+            }
             // Axis, index and window are restyles: the views plugin cuts the slice again from the image the layer
             // holds (`fascicle_views::SliceSettings`).
             LayerKind::Slice { source, .. } => {

@@ -4,7 +4,7 @@
 
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
-use fascicle::layers::{ActiveScene, LayerErrors, ScenePlugin};
+use fascicle::layers::{ActiveScene, LayerErrors, LayerSyncCounts, ScenePlugin};
 use fascicle::scene::{LayerKind, Scene};
 use fascicle::{cache::DataCache, jobs::JobProgress};
 use fascicle_render::FascicleRenderPlugin;
@@ -349,12 +349,19 @@ fn volume_transfer_function_updates_in_place() {
     assert_eq!((e3, &m3), (e0, &m0));
     let params = app.world().resource::<Assets<VolumeMaterial>>().get(&m3).unwrap().params;
     assert_eq!((params.clip_lo.x, params.clip_hi.x, params.clip_hi.y), (-0.5, 23.5, 47.5));
+    // Another method: the volume plugin swaps the proxy mesh of the same set; nothing is read or built again.
+    let jobs = app.world().resource::<LayerSyncCounts>().jobs;
+    let repacks = app.world().resource::<fascicle_volume::VolumeCounts>().repacks;
     if let LayerKind::Volume { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
         render.method = VolumeMethod::Slicing;
     }
     settle(&mut app);
-    let (e2, _, _) = snapshot(&mut app);
-    assert_ne!(e2, e0);
+    let (e2, m2, _) = snapshot(&mut app);
+    assert_eq!((e2, &m2), (e0, &m0));
+    let mut q = app.world_mut().query::<&VolumeSet>();
+    assert_eq!(q.single(app.world()).unwrap().settings.method, VolumeMethod::Slicing);
+    assert_eq!(app.world().resource::<LayerSyncCounts>().jobs, jobs, "no job for a method change");
+    assert!(app.world().resource::<fascicle_volume::VolumeCounts>().repacks > repacks, "the proxy mesh swapped");
 }
 
 /// The default scene's hyperstreamlines: editing an ROI re-selects (parallel, over the segment grid) without

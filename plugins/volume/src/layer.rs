@@ -122,7 +122,16 @@ pub(crate) fn build(app: &mut App) {
                 .after(bevy::asset::AssetEventSystems)
                 .before(bevy::transform::TransformSystems::Propagate),
         )
+        .add_observer(forget_layer)
         .add_systems(PostUpdate, sync_layers.in_set(VolumeSystems::Prepare));
+}
+
+/// A volume layer that stops being one (its [`VolumeLayer`] removed) loses its drawn set.
+fn forget_layer(removed: On<Remove, VolumeLayer>, mut commands: Commands, drawn: Query<&Drawn>) {
+    if let Ok(d) = drawn.get(removed.entity) {
+        commands.entity(d.set).try_despawn();
+        commands.entity(removed.entity).try_remove::<Drawn>();
+    }
 }
 
 /// The drawn set of a layer and the asset it was built from.
@@ -166,7 +175,7 @@ fn sync_layers(
                 if let Ok((old, _)) = sets.get(d.set) {
                     materials.remove(&old.material);
                 }
-                commands.entity(d.set).despawn();
+                commands.entity(d.set).try_despawn();
             }
             let set = spawn_volume(
                 &mut commands,
