@@ -15,15 +15,12 @@
 use std::sync::Arc;
 
 use bevy::prelude::*;
-use bevy::render::storage::ShaderBuffer;
 use bevy::tasks::{Task, futures::check_ready};
 use fascicle_render::layer::LayerStatus;
-use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphPlugin, ShGlyphSet, spawn_glyph_set, update_settings};
-use fascicle_tensors::splat::{SplatMaterial, SplatSet, spawn_splats};
-use fascicle_tensors::{TensorGlyphMaterial, TensorGlyphPlugin, TensorGlyphSet, spawn_tensor_glyphs};
-use fascicle_tracts::{
-    MeshSet, PreparedGeometry, TractMeshMaterial, TractPlugin, TractRoi, TubeSet, TubeletMaterial, spawn_prepared,
-};
+use fascicle_sh_glyphs::{PlacedShGlyphs, RayCastSettings, ShGlyphPlugin};
+use fascicle_tensors::splat::{SplatSet, SplatSettings};
+use fascicle_tensors::{PlacedSplats, PlacedTensorGlyphs, TensorGlyphPlugin, TensorGlyphSettings};
+use fascicle_tracts::{PlacedTractStyle, PlacedTracts, TractPlugin, TractRoi};
 use fascicle_views::slice::{set_opacity, unlit};
 use fascicle_views::{
     ColourBar, ColourMap, LayerOrder, MainView, SliceLayer, SliceSettings, SliceSource, ViewSystems, Views,
@@ -395,12 +392,6 @@ fn finish_jobs(
 struct Uploads<'w> {
     meshes: ResMut<'w, Assets<Mesh>>,
     materials: ResMut<'w, Assets<StandardMaterial>>,
-    buffers: ResMut<'w, Assets<ShaderBuffer>>,
-    glyph_materials: ResMut<'w, Assets<ShGlyphMaterial>>,
-    tensor_materials: ResMut<'w, Assets<TensorGlyphMaterial>>,
-    splat_materials: ResMut<'w, Assets<SplatMaterial>>,
-    tube_materials: ResMut<'w, Assets<TubeletMaterial>>,
-    mesh_materials: ResMut<'w, Assets<TractMeshMaterial>>,
     volumes: ResMut<'w, Assets<ScalarVolume>>,
 }
 
@@ -414,29 +405,26 @@ impl Uploads<'_> {
         spec: &LayerSpec,
         content: Content,
     ) -> Result<(), String> {
-        let (c, m, b) = (&mut *commands, &mut *self.meshes, &mut *self.buffers);
+        let (c, m) = (&mut *commands, &mut *self.meshes);
         let root = match (content, &spec.kind) {
+            // Glyphs and splats placed by the job: a child entity per part with the plugin's data component and
+            // the layer's settings component; the plugin uploads and restyles them.
             (Content::ShGlyphs(placed), LayerKind::ShGlyphs { render, .. }) => {
-                let (glyphs, voxels) = &*placed;
-                spawn_glyph_set(c, m, &mut self.glyph_materials, b, glyphs, Some(voxels), render)
+                let (glyphs, voxels) = Arc::unwrap_or_clone(placed);
+                let data = PlacedShGlyphs { glyphs: Arc::new(glyphs), voxels: Some(Arc::new(voxels)) };
+                c.spawn((data, *render)).id()
             }
             (Content::TensorGlyphs { glyphs, voxels }, LayerKind::TensorGlyphs { render, .. }) => {
-                spawn_tensor_glyphs(c, m, &mut self.tensor_materials, b, &glyphs, Some(&voxels), render)
+                let data = PlacedTensorGlyphs { glyphs: Arc::new(glyphs), voxels: Some(Arc::new(voxels)) };
+                c.spawn((data, *render)).id()
             }
-            (Content::Splats(mut splats), LayerKind::TensorSplats { render, .. }) => {
-                render.colouring.apply(&mut splats);
-                spawn_splats(c, m, &mut self.splat_materials, b, &splats, render)
+            (Content::Splats(splats), LayerKind::TensorSplats { render, .. }) => {
+                c.spawn((PlacedSplats { splats: Arc::new(splats) }, *render)).id()
             }
-            (Content::Tracts(mut prepared), LayerKind::Tracts { .. } | LayerKind::Tractogram { .. }) => {
-                // The job built a tract layer's tubes from its structure (scale, colour); the per-pixel knobs are
-                // the layer's settings now.
-                if let (PreparedGeometry::Tubes { settings, .. }, LayerKind::Tracts { render, .. }) =
-                    (&mut prepared.geometry, &spec.kind)
-                {
-                    *settings = *render;
-                }
-                let (tubes, meshes) = (&mut self.tube_materials, &mut self.mesh_materials);
-                spawn_prepared(c, m, tubes, meshes, b, prepared, spec.opacity)
+            (Content::Tracts(prepared), LayerKind::Tracts { .. } | LayerKind::Tractogram { .. }) => {
+                // The job built the geometry from the layer's structure (scale, colour); the per-pixel knobs and
+                // the opacity are the layer's settings, the tract plugin's to apply.
+                c.spawn((PlacedTracts(Some(prepared)), tract_style(spec))).id()
             }
             (Content::Volume { volume }, LayerKind::Volume { render, .. }) => {
                 // A volume layer of the volume plugin: it makes the texture and reacts to each setting.
@@ -487,82 +475,70 @@ fn spawn_rois(commands: &mut Commands, rois: &[fascicle_core::roi::Roi], index: 
     }
 }
 
-/// A tract set's tubes or mesh (either or neither: every layer entity matches), and its layer.
-type TractParts = (Option<&'static TubeSet>, Option<&'static MeshSet>, &'static LayerEntity);
+/// The plugins' settings components of the layers' content, by layer index: what a settings edit writes.
+#[derive(bevy::ecs::system::SystemParam)]
+struct PluginSettings<'w, 's> {
+    slices: Query<'w, 's, (&'static mut SliceSettings, &'static LayerEntity)>,
+    volume_settings: Query<'w, 's, (&'static mut VolumeSettings, &'static LayerEntity)>,
+    glyph_settings: Query<'w, 's, (&'static mut RayCastSettings, &'static LayerEntity)>,
+    tensor_settings: Query<'w, 's, (&'static mut TensorGlyphSettings, &'static LayerEntity)>,
+    splat_settings: Query<'w, 's, (&'static mut SplatSettings, &'static LayerEntity)>,
+    tract_styles: Query<'w, 's, (&'static mut PlacedTractStyle, &'static LayerEntity)>,
+}
+
+/// A tract layer's style: its tubelets' knobs (a tractogram layer has the defaults) and its opacity.
+fn tract_style(spec: &LayerSpec) -> PlacedTractStyle {
+    let tubes = match &spec.kind {
+        LayerKind::Tracts { render, .. } => *render,
+        _ => default(),
+    };
+    PlacedTractStyle { tubes, opacity: spec.opacity.clamp(0.0, 1.0) }
+}
 
 /// Settings edits of layers whose content stays: uniform writes, style buffers, ROI entities, opacity.
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
 fn restyle_layers(
     mut commands: Commands,
     mut restyles: ResMut<Restyles>,
-    mut glyph_sets: Query<(&mut ShGlyphSet, &LayerEntity)>,
-    mut splat_sets: Query<(&mut SplatSet, &LayerEntity)>,
-    tensor_sets: Query<(&TensorGlyphSet, &LayerEntity)>,
-    tract_sets: Query<TractParts>,
     rois: Query<(Entity, &LayerEntity), With<TractRoi>>,
     layer_entities: Query<(Entity, &LayerEntity), With<SceneLayer>>,
-    mut volume_settings: Query<(&mut VolumeSettings, &LayerEntity)>,
     parts: Query<(&MeshMaterial3d<StandardMaterial>, &LayerEntity)>,
-    mut slices: Query<(&mut SliceSettings, &LayerEntity)>,
+    mut plugin: PluginSettings,
     mut upload: Uploads,
 ) {
-    let Uploads {
-        buffers,
-        glyph_materials,
-        tensor_materials,
-        splat_materials,
-        tube_materials,
-        mesh_materials,
-        materials,
-        ..
-    } = &mut upload;
+    let Uploads { materials, .. } = &mut upload;
     for (i, before, after) in std::mem::take(&mut restyles.0) {
         match (&before.kind, &after.kind) {
+            // The plugins apply a settings edit as it costs: a uniform write, the splats' style buffer.
             (LayerKind::ShGlyphs { render: a, .. }, LayerKind::ShGlyphs { render, .. }) if a != render => {
-                for (mut set, _) in glyph_sets.iter_mut().filter(|(_, le)| le.0 == i) {
-                    update_settings(glyph_materials, &mut set, render);
+                for (mut settings, _) in plugin.glyph_settings.iter_mut().filter(|(_, le)| le.0 == i) {
+                    settings.set_if_neq(*render);
                 }
             }
             (LayerKind::TensorSplats { render: a, .. }, LayerKind::TensorSplats { render, .. }) if a != render => {
-                for (mut set, _) in splat_sets.iter_mut().filter(|(_, le)| le.0 == i) {
-                    if render.colouring != a.colouring {
-                        // Colour and opacity only: the style buffer, not the geometry or the order.
-                        set.restyle(&render.colouring, splat_materials, buffers);
-                    }
-                    if let Some(mut m) = splat_materials.get_mut(&set.material) {
-                        m.params = render.into();
-                    }
+                for (mut settings, _) in plugin.splat_settings.iter_mut().filter(|(_, le)| le.0 == i) {
+                    settings.set_if_neq(*render);
                 }
             }
             (LayerKind::TensorGlyphs { render: a, .. }, LayerKind::TensorGlyphs { render, .. }) if a != render => {
-                for (set, _) in tensor_sets.iter().filter(|(_, le)| le.0 == i) {
-                    if let Some(mut m) = tensor_materials.get_mut(&set.material) {
-                        m.params = render.into();
-                    }
+                for (mut settings, _) in plugin.tensor_settings.iter_mut().filter(|(_, le)| le.0 == i) {
+                    settings.set_if_neq(*render);
                 }
             }
             (LayerKind::Volume { render: a, .. }, LayerKind::Volume { render, .. }) if a != render => {
                 // The volume plugin writes what changed: the uniform, the tables or the proxy mesh.
-                for (mut settings, _) in volume_settings.iter_mut().filter(|(_, le)| le.0 == i) {
+                for (mut settings, _) in plugin.volume_settings.iter_mut().filter(|(_, le)| le.0 == i) {
                     settings.set_if_neq(render.clone());
                 }
             }
             (LayerKind::Slice { .. }, LayerKind::Slice { .. }) => {
                 // Axis, index, window, opacity: the views plugin cuts the slice again from the image in memory.
-                for (mut settings, _) in slices.iter_mut().filter(|(_, le)| le.0 == i) {
+                for (mut settings, _) in plugin.slices.iter_mut().filter(|(_, le)| le.0 == i) {
                     let want = SliceSettings { channels: settings.channels, ..slice_settings(&after) };
                     settings.set_if_neq(want);
                 }
             }
-            (LayerKind::Tracts { render: a, rois: ra, .. }, LayerKind::Tracts { render, rois: rb, .. }) => {
-                for (tubes, _, _) in tract_sets.iter().filter(|(.., le)| le.0 == i) {
-                    if a != render
-                        && let Some(tubes) = tubes
-                        && let Some(mut m) = tube_materials.get_mut(&tubes.material)
-                    {
-                        m.params = render.into();
-                    }
-                }
+            (LayerKind::Tracts { rois: ra, .. }, LayerKind::Tracts { rois: rb, .. }) => {
                 if ra != rb
                     && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)
                 {
@@ -574,15 +550,11 @@ fn restyle_layers(
             }
             _ => {}
         }
+        // A tract set's knobs and opacity: the tract plugin writes what changed.
+        for (mut style, _) in plugin.tract_styles.iter_mut().filter(|(_, le)| le.0 == i) {
+            style.set_if_neq(tract_style(&after));
+        }
         if before.opacity != after.opacity {
-            let opacity = after.opacity.clamp(0.0, 1.0);
-            for (_, mesh, _) in tract_sets.iter().filter(|(.., le)| le.0 == i) {
-                if let Some(mesh) = mesh
-                    && let Some(mut m) = mesh_materials.get_mut(&mesh.material)
-                {
-                    m.params.opacity = opacity;
-                }
-            }
             for (mat, _) in parts.iter().filter(|(_, le)| le.0 == i) {
                 if let Some(mut m) = materials.get_mut(&mat.0) {
                     set_opacity(&mut m, after.opacity);
@@ -614,21 +586,23 @@ fn report_errors(
 }
 
 /// What refreshes the panels' layer data: content (re)spawned, or a volume's histogram redone.
-type LayerDataMoved = Or<(Added<LayerEntity>, Changed<VolumeSet>)>;
+type LayerDataMoved = Or<(Added<LayerEntity>, Added<SplatSet>, Changed<VolumeSet>)>;
 
 /// Refreshes what spawned layers report to their panels when a layer's content was (re)spawned.
 fn report_layer_data(
     added: Query<(), LayerDataMoved>,
-    sets: Query<(&SplatSet, &LayerEntity)>,
+    sets: Query<(&SplatSet, &ChildOf)>,
     volumes: Query<(&VolumeSet, &ChildOf)>,
-    layers: Query<&LayerEntity, With<SceneLayer>>,
+    layers: Query<&LayerEntity>,
     mut map: ResMut<LayerDataMap>,
 ) {
     if added.is_empty() {
         return;
     }
     map.0.clear();
-    for (set, le) in &sets {
+    // A splat set is the tensor plugin's child of the layer's placed-splats entity.
+    for (set, parent) in &sets {
+        let Ok(le) = layers.get(parent.parent()) else { continue };
         let stride = set.len().div_ceil(SCATTER_SAMPLES).max(1);
         let values = set.splats.iter().step_by(stride).map(|s| s.values).collect();
         map.0.insert(le.0, LayerData { eigenvalues: Arc::new(values), ..default() });

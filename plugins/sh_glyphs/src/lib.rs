@@ -49,12 +49,14 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::sh::glyph::{Glyph, Lobes};
 
 pub mod layer;
+pub mod placed;
 pub mod shaders;
 
 pub use fascicle_render::layer::{LayerStatus, Selection, SliceAxis};
 pub use layer::{
     GlyphShape, ShField, ShFieldLoader, ShFieldSettings, ShGlyphCounts, ShGlyphSystems, ShGlyphs, field_glyphs,
 };
+pub use placed::PlacedShGlyphs;
 
 /// Registers the glyph material. Needs `fascicle_render::FascicleRenderPlugin` (the shaders).
 pub struct ShGlyphPlugin;
@@ -64,6 +66,7 @@ impl Plugin for ShGlyphPlugin {
         shaders::register(app);
         app.add_plugins(MaterialPlugin::<ShGlyphMaterial>::default());
         layer::build(app);
+        placed::build(app);
         app.add_systems(PostUpdate, apply_highlights.in_set(ShGlyphSystems::Highlight));
     }
 }

@@ -427,10 +427,10 @@ fn sync_splat_layers(
 
 /// The part of [`SplatSettings`] the uniform holds (the colouring lives in the style buffer).
 #[derive(PartialEq)]
-struct SplatUniformKnobs(bool, f32, bool, fascicle_core::dti::splat::LitTensor);
+pub(crate) struct SplatUniformKnobs(bool, f32, bool, fascicle_core::dti::splat::LitTensor);
 
 impl SplatUniformKnobs {
-    fn of(s: &SplatSettings) -> Self {
+    pub(crate) fn of(s: &SplatSettings) -> Self {
         Self(s.attenuation, s.opacity, s.lit, s.lighting)
     }
 }

@@ -15,6 +15,7 @@ use fascicle_core::dti::glyph::{MIN_EXPONENT, TensorGlyph, TensorShape};
 
 pub mod gpu_sort;
 pub mod layer;
+pub mod placed;
 pub mod shaders;
 pub mod sort_order;
 pub mod splat;
@@ -24,6 +25,7 @@ pub use layer::{
     SplatCounts, SplatShape, TensorField, TensorFieldLoader, TensorFieldSettings, TensorGlyphCounts, TensorGlyphShape,
     TensorGlyphs, TensorSplats, TensorSystems,
 };
+pub use placed::{PlacedSplats, PlacedTensorGlyphs};
 pub use splat::SplatSettings;
 
 /// Tensor glyphs and splats: their materials, the [`TensorField`] asset and its loader, the
@@ -39,6 +41,7 @@ impl Plugin for TensorGlyphPlugin {
         ))
         .init_resource::<splat::SplatSortStats>();
         layer::build(app);
+        placed::build(app);
         gpu_sort::build(app);
         app.add_systems(PostUpdate, splat::sort_splats.in_set(TensorSystems::Sort));
         if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {

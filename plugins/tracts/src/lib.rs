@@ -31,10 +31,12 @@ pub use fascicle_core::tubelet::TubeMethod;
 use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
 
 pub mod layer;
+pub mod placed;
 pub mod shaders;
 
 pub use fascicle_render::layer::LayerStatus;
 pub use layer::{TractCounts, TractStyle, TractSystems, TractogramAsset, TractogramLoader, Tracts};
+pub use placed::{PlacedTractStyle, PlacedTracts};
 
 /// Drawing options of hyperstreamlines.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -487,6 +489,7 @@ impl Plugin for TractPlugin {
                 ),
             );
         layer::build(app);
+        placed::build(app);
         app.add_systems(Update, draw_rois.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>));
     }
 }
@@ -788,6 +791,21 @@ pub fn spawn_prepared(
     prepared: PreparedTracts,
     opacity: f32,
 ) -> Entity {
+    let mut e = commands.spawn_empty();
+    insert_prepared(&mut e, meshes, (tube_materials, mesh_materials), buffers, prepared, opacity);
+    e.id()
+}
+
+/// [`spawn_prepared`] onto an entity of the caller's (what [`placed::PlacedTracts`] does): the set's
+/// components go on `e`.
+pub(crate) fn insert_prepared(
+    e: &mut EntityCommands,
+    meshes: &mut Assets<Mesh>,
+    (tube_materials, mesh_materials): (&mut Assets<TubeletMaterial>, &mut Assets<TractMeshMaterial>),
+    buffers: &mut Assets<ShaderBuffer>,
+    prepared: PreparedTracts,
+    opacity: f32,
+) {
     let PreparedTracts { tractogram, n_streamlines, grid, geometry } = prepared;
     let target = match tractogram {
         Some(t) => tract_set(buffers, t, grid),
@@ -796,11 +814,11 @@ pub fn spawn_prepared(
     match geometry {
         PreparedGeometry::Tubes { packed, n_tubelets, settings, boxes } => {
             let tubes = (&packed[..], n_tubelets, *boxes);
-            spawn_tube_set(commands, meshes, tube_materials, buffers, target, tubes, settings)
+            insert_tube_set(e, meshes, tube_materials, buffers, target, tubes, settings)
         }
         PreparedGeometry::Mesh { mesh, preview } => {
             let preview = preview.map(|p| meshes.add(*p));
-            spawn_mesh_set(commands, meshes, mesh_materials, target, (*mesh, preview), opacity)
+            insert_mesh_set(e, meshes, mesh_materials, target, (*mesh, preview), opacity)
         }
     }
 }
@@ -813,15 +831,31 @@ fn spawn_tube_set(
     materials: &mut Assets<TubeletMaterial>,
     buffers: &mut Assets<ShaderBuffer>,
     selection: Selection,
-    (packed, n_tubelets, proxies): (&[u8], usize, Mesh),
+    tubes: (&[u8], usize, Mesh),
     settings: TubeSettings,
 ) -> Entity {
+    let mut e = commands.spawn_empty();
+    insert_tube_set(&mut e, meshes, materials, buffers, selection, tubes, settings);
+    e.id()
+}
+
+/// [`spawn_tube_set`]'s components, onto `e`.
+#[allow(clippy::too_many_arguments, reason = "the asset stores, the set and its tubelets")]
+fn insert_tube_set(
+    e: &mut EntityCommands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<TubeletMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    selection: Selection,
+    (packed, n_tubelets, proxies): (&[u8], usize, Mesh),
+    settings: TubeSettings,
+) {
     let material = materials.add(TubeletMaterial {
         params: (&settings).into(),
         tubes: buffers.add(ShaderBuffer::new(packed, RenderAssetUsages::RENDER_WORLD)),
         selected: selection.flags,
     });
-    let mut e = commands.spawn((
+    e.insert((
         TubeSet { material: material.clone(), n_tubelets, settings },
         Transform::default(),
         Visibility::default(),
@@ -832,7 +866,6 @@ fn spawn_tube_set(
     if n_tubelets > 0 {
         e.insert((Mesh3d(meshes.add(proxies)), MeshMaterial3d(material), NoFrustumCulling));
     }
-    e.id()
 }
 
 /// A tract set drawn as a mesh (lines or polygon tubes).
@@ -841,14 +874,28 @@ fn spawn_mesh_set(
     meshes: &mut Assets<Mesh>,
     materials: &mut Assets<TractMeshMaterial>,
     selection: Selection,
-    (mesh, preview): (Mesh, Option<Handle<Mesh>>),
+    mesh: (Mesh, Option<Handle<Mesh>>),
     opacity: f32,
 ) -> Entity {
+    let mut e = commands.spawn_empty();
+    insert_mesh_set(&mut e, meshes, materials, selection, mesh, opacity);
+    e.id()
+}
+
+/// [`spawn_mesh_set`]'s components, onto `e`.
+fn insert_mesh_set(
+    e: &mut EntityCommands,
+    meshes: &mut Assets<Mesh>,
+    materials: &mut Assets<TractMeshMaterial>,
+    selection: Selection,
+    (mesh, preview): (Mesh, Option<Handle<Mesh>>),
+    opacity: f32,
+) {
     let params = TractMeshUniform::whole(opacity);
     let material = materials.add(TractMeshMaterial { params, selected: selection.flags });
     let line_segments = line_segments(&mesh);
     let full = meshes.add(mesh);
-    let mut e = commands.spawn((
+    e.insert((
         MeshSet { material: material.clone(), full: full.clone(), preview },
         LineSegments(line_segments),
         Mesh3d(full),
@@ -859,7 +906,6 @@ fn spawn_mesh_set(
     if let Some(target) = selection.target {
         e.insert(target);
     }
-    e.id()
 }
 
 /// Spawns a tractogram as hyperstreamlines (optional per-point world tensors give the sections); returns

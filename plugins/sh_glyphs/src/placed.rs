@@ -1,0 +1,95 @@
+//! Layers whose glyphs are placed already: an app that samples and shapes them itself (off the main thread, on
+//! a free plane, from a cache, ahead of the next slice) hands them over as the data component
+//! ([`PlacedShGlyphs`]) with the layer's [`RayCastSettings`]. A new placement is uploaded (the component
+//! replaced); a settings edit is one uniform write, as for [`crate::ShGlyphs`].
+
+use std::sync::Arc;
+
+use bevy::prelude::*;
+use bevy::render::storage::ShaderBuffer;
+use fascicle_core::sh::glyph::Glyph;
+use fascicle_render::layer::LayerStatus;
+
+use crate::layer::ShGlyphCounts;
+use crate::{RayCastSettings, ShGlyphMaterial, ShGlyphSet, ShVoxel, fill_glyph_set, update_settings};
+
+/// The data component of an SH glyph layer whose glyphs are placed: drawn as they are, with the layer's
+/// [`RayCastSettings`] (added with its default when absent).
+#[derive(Component, Clone, Debug, Default)]
+#[require(RayCastSettings, LayerStatus, Transform, Visibility)]
+pub struct PlacedShGlyphs {
+    /// The glyphs (centres in RAS+ mm, coefficients in the glyph basis scaled to mm).
+    pub glyphs: Arc<Vec<Glyph>>,
+    /// The voxel each glyph stands for (picking reports it), when they come from a grid.
+    pub voxels: Option<Arc<Vec<[u32; 3]>>>,
+}
+
+/// Registers the placed layers' system (in [`crate::ShGlyphSystems::Prepare`]) and their cleanup.
+pub(crate) fn build(app: &mut App) {
+    app.add_observer(forget_placed).add_systems(PostUpdate, sync_placed.in_set(crate::ShGlyphSystems::Prepare));
+}
+
+type Layer<'a> =
+    (Entity, Ref<'a, PlacedShGlyphs>, Ref<'a, RayCastSettings>, &'a mut LayerStatus, Option<&'a mut ShGlyphSet>);
+
+/// Uploads new placements and applies settings edits.
+#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
+fn sync_placed(
+    mut commands: Commands,
+    mut layers: Query<Layer>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut materials: ResMut<Assets<ShGlyphMaterial>>,
+    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut counts: ResMut<ShGlyphCounts>,
+    mut cube: Local<Option<Handle<Mesh>>>,
+) {
+    for (entity, placed, settings, mut status, mut set) in &mut layers {
+        if placed.is_changed() || set.is_none() {
+            commands.entity(entity).despawn_related::<Children>();
+            if let Some(old) = set.as_deref() {
+                materials.remove(&old.material);
+            }
+            let cube = cube.get_or_insert_with(|| meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
+            let voxels = placed.voxels.as_deref().map(|v| &v[..]);
+            let filled = fill_glyph_set(
+                &mut commands,
+                entity,
+                cube,
+                &mut materials,
+                &mut buffers,
+                &placed.glyphs,
+                voxels,
+                &settings,
+            );
+            commands.entity(entity).insert(filled);
+            *status = LayerStatus::Ready { items: placed.glyphs.len() };
+            counts.0.uploads += 1;
+        } else if settings.is_changed()
+            && let Some(set) = set.as_deref_mut()
+        {
+            update_settings(&mut materials, set, &settings);
+            counts.0.uniform_writes += 1;
+        }
+    }
+}
+
+/// A layer that stops being a placed glyph layer loses its set and its glyph entities (its children).
+fn forget_placed(
+    removed: On<Remove, PlacedShGlyphs>,
+    mut commands: Commands,
+    mut materials: ResMut<Assets<ShGlyphMaterial>>,
+    sets: Query<&ShGlyphSet>,
+    children: Query<&Children>,
+    glyphs: Query<(), With<ShVoxel>>,
+) {
+    let e = removed.entity;
+    if let Ok(set) = sets.get(e) {
+        materials.remove(&set.material);
+    }
+    for c in children.get(e).into_iter().flat_map(|c| c.iter()) {
+        if glyphs.contains(c) {
+            commands.entity(c).try_despawn();
+        }
+    }
+    commands.entity(e).try_remove::<ShGlyphSet>();
+}
