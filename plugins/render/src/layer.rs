@@ -38,6 +38,16 @@ impl LayerStatus {
     }
 }
 
+/// Despawns the children (`children`, a layer entity's) for which `drawn` holds: what a plugin drew under a
+/// layer whose data component went; the other children (an app's) stay.
+pub fn despawn_drawn(commands: &mut Commands, children: Option<&Children>, drawn: impl Fn(Entity) -> bool) {
+    for c in children.into_iter().flat_map(|c| c.iter()) {
+        if drawn(c) {
+            commands.entity(c).try_despawn();
+        }
+    }
+}
+
 /// A layer's data asset once loaded; until then (or if its load failed) `None`, with `status` set to what
 /// [`LayerStatus::of_pending`] says (written only when it differs, so an unchanged status is not marked
 /// changed).

@@ -8,7 +8,7 @@ use std::sync::Arc;
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::sh::glyph::Glyph;
-use fascicle_render::layer::LayerStatus;
+use fascicle_render::layer::{LayerStatus, despawn_drawn};
 
 use crate::layer::ShGlyphCounts;
 use crate::{RayCastSettings, ShGlyphMaterial, ShGlyphSet, ShVoxel, fill_glyph_set, update_settings};
@@ -86,10 +86,6 @@ fn forget_placed(
     if let Ok(set) = sets.get(e) {
         materials.remove(&set.material);
     }
-    for c in children.get(e).into_iter().flat_map(|c| c.iter()) {
-        if glyphs.contains(c) {
-            commands.entity(c).try_despawn();
-        }
-    }
+    despawn_drawn(&mut commands, children.get(e).ok(), |c| glyphs.contains(c));
     commands.entity(e).try_remove::<ShGlyphSet>();
 }

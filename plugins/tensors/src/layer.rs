@@ -410,27 +410,39 @@ fn sync_splat_layers(
             && before.settings != *settings
             && let Ok(mut set) = sets.get_mut(d.0)
         {
-            if before.settings.colouring != settings.colouring {
-                set.restyle(&settings.colouring, &materials, &mut buffers);
-                counts.0.restyles += 1;
-            }
-            if SplatUniformKnobs::of(&before.settings) != SplatUniformKnobs::of(&settings)
-                && let Some(mut m) = materials.get_mut(&set.material)
-            {
-                m.params = (&*settings).into();
-                counts.0.uniform_writes += 1;
-            }
+            restyle_splats(&mut set, (&before.settings, &settings), &mut materials, &mut buffers, &mut counts.0);
             commands.entity(entity).insert(Built { field: id, settings: *settings });
         }
     }
 }
 
+/// A splat set's settings edit (`before` to `after`), as it costs: a new colouring rewrites the style buffer,
+/// the other knobs the uniform.
+pub(crate) fn restyle_splats(
+    set: &mut SplatSet,
+    (before, after): (&SplatSettings, &SplatSettings),
+    materials: &mut Assets<SplatMaterial>,
+    buffers: &mut Assets<ShaderBuffer>,
+    counts: &mut StageCounts,
+) {
+    if before.colouring != after.colouring {
+        set.restyle(&after.colouring, materials, buffers);
+        counts.restyles += 1;
+    }
+    if SplatUniformKnobs::of(before) != SplatUniformKnobs::of(after)
+        && let Some(mut m) = materials.get_mut(&set.material)
+    {
+        m.params = after.into();
+        counts.uniform_writes += 1;
+    }
+}
+
 /// The part of [`SplatSettings`] the uniform holds (the colouring lives in the style buffer).
 #[derive(PartialEq)]
-pub(crate) struct SplatUniformKnobs(bool, f32, bool, fascicle_core::dti::splat::LitTensor);
+struct SplatUniformKnobs(bool, f32, bool, fascicle_core::dti::splat::LitTensor);
 
 impl SplatUniformKnobs {
-    pub(crate) fn of(s: &SplatSettings) -> Self {
+    fn of(s: &SplatSettings) -> Self {
         Self(s.attenuation, s.opacity, s.lit, s.lighting)
     }
 }

@@ -17,9 +17,9 @@ use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::dti::glyph::{TensorGlyph, TensorShape};
 use fascicle_core::dti::splat::Splat;
-use fascicle_render::layer::LayerStatus;
+use fascicle_render::layer::{LayerStatus, despawn_drawn};
 
-use crate::layer::{SplatCounts, SplatUniformKnobs, TensorGlyphCounts};
+use crate::layer::{SplatCounts, TensorGlyphCounts, restyle_splats};
 use crate::splat::{SplatMaterial, SplatSet, SplatSettings, spawn_splats};
 use crate::{TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, TensorSample, fill_tensor_glyphs};
 
@@ -156,16 +156,7 @@ fn sync_placed_splats(
             && before.0 != *settings
             && let Ok(mut set) = sets.get_mut(d.0)
         {
-            if before.0.colouring != settings.colouring {
-                set.restyle(&settings.colouring, &materials, &mut buffers);
-                counts.0.restyles += 1;
-            }
-            if SplatUniformKnobs::of(&before.0) != SplatUniformKnobs::of(&settings)
-                && let Some(mut m) = materials.get_mut(&set.material)
-            {
-                m.params = (&*settings).into();
-                counts.0.uniform_writes += 1;
-            }
+            restyle_splats(&mut set, (&before.0, &settings), &mut materials, &mut buffers, &mut counts.0);
             commands.entity(entity).insert(Styled(*settings));
         }
     }
@@ -184,11 +175,7 @@ fn forget_placed_glyphs(
     if let Ok(set) = sets.get(e) {
         materials.remove(&set.material);
     }
-    for c in children.get(e).into_iter().flat_map(|c| c.iter()) {
-        if samples.contains(c) {
-            commands.entity(c).try_despawn();
-        }
-    }
+    despawn_drawn(&mut commands, children.get(e).ok(), |c| samples.contains(c));
     commands.entity(e).try_remove::<(TensorGlyphSet, Styled<TensorGlyphSettings>)>();
 }
 

@@ -241,3 +241,65 @@ fn each_edit_of_a_tensor_layer_costs_what_it_changes() {
     app.update();
     assert_eq!((splat_counts(&app), glyph_counts(&app)), ((2, 1, 1, 1), (1, 2, 1)));
 }
+
+/// Glyphs and splats placed by the app (as the viewer's background jobs place them) are drawn from their data
+/// components, and each settings edit costs what it does for a field-driven layer: a glyph colouring one uniform
+/// write, a splat colouring the style buffer alone; a new placement is one upload; removing the data component
+/// takes away what the plugin drew (the glyph entities, the splat set).
+#[test]
+fn placed_glyphs_and_splats_are_layers_too() {
+    use fascicle_tensors::layer::{field_splats, field_tensor_glyphs};
+    use fascicle_tensors::{PlacedSplats, PlacedTensorGlyphs, SplatShape, TensorGlyphShape};
+    use std::sync::Arc;
+    if gpu_skipped() {
+        return;
+    }
+    let mut app = headless::headless_app_with_assets(Some(&glyph_example::data()));
+    app.add_plugins(TensorGlyphPlugin);
+    headless::initialise(&mut app).expect("GPU adapter");
+    let (vol, _) = fascicle_core::io::nifti::read::<f32>(format!("{}/{FIELD}", glyph_example::data())).unwrap();
+    let field = TensorField::new(vol).unwrap();
+    let slice = Selection::Slice { axis: SliceAxis::Z, index: Some(5), spacing: 1 };
+    let (glyphs, voxels) = field_tensor_glyphs(&field, &slice, &TensorGlyphShape::default()).unwrap();
+    let slab = Selection::Slab { axis: SliceAxis::Z, index: Some(5), thickness: 1 };
+    let splats = field_splats(&field, &slab, &SplatShape::default()).unwrap();
+    let n = glyphs.len();
+    let placed = PlacedTensorGlyphs { glyphs: Arc::new(glyphs), voxels: Some(Arc::new(voxels)) };
+    let g = app.world_mut().spawn(placed.clone()).id();
+    let s = app.world_mut().spawn(PlacedSplats { splats: Arc::new(splats.clone()) }).id();
+    app.update();
+    let status = |app: &App, e| app.world().get::<LayerStatus>(e).unwrap().clone();
+    assert_eq!(status(&app, g), LayerStatus::Ready { items: n });
+    assert_eq!(status(&app, s), LayerStatus::Ready { items: splats.len() });
+    let samples = |app: &mut App| app.world_mut().query::<&TensorSample>().iter(app.world()).count();
+    assert_eq!(samples(&mut app), n);
+    let glyph_counts = |app: &App| {
+        let c = app.world().resource::<TensorGlyphCounts>();
+        (c.uploads, c.repacks, c.uniform_writes)
+    };
+    let splat_counts = |app: &App| {
+        let c = app.world().resource::<SplatCounts>();
+        (c.uploads, c.uniform_writes, c.restyles)
+    };
+    assert_eq!((glyph_counts(&app), splat_counts(&app)), ((1, 0, 0), (1, 0, 0)));
+
+    app.world_mut().get_mut::<TensorGlyphSettings>(g).unwrap().colour = TensorColour::Fa;
+    app.world_mut().get_mut::<SplatSettings>(s).unwrap().colouring = splat_example::colouring();
+    app.update();
+    assert_eq!((glyph_counts(&app), splat_counts(&app)), ((1, 0, 1), (1, 0, 1)));
+    app.world_mut().get_mut::<SplatSettings>(s).unwrap().opacity = 0.5;
+    app.update();
+    assert_eq!(splat_counts(&app), (1, 1, 1));
+    // A new placement: one upload of that layer.
+    app.world_mut().entity_mut(g).insert(placed);
+    app.update();
+    assert_eq!(glyph_counts(&app), (2, 0, 1));
+    assert_eq!(samples(&mut app), n);
+
+    app.world_mut().entity_mut(g).remove::<PlacedTensorGlyphs>();
+    app.world_mut().entity_mut(s).remove::<PlacedSplats>();
+    app.update();
+    assert_eq!(samples(&mut app), 0);
+    let sets = app.world_mut().query::<&SplatSet>().iter(app.world()).count();
+    assert_eq!(sets, 0, "the splat set went with its data component");
+}

@@ -19,7 +19,7 @@ use bevy::image::Image;
 use bevy::mesh::{Indices, PrimitiveTopology};
 use bevy::prelude::*;
 use fascicle_core::Volume;
-use fascicle_render::layer::{LayerStatus, SliceAxis, changed_assets, loaded_or_pending};
+use fascicle_render::layer::{LayerStatus, SliceAxis, changed_assets, despawn_drawn, loaded_or_pending};
 use fascicle_volume::ScalarVolume;
 use serde::{Deserialize, Serialize};
 
@@ -357,11 +357,7 @@ pub(crate) fn forget_slice(
 ) {
     let e = removed.entity;
     let Ok((children, bar)) = layers.get(e) else { return };
-    for c in children.into_iter().flat_map(|c| c.iter()) {
-        if drawn.contains(c) {
-            commands.entity(c).despawn();
-        }
-    }
+    despawn_drawn(&mut commands, children, |c| drawn.contains(c));
     commands.entity(e).try_remove::<SliceSource>();
     if bar {
         commands.entity(e).try_remove::<(ColourBar, SliceBar)>();
