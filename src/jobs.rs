@@ -137,7 +137,7 @@ impl JobProgress {
 /// A layer's CPU-side content, ready for the main thread to upload.
 pub enum Content {
     /// Placed glyphs and their voxels, shared with the cache.
-    ShGlyphs(Arc<(Vec<Glyph>, Vec<[u32; 3]>)>),
+    ShGlyphs(Arc<Vec<Glyph>>, Arc<Vec<[u32; 3]>>),
     /// Tensor glyphs of a slice (or of the spiral phantom).
     TensorGlyphs {
         /// The glyphs, in the world frame.
@@ -180,7 +180,7 @@ impl Content {
     /// Items it holds (glyphs, splats, streamlines, voxels), for the layer's status.
     pub fn items(&self) -> usize {
         match self {
-            Content::ShGlyphs(placed) => placed.0.len(),
+            Content::ShGlyphs(glyphs, _) => glyphs.len(),
             Content::TensorGlyphs { glyphs, .. } => glyphs.len(),
             Content::Splats(s) => s.len(),
             Content::Tracts(t) => t.n_streamlines,
@@ -217,7 +217,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             let placed = cache.get_or_load(
                 &format!("glyphs:{key_kind:?}"),
                 &source_files(source),
-                |(g, _): &(Vec<Glyph>, Vec<[u32; 3]>)| g.iter().map(|g| 96 + 8 * g.coeffs.len()).sum(),
+                |(g, _): &(Arc<Vec<Glyph>>, Arc<Vec<[u32; 3]>>)| g.iter().map(|g| 96 + 8 * g.coeffs.len()).sum(),
                 || {
                     progress.stage("placing glyphs", 0)?;
                     match plane {
@@ -229,16 +229,19 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                             *style,
                         ),
                     }
+                    .map(|(glyphs, voxels)| (Arc::new(glyphs), Arc::new(voxels)))
                 },
             )?;
             let (glyphs, voxels) = &*placed;
             if glyphs.len() <= GLYPH_PART {
-                return Ok(Content::ShGlyphs(placed));
+                // Shared with the cache, not copied.
+                return Ok(Content::ShGlyphs(glyphs.clone(), voxels.clone()));
             }
             // One entity per glyph: a large slice goes in parts, a part per frame.
             for (k, part) in glyphs.chunks(GLYPH_PART).enumerate() {
                 let vox = voxels.get(k * GLYPH_PART..(k * GLYPH_PART + part.len()).min(voxels.len()));
-                progress.parts.push(Content::ShGlyphs(Arc::new((part.to_vec(), vox.unwrap_or_default().to_vec()))));
+                let vox = vox.unwrap_or_default().to_vec();
+                progress.parts.push(Content::ShGlyphs(Arc::new(part.to_vec()), Arc::new(vox)));
             }
             Ok(Content::Streamed { items: glyphs.len() })
         }

@@ -409,9 +409,8 @@ impl Uploads<'_> {
         let root = match (content, &spec.kind) {
             // Glyphs and splats placed by the job: a child entity per part with the plugin's data component and
             // the layer's settings component; the plugin uploads and restyles them.
-            (Content::ShGlyphs(placed), LayerKind::ShGlyphs { render, .. }) => {
-                let (glyphs, voxels) = Arc::unwrap_or_clone(placed);
-                let data = PlacedShGlyphs { glyphs: Arc::new(glyphs), voxels: Some(Arc::new(voxels)) };
+            (Content::ShGlyphs(glyphs, voxels), LayerKind::ShGlyphs { render, .. }) => {
+                let data = PlacedShGlyphs { glyphs, voxels: Some(voxels) };
                 c.spawn((data, *render)).id()
             }
             (Content::TensorGlyphs { glyphs, voxels }, LayerKind::TensorGlyphs { render, .. }) => {

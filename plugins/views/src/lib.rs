@@ -655,8 +655,9 @@ struct ShownBars {
     size: UVec2,
 }
 
-/// What moves the bars: a bar, an order or a visibility changed.
-type BarsMoved = Or<(Changed<ColourBar>, Changed<LayerOrder>, Changed<Visibility>)>;
+/// What moves the bars: on a layer with a bar, the bar, its order or its visibility changed (not any entity's
+/// visibility: a scene holds tens of thousands of glyph entities).
+type BarsMoved = (With<ColourBar>, Or<(Changed<ColourBar>, Changed<LayerOrder>, Changed<Visibility>)>);
 
 /// A layer's bar, and whether it is shown.
 type BarOf = (&'static ColourBar, Option<&'static LayerOrder>, &'static Visibility);
