@@ -163,3 +163,59 @@ fn a_style_change_rebuilds_that_layer_only_and_bad_files_fail_visibly() {
     assert_ne!(set_of(&app, a), a0);
     assert_eq!(set_of(&app, b), b0);
 }
+
+/// Tract sets prepared by the app (as the viewer's jobs prepare them, part by part) are drawn from their data
+/// component, which becomes the tract set: an include ROI beside the parts (a child of their layer entity)
+/// selects on each part exactly what the brute-force segment test keeps; the style's tubelet knobs and the
+/// meshes' opacity are written to the materials in place (the same entities, nothing prepared again).
+#[test]
+fn placed_tract_parts_are_tract_sets_under_their_layer() {
+    use fascicle_core::roi::{Roi, RoiMode};
+    use fascicle_tracts::{
+        MeshSet, PlacedTractStyle, PlacedTracts, PreparedTracts, TractMeshMaterial, TubeSet, TubeSettings,
+        TubeletMaterial,
+    };
+    use std::sync::Arc;
+    if gpu_skipped() {
+        return;
+    }
+    let mut app = headless::headless_app_with_assets(Some(&example::data()));
+    app.add_plugins(TractPlugin);
+    headless::initialise(&mut app).expect("GPU adapter");
+    let t = Tractogram::read(format!("{}/tracts/tracks300.trk", example::data())).unwrap();
+    // Two parts: the first 150 streamlines as lines, the rest as hyperstreamlines.
+    let part = |range: std::ops::Range<usize>| {
+        Arc::new(t.subset(&(0..t.n_streamlines()).map(|i| range.contains(&i)).collect::<Vec<_>>()))
+    };
+    let (a, b) = (part(0..150), part(150..t.n_streamlines()));
+    let layer = app.world_mut().spawn((Transform::default(), Visibility::default())).id();
+    let lines = PlacedTracts(Some(PreparedTracts::lines(a.clone())));
+    let tubes = PlacedTracts(Some(PreparedTracts::tubes(b.clone(), None, &TubeSettings::default())));
+    let pa = app.world_mut().spawn((lines, ChildOf(layer))).id();
+    let pb = app.world_mut().spawn((tubes, ChildOf(layer))).id();
+    let (c, r) = (example::ROI_START, example::ROI_RADIUS);
+    let roi = Roi { shape: RoiShape::Sphere { centre: c.to_array(), radius: r }, mode: RoiMode::Include };
+    app.world_mut().spawn((TractRoi(roi), ChildOf(layer)));
+    app.update();
+    app.update();
+    for (e, part) in [(pa, &a), (pb, &b)] {
+        assert_eq!(app.world().get::<LayerStatus>(e), Some(&LayerStatus::Ready { items: part.n_streamlines() }));
+        assert!(app.world().get::<TractSet>(e).is_some(), "the placed entity is the tract set");
+        let selected = &app.world().get::<TractSelection>(e).unwrap().0;
+        assert_eq!(selected, &through_sphere(part, c, r));
+    }
+    assert!(app.world().get::<MeshSet>(pa).is_some() && app.world().get::<TubeSet>(pb).is_some());
+
+    // The style: the tubes' knobs and the lines' opacity, in place.
+    let style = PlacedTractStyle { tubes: TubeSettings { iterations: 7, ..default() }, opacity: 0.4 };
+    for e in [pa, pb] {
+        *app.world_mut().get_mut::<PlacedTractStyle>(e).unwrap() = style;
+    }
+    app.update();
+    let mesh = app.world().get::<MeshSet>(pa).unwrap().material.clone();
+    let tube = app.world().get::<TubeSet>(pb).unwrap().clone();
+    assert_eq!(app.world().resource::<Assets<TractMeshMaterial>>().get(&mesh).unwrap().params.opacity, 0.4);
+    assert_eq!(tube.settings.iterations, 7);
+    let params = app.world().resource::<Assets<TubeletMaterial>>().get(&tube.material).unwrap().params;
+    assert_eq!(params.iterations, 7);
+}
