@@ -865,7 +865,7 @@ pub fn plane_glyphs(
 /// Tensor glyphs on a slice: one per `spacing`-th voxel with FA >= `min_fa`, tensors rotated into the world
 /// frame, largest diameter `size` times the glyph spacing (the plugin's `field_tensor_glyphs`).
 #[expect(clippy::too_many_arguments, reason = "a layer kind's fields, passed through")]
-pub fn tensor_glyphs(
+pub(crate) fn tensor_glyphs(
     cache: &DataCache,
     source: &TensorSource,
     axis: SliceAxis,
@@ -900,7 +900,7 @@ pub fn tensor_glyphs(
 /// Splats of a slab of `thickness` slices centred on a slice: covariance largest standard deviation `size`
 /// voxels (colour and opacity unset: apply a `SplatColouring`); the plugin's `field_splats`.
 #[expect(clippy::too_many_arguments, reason = "a layer kind's fields, passed through")]
-pub fn slab_splats(
+pub(crate) fn slab_splats(
     cache: &DataCache,
     source: &TensorSource,
     axis: SliceAxis,

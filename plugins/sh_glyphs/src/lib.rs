@@ -341,7 +341,7 @@ fn pack_with(glyphs: &[Glyph], l_max: usize, highlighted: &[u32], with_coeffs: b
 
 /// Spawns a glyph set (all glyphs must share `l_max`, as from one field). Returns the parent entity;
 /// `voxels[i]`, if given, is recorded on glyph i's entity. An empty set spawns only the parent.
-/// (A layer driven by components, [`ShGlyphs`], needs none of this: its plugin calls [`fill_glyph_set`].)
+/// (A layer driven by components, [`ShGlyphs`] or [`PlacedShGlyphs`], needs none of this: its plugin spawns the set.)
 pub fn spawn_glyph_set(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
@@ -361,7 +361,7 @@ pub fn spawn_glyph_set(
 /// Spawns one [`ShVoxel`] child of `parent` per glyph (proxy `cube`, a 2-unit cuboid, shared) and uploads the
 /// glyph buffers into a new material; returns the [`ShGlyphSet`] for the parent.
 #[allow(clippy::too_many_arguments)]
-pub fn fill_glyph_set(
+pub(crate) fn fill_glyph_set(
     commands: &mut Commands,
     parent: Entity,
     cube: Handle<Mesh>,
@@ -413,7 +413,11 @@ pub fn fill_glyph_set(
 }
 
 /// Changes a set's ray-cast settings in place (one small uniform upload; no buffer is re-sent).
-pub fn update_settings(materials: &mut Assets<ShGlyphMaterial>, set: &mut ShGlyphSet, settings: &RayCastSettings) {
+pub(crate) fn update_settings(
+    materials: &mut Assets<ShGlyphMaterial>,
+    set: &mut ShGlyphSet,
+    settings: &RayCastSettings,
+) {
     if let Some(mut m) = materials.get_mut(&set.material) {
         m.params = ShGlyphUniform::new(set.l_max, settings);
     }

@@ -232,7 +232,7 @@ pub fn spawn_tensor_glyphs(
 /// Spawns the glyph entities of a set as children of `parent` on the shared proxy `cube` (a 2 x 2 x 2
 /// cuboid) and returns the set's component for `parent`.
 #[allow(clippy::too_many_arguments, reason = "the asset stores a glyph set writes to")]
-pub fn fill_tensor_glyphs(
+pub(crate) fn fill_tensor_glyphs(
     commands: &mut Commands,
     parent: Entity,
     cube: Handle<Mesh>,

@@ -780,24 +780,8 @@ fn tract_set(buffers: &mut Assets<ShaderBuffer>, tractogram: Arc<Tractogram>, gr
     Selection { flags, target: Some((set, TractSelection(vec![true; n_streamlines]))) }
 }
 
-/// Spawns prepared tracts (tubes, lines or polygon tubes); `opacity` applies to meshes. Returns the set's
-/// entity (parent of its ROIs).
-pub fn spawn_prepared(
-    commands: &mut Commands,
-    meshes: &mut Assets<Mesh>,
-    tube_materials: &mut Assets<TubeletMaterial>,
-    mesh_materials: &mut Assets<TractMeshMaterial>,
-    buffers: &mut Assets<ShaderBuffer>,
-    prepared: PreparedTracts,
-    opacity: f32,
-) -> Entity {
-    let mut e = commands.spawn_empty();
-    insert_prepared(&mut e, meshes, (tube_materials, mesh_materials), buffers, prepared, opacity);
-    e.id()
-}
-
-/// [`spawn_prepared`] onto an entity of the caller's (what [`placed::PlacedTracts`] does): the set's
-/// components go on `e`.
+/// Makes `e` a tract set of prepared tracts (tubes, lines or polygon tubes; `opacity` applies to meshes): what
+/// [`placed::PlacedTracts`] asks for.
 pub(crate) fn insert_prepared(
     e: &mut EntityCommands,
     meshes: &mut Assets<Mesh>,

@@ -659,7 +659,7 @@ pub fn volume_texture(vol: &Volume<f32>) -> Image {
 
 /// [`spawn_volume`] with the volume's texture already made ([`volume_texture`]).
 #[allow(clippy::too_many_arguments, reason = "the asset stores a volume layer writes to")]
-pub fn spawn_volume_texture(
+pub(crate) fn spawn_volume_texture(
     commands: &mut Commands,
     meshes: &mut Assets<Mesh>,
     images: &mut Assets<Image>,
