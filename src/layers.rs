@@ -366,24 +366,28 @@ fn finish_jobs(
         if !matches!(result, Ok(Content::Streamed { .. })) || job.parts_shown == 0 {
             clear_content(&mut commands, e, le.0, &layer.spec);
         }
+        // The layer's status: ready with the content's items, unless the plugin whose data component the content
+        // went into keeps the layer entity's status itself (slices, volumes).
         let status = match result.and_then(|content| {
             let items = content.items();
             match content {
-                Content::Streamed { .. } => Ok(items),
-                content => upload.spawn(&mut commands, e, le.0, &layer.spec, content).map(|()| items),
+                Content::Streamed { .. } => Ok(Some(items)),
+                content => upload.spawn(&mut commands, e, le.0, &layer.spec, content).map(|ours| ours.then_some(items)),
             }
         }) {
             Ok(items) => {
                 layer.built = Some(job.structure.clone());
                 crate::jobs::prefetch_neighbours(&job.structure, &cache, &prefetch.0);
-                LayerStatus::Ready { items }
+                items.map(|items| LayerStatus::Ready { items })
             }
             Err(message) => {
                 layer.built = None;
-                LayerStatus::Failed(message)
+                Some(LayerStatus::Failed(message))
             }
         };
-        commands.entity(e).insert(status);
+        if let Some(status) = status {
+            commands.entity(e).insert(status);
+        }
     }
 }
 
@@ -396,7 +400,8 @@ struct Uploads<'w> {
 }
 
 impl Uploads<'_> {
-    /// Uploads `content` as children of `layer`, drawn with `spec`'s settings.
+    /// Uploads `content` as children of `layer` (or as a plugin's data component on it), drawn with `spec`'s
+    /// settings. Ok(true): the layer's `LayerStatus` is the caller's to set; Ok(false): the plugin keeps it.
     fn spawn(
         &mut self,
         commands: &mut Commands,
@@ -404,7 +409,7 @@ impl Uploads<'_> {
         index: usize,
         spec: &LayerSpec,
         content: Content,
-    ) -> Result<(), String> {
+    ) -> Result<bool, String> {
         let (c, m) = (&mut *commands, &mut *self.meshes);
         let root = match (content, &spec.kind) {
             // Glyphs and splats placed by the job: a child entity per part with the plugin's data component and
@@ -429,7 +434,7 @@ impl Uploads<'_> {
                 // A volume layer of the volume plugin: it makes the texture and reacts to each setting.
                 let handle = self.volumes.add(ScalarVolume(volume));
                 c.entity(layer).insert((VolumeLayer { volume: handle }, render.clone()));
-                return Ok(());
+                return Ok(false);
             }
             (Content::Slice { volume, channels, auto_window }, LayerKind::Slice { .. }) => {
                 // A slice layer of the views plugin, with the window found by the job.
@@ -437,7 +442,7 @@ impl Uploads<'_> {
                 let source = SliceSource { asset: handle.id(), volume, channels, auto_window };
                 let settings = SliceSettings { channels, ..slice_settings(spec) };
                 c.entity(layer).insert((SliceLayer { volume: handle }, settings, source));
-                return Ok(());
+                return Ok(false);
             }
             (Content::Axes { length_mm: l }, _) => {
                 let w = l / 40.0;
@@ -462,7 +467,7 @@ impl Uploads<'_> {
             _ => return Err("the layer's kind changed while it was built".into()),
         };
         c.entity(root).insert((LayerEntity(index), ChildOf(layer)));
-        Ok(())
+        Ok(true)
     }
 }
 

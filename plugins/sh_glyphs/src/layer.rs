@@ -17,13 +17,12 @@ use std::sync::Arc;
 use bevy::asset::io::Reader;
 use bevy::asset::{AssetLoader, LoadContext};
 use bevy::prelude::*;
-use bevy::render::storage::ShaderBuffer;
 use fascicle_core::Volume;
 use fascicle_core::sh::glyph::{Glyph, GlyphStyle, make_glyphs};
 use fascicle_core::sh::{self, ShBasis};
 use fascicle_render::layer::{LayerStatus, Selection, StageCounts, changed_assets, loaded_or_pending};
 
-use crate::{RayCastSettings, ShGlyphMaterial, ShGlyphSet, fill_glyph_set, update_settings};
+use crate::{GlyphStores, RayCastSettings, ShGlyphSet, update_settings};
 
 /// An SH coefficient field: `X x Y x Z x n` coefficients (`n` = 1, 6, 15, 28, 45, ...), their basis and the
 /// voxel-to-world affine (RAS+ mm).
@@ -201,18 +200,14 @@ type Layer<'a> = (
     Option<&'a BuiltFrom>,
 );
 
-#[allow(clippy::too_many_arguments)]
 fn sync_layers(
     mut commands: Commands,
     mut layers: Query<Layer>,
     fields: Res<Assets<ShField>>,
     mut events: MessageReader<AssetEvent<ShField>>,
     server: Res<AssetServer>,
-    mut meshes: ResMut<Assets<Mesh>>,
-    mut materials: ResMut<Assets<ShGlyphMaterial>>,
-    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut stores: GlyphStores,
     mut counts: ResMut<ShGlyphCounts>,
-    mut cube: Local<Option<Handle<Mesh>>>,
 ) {
     let modified = changed_assets(&mut events);
     for (entity, layer, selection, shape, settings, mut status, mut set, built) in &mut layers {
@@ -220,27 +215,15 @@ fn sync_layers(
         let Some(field) = loaded_or_pending(&fields, &server, &layer.field, &mut status) else { continue };
         let new_data = built != Some(&BuiltFrom(id)) || modified.contains(&id);
         if new_data || selection.is_changed() || shape.is_changed() {
-            commands.entity(entity).despawn_related::<Children>();
             match field_glyphs(field, &selection, shape.0) {
                 Ok((glyphs, voxels)) => {
-                    let cube = cube.get_or_insert_with(|| meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
-                    let filled = fill_glyph_set(
-                        &mut commands,
-                        entity,
-                        cube,
-                        &mut materials,
-                        &mut buffers,
-                        &glyphs,
-                        Some(&voxels),
-                        &settings,
-                    );
-                    if let Some(old) = set.as_deref() {
-                        materials.remove(&old.material);
-                    }
+                    let placed = (&glyphs[..], Some(&voxels[..]));
+                    let filled = stores.refill(&mut commands, entity, set.as_deref(), placed, &settings);
                     commands.entity(entity).insert((filled, BuiltFrom(id)));
                     *status = LayerStatus::Ready { items: glyphs.len() };
                 }
                 Err(e) => {
+                    stores.clear(&mut commands, entity, set.as_deref());
                     commands.entity(entity).remove::<(ShGlyphSet, BuiltFrom)>();
                     *status = LayerStatus::Failed(e);
                 }
@@ -250,7 +233,7 @@ fn sync_layers(
         } else if settings.is_changed()
             && let Some(set) = set.as_deref_mut()
         {
-            update_settings(&mut materials, set, &settings);
+            update_settings(&mut stores.materials, set, &settings);
             counts.0.uniform_writes += 1;
         }
     }

@@ -358,6 +358,40 @@ pub fn spawn_glyph_set(
     parent
 }
 
+/// The stores a layer's glyph set is built into, and the proxy cube a system's sets share: what the field-driven
+/// and the placed layers' systems (re)build with.
+#[derive(bevy::ecs::system::SystemParam)]
+pub(crate) struct GlyphStores<'w, 's> {
+    meshes: ResMut<'w, Assets<Mesh>>,
+    pub(crate) materials: ResMut<'w, Assets<ShGlyphMaterial>>,
+    buffers: ResMut<'w, Assets<ShaderBuffer>>,
+    cube: Local<'s, Option<Handle<Mesh>>>,
+}
+
+impl GlyphStores<'_, '_> {
+    /// Takes away what `layer` draws: its glyph children and `old`'s material.
+    pub(crate) fn clear(&mut self, commands: &mut Commands, layer: Entity, old: Option<&ShGlyphSet>) {
+        commands.entity(layer).despawn_related::<Children>();
+        if let Some(old) = old {
+            self.materials.remove(&old.material);
+        }
+    }
+
+    /// Replaces what `layer` draws with `glyphs` ([`fill_glyph_set`]); returns the set for `layer`.
+    pub(crate) fn refill(
+        &mut self,
+        commands: &mut Commands,
+        layer: Entity,
+        old: Option<&ShGlyphSet>,
+        (glyphs, voxels): (&[Glyph], Option<&[[u32; 3]]>),
+        settings: &RayCastSettings,
+    ) -> ShGlyphSet {
+        self.clear(commands, layer, old);
+        let cube = self.cube.get_or_insert_with(|| self.meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
+        fill_glyph_set(commands, layer, cube, &mut self.materials, &mut self.buffers, glyphs, voxels, settings)
+    }
+}
+
 /// Spawns one [`ShVoxel`] child of `parent` per glyph (proxy `cube`, a 2-unit cuboid, shared) and uploads the
 /// glyph buffers into a new material; returns the [`ShGlyphSet`] for the parent.
 #[allow(clippy::too_many_arguments)]

@@ -6,12 +6,11 @@
 use std::sync::Arc;
 
 use bevy::prelude::*;
-use bevy::render::storage::ShaderBuffer;
 use fascicle_core::sh::glyph::Glyph;
 use fascicle_render::layer::{LayerStatus, despawn_drawn};
 
 use crate::layer::ShGlyphCounts;
-use crate::{RayCastSettings, ShGlyphMaterial, ShGlyphSet, ShVoxel, fill_glyph_set, update_settings};
+use crate::{GlyphStores, RayCastSettings, ShGlyphMaterial, ShGlyphSet, ShVoxel, update_settings};
 
 /// The data component of an SH glyph layer whose glyphs are placed: drawn as they are, with the layer's
 /// [`RayCastSettings`] (added with its default when absent).
@@ -33,41 +32,23 @@ type Layer<'a> =
     (Entity, Ref<'a, PlacedShGlyphs>, Ref<'a, RayCastSettings>, &'a mut LayerStatus, Option<&'a mut ShGlyphSet>);
 
 /// Uploads new placements and applies settings edits.
-#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
 fn sync_placed(
     mut commands: Commands,
     mut layers: Query<Layer>,
-    mut meshes: ResMut<Assets<Mesh>>,
-    mut materials: ResMut<Assets<ShGlyphMaterial>>,
-    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut stores: GlyphStores,
     mut counts: ResMut<ShGlyphCounts>,
-    mut cube: Local<Option<Handle<Mesh>>>,
 ) {
     for (entity, placed, settings, mut status, mut set) in &mut layers {
         if placed.is_changed() || set.is_none() {
-            commands.entity(entity).despawn_related::<Children>();
-            if let Some(old) = set.as_deref() {
-                materials.remove(&old.material);
-            }
-            let cube = cube.get_or_insert_with(|| meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
-            let voxels = placed.voxels.as_deref().map(|v| &v[..]);
-            let filled = fill_glyph_set(
-                &mut commands,
-                entity,
-                cube,
-                &mut materials,
-                &mut buffers,
-                &placed.glyphs,
-                voxels,
-                &settings,
-            );
+            let glyphs = (&placed.glyphs[..], placed.voxels.as_deref().map(|v| &v[..]));
+            let filled = stores.refill(&mut commands, entity, set.as_deref(), glyphs, &settings);
             commands.entity(entity).insert(filled);
             *status = LayerStatus::Ready { items: placed.glyphs.len() };
             counts.0.uploads += 1;
         } else if settings.is_changed()
             && let Some(set) = set.as_deref_mut()
         {
-            update_settings(&mut materials, set, &settings);
+            update_settings(&mut stores.materials, set, &settings);
             counts.0.uniform_writes += 1;
         }
     }

@@ -32,7 +32,7 @@ use fascicle_render::layer::{
 use glam::{DMat3, DVec3};
 
 use crate::splat::{SplatMaterial, SplatSet, SplatSettings, spawn_splats};
-use crate::{TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, fill_tensor_glyphs};
+use crate::{TensorGlyphSet, TensorGlyphSettings, TensorGlyphStores};
 
 /// A diffusion tensor field: `X x Y x Z x 6` lower-triangular tensors in DIPY's order (Dxx, Dxy, Dyy, Dxz,
 /// Dyz, Dzz), in the voxel frame, with the voxel-to-world affine (RAS+ mm), as `fascicle fit dti` and
@@ -291,18 +291,14 @@ type GlyphLayer<'a> = (
     Option<&'a Built<TensorGlyphSettings>>,
 );
 
-#[allow(clippy::too_many_arguments)]
 fn sync_glyph_layers(
     mut commands: Commands,
     mut layers: Query<GlyphLayer>,
     fields: Res<Assets<TensorField>>,
     mut events: MessageReader<AssetEvent<TensorField>>,
     server: Res<AssetServer>,
-    mut meshes: ResMut<Assets<Mesh>>,
-    mut materials: ResMut<Assets<TensorGlyphMaterial>>,
-    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut stores: TensorGlyphStores,
     mut counts: ResMut<TensorGlyphCounts>,
-    mut cube: Local<Option<Handle<Mesh>>>,
 ) {
     let modified: HashSet<_> = changed_assets(&mut events);
     for (entity, layer, selection, shape, settings, mut status, set, built) in &mut layers {
@@ -311,27 +307,15 @@ fn sync_glyph_layers(
         let new_data = built.is_none_or(|b| b.field != id) || modified.contains(&id);
         let new_shape = built.is_some_and(|b| b.settings.shape != settings.shape);
         if new_data || new_shape || selection.is_changed() || shape.is_changed() {
-            commands.entity(entity).despawn_related::<Children>();
-            if let Some(old) = set {
-                materials.remove(&old.material);
-            }
             match field_tensor_glyphs(field, &selection, &shape) {
                 Ok((glyphs, voxels)) => {
-                    let cube = cube.get_or_insert_with(|| meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
-                    let filled = fill_tensor_glyphs(
-                        &mut commands,
-                        entity,
-                        cube,
-                        &mut materials,
-                        &mut buffers,
-                        &glyphs,
-                        Some(&voxels),
-                        &settings,
-                    );
+                    let placed = (&glyphs[..], Some(&voxels[..]));
+                    let filled = stores.refill(&mut commands, entity, set, placed, &settings);
                     commands.entity(entity).insert((filled, Built { field: id, settings: *settings }));
                     *status = LayerStatus::Ready { items: glyphs.len() };
                 }
                 Err(e) => {
+                    stores.clear(&mut commands, entity, set);
                     commands.entity(entity).remove::<(TensorGlyphSet, Built<TensorGlyphSettings>)>();
                     *status = LayerStatus::Failed(e);
                 }
@@ -340,7 +324,7 @@ fn sync_glyph_layers(
             if new_data { c.uploads += 1 } else { c.repacks += 1 }
         } else if settings.is_changed()
             && let Some(set) = set
-            && let Some(mut m) = materials.get_mut(&set.material)
+            && let Some(mut m) = stores.materials.get_mut(&set.material)
         {
             m.params = (&*settings).into();
             commands.entity(entity).insert(Built { field: id, settings: *settings });

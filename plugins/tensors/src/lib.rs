@@ -229,6 +229,40 @@ pub fn spawn_tensor_glyphs(
     parent
 }
 
+/// The stores a layer's tensor glyph set is built into, and the proxy cube a system's sets share: what the
+/// field-driven and the placed layers' systems (re)build with.
+#[derive(bevy::ecs::system::SystemParam)]
+pub(crate) struct TensorGlyphStores<'w, 's> {
+    meshes: ResMut<'w, Assets<Mesh>>,
+    pub(crate) materials: ResMut<'w, Assets<TensorGlyphMaterial>>,
+    buffers: ResMut<'w, Assets<ShaderBuffer>>,
+    cube: Local<'s, Option<Handle<Mesh>>>,
+}
+
+impl TensorGlyphStores<'_, '_> {
+    /// Takes away what `layer` draws: its glyph children and `old`'s material.
+    pub(crate) fn clear(&mut self, commands: &mut Commands, layer: Entity, old: Option<&TensorGlyphSet>) {
+        commands.entity(layer).despawn_related::<Children>();
+        if let Some(old) = old {
+            self.materials.remove(&old.material);
+        }
+    }
+
+    /// Replaces what `layer` draws with `glyphs` ([`fill_tensor_glyphs`]); returns the set for `layer`.
+    pub(crate) fn refill(
+        &mut self,
+        commands: &mut Commands,
+        layer: Entity,
+        old: Option<&TensorGlyphSet>,
+        (glyphs, voxels): (&[TensorGlyph], Option<&[[u32; 3]]>),
+        settings: &TensorGlyphSettings,
+    ) -> TensorGlyphSet {
+        self.clear(commands, layer, old);
+        let cube = self.cube.get_or_insert_with(|| self.meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
+        fill_tensor_glyphs(commands, layer, cube, &mut self.materials, &mut self.buffers, glyphs, voxels, settings)
+    }
+}
+
 /// Spawns the glyph entities of a set as children of `parent` on the shared proxy `cube` (a 2 x 2 x 2
 /// cuboid) and returns the set's component for `parent`.
 #[allow(clippy::too_many_arguments, reason = "the asset stores a glyph set writes to")]

@@ -21,7 +21,7 @@ use fascicle_render::layer::{LayerStatus, despawn_drawn};
 
 use crate::layer::{SplatCounts, TensorGlyphCounts, restyle_splats};
 use crate::splat::{SplatMaterial, SplatSet, SplatSettings, spawn_splats};
-use crate::{TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, TensorSample, fill_tensor_glyphs};
+use crate::{TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, TensorGlyphStores, TensorSample};
 
 /// The data component of a tensor glyph layer whose glyphs are placed: drawn as they are, with the layer's
 /// [`TensorGlyphSettings`] (added with its default when absent).
@@ -69,36 +69,18 @@ type PlacedGlyphLayer<'a> = (
 );
 
 /// Uploads new placements of glyph layers and applies their settings edits.
-#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
 fn sync_placed_glyphs(
     mut commands: Commands,
     mut layers: Query<PlacedGlyphLayer>,
-    mut meshes: ResMut<Assets<Mesh>>,
-    mut materials: ResMut<Assets<TensorGlyphMaterial>>,
-    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut stores: TensorGlyphStores,
     mut counts: ResMut<TensorGlyphCounts>,
-    mut cube: Local<Option<Handle<Mesh>>>,
 ) {
     for (entity, placed, settings, mut status, set, styled) in &mut layers {
         let family = |s: &TensorGlyphSettings| matches!(s.shape, TensorShape::Ellipsoid);
         let new_shape = styled.is_some_and(|b| family(&b.0) != family(&settings));
         if placed.is_changed() || new_shape || set.is_none() {
-            commands.entity(entity).despawn_related::<Children>();
-            if let Some(old) = set {
-                materials.remove(&old.material);
-            }
-            let cube = cube.get_or_insert_with(|| meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
-            let voxels = placed.voxels.as_deref().map(|v| &v[..]);
-            let filled = fill_tensor_glyphs(
-                &mut commands,
-                entity,
-                cube,
-                &mut materials,
-                &mut buffers,
-                &placed.glyphs,
-                voxels,
-                &settings,
-            );
+            let glyphs = (&placed.glyphs[..], placed.voxels.as_deref().map(|v| &v[..]));
+            let filled = stores.refill(&mut commands, entity, set, glyphs, &settings);
             commands.entity(entity).insert((filled, Styled(*settings)));
             *status = LayerStatus::Ready { items: placed.glyphs.len() };
             let c = &mut counts.0;
@@ -106,7 +88,7 @@ fn sync_placed_glyphs(
         } else if settings.is_changed()
             && styled.is_none_or(|b| b.0 != *settings)
             && let Some(set) = set
-            && let Some(mut m) = materials.get_mut(&set.material)
+            && let Some(mut m) = stores.materials.get_mut(&set.material)
         {
             m.params = (&*settings).into();
             commands.entity(entity).insert(Styled(*settings));

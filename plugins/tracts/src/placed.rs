@@ -60,7 +60,10 @@ fn sync_placed(
     mut buffers: ResMut<Assets<ShaderBuffer>>,
 ) {
     for (entity, mut placed, style, mut status, tubes, mesh) in &mut sets {
-        if let Some(mut prepared) = placed.0.take() {
+        // Taken once, through a mutable borrow only when there is something to take.
+        if placed.0.is_some()
+            && let Some(mut prepared) = placed.0.take()
+        {
             // The tubelets were made with the geometry's scale and colour; the per-pixel knobs are the style's.
             if let PreparedGeometry::Tubes { settings, .. } = &mut prepared.geometry {
                 *settings = TubeSettings { scale: settings.scale, colour: settings.colour, ..style.tubes };
