@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use bevy::prelude::Resource;
 
-use crate::scene::Scene;
+use fascicle_scene::model::Scene;
 
 /// Scenes before and after the edits made so far.
 #[derive(Resource, Debug, Default)]

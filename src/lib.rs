@@ -1,16 +1,12 @@
 //! The `fascicle` application: command line, interactive viewer and headless renderer, composed from the
-//! core crate and the render plugins.
+//! core crate, the render plugins and the scene crate (`fascicle-scene`).
 
 #![warn(missing_docs)]
 
-pub mod cache;
 pub mod cli;
 pub mod history;
-pub mod jobs;
-pub mod layers;
 pub mod panels;
 pub mod render;
-pub mod scene;
 pub mod viewer;
 
 /// A path under the repository (the package's folder as cargo gives it when running tests, else as it was when

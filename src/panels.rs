@@ -2,9 +2,6 @@
 //! viewer's layer list shows, under each layer, the first panel whose `applies` accepts the layer's kind.
 //! A glyph plugin's integration registers its panel the same way as the built-in ones below.
 
-use std::collections::HashMap;
-use std::sync::Arc;
-
 use bevy::prelude::*;
 use bevy_egui::egui;
 use fascicle_core::dti::barycentric::BarycentricTf;
@@ -17,7 +14,8 @@ use fascicle_core::sh::glyph::{GlyphPlane, Lobes, Normalise, Sampling};
 use fascicle_sh_glyphs::{GlyphColour, GlyphMethod};
 use fascicle_tensors::TensorColour;
 
-use crate::scene::{LayerKind, ShSource, SliceAxis, TractColouring};
+use fascicle_scene::layers::LayerData;
+use fascicle_scene::model::{LayerKind, ShSource, SliceAxis, TractColouring};
 
 /// One layer kind's controls: `show` edits the kind in place (an edit re-syncs the layer); `data` is what
 /// the layer's spawned entities report back (e.g. the samples' eigenvalues for a scattergram).
@@ -30,23 +28,6 @@ pub struct LayerPanel {
     /// Draws the controls, editing the kind in place, given what the layer reported.
     pub show: fn(&mut egui::Ui, &mut LayerKind, &LayerData),
 }
-
-/// What a spawned layer reports to its panel.
-#[derive(Clone, Debug, Default)]
-pub struct LayerData {
-    /// Eigenvalues (largest first) of up to [`SCATTER_SAMPLES`] of the layer's tensor samples, evenly
-    /// strided over all of them.
-    pub eigenvalues: Arc<Vec<[f64; 3]>>,
-    /// A volume layer's histogram over its transfer function's range.
-    pub histogram: Arc<Vec<u32>>,
-}
-
-/// Per layer index, its [`LayerData`].
-#[derive(Resource, Clone, Debug, Default)]
-pub struct LayerDataMap(pub HashMap<usize, LayerData>);
-
-/// Most samples a scattergram draws.
-pub const SCATTER_SAMPLES: usize = 4000;
 
 /// The registry of layer panels.
 #[derive(Resource, Clone)]
@@ -237,8 +218,8 @@ fn splat_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
 /// (re-selection only).
 /// The tensor image that gives a file's streamlines their sections: a path, `phantom`, or empty for none.
 /// Applied when the field loses focus (Enter), not at every keystroke, since a change reloads the layer.
-fn tensor_source_field(ui: &mut egui::Ui, tensors: &mut Option<crate::scene::TensorSource>) {
-    use crate::scene::TensorSource;
+fn tensor_source_field(ui: &mut egui::Ui, tensors: &mut Option<fascicle_scene::model::TensorSource>) {
+    use fascicle_scene::model::TensorSource;
     let shown = |t: &Option<TensorSource>| match t {
         Some(TensorSource::Nifti { path, .. } | TensorSource::Dwi { path, .. }) => path.display().to_string(),
         Some(TensorSource::Phantom) => "phantom".into(),
@@ -258,12 +239,12 @@ fn tensor_source_field(ui: &mut egui::Ui, tensors: &mut Option<crate::scene::Ten
 }
 
 /// What the tensor field's text means: empty for none, `phantom` for the built-in phantom, else a path.
-fn tensor_source_from_text(text: &str) -> Option<crate::scene::TensorSource> {
-    use crate::scene::TensorSource;
+fn tensor_source_from_text(text: &str) -> Option<fascicle_scene::model::TensorSource> {
+    use fascicle_scene::model::TensorSource;
     match text.trim() {
         "" => None,
         "phantom" => Some(TensorSource::Phantom),
-        path => Some(crate::scene::tensor_source_for(std::path::Path::new(path))),
+        path => Some(fascicle_scene::model::tensor_source_for(std::path::Path::new(path))),
     }
 }
 
@@ -293,7 +274,7 @@ fn tract_colouring(ui: &mut egui::Ui, colouring: &mut TractColouring, render: &m
             && !matches!(colouring, TractColouring::Scalar { .. })
         {
             *colouring = TractColouring::Scalar {
-                source: crate::scene::VolumeSource::Nifti { path: Default::default(), volume: 0 },
+                source: fascicle_scene::model::VolumeSource::Nifti { path: Default::default(), volume: 0 },
                 window: (0.0, 1.0),
             };
         }
@@ -312,7 +293,7 @@ fn tract_colouring(ui: &mut egui::Ui, colouring: &mut TractColouring, render: &m
         TractColouring::Length { max_mm } => {
             ui.add(egui::Slider::new(max_mm, 5.0..=300.0).text("length at the top of the map (mm)"));
         }
-        TractColouring::Scalar { source: crate::scene::VolumeSource::Nifti { path, volume }, window } => {
+        TractColouring::Scalar { source: fascicle_scene::model::VolumeSource::Nifti { path, volume }, window } => {
             let mut text = path.display().to_string();
             ui.horizontal(|ui| {
                 ui.label("image");
@@ -357,21 +338,21 @@ fn tract_colouring(ui: &mut egui::Ui, colouring: &mut TractColouring, render: &m
 }
 
 fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
-    use crate::scene::TractMode;
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
+    use fascicle_scene::model::TractMode;
     let LayerKind::Tracts { source, mode, render, rois, colouring } = kind else { return };
     ui.horizontal(|ui| {
         ui.radio_value(mode, TractMode::Tubes, "hyperstreamlines");
         ui.radio_value(mode, TractMode::Polygon, "polygon tubes");
         ui.radio_value(mode, TractMode::Lines, "lines");
     });
-    if let crate::scene::TractSource::File { tensors, .. } = source {
+    if let fascicle_scene::model::TractSource::File { tensors, .. } = source {
         tensor_source_field(ui, tensors);
     }
-    if let crate::scene::TractSource::Peaks { length, .. } = source {
+    if let fascicle_scene::model::TractSource::Peaks { length, .. } = source {
         ui.add(egui::Slider::new(length, 0.1..=2.0).text("peak length (voxels)"));
     }
-    if let crate::scene::TractSource::Track { seeds, params, .. } = source {
+    if let fascicle_scene::model::TractSource::Track { seeds, params, .. } = source {
         track_settings(ui, seeds, params);
     }
     ui.add(egui::Slider::new(&mut render.scale, 0.2..=6.0).text("cross-section scale (mm)"));
@@ -435,11 +416,11 @@ fn vec3_drag(ui: &mut egui::Ui, v: &mut [f32; 3], label: &str) {
 /// (in the background).
 fn track_settings(
     ui: &mut egui::Ui,
-    seeds: &mut crate::scene::Seeds,
+    seeds: &mut fascicle_scene::model::Seeds,
     params: &mut fascicle_core::tracking::TrackParams,
 ) {
-    use crate::scene::Seeds;
     use fascicle_core::tracking::Integrator;
+    use fascicle_scene::model::Seeds;
     ui.horizontal(|ui| {
         ui.label("seeds");
         if ui.radio(matches!(seeds, Seeds::Grid { .. }), "grid").clicked() && !matches!(seeds, Seeds::Grid { .. }) {
@@ -704,9 +685,9 @@ pub fn to_barycentric(q: [f32; 2]) -> [f64; 3] {
 }
 
 /// For tensors fitted to a DWI: the frame its `.bvec` file is read in (a change refits).
-fn bvec_convention_field(ui: &mut egui::Ui, source: &mut crate::scene::TensorSource) {
+fn bvec_convention_field(ui: &mut egui::Ui, source: &mut fascicle_scene::model::TensorSource) {
     use fascicle_core::io::BvecConvention;
-    let crate::scene::TensorSource::Dwi { bvecs, .. } = source else { return };
+    let fascicle_scene::model::TensorSource::Dwi { bvecs, .. } = source else { return };
     ui.horizontal(|ui| {
         ui.label("b-vectors").on_hover_text(
             "FSL: as FSL, MRtrix3 and dcm2niix define them (x negated on images whose affine has a positive \
@@ -758,7 +739,8 @@ fn axes_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::VolumeSource;
+    use fascicle_scene::model::VolumeSource;
+    use std::sync::Arc;
 
     #[test]
     fn every_built_in_kind_has_a_panel_and_registration_overrides() {
@@ -766,8 +748,8 @@ mod tests {
             LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Z, index: None, window: None },
             LayerKind::Tractogram { path: "x.trk".into() },
             LayerKind::Axes { length_mm: 1.0 },
-            crate::scene::Scene::default_scene().layers[2].kind.clone(),
-            crate::scene::Scene::default_scene().layers[1].kind.clone(),
+            fascicle_scene::model::Scene::default_scene().layers[2].kind.clone(),
+            fascicle_scene::model::Scene::default_scene().layers[1].kind.clone(),
         ];
         let mut panels = LayerPanels::default();
         for (k, name) in kinds.iter().zip(["slice", "tractogram", "axes", "sh glyphs", "tensor splats"]) {
@@ -791,18 +773,18 @@ mod tests {
         let mut kinds = vec![
             LayerKind::Slice { source: VolumeSource::PhantomFa, axis: SliceAxis::Y, index: Some(7), window: None },
             LayerKind::Axes { length_mm: 30.0 },
-            crate::scene::Scene::default_scene().layers[2].kind.clone(),
-            crate::scene::Scene::default_scene().layers[3].kind.clone(),
-            crate::scene::Scene::default_scene().layers[4].kind.clone(),
+            fascicle_scene::model::Scene::default_scene().layers[2].kind.clone(),
+            fascicle_scene::model::Scene::default_scene().layers[3].kind.clone(),
+            fascicle_scene::model::Scene::default_scene().layers[4].kind.clone(),
             LayerKind::Tracts {
-                source: crate::scene::TractSource::File {
+                source: fascicle_scene::model::TractSource::File {
                     path: "tracts.trk".into(),
-                    tensors: Some(crate::scene::TensorSource::Nifti {
+                    tensors: Some(fascicle_scene::model::TensorSource::Nifti {
                         path: "dti_tensor.nii.gz".into(),
                         order: Default::default(),
                     }),
                 },
-                mode: crate::scene::TractMode::Lines,
+                mode: fascicle_scene::model::TractMode::Lines,
                 render: Default::default(),
                 rois: vec![],
                 colouring: Default::default(),
@@ -821,7 +803,7 @@ mod tests {
 
     #[test]
     fn tensor_field_text_maps_to_a_source() {
-        use crate::scene::TensorSource;
+        use fascicle_scene::model::TensorSource;
         assert_eq!(tensor_source_from_text("  "), None);
         assert_eq!(tensor_source_from_text("phantom"), Some(TensorSource::Phantom));
         assert_eq!(
@@ -845,8 +827,9 @@ mod tests {
     #[test]
     fn splat_panel_with_barycentric_widget_leaves_an_unedited_kind() {
         let ctx = egui::Context::default();
-        let mut kind =
-            crate::scene::Scene::load(&crate::repo_path("scenes/spiral50.ron")).unwrap().layers[0].kind.clone();
+        let mut kind = fascicle_scene::model::Scene::load(&crate::repo_path("scenes/spiral50.ron")).unwrap().layers[0]
+            .kind
+            .clone();
         let before = kind.clone();
         let data = LayerData { eigenvalues: Arc::new(vec![[1.0, 0.5, 0.1], [1.0, 1.0, 1.0]]), ..Default::default() };
         let _ = ctx.run_ui(egui::RawInput::default(), |ui| splat_panel(ui, &mut kind, &data));

@@ -25,11 +25,11 @@ use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::on_demand::{DrawOnDemand, DrawOnDemandPlugin, KeepAwake, NextFrame, ScheduleNextFrame};
 
 use crate::history::{RecentFiles, SceneHistory};
-use crate::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin, view_camera};
 use crate::panels::LayerPanels;
-use crate::scene::{CameraSpec, LayerKind, LayerSpec, Scene, Seeds, TractSource};
 use fascicle_core::roi::{RoiShape, SegmentGrid, select};
 use fascicle_render::layer::LayerStatus;
+use fascicle_scene::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin, view_camera};
+use fascicle_scene::model::{CameraSpec, LayerKind, LayerSpec, Scene, Seeds, TractSource};
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
 use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
 use fascicle_views::{Crosshair, MainView, OrthoView, SliceSource, ViewRegion, VoxelGrid, pick_in_view};
@@ -232,7 +232,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
         ),
     )
     // Undo applies before the layers sync, so the scene it restores shows in the same frame.
-    .add_systems(Update, scene_history.before(crate::layers::SceneSystems::Sync))
+    .add_systems(Update, scene_history.before(fascicle_scene::layers::SceneSystems::Sync))
     .add_systems(EguiPrimaryContextPass, panel)
     .run()
 }
@@ -574,7 +574,7 @@ fn pick_glyph(
 }
 
 fn apply_orbit(orbit: Res<Orbit>, mut cam: Query<(&mut Transform, &mut Projection), With<MainView>>) {
-    let (tf, proj) = crate::layers::camera_from_spec(&orbit.spec());
+    let (tf, proj) = fascicle_scene::layers::camera_from_spec(&orbit.spec());
     for (mut t, mut p) in &mut cam {
         *t = tf;
         *p = proj.clone();
@@ -635,23 +635,10 @@ fn scene_history(
     }
 }
 
-/// The UTC calendar date (year, month, day) of a Unix time: Howard Hinnant's civil-from-days algorithm.
-pub fn civil_date(unix_secs: u64) -> [i64; 3] {
-    let z = (unix_secs / 86_400) as i64 + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    [yoe + era * 400 + i64::from(m <= 2), m, d]
-}
-
 /// `fascicle-YYYYMMDD-HHMMSS.png` (UTC) in the working directory, with `-2`, `-3`, ... if taken: screenshots
 /// never overwrite one another, across runs too.
 pub fn screenshot_path(unix_secs: u64, exists: impl Fn(&std::path::Path) -> bool) -> PathBuf {
-    let [y, m, d] = civil_date(unix_secs);
+    let [y, m, d] = fascicle_scene::headless::civil_date(unix_secs);
     let rest = unix_secs % 86_400;
     let stem = format!("fascicle-{y:04}{m:02}{d:02}-{:02}{:02}{:02}", rest / 3600, rest % 3600 / 60, rest % 60);
     (1..)
@@ -712,8 +699,8 @@ struct FileDialog(Option<bevy::tasks::Task<Option<Vec<PathBuf>>>>);
 /// the file dialog is open, so that progress bars move and finished work shows without input; and draws again
 /// after egui's textures changed (text with glyphs new to the font atlas is drawn whole in the next frame).
 fn keep_awake_while_working(
-    jobs: Query<(), With<crate::layers::LayerJob>>,
-    prefetches: Res<crate::layers::Prefetches>,
+    jobs: Query<(), With<fascicle_scene::layers::LayerJob>>,
+    prefetches: Res<fascicle_scene::layers::Prefetches>,
     dialog: Res<FileDialog>,
     egui_outputs: Query<&bevy_egui::EguiRenderOutput>,
     mut keep: ResMut<KeepAwake>,
@@ -777,7 +764,7 @@ const OPENABLE: &[&str] = &["nii", "gz", "mif", "trk", "tck", "trx", "ron"];
 fn save_selection(
     mut ui: ResMut<UiState>,
     scene: Res<ActiveScene>,
-    cache: Res<crate::cache::DataCache>,
+    cache: Res<fascicle_scene::cache::DataCache>,
     sets: Query<(&TractSet, &TractSelection, &LayerEntity)>,
 ) {
     let Some(layer) = ui.save_selection.take() else { return };
@@ -788,7 +775,7 @@ fn save_selection(
         // None, or the streamlines in parts (as they were tracked): from the source, in its order.
         _ => match scene.0.layers.get(layer).map(|l| &l.kind) {
             Some(LayerKind::Tracts { source, rois, .. }) => {
-                crate::jobs::tract_data(&cache, source, &Default::default()).map(|d| {
+                fascicle_scene::jobs::tract_data(&cache, source, &Default::default()).map(|d| {
                     let t = &d.tractogram;
                     let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
                     (t.subset(&select(&t.points, &t.offsets, &grid, rois)), t.n_streamlines())
@@ -813,7 +800,7 @@ fn panel(
     states: Query<(&LayerEntity, &LayerStatus, Option<&LayerJob>), With<SceneLayer>>,
     mut retries: ResMut<RetryLayers>,
     panels: Res<LayerPanels>,
-    layer_data: Res<crate::panels::LayerDataMap>,
+    layer_data: Res<fascicle_scene::layers::LayerDataMap>,
     mut ui_state: ResMut<UiState>,
     mut orbit: ResMut<Orbit>,
     time: Res<Time>,
@@ -883,8 +870,8 @@ fn panel(
                     && ui.push_id(("density", i), |ui| ui.small_button("track density map")).inner.clicked()
                 {
                     let name = format!("density ({})", layer.name);
-                    let source = crate::scene::VolumeSource::Density { tracts, voxel_mm: 1.0 };
-                    let kind = LayerKind::Slice { source, axis: crate::scene::SliceAxis::Z, index: None, window: None };
+                    let source = fascicle_scene::model::VolumeSource::Density { tracts, voxel_mm: 1.0 };
+                    let kind = LayerKind::Slice { source, axis: fascicle_scene::model::SliceAxis::Z, index: None, window: None };
                     added.push(LayerSpec { name, visible: true, opacity: 1.0, kind });
                 }
                 if matches!(layer.kind, LayerKind::Tracts { .. }) {
@@ -1031,8 +1018,8 @@ fn has_dw_scheme(path: &std::path::Path) -> bool {
 }
 
 /// The tensors a layer shows or holds: a DWI slice's (fitted), a tensor glyph or splat layer's.
-fn tensor_source_of(kind: &LayerKind) -> Option<crate::scene::TensorSource> {
-    use crate::scene::{TensorSource, VolumeSource};
+fn tensor_source_of(kind: &LayerKind) -> Option<fascicle_scene::model::TensorSource> {
+    use fascicle_scene::model::{TensorSource, VolumeSource};
     match kind {
         LayerKind::Slice { source: VolumeSource::Nifti { path, .. }, .. } => {
             (fascicle_core::io::classify::gradients_beside(path).is_some() || has_dw_scheme(path))
@@ -1048,17 +1035,19 @@ fn tensor_source_of(kind: &LayerKind) -> Option<crate::scene::TensorSource> {
 }
 
 /// The streamlines a layer draws, as a tract source (for its density map).
-fn tract_source_of(kind: &LayerKind) -> Option<crate::scene::TractSource> {
+fn tract_source_of(kind: &LayerKind) -> Option<fascicle_scene::model::TractSource> {
     match kind {
         LayerKind::Tracts { source, .. } => Some(source.clone()),
-        LayerKind::Tractogram { path } => Some(crate::scene::TractSource::File { path: path.clone(), tensors: None }),
+        LayerKind::Tractogram { path } => {
+            Some(fascicle_scene::model::TractSource::File { path: path.clone(), tensors: None })
+        }
         _ => None,
     }
 }
 
 /// Layers made from a tensor source: glyphs, splats and tracking (whole-field grid seeds).
-fn derived_layers(tensors: &crate::scene::TensorSource) -> Vec<(&'static str, LayerKind)> {
-    use crate::scene::{SliceAxis, TractMode, TractSource};
+fn derived_layers(tensors: &fascicle_scene::model::TensorSource) -> Vec<(&'static str, LayerKind)> {
+    use fascicle_scene::model::{SliceAxis, TractMode, TractSource};
     vec![
         (
             "glyphs",
@@ -1214,8 +1203,8 @@ mod tests {
             visible,
             opacity: 1.0,
             kind: LayerKind::Tracts {
-                source: crate::scene::TractSource::PhantomRk4 { seed_spacing: 4 },
-                mode: crate::scene::TractMode::Tubes,
+                source: fascicle_scene::model::TractSource::PhantomRk4 { seed_spacing: 4 },
+                mode: fascicle_scene::model::TractMode::Tubes,
                 render: Default::default(),
                 rois: rois.into_iter().map(|shape| Roi { shape, mode: RoiMode::Include }).collect(),
                 colouring: Default::default(),
@@ -1251,14 +1240,14 @@ mod tests {
     /// the scene (its radius and seed count stay); grid seeds offer nothing to drag.
     #[test]
     fn seed_spheres_are_picked_and_dragged() {
-        use crate::scene::TensorSource;
+        use fascicle_scene::model::TensorSource;
         let track = |seeds: Seeds| LayerSpec {
             name: "tracking".into(),
             visible: true,
             opacity: 1.0,
             kind: LayerKind::Tracts {
                 source: TractSource::Track { tensors: TensorSource::Phantom, seeds, params: Default::default() },
-                mode: crate::scene::TractMode::Tubes,
+                mode: fascicle_scene::model::TractMode::Tubes,
                 render: Default::default(),
                 rois: vec![],
                 colouring: Default::default(),
@@ -1293,8 +1282,8 @@ mod tests {
         use fascicle_core::sh::glyph::GlyphPlane;
         let plane = GlyphPlane { centre: [0.0, 0.0, 1.0], normal: [0.0, 0.0, 1.0], half_size: 40.0, spacing: 2.0 };
         let glyphs = |plane| LayerKind::ShGlyphs {
-            source: crate::scene::ShSource::PhantomCsa { l_max: 4 },
-            axis: crate::scene::SliceAxis::Z,
+            source: fascicle_scene::model::ShSource::PhantomCsa { l_max: 4 },
+            axis: fascicle_scene::model::SliceAxis::Z,
             index: None,
             spacing: 1,
             plane,
@@ -1356,8 +1345,8 @@ mod tests {
             visible: true,
             opacity: 1.0,
             kind: LayerKind::Tracts {
-                source: crate::scene::TractSource::File { path: trk.clone(), tensors: None },
-                mode: crate::scene::TractMode::Lines,
+                source: fascicle_scene::model::TractSource::File { path: trk.clone(), tensors: None },
+                mode: fascicle_scene::model::TractMode::Lines,
                 render: Default::default(),
                 rois: rois.clone(),
                 colouring: Default::default(),
@@ -1371,7 +1360,7 @@ mod tests {
                 views: Default::default(),
             }))
             .insert_resource(UiState::default())
-            .init_resource::<crate::cache::DataCache>()
+            .init_resource::<fascicle_scene::cache::DataCache>()
             .add_systems(Update, save_selection);
         let save = |app: &mut App, layer: usize, path: &std::path::Path| {
             let mut ui = app.world_mut().resource_mut::<UiState>();

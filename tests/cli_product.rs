@@ -202,10 +202,11 @@ fn fitted_odfs_open_in_the_viewer_along_the_true_fibres() {
     assert!(recorded < 10.0, "median error {recorded} degrees");
     // The app's path gives the same field: the file opens as a glyph layer whose job reads the basis the file
     // records (not the scene's default), through the data cache.
-    let layer = fascicle::scene::Scene::layer_for_file(&out).unwrap();
-    let fascicle::scene::LayerKind::ShGlyphs { source, .. } = &layer.kind else { panic!("{:?}", layer.kind) };
-    let cache = fascicle::cache::DataCache::default();
-    let app_field = fascicle::jobs::sh_field(&cache, source, &fascicle::jobs::JobProgress::default()).unwrap();
+    let layer = fascicle_scene::model::Scene::layer_for_file(&out).unwrap();
+    let fascicle_scene::model::LayerKind::ShGlyphs { source, .. } = &layer.kind else { panic!("{:?}", layer.kind) };
+    let cache = fascicle_scene::cache::DataCache::default();
+    let app_field =
+        fascicle_scene::jobs::sh_field(&cache, source, &fascicle_scene::jobs::JobProgress::default()).unwrap();
     let plugin_field = read_field(bytes.clone(), &out, &ShFieldSettings::default()).unwrap();
     assert_eq!(app_field.basis, ShBasis::Descoteaux07 { legacy: true });
     assert_eq!(app_field.coeffs.data, plugin_field.coeffs.data);

@@ -25,6 +25,7 @@ const CRATES: &[&str] = &[
     "plugins/volume/src",
     "plugins/tracts/src",
     "plugins/views/src",
+    "plugins/scene/src",
     "src",
     "bench/src",
 ];
@@ -310,4 +311,15 @@ fn the_check_sees_a_circle() {
     std::fs::remove_dir_all(&dir).ok();
     let want: BTreeSet<String> = ["io::a", "io::b"].map(String::from).into();
     assert_eq!(found, vec![want]);
+}
+
+#[test]
+fn every_workspace_crate_is_checked() {
+    let manifest = std::fs::read_to_string(root().join("Cargo.toml")).unwrap();
+    let members = manifest.lines().find(|l| l.trim_start().starts_with("members")).expect("workspace members");
+    let listed: Vec<&str> = members.split('"').skip(1).step_by(2).collect();
+    assert!(listed.len() >= 8, "members line not read: {members}");
+    for m in listed {
+        assert!(CRATES.contains(&format!("{m}/src").as_str()), "{m} is a workspace member the check does not see");
+    }
 }

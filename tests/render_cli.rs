@@ -59,10 +59,10 @@ fn bad_scene_file_is_a_clear_error() {
 
 #[test]
 fn scene_files_round_trip() {
-    let s = fascicle::scene::Scene::default_scene();
+    let s = fascicle_scene::model::Scene::default_scene();
     let p = std::env::temp_dir().join(format!("fascicle-scene-{}.ron", std::process::id()));
     s.save(&p).unwrap();
-    assert_eq!(fascicle::scene::Scene::load(&p).unwrap(), s);
+    assert_eq!(fascicle_scene::model::Scene::load(&p).unwrap(), s);
     std::fs::remove_file(p).ok();
 }
 
@@ -74,7 +74,7 @@ fn depth_export_matches_the_slice_plane() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
     }
-    use fascicle::scene::{CameraSpec, Scene};
+    use fascicle_scene::model::{CameraSpec, Scene};
     let dir = std::env::temp_dir().join(format!("fascicle-depth-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mut scene = Scene::default_scene();

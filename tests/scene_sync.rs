@@ -4,11 +4,11 @@
 
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
-use fascicle::layers::{ActiveScene, LayerErrors, LayerSyncCounts, ScenePlugin};
-use fascicle::scene::{LayerKind, Scene};
-use fascicle::{cache::DataCache, jobs::JobProgress};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
+use fascicle_scene::layers::{ActiveScene, LayerErrors, LayerSyncCounts, ScenePlugin};
+use fascicle_scene::model::{LayerKind, Scene};
+use fascicle_scene::{cache::DataCache, jobs::JobProgress};
 use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphSet, ShVoxel};
 
 /// A path under the repository: the package's folder as cargo gives it when running the test (a binary built by
@@ -31,7 +31,7 @@ fn glyph_index(app: &App) -> usize {
 
 /// Runs the app until every layer's job is done and swapped in.
 fn settle(app: &mut App) {
-    fascicle::layers::settle(app).unwrap_or_else(|e| panic!("{e}"));
+    fascicle_scene::layers::settle(app).unwrap_or_else(|e| panic!("{e}"));
 }
 
 /// A headless app showing `scene`, initialised and updated once; `None` when GPU tests are skipped.
@@ -99,8 +99,8 @@ fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
 /// phantom, and the layer renders (the GFA colour map shows the ring brighter than the background).
 #[test]
 fn oblique_glyph_plane_renders_on_the_plane() {
-    use fascicle::scene::{CameraSpec, LayerSpec, ShSource, SliceAxis};
     use fascicle_core::sh::glyph::{GlyphPlane, GlyphStyle, Sampling};
+    use fascicle_scene::model::{CameraSpec, LayerSpec, ShSource, SliceAxis};
     use fascicle_sh_glyphs::{GlyphColour, RayCastSettings};
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
@@ -127,10 +127,13 @@ fn oblique_glyph_plane_renders_on_the_plane() {
         camera: CameraSpec { eye: [0.0, -60.0, 90.0], target: [0.0, 0.0, 0.0], up: [0.0, 0.0, 1.0], fov_y_deg: 45.0 },
         views: Default::default(),
     };
-    let field =
-        fascicle::jobs::sh_field(&DataCache::default(), &ShSource::PhantomCsa { l_max: 4 }, &JobProgress::default())
-            .unwrap();
-    let (glyphs, _) = fascicle::jobs::plane_glyphs(
+    let field = fascicle_scene::jobs::sh_field(
+        &DataCache::default(),
+        &ShSource::PhantomCsa { l_max: 4 },
+        &JobProgress::default(),
+    )
+    .unwrap();
+    let (glyphs, _) = fascicle_scene::jobs::plane_glyphs(
         &field,
         &plane,
         Sampling::Trilinear,
@@ -144,7 +147,7 @@ fn oblique_glyph_plane_renders_on_the_plane() {
     }
     // Ring glyphs (GFA high) and background glyphs (GFA ~0) both present.
     assert!(glyphs.iter().any(|g| g.gfa > 0.4) && glyphs.iter().any(|g| g.gfa < 0.05));
-    let img = fascicle::render::render_scene(&scene, 160, 120).unwrap_or_else(|e| panic!("{e}"));
+    let img = fascicle_scene::headless::render_scene(&scene, 160, 120).unwrap_or_else(|e| panic!("{e}"));
     if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {
         std::fs::write(format!("{dir}/oblique_glyphs.png"), img.to_png().unwrap()).unwrap();
     }
@@ -171,7 +174,7 @@ fn sh_coefficient_file_renders_as_glyphs() {
     // Voxels are 1 mm with the identity affine: the z = 1 slice spans x 0..1, y 0..2.
     let scene = Scene {
         layers: vec![layer],
-        camera: fascicle::scene::CameraSpec {
+        camera: fascicle_scene::model::CameraSpec {
             eye: [0.5, 1.0, 6.0],
             target: [0.5, 1.0, 1.0],
             up: [0.0, 1.0, 0.0],
@@ -179,7 +182,7 @@ fn sh_coefficient_file_renders_as_glyphs() {
         },
         views: Default::default(),
     };
-    let img = fascicle::render::render_scene(&scene, 96, 96).unwrap_or_else(|e| panic!("{e}"));
+    let img = fascicle_scene::headless::render_scene(&scene, 96, 96).unwrap_or_else(|e| panic!("{e}"));
     let drawn = img.rgba.chunks(4).filter(|p| p[0].max(p[1]).max(p[2]) > 40).count();
     assert!(drawn > 200, "{drawn} glyph pixels");
 }
@@ -188,8 +191,8 @@ fn sh_coefficient_file_renders_as_glyphs() {
 /// colour edits update the uniform only; ellipsoid <-> superquadric rebuilds.
 #[test]
 fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
-    use fascicle::scene::{LayerSpec, SliceAxis, TensorSource};
     use fascicle_core::dti::glyph::TensorShape;
+    use fascicle_scene::model::{LayerSpec, SliceAxis, TensorSource};
     use fascicle_tensors::{TensorColour, TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, TensorSample};
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
@@ -249,11 +252,14 @@ fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
 /// voxels), centred on the voxels.
 #[test]
 fn full_volume_glyphs_cover_the_field() {
-    use fascicle::scene::ShSource;
     use fascicle_core::sh::glyph::GlyphStyle;
-    let field =
-        fascicle::jobs::sh_field(&DataCache::default(), &ShSource::PhantomCsa { l_max: 4 }, &JobProgress::default())
-            .unwrap();
+    use fascicle_scene::model::ShSource;
+    let field = fascicle_scene::jobs::sh_field(
+        &DataCache::default(),
+        &ShSource::PhantomCsa { l_max: 4 },
+        &JobProgress::default(),
+    )
+    .unwrap();
     let (glyphs, voxels) = fascicle_sh_glyphs::field_glyphs(
         &field,
         &fascicle_sh_glyphs::Selection::Volume { spacing: 4 },
@@ -285,7 +291,7 @@ fn splat_recolouring_rewrites_only_the_styles() {
     };
     let (e0, mat0, splats0) = snapshot(&mut app);
     assert_eq!(splats0.len(), 50);
-    let data = app.world().resource::<fascicle::panels::LayerDataMap>();
+    let data = app.world().resource::<fascicle_scene::layers::LayerDataMap>();
     assert_eq!(data.0.get(&0).map(|d| d.eigenvalues.len()), Some(50));
     let sorts0 = app.world().resource::<SplatSortStats>().sorts;
     assert!(sorts0 >= 1);
@@ -411,9 +417,9 @@ fn roi_edits_reselect_without_rebuilding() {
 /// tubes), an include sphere on the first selects there only; moved to the other two, it selects there only.
 #[test]
 fn rois_act_on_their_own_layer() {
-    use fascicle::layers::LayerEntity;
-    use fascicle::scene::{CameraSpec, LayerSpec, TractMode, TractSource};
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
+    use fascicle_scene::layers::LayerEntity;
+    use fascicle_scene::model::{CameraSpec, LayerSpec, TractMode, TractSource};
     use fascicle_tracts::{TractSelection, TractSet};
     let path = repo_path("data/tracts/tracks300.trk");
     let t = fascicle_core::io::Tractogram::read(&path).unwrap();
@@ -458,7 +464,7 @@ fn rois_act_on_their_own_layer() {
 
 /// Every layer's drawn entities (the layer entity's descendants), by layer index.
 fn drawn(app: &mut App) -> std::collections::BTreeMap<usize, Vec<Entity>> {
-    use fascicle::layers::{LayerEntity, SceneLayer};
+    use fascicle_scene::layers::{LayerEntity, SceneLayer};
     let mut q = app.world_mut().query_filtered::<(Entity, &LayerEntity), With<SceneLayer>>();
     let layers: Vec<(Entity, usize)> = q.iter(app.world()).map(|(e, le)| (e, le.0)).collect();
     let mut out = std::collections::BTreeMap::new();
@@ -481,8 +487,8 @@ fn drawn(app: &mut App) -> std::collections::BTreeMap<usize, Vec<Entity>> {
 /// Reordering moves tags and rebuilds nothing; removing a layer takes only its entities.
 #[test]
 fn a_slice_move_rebuilds_that_layer_only_from_the_cache() {
-    use fascicle::layers::LayerSyncCounts;
     use fascicle_render::layer::LayerStatus;
+    use fascicle_scene::layers::LayerSyncCounts;
     let Some(mut app) = scene_app(Scene::default_scene()) else { return };
     settle(&mut app);
     let n_layers = app.world().resource::<ActiveScene>().0.layers.len();
@@ -551,9 +557,9 @@ fn a_slice_move_rebuilds_that_layer_only_from_the_cache() {
 /// cancelled from the panel stops the layer with "cancelled", and a retry builds it.
 #[test]
 fn failures_and_cancels_stay_on_their_layer() {
-    use fascicle::layers::{LayerJob, LayerSyncCounts, RetryLayers};
-    use fascicle::scene::{LayerSpec, SliceAxis, VolumeSource};
     use fascicle_render::layer::LayerStatus;
+    use fascicle_scene::layers::{LayerJob, LayerSyncCounts, RetryLayers};
+    use fascicle_scene::model::{LayerSpec, SliceAxis, VolumeSource};
     let mut scene = Scene::default_scene();
     let missing = std::path::PathBuf::from("/nonexistent/fa.nii.gz");
     scene.layers.push(LayerSpec {
@@ -589,7 +595,8 @@ fn failures_and_cancels_stay_on_their_layer() {
     let i = glyph_index(&app);
     let status = |app: &mut App| {
         let mut q =
-            app.world_mut().query::<(&fascicle::layers::LayerEntity, &LayerStatus, &fascicle::layers::SceneLayer)>();
+            app.world_mut()
+                .query::<(&fascicle_scene::layers::LayerEntity, &LayerStatus, &fascicle_scene::layers::SceneLayer)>();
         q.iter(app.world()).find(|(le, ..)| le.0 == i).map(|(_, s, _)| s.clone()).unwrap()
     };
     assert_eq!(status(&mut app), LayerStatus::Failed("cancelled".into()));
@@ -604,7 +611,7 @@ fn failures_and_cancels_stay_on_their_layer() {
 /// a step of one slice places nothing (a cache hit); a jump to a far slice places its glyphs then.
 #[test]
 fn neighbouring_glyph_slices_are_placed_ahead() {
-    use fascicle::layers::Prefetches;
+    use fascicle_scene::layers::Prefetches;
     let Some(mut app) = scene_app(Scene::default_scene()) else { return };
     settle(&mut app);
     let wait = |app: &mut App| {
@@ -643,7 +650,7 @@ fn neighbouring_glyph_slices_are_placed_ahead() {
 /// through the middle of the streamlines' box shows counts (bright pixels) over a dark background.
 #[test]
 fn track_density_slices_render() {
-    use fascicle::scene::{CameraSpec, LayerSpec, SliceAxis, TractSource, VolumeSource};
+    use fascicle_scene::model::{CameraSpec, LayerSpec, SliceAxis, TractSource, VolumeSource};
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
@@ -671,7 +678,7 @@ fn track_density_slices_render() {
         },
         views: Default::default(),
     };
-    let img = fascicle::render::render_scene(&scene, 128, 128).unwrap_or_else(|e| panic!("{e}"));
+    let img = fascicle_scene::headless::render_scene(&scene, 128, 128).unwrap_or_else(|e| panic!("{e}"));
     // Voxels no streamline crosses are black (below the clear colour); the denser ones are brighter than it
     // (display grey is linear in the density, so the sparsest crossed voxels are dark too).
     let grey: Vec<u8> = img.rgba.chunks(4).map(|p| p[0]).collect();
@@ -687,10 +694,10 @@ fn track_density_slices_render() {
 /// the whole tractogram.
 #[test]
 fn tracking_streams_into_its_layer() {
-    use fascicle::jobs::tract_data;
-    use fascicle::layers::{LayerEntity, LayerJob, LayerSyncCounts};
-    use fascicle::scene::{CameraSpec, LayerSpec, Seeds, TensorSource, TractMode, TractSource};
     use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
+    use fascicle_scene::jobs::tract_data;
+    use fascicle_scene::layers::{LayerEntity, LayerJob, LayerSyncCounts};
+    use fascicle_scene::model::{CameraSpec, LayerSpec, Seeds, TensorSource, TractMode, TractSource};
     use fascicle_tracts::{TractSelection, TractSet};
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");

@@ -6,11 +6,11 @@
 
 use bevy::math::{DMat4, DVec3};
 use bevy::prelude::*;
-use fascicle::jobs::PHANTOM_DIMS;
-use fascicle::layers::{ActiveScene, LayerSyncCounts, SceneLayer};
-use fascicle::scene::{LayerKind, Scene};
 use fascicle_core::Volume;
 use fascicle_render::headless::{self, Capture};
+use fascicle_scene::jobs::PHANTOM_DIMS;
+use fascicle_scene::layers::{ActiveScene, LayerSyncCounts, SceneLayer};
+use fascicle_scene::model::{LayerKind, Scene};
 use fascicle_views::colourbar::{BAR_W, GRADIENT_ROWS, bar_rect};
 use fascicle_views::{OrthoView, ViewSlice, pick_in_view, view_axes};
 
@@ -65,7 +65,7 @@ fn render(scene: &Scene) -> Option<Capture> {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return None;
     }
-    Some(fascicle::render::render_scene(scene, W, H).unwrap_or_else(|e| panic!("{e}")))
+    Some(fascicle_scene::headless::render_scene(scene, W, H).unwrap_or_else(|e| panic!("{e}")))
 }
 
 /// Checks that 2D view `a` shows the FA slice through crosshair `c` with `window`, away from the crosshair
@@ -184,8 +184,8 @@ fn a_click_moves_the_crosshair_and_the_slices_follow() {
     let start = m.transform_point3(DVec3::new(23.0, 23.0, 12.0));
     let mut scene = ortho_scene(start.as_vec3().to_array());
     scene.views.follow = true;
-    let (mut app, target, main) = fascicle::render::scene_app(&scene, W, H);
-    fascicle::layers::settle(&mut app).unwrap();
+    let (mut app, target, main) = fascicle_scene::headless::scene_app(&scene, W, H);
+    fascicle_scene::layers::settle(&mut app).unwrap();
     // The splats are sorted for the 3D camera, not for the colour bars' overlay drawn after it (looking down
     // -z) nor for a 2D view: only the 3D camera's layers meet theirs. (On the GPU per view that sees them on a
     // hardware adapter; on the CPU, for the last such camera, on lavapipe.)
@@ -225,11 +225,11 @@ fn a_click_moves_the_crosshair_and_the_slices_follow() {
     assert!(pick_in_view(cam, tf, *view, Vec2::new(500.0, 400.0), start.as_vec3()).is_none());
 
     app.world_mut().resource_mut::<ActiveScene>().0.views.crosshair = Some(picked.to_array());
-    fascicle::layers::settle(&mut app).unwrap();
+    fascicle_scene::layers::settle(&mut app).unwrap();
     for _ in 0..3 {
         app.update();
     }
-    fascicle::layers::settle(&mut app).unwrap();
+    fascicle_scene::layers::settle(&mut app).unwrap();
     let v = m.inverse().transform_point3(picked.as_dvec3());
     let voxel = [v.x.round() as usize, v.y.round() as usize, v.z.round() as usize];
     let world = app.world_mut();
@@ -301,13 +301,13 @@ fn the_2d_views_show_streamlines_cropped_to_a_slab() {
     fascicle_core::io::tck::write(&path, &t, &[]).unwrap();
     let mut scene = ortho_scene(c.as_vec3().to_array());
     scene.layers.retain(|l| matches!(l.kind, LayerKind::Slice { .. }));
-    scene.layers.push(fascicle::scene::LayerSpec {
+    scene.layers.push(fascicle_scene::model::LayerSpec {
         name: "line".into(),
         visible: true,
         opacity: 1.0,
         kind: LayerKind::Tracts {
-            source: fascicle::scene::TractSource::File { path: path.clone(), tensors: None },
-            mode: fascicle::scene::TractMode::Lines,
+            source: fascicle_scene::model::TractSource::File { path: path.clone(), tensors: None },
+            mode: fascicle_scene::model::TractMode::Lines,
             render: Default::default(),
             rois: vec![],
             colouring: Default::default(),

@@ -140,7 +140,7 @@ pub fn plot_csv(csv: &Path, out: &Path, title: &str, by_n: bool) -> Result<(), E
 /// "YYYY-MM-DD" of now (UTC).
 fn today() -> String {
     let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
-    let [y, m, d] = fascicle::viewer::civil_date(secs);
+    let [y, m, d] = fascicle_scene::headless::civil_date(secs);
     format!("{y:04}-{m:02}-{d:02}")
 }
 

@@ -16,14 +16,14 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use bevy::prelude::*;
-use fascicle::layers::{ActiveScene, LayerJob, ScenePlugin};
-use fascicle::scene::{
-    LayerKind, LayerSpec, Scene, Seeds, ShSource, SliceAxis, TensorSource, TractMode, TractSource, VolumeSource,
-};
 use fascicle_core::roi::{Roi, RoiMode, RoiShape};
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::headless;
 use fascicle_render::layer::LayerStatus;
+use fascicle_scene::layers::{ActiveScene, LayerJob, ScenePlugin};
+use fascicle_scene::model::{
+    LayerKind, LayerSpec, Scene, Seeds, ShSource, SliceAxis, TensorSource, TractMode, TractSource, VolumeSource,
+};
 use rand::{RngExt, SeedableRng};
 
 /// One measured edit.
@@ -48,7 +48,7 @@ fn until_settled(app: &mut App) -> Result<(f64, f64, usize), String> {
         app.update();
         worst = worst.max(t.elapsed().as_secs_f64() * 1e3);
         if std::env::var("EDITS_SLOW").is_ok() && t.elapsed().as_secs_f64() > 0.04 {
-            let parts = app.world().resource::<fascicle::layers::LayerSyncCounts>().parts;
+            let parts = app.world().resource::<fascicle_scene::layers::LayerSyncCounts>().parts;
             eprintln!("slow frame {frames}: {:.1} ms, parts shown {parts}", t.elapsed().as_secs_f64() * 1e3);
         }
         let world = app.world_mut();
@@ -76,7 +76,7 @@ fn until_settled(app: &mut App) -> Result<(f64, f64, usize), String> {
 
 /// Runs frames until no background prefetch is running.
 fn wait_for_prefetch(app: &mut App) {
-    while app.world().resource::<fascicle::layers::Prefetches>().running() > 0 {
+    while app.world().resource::<fascicle_scene::layers::Prefetches>().running() > 0 {
         app.update();
         std::thread::sleep(std::time::Duration::from_millis(5));
     }

@@ -16,8 +16,8 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::roi::RoiShape;
 use fascicle_render::headless;
 
-use fascicle::layers::{ActiveScene, LayerErrors};
-use fascicle::scene::{LayerKind, Scene};
+use fascicle_scene::layers::{ActiveScene, LayerErrors};
+use fascicle_scene::model::{LayerKind, Scene};
 
 /// Resident set size in MiB (Linux), 0 elsewhere.
 fn rss_mib() -> f64 {
@@ -104,7 +104,7 @@ pub fn verdict(samples: &[Sample], max_mib_per_10k: f64) -> Result<String, Strin
 pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) -> Result<(), String> {
     let toggle = std::env::var("SOAK_NO_TOGGLE").is_err();
     let roi = std::env::var("SOAK_NO_ROI").is_err();
-    let (w, h) = fascicle::cli::parse_size(size)?;
+    let (w, h) = fascicle_scene::headless::parse_size(size)?;
     let mut scene = match std::env::var("SOAK_SCENE") {
         Ok(p) => Scene::load(std::path::Path::new(&p))?,
         Err(_) => Scene::default_scene(),
@@ -119,7 +119,7 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
             scene.layers.remove(k);
         }
     }
-    let (mut app, target, _) = fascicle::render::scene_app(&scene, w, h);
+    let (mut app, target, _) = fascicle_scene::headless::scene_app(&scene, w, h);
     if std::env::var("SOAK_NO_CAPTURE").is_ok() {
         let _ = target;
         headless::run_until_ready(&mut app, 600).map_err(|e| e.to_string())?;

@@ -204,7 +204,7 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
             crate::bench_tracking::run(&phantom, python.as_deref(), tckgen.as_deref(), runs)
         }
         BenchCommand::Glyphs { quick, size, csv } => {
-            let size = size.as_deref().map(fascicle::cli::parse_size).transpose().map_err(Error::Param)?;
+            let size = size.as_deref().map(fascicle_scene::headless::parse_size).transpose().map_err(Error::Param)?;
             crate::bench_glyphs::run(quick, size, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Plot { csv, out, title, by_n } => crate::bench_all::plot_csv(&csv, &out, &title, by_n),
@@ -218,7 +218,7 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
             crate::bench_tracts::run(quick, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Volume { quick, size, csv } => {
-            let size = size.as_deref().map(fascicle::cli::parse_size).transpose().map_err(Error::Param)?;
+            let size = size.as_deref().map(fascicle_scene::headless::parse_size).transpose().map_err(Error::Param)?;
             crate::bench_volume::run(quick, size, csv.as_deref()).map_err(|e| Error::Param(e.to_string()))
         }
         BenchCommand::Splats { quick, csv } => {

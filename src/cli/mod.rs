@@ -219,14 +219,3 @@ pub enum Command {
         json: bool,
     },
 }
-
-/// Parses "WxH".
-pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("size '{s}' is not WxH"))?;
-    let w: u32 = w.trim().parse().map_err(|_| format!("width '{w}' is not a number"))?;
-    let h: u32 = h.trim().parse().map_err(|_| format!("height '{h}' is not a number"))?;
-    if w == 0 || h == 0 || w > 16384 || h > 16384 {
-        return Err(format!("size {w}x{h} must be within 1..16384 on each side"));
-    }
-    Ok((w, h))
-}

@@ -12,6 +12,7 @@
 //! A job that fails (a bad file, a wrong shape) leaves its message in the layer's status, listed in
 //! [`LayerErrors`]; the other layers still show.
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use bevy::prelude::*;
@@ -30,8 +31,24 @@ use fascicle_volume::{ScalarVolume, VolumeLayer, VolumePlugin, VolumeSet, Volume
 
 use crate::cache::DataCache;
 use crate::jobs::{CANCELLED, Content, JobProgress, build, spawn_job, spawn_light_job};
-use crate::panels::{LayerData, LayerDataMap, SCATTER_SAMPLES};
-use crate::scene::{LayerKind, LayerSpec, Scene, TractColouring};
+use crate::model::{LayerKind, LayerSpec, Scene, TractColouring};
+
+/// What a spawned layer reports to the viewer's layer panel.
+#[derive(Clone, Debug, Default)]
+pub struct LayerData {
+    /// Eigenvalues (largest first) of up to [`SCATTER_SAMPLES`] of the layer's tensor samples, evenly
+    /// strided over all of them.
+    pub eigenvalues: Arc<Vec<[f64; 3]>>,
+    /// A volume layer's histogram over its transfer function's range.
+    pub histogram: Arc<Vec<u32>>,
+}
+
+/// Per layer index, its [`LayerData`].
+#[derive(Resource, Clone, Debug, Default)]
+pub struct LayerDataMap(pub HashMap<usize, LayerData>);
+
+/// Most samples a scattergram draws.
+pub const SCATTER_SAMPLES: usize = 4000;
 
 /// The scene being shown.
 #[derive(Resource, Clone, Debug)]
@@ -749,7 +766,7 @@ pub fn view_camera() -> impl Bundle {
 }
 
 /// Camera transform and projection for a scene's camera spec.
-pub fn camera_from_spec(spec: &crate::scene::CameraSpec) -> (Transform, Projection) {
+pub fn camera_from_spec(spec: &crate::model::CameraSpec) -> (Transform, Projection) {
     let eye = Vec3::from_array(spec.eye);
     let tf = Transform::from_translation(eye).looking_at(Vec3::from_array(spec.target), Vec3::from_array(spec.up));
     let proj =

@@ -19,7 +19,7 @@ use fascicle_tensors::layer::{field_splats, field_tensor_glyphs};
 use fascicle_tensors::{SplatShape, TensorField, TensorGlyphShape};
 
 use crate::cache::DataCache;
-use crate::scene::{
+use crate::model::{
     LayerKind, ShSource, SliceAxis, TensorSource, TractColouring, TractMode, TractSource, VolumeSource,
 };
 use fascicle_tracts::{LineDetail, PreparedTracts};
@@ -1196,9 +1196,9 @@ pub fn seed_points(
     tensors: &[[f64; 6]],
     dims: [usize; 3],
     affine: glam::DMat4,
-    seeds: &crate::scene::Seeds,
+    seeds: &crate::model::Seeds,
 ) -> Result<Vec<glam::DVec3>, String> {
-    use crate::scene::Seeds;
+    use crate::model::Seeds;
     let fa =
         |v: usize| fascicle_core::dti::eigh(&tensors[v]).map_or(0.0, |e| fascicle_core::dti::metrics::fa(&e.values));
     let voxels = (0..dims[2]).flat_map(|z| (0..dims[1]).flat_map(move |y| (0..dims[0]).map(move |x| [x, y, z])));
@@ -1370,7 +1370,7 @@ mod tests {
     /// the fit is cached (a second layer on the same DWI fits nothing); progress counts every seed.
     #[test]
     fn tracking_runs_on_a_dwi_and_on_its_tensor_file() {
-        use crate::scene::Seeds;
+        use crate::model::Seeds;
         use fascicle_core::tracking::{Integrator, TrackParams};
         let cache = DataCache::default();
         let params = TrackParams { step_mm: 0.5, integrator: Integrator::Euler, ..TrackParams::default() };
@@ -1445,7 +1445,7 @@ mod tests {
     /// Sphere seeds: `per_voxel` seeds in each voxel whose centre is inside the sphere, spread within it.
     #[test]
     fn sphere_seeds_fill_the_voxels_inside() {
-        use crate::scene::Seeds;
+        use crate::model::Seeds;
         let dims = [10, 10, 10];
         let grid = vec![[1.0, 0.0, 1.0, 0.0, 0.0, 1.0]; 1000];
         let affine = glam::DMat4::from_scale(glam::DVec3::splat(2.0));
@@ -1464,7 +1464,7 @@ mod tests {
     /// are bit for bit those of tracking the new sphere from nothing. Other parameters do not reuse.
     #[test]
     fn moving_seeds_tracks_only_the_new_ones() {
-        use crate::scene::Seeds;
+        use crate::model::Seeds;
         use fascicle_core::tracking::TrackParams;
         let source = |centre: [f32; 3], params: TrackParams| TractSource::Track {
             tensors: TensorSource::Phantom,
@@ -1635,7 +1635,7 @@ mod tests {
     /// sampling is exact on it) at the vertex; hyperstreamlines take the same colours at their tubelets' ends.
     #[test]
     fn tracts_are_coloured_by_ends_length_and_a_scalar_image() {
-        use crate::scene::TractColouring;
+        use crate::model::TractColouring;
         use bevy::mesh::{Mesh, VertexAttributeValues};
         use fascicle_core::dti::splat::viridis;
         let path = data("tracts/tracks300.trk");
@@ -1773,7 +1773,7 @@ mod tests {
             }
             let out = dir.join(format!("{order:?}.nii.gz"));
             fascicle_core::io::nifti::write(&out, &v, fascicle_core::io::nifti::WriteType::F32).unwrap();
-            let source = crate::scene::tensor_source_for(&out);
+            let source = crate::model::tensor_source_for(&out);
             assert_eq!(source, TensorSource::Nifti { path: out.clone(), order });
             assert_eq!(tensor_field(&cache, &source, &p).unwrap().tensors.data, dipy.tensors.data);
         }
@@ -1863,11 +1863,11 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("csa_peaks.nii.gz");
         fascicle_core::io::peaks::write_mrtrix(&path, &peaks, affine).unwrap();
-        let spec = crate::scene::Scene::layer_for_file(&path).unwrap();
+        let spec = crate::model::Scene::layer_for_file(&path).unwrap();
         assert!(
             matches!(
                 &spec.kind,
-                LayerKind::Tracts { source: TractSource::Peaks { .. }, mode: crate::scene::TractMode::Lines, .. }
+                LayerKind::Tracts { source: TractSource::Peaks { .. }, mode: crate::model::TractMode::Lines, .. }
             ),
             "{:?}",
             spec.kind
