@@ -1,4 +1,4 @@
-//! Direct volume rendering (SEEDS.md §2, the context layer): the f64 reference of `plugins/volume/shaders/volume.wgsl`.
+//! Direct volume rendering (SEEDS.md §2, the context layer): the f64 reference of `plugins/volume/src/shaders/volume.wgsl`.
 //!
 //! - Sampling: trilinear in voxel coordinates, clamped to the edge voxels' centres.
 //! - Classification: a 1D transfer function (piecewise linear control points over the normalised value

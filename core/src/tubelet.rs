@@ -1,7 +1,7 @@
 //! Hyperstreamline tubelets (SEEDS.md §3): a streamline drawn as a chain of segments, each a tube whose
 //! elliptical cross-section comes from the tensors at its two ends (semi-axes from the two minor eigenvalues
 //! along e2 and e3), cut by planes shared with its neighbours so the chain is seamless. This module builds the
-//! tubelets and is the f64 reference of `plugins/tracts/shaders/tubelet.wgsl`: the implicit surface, its exact intersection
+//! tubelets and is the f64 reference of `plugins/tracts/src/shaders/tubelet.wgsl`: the implicit surface, its exact intersection
 //! with a ray (fine root finding) and the shader's sphere tracer.
 //!
 //! Local frame of a tubelet: x from the left end's centre to the right one's, y and z the left ellipse's

@@ -1,4 +1,4 @@
-//! The glyph ray caster's math (the f64 twin of `plugins/sh_glyphs/shaders/sh_glyph.wgsl`) against
+//! The glyph ray caster's math (the f64 twin of `plugins/sh_glyphs/src/shaders/sh_glyph.wgsl`) against
 //! the core's trigonometric SH evaluation, closed forms, and its own bracketing bound.
 
 mod common;

@@ -1,5 +1,5 @@
 //! Tensor glyphs: ellipsoids and Kindlmann's superquadrics (2004), as the GPU ray caster draws them
-//! (`plugins/tensors/shaders/tensor_glyph.wgsl`), with the f64 references its tests use.
+//! (`plugins/tensors/src/shaders/tensor_glyph.wgsl`), with the f64 references its tests use.
 //!
 //! A glyph of tensor T at a centre: eigenvalues l1 >= l2 >= l3 (negative ones clipped to 0), eigenvectors
 //! e1, e2, e3; radii `r_i = scale · max(l_i, floor · l1) / l1` (the largest radius is `scale`; `floor`

@@ -1,7 +1,7 @@
 //! Tensor splatting (SEEDS.md §1): each tensor sample a 3D Gaussian with covariance `scale² · T / l1`
 //! (its largest standard deviation is `scale`), projected to a 2D Gaussian footprint with the local affine
 //! approximation of the perspective projection (EWA, Zwicker et al. 2001), composited back to front with the
-//! "over" operator. This module is the f64 reference of `plugins/tensors/shaders/tensor_splat.wgsl`.
+//! "over" operator. This module is the f64 reference of `plugins/tensors/src/shaders/tensor_splat.wgsl`.
 //!
 //! - View-space covariance `V = W Σ Wᵀ` (W the view rotation); footprint covariance in pixels
 //!   `V2 = J V Jᵀ + ε I`, with J the Jacobian of the pixel projection at the centre and ε = [`DILATION_PX2`]
@@ -80,7 +80,7 @@ pub fn tensor_splat(centre: DVec3, t: &super::LowerTri, scale: f64, colour: DVec
     })
 }
 
-/// Viridis through five stops (the same as `plugins/render/shaders/lib/colormap.wgsl`), linear RGB.
+/// Viridis through five stops (the same as `plugins/render/src/shaders/lib/colormap.wgsl`), linear RGB.
 pub fn viridis(v: f64) -> DVec3 {
     const STOPS: [[f64; 3]; 5] = [
         [0.0578, 0.0, 0.0844],

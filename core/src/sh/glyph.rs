@@ -30,7 +30,7 @@ pub const GLYPH_BASIS: ShBasis = ShBasis::Tournier07 { legacy: false };
 pub const MAX_GLYPH_L: usize = 16;
 
 /// ψ at unit `u` and the Cartesian gradient of its polynomial extension; `c` in [`GLYPH_BASIS`].
-/// Mirrors `sh_value` in `plugins/sh_glyphs/shaders/sh_glyph.wgsl` term by term.
+/// Mirrors `sh_value` in `plugins/sh_glyphs/src/shaders/sh_glyph.wgsl` term by term.
 pub fn eval_cartesian(c: &[f64], l_max: usize, u: DVec3) -> (f64, DVec3) {
     let (x, y, z) = (u.x, u.y, u.z);
     let inv4pi = 1.0 / (4.0 * std::f64::consts::PI);
@@ -182,7 +182,7 @@ fn chebyshev_series(c: &[f64], z: f64, odd: bool) -> (f64, f64) {
 
 /// ψ at unit `u` and the Cartesian gradient of its extension, from the [`chebyshev_form`] `f`: equal to
 /// [`eval_cartesian`] (the same polynomial). Mirrors `sh_value_grad` in
-/// `plugins/sh_glyphs/shaders/sh_glyph.wgsl` term by term.
+/// `plugins/sh_glyphs/src/shaders/sh_glyph.wgsl` term by term.
 pub fn eval_chebyshev_form(f: &[f64], l_max: usize, u: DVec3) -> (f64, DVec3) {
     let (mut val, mut grad) = (0.0, DVec3::ZERO);
     let (mut cm, mut sm, mut cm1, mut sm1) = (1.0f64, 0.0f64, 0.0f64, 0.0f64);

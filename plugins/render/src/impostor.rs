@@ -52,18 +52,18 @@ impl SphereImpostorMaterial {
 }
 
 /// Implements `Material` for an instanced proxy-glyph material whose vertex and fragment stages are both in
-/// `$shader` (SH glyphs, tensor glyphs): no prepass and no shadows (the reason is in this module's docs),
-/// and back faces only, so each proxy gives one fragment per pixel (half the work of both faces) and still
+/// `$shader`, a `ShaderRef` expression (SH glyphs, tensor glyphs): no prepass and no shadows (the reason is in
+/// this module's docs), and back faces only, so each proxy gives one fragment per pixel (half the work of both faces) and still
 /// draws with the camera inside it.
 #[macro_export]
 macro_rules! proxy_glyph_material {
     ($material:ty, $shader:expr) => {
         impl bevy::pbr::Material for $material {
             fn vertex_shader() -> bevy::shader::ShaderRef {
-                bevy::shader::ShaderRef::Handle($shader)
+                $shader
             }
             fn fragment_shader() -> bevy::shader::ShaderRef {
-                bevy::shader::ShaderRef::Handle($shader)
+                $shader
             }
             fn enable_prepass() -> bool {
                 false
@@ -86,7 +86,7 @@ macro_rules! proxy_glyph_material {
 
 impl Material for SphereImpostorMaterial {
     fn fragment_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::SPHERE_IMPOSTOR)
+        shaders::sphere_impostor()
     }
     fn enable_prepass() -> bool {
         false

@@ -1,8 +1,8 @@
 //! Fascicle's shared render base, used by every glyph plugin.
 //!
-//! - [`shaders`]: the WGSL libraries of this crate's `shaders/lib/` registered under
+//! - [`shaders`]: the WGSL libraries of this crate's `src/shaders/lib/`, embedded and loaded under
 //!   `#define_import_path fascicle::*` (ray helpers, lighting, colour maps, the proxy vertex stage), and
-//!   [`shaders::register`], with which each plugin registers the shaders it owns.
+//!   [`shaders::embedded`], with which each plugin names the shaders it embeds, as Bevy's crates do.
 //! - Depth rules: opaque ray-cast glyphs draw in the main opaque pass and write true fragment depth
 //!   ([`impostor`] is the reference implementation); transparent layers (splats, volume) composite after
 //!   them against that depth.
@@ -49,7 +49,7 @@ impl Plugin for FascicleRenderPlugin {
         if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
             render_app.insert_resource(adapter).add_systems(bevy::render::RenderStartup, detect_adapter);
         }
-        shaders::register(app, "fascicle-render", &shaders::SOURCES);
+        shaders::embed(app);
         app.add_plugins((MaterialPlugin::<impostor::SphereImpostorMaterial>::default(), headless::DepthCopyPlugin));
     }
 }

@@ -1,41 +1,47 @@
-//! WGSL sources compiled into the binary (so a binary run from anywhere finds them) and inserted into
-//! `Assets<Shader>` under fixed handles when a plugin is built: no asynchronous loading, so the first rendered
-//! frame can already use them. Each crate owns the shaders it uses (its `shaders/` folder) and registers them
-//! with [`register`]; this crate owns the libraries every glyph plugin imports (`#import fascicle::ray` and
-//! the others below) and the sphere impostor.
+//! WGSL sources embedded in the binary, the way Bevy's own crates do it (`bevy_pbr`, `bevy_core_pipeline`):
+//! each crate keeps its shaders under `src/shaders/`, embeds them when its plugin is built
+//! (`embedded_asset!`, or `load_shader_library!` for a library other shaders `#import`) and names them by their
+//! `embedded://<crate>/shaders/...` asset path ([`embedded`] for a material's [`ShaderRef`],
+//! `load_embedded_asset!` for a compute pipeline's handle). A binary run from anywhere finds them, and no two
+//! crates can collide: a path starts with its crate's name.
+//!
+//! This crate owns the libraries every glyph plugin imports (`#import fascicle::{ray, lighting, colormap,
+//! proxy}`) and the sphere impostor's shader.
 
-use bevy::asset::uuid_handle;
+use std::path::PathBuf;
+
+use bevy::asset::{AssetPath, embedded_asset, embedded_path};
 use bevy::prelude::*;
+use bevy::shader::{ShaderRef, load_shader_library};
 
-/// `shaders/lib/ray.wgsl` (`fascicle::ray`): view rays, ray-sphere and ray-box hits, fragment depth.
-pub const RAY: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a01");
-/// `shaders/lib/lighting.wgsl` (`fascicle::lighting`): the headlight (Lambert, light at the eye).
-pub const LIGHTING: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a02");
-/// `shaders/lib/colormap.wgsl` (`fascicle::colormap`): grey, direction colour, viridis.
-pub const COLORMAP: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a03");
-/// `shaders/sphere_impostor.wgsl`: the fragment stage of [`crate::impostor::SphereImpostorMaterial`].
-pub const SPHERE_IMPOSTOR: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a04");
-/// `shaders/lib/proxy.wgsl` (`fascicle::proxy`): the vertex stage shared by instanced proxy-mesh glyphs.
-pub const PROXY: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a08");
-
-/// A shader a crate owns: its fixed handle, its path under the crate's `shaders/` folder (the name errors
-/// report) and its source.
-pub type ShaderSource = (Handle<Shader>, &'static str, &'static str);
-
-/// The shared libraries (`#define_import_path fascicle::{ray, lighting, colormap, proxy}`) and the sphere
-/// impostor.
-pub const SOURCES: [ShaderSource; 5] = [
-    (RAY, "lib/ray.wgsl", include_str!("../shaders/lib/ray.wgsl")),
-    (LIGHTING, "lib/lighting.wgsl", include_str!("../shaders/lib/lighting.wgsl")),
-    (COLORMAP, "lib/colormap.wgsl", include_str!("../shaders/lib/colormap.wgsl")),
-    (SPHERE_IMPOSTOR, "sphere_impostor.wgsl", include_str!("../shaders/sphere_impostor.wgsl")),
-    (PROXY, "lib/proxy.wgsl", include_str!("../shaders/lib/proxy.wgsl")),
+/// The WGSL files this crate embeds, relative to its `src/`: the libraries (`lib/`, each with its
+/// `#define_import_path fascicle::*`) and `sphere_impostor.wgsl`, the fragment stage of
+/// [`crate::impostor::SphereImpostorMaterial`].
+pub const FILES: [&str; 5] = [
+    "shaders/lib/ray.wgsl",
+    "shaders/lib/lighting.wgsl",
+    "shaders/lib/colormap.wgsl",
+    "shaders/lib/proxy.wgsl",
+    "shaders/sphere_impostor.wgsl",
 ];
 
-/// Inserts `sources` into `Assets<Shader>` under their handles (`crate` names the owner in error messages).
-pub fn register(app: &mut App, owner: &str, sources: &[ShaderSource]) {
-    let mut shaders = app.world_mut().resource_mut::<Assets<Shader>>();
-    for (handle, path, src) in sources {
-        let _ = shaders.insert(handle.id(), Shader::from_wgsl(*src, format!("{owner}/{path}")));
-    }
+/// Embeds [`FILES`] into `app`'s `embedded://fascicle_render/` source and loads the libraries (kept loaded for
+/// the app's lifetime, so their import paths resolve). Needs Bevy's `AssetPlugin`.
+pub fn embed(app: &mut App) {
+    load_shader_library!(app, "shaders/lib/ray.wgsl");
+    load_shader_library!(app, "shaders/lib/lighting.wgsl");
+    load_shader_library!(app, "shaders/lib/colormap.wgsl");
+    load_shader_library!(app, "shaders/lib/proxy.wgsl");
+    embedded_asset!(app, "shaders/sphere_impostor.wgsl");
+}
+
+/// A material's shader at an embedded asset path (what `embedded_path!` gives), as Bevy's `StandardMaterial`
+/// names `pbr.wgsl`.
+pub fn embedded(path: PathBuf) -> ShaderRef {
+    ShaderRef::Path(AssetPath::from_path_buf(path).with_source("embedded"))
+}
+
+/// The sphere impostor's shader.
+pub(crate) fn sphere_impostor() -> ShaderRef {
+    embedded(embedded_path!("shaders/sphere_impostor.wgsl"))
 }

@@ -222,7 +222,7 @@ pub struct ShGlyphMaterial {
     pub coeffs: Handle<ShaderBuffer>,
 }
 
-fascicle_render::proxy_glyph_material!(ShGlyphMaterial, shaders::SH_GLYPH);
+fascicle_render::proxy_glyph_material!(ShGlyphMaterial, shaders::sh_glyph());
 
 /// One displayed glyph: its index in the set's buffers and, when it came from a volume, its voxel.
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]

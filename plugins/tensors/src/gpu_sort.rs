@@ -110,6 +110,7 @@ pub(crate) fn build(app: &mut App) {
 fn init_pipelines(
     mut commands: Commands,
     cache: Res<PipelineCache>,
+    assets: Res<AssetServer>,
     adapter: Res<RenderAdapter>,
     stats: Res<GpuSortStats>,
 ) {
@@ -139,11 +140,12 @@ fn init_pipelines(
             ),
         ),
     );
+    let shader = shaders::splat_sort(&assets);
     let ids = ["depths", "sort_blocks", "merge_step", "merge_blocks"].map(|entry| {
         cache.queue_compute_pipeline(ComputePipelineDescriptor {
             label: Some(format!("fascicle_splat_sort_{entry}").into()),
             layout: vec![layout.clone()],
-            shader: shaders::SPLAT_SORT,
+            shader: shader.clone(),
             entry_point: Some(entry.into()),
             ..default()
         })

@@ -148,7 +148,7 @@ pub struct TensorGlyphMaterial {
     pub glyphs: Handle<ShaderBuffer>,
 }
 
-fascicle_render::proxy_glyph_material!(TensorGlyphMaterial, shaders::TENSOR_GLYPH);
+fascicle_render::proxy_glyph_material!(TensorGlyphMaterial, shaders::tensor_glyph());
 
 /// One tensor sample on screen: its index in the set's buffer, its voxel, and what systems select on.
 #[derive(Component, Clone, Copy, Debug, PartialEq)]

@@ -131,10 +131,10 @@ pub struct SplatMaterial {
 
 impl Material for SplatMaterial {
     fn vertex_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::TENSOR_SPLAT)
+        shaders::tensor_splat()
     }
     fn fragment_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::TENSOR_SPLAT)
+        shaders::tensor_splat()
     }
     fn alpha_mode(&self) -> AlphaMode {
         AlphaMode::Premultiplied

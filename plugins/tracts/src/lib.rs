@@ -126,7 +126,7 @@ pub struct TubeletMaterial {
 
 // Back faces of each box: one fragment per pixel and tubelet, also with the camera inside a box; no
 // prepass or shadows (the tubelets write their own depth).
-fascicle_render::proxy_glyph_material!(TubeletMaterial, shaders::TUBELET);
+fascicle_render::proxy_glyph_material!(TubeletMaterial, shaders::tubelet());
 
 /// The streamlines of a tract layer and what the ROIs select of them, however they are drawn.
 #[derive(Component, Clone)]
@@ -409,10 +409,10 @@ impl From<&TractMeshMaterial> for TractMeshKey {
 
 impl Material for TractMeshMaterial {
     fn vertex_shader() -> bevy::shader::ShaderRef {
-        bevy::shader::ShaderRef::Handle(shaders::TRACT_MESH)
+        shaders::tract_mesh()
     }
     fn fragment_shader() -> bevy::shader::ShaderRef {
-        bevy::shader::ShaderRef::Handle(shaders::TRACT_MESH)
+        shaders::tract_mesh()
     }
     fn alpha_mode(&self) -> AlphaMode {
         if self.params.opacity < 1.0 { AlphaMode::Blend } else { AlphaMode::Opaque }

@@ -1,23 +1,33 @@
-//! The WGSL this crate owns (its `shaders/` folder), compiled in and registered under fixed handles by
-//! the plugin (see `fascicle_render::shaders`).
+//! The WGSL this crate owns (`src/shaders/`), embedded when the plugin is built and named by its
+//! `embedded://fascicle_tracts/shaders/...` path, as Bevy's own crates do (see `fascicle_render::shaders`).
 
-use bevy::asset::uuid_handle;
+use bevy::asset::{embedded_asset, embedded_path};
 use bevy::prelude::*;
-use fascicle_render::shaders::ShaderSource;
+use bevy::shader::ShaderRef;
+use fascicle_render::shaders::embedded;
 
-/// `shaders/tubelet.wgsl`: vertex and fragment stages of [`crate::TubeletMaterial`] (ray-cast tubelets).
-pub const TUBELET: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0b");
-/// `shaders/tract_mesh.wgsl`: vertex and fragment stages of [`crate::TractMeshMaterial`] (lines, polygon
-/// tubes).
-pub const TRACT_MESH: Handle<Shader> = uuid_handle!("6f6a3f30-2b7c-4a59-9b1e-1f4c0c7a0a0c");
+/// The WGSL files this crate embeds, relative to its `src/`.
+pub const FILES: [&str; 2] = ["shaders/tubelet.wgsl", "shaders/tract_mesh.wgsl"];
 
-/// This crate's shaders (handle, path under `shaders/`, source), which the plugin registers.
-pub const SOURCES: [ShaderSource; 2] = [
-    (TUBELET, "tubelet.wgsl", include_str!("../shaders/tubelet.wgsl")),
-    (TRACT_MESH, "tract_mesh.wgsl", include_str!("../shaders/tract_mesh.wgsl")),
-];
+/// Embeds [`FILES`] into the app's `embedded://fascicle_tracts/` source (needs Bevy's `AssetPlugin`).
+pub fn embed(app: &mut App) {
+    embedded_asset!(app, "shaders/tubelet.wgsl");
+    embedded_asset!(app, "shaders/tract_mesh.wgsl");
+}
+
+/// `shaders/tubelet.wgsl`: the vertex and fragment shader of [`TubeletMaterial`](crate::TubeletMaterial),
+/// hyperstreamline tubelets ray cast per pixel.
+pub fn tubelet() -> ShaderRef {
+    embedded(embedded_path!("shaders/tubelet.wgsl"))
+}
+
+/// `shaders/tract_mesh.wgsl`: the vertex and fragment shader of [`TractMeshMaterial`](crate::TractMeshMaterial),
+/// lines and polygon tubes.
+pub fn tract_mesh() -> ShaderRef {
+    embedded(embedded_path!("shaders/tract_mesh.wgsl"))
+}
 
 pub(crate) fn register(app: &mut App) {
     app.add_plugins(fascicle_render::FascicleRenderPlugin);
-    fascicle_render::shaders::register(app, "fascicle-tracts", &SOURCES);
+    embed(app);
 }

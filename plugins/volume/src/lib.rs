@@ -245,10 +245,10 @@ pub struct VolumeMaterial {
 
 impl Material for VolumeMaterial {
     fn vertex_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::VOLUME)
+        shaders::volume()
     }
     fn fragment_shader() -> ShaderRef {
-        ShaderRef::Handle(shaders::VOLUME)
+        shaders::volume()
     }
     fn alpha_mode(&self) -> AlphaMode {
         AlphaMode::Premultiplied

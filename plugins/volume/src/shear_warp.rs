@@ -100,7 +100,7 @@ pub(crate) fn build(app: &mut App) {
     render_app.init_resource::<Jobs>().add_systems(RenderStartup, init_pipeline).add_systems(ExtractSchedule, extract);
 }
 
-fn init_pipeline(mut commands: Commands, cache: Res<PipelineCache>) {
+fn init_pipeline(mut commands: Commands, cache: Res<PipelineCache>, assets: Res<AssetServer>) {
     let layout = BindGroupLayoutDescriptor::new(
         "fascicle_shear_warp",
         &BindGroupLayoutEntries::sequential(
@@ -117,7 +117,7 @@ fn init_pipeline(mut commands: Commands, cache: Res<PipelineCache>) {
     let id = cache.queue_compute_pipeline(ComputePipelineDescriptor {
         label: Some("fascicle_shear_warp".into()),
         layout: vec![layout.clone()],
-        shader: shaders::SHEAR_WARP,
+        shader: shaders::shear_warp(&assets),
         entry_point: Some("composite".into()),
         ..default()
     });
