@@ -14,6 +14,7 @@ use fascicle_core::sh::glyph::{GlyphPlane, Lobes, Normalise, Sampling};
 use fascicle_sh_glyphs::{GlyphColour, GlyphMethod};
 use fascicle_tensors::TensorColour;
 
+use fascicle_scene::jobs::ValueHistogram;
 use fascicle_scene::layers::LayerData;
 use fascicle_scene::model::{LayerKind, ShSource, SliceAxis, TractColouring};
 
@@ -250,7 +251,12 @@ fn tensor_source_from_text(text: &str) -> Option<fascicle_scene::model::TensorSo
 
 /// How a tract layer is coloured: the style's own (direction, Westin, per streamline), endpoints, length or a
 /// scalar image sampled along the streamlines (a NIfTI or .mif path, one volume, a window).
-fn tract_colouring(ui: &mut egui::Ui, colouring: &mut TractColouring, render: &mut fascicle_tracts::TubeSettings) {
+fn tract_colouring(
+    ui: &mut egui::Ui,
+    colouring: &mut TractColouring,
+    render: &mut fascicle_tracts::TubeSettings,
+    data: &LayerData,
+) {
     use fascicle_core::tubelet::TubeColour;
     ui.horizontal(|ui| {
         ui.label("colour");
@@ -332,12 +338,15 @@ fn tract_colouring(ui: &mut egui::Ui, colouring: &mut TractColouring, render: &m
                 ui.add_enabled(hide, egui::DragValue::new(&mut m).speed(0.01));
             });
             *min = hide.then_some(m);
+            if let Some(values) = &data.values {
+                value_histogram(ui, values, window, min);
+            }
         }
         _ => {}
     }
 }
 
-fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
+fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
     use fascicle_scene::model::TractMode;
     let LayerKind::Tracts { source, mode, render, rois, colouring } = kind else { return };
@@ -357,7 +366,7 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, _: &LayerData) {
     }
     ui.add(egui::Slider::new(&mut render.scale, 0.2..=6.0).text("cross-section scale (mm)"));
     ui.add(egui::Slider::new(&mut render.iterations, 1..=32).text("iterations"));
-    tract_colouring(ui, colouring, render);
+    tract_colouring(ui, colouring, render, data);
     ui.label("ROIs (a streamline shows when it meets every include and no exclude)");
     let mut remove = None;
     for (i, roi) in rois.iter_mut().enumerate() {
@@ -508,6 +517,63 @@ fn volume_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     transfer_function_editor(ui, &mut render.tf, &data.histogram);
 }
 
+/// Draws `counts` as bars of log(1 + count) filling `rect` left to right, on a dark ground.
+fn log_histogram(painter: &egui::Painter, rect: egui::Rect, counts: &[u32]) {
+    painter.rect_filled(rect, 2.0, egui::Color32::from_gray(25));
+    let peak = counts.iter().map(|c| (*c as f32 + 1.0).ln()).fold(0.0, f32::max).max(1.0);
+    for (i, c) in counts.iter().enumerate() {
+        let x0 = rect.left() + rect.width() * i as f32 / counts.len() as f32;
+        let x1 = rect.left() + rect.width() * (i + 1) as f32 / counts.len() as f32;
+        let y = rect.bottom() - rect.height() * (*c as f32 + 1.0).ln() / peak;
+        painter.rect_filled(
+            egui::Rect::from_min_max(egui::pos2(x0, y), egui::pos2(x1, rect.bottom())),
+            0.0,
+            egui::Color32::from_gray(60),
+        );
+    }
+}
+
+/// The values per streamline of a tract layer: their histogram (log counts) with the colour window's ends
+/// (white) and the threshold (red; streamlines left of it hidden); a click sets the threshold there, and a
+/// button fits the window to the values' range. Returns where the histogram was drawn.
+fn value_histogram(
+    ui: &mut egui::Ui,
+    values: &ValueHistogram,
+    window: &mut (f32, f32),
+    min: &mut Option<f32>,
+) -> egui::Rect {
+    let (lo, hi) = values.range;
+    let n: u64 = values.counts.iter().map(|c| u64::from(*c)).sum();
+    ui.label(format!("{n} streamlines with values from {lo:.4} to {hi:.4}"));
+    let (resp, painter) = ui.allocate_painter(egui::vec2(220.0, 60.0), egui::Sense::click());
+    let rect = resp.rect;
+    log_histogram(&painter, rect, &values.counts);
+    let span = if hi > lo { hi - lo } else { 1.0 };
+    let x_of = |v: f32| rect.left() + rect.width() * ((v - lo) / span).clamp(0.0, 1.0);
+    let mark = |v: f32, colour| {
+        painter.line_segment(
+            [egui::pos2(x_of(v), rect.top()), egui::pos2(x_of(v), rect.bottom())],
+            egui::Stroke::new(1.5, colour),
+        )
+    };
+    mark(window.0, egui::Color32::WHITE);
+    mark(window.1, egui::Color32::WHITE);
+    if let Some(m) = *min {
+        let hidden = egui::Rect::from_min_max(rect.left_top(), egui::pos2(x_of(m), rect.bottom()));
+        painter.rect_filled(hidden, 0.0, egui::Color32::from_black_alpha(140));
+        mark(m, egui::Color32::RED);
+    }
+    if resp.clicked()
+        && let Some(p) = resp.interact_pointer_pos()
+    {
+        *min = Some(lo + span * ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0));
+    }
+    if ui.button("fit the colour window to the values").clicked() && hi >= lo {
+        *window = (lo, hi);
+    }
+    rect
+}
+
 /// The 1D transfer-function editor: the volume's histogram (log counts) under the opacity curve; each
 /// control point is a handle to drag (value, opacity), with a colour button and a remove button; a click
 /// on empty space adds a point there.
@@ -515,18 +581,7 @@ pub fn transfer_function_editor(ui: &mut egui::Ui, tf: &mut TransferFunction, hi
     let (w, h) = (220.0f32, 90.0f32);
     let (resp, painter) = ui.allocate_painter(egui::vec2(w, h), egui::Sense::click_and_drag());
     let rect = resp.rect;
-    painter.rect_filled(rect, 2.0, egui::Color32::from_gray(25));
-    let peak = histogram.iter().map(|c| (*c as f32 + 1.0).ln()).fold(0.0, f32::max).max(1.0);
-    for (i, c) in histogram.iter().enumerate() {
-        let x0 = rect.left() + w * i as f32 / histogram.len() as f32;
-        let x1 = rect.left() + w * (i + 1) as f32 / histogram.len() as f32;
-        let y = rect.bottom() - h * (*c as f32 + 1.0).ln() / peak;
-        painter.rect_filled(
-            egui::Rect::from_min_max(egui::pos2(x0, y), egui::pos2(x1, rect.bottom())),
-            0.0,
-            egui::Color32::from_gray(60),
-        );
-    }
+    log_histogram(&painter, rect, histogram);
     let max_a = tf.points.iter().map(|p| p.rgba[3]).fold(0.0, f64::max).max(0.05);
     let to_screen =
         |p: &TfPoint| egui::pos2(rect.left() + w * p.x as f32, rect.bottom() - h * (p.rgba[3] / max_a) as f32);
@@ -799,6 +854,35 @@ mod tests {
             }
         });
         assert_eq!(kinds, before);
+    }
+
+    /// The values' histogram: a click on it hides the streamlines below the value under the pointer.
+    #[test]
+    fn a_click_on_the_value_histogram_sets_the_threshold() {
+        let values = ValueHistogram { range: (2.0, 6.0), counts: vec![3; fascicle_scene::jobs::VALUE_BINS] };
+        let (mut window, mut min) = ((0.0, 1.0), None);
+        let ctx = egui::Context::default();
+        let frame = |events: Vec<egui::Event>, window: &mut (f32, f32), min: &mut Option<f32>| {
+            let mut rect = egui::Rect::NOTHING;
+            let input = egui::RawInput { events, ..Default::default() };
+            let _ = ctx.run_ui(input, |ui| rect = value_histogram(ui, &values, window, min));
+            rect
+        };
+        let rect = frame(vec![], &mut window, &mut min);
+        assert_eq!(min, None, "drawing alone edits nothing");
+        let at = egui::pos2(rect.left() + 0.25 * rect.width(), rect.center().y);
+        let button = |pressed| egui::Event::PointerButton {
+            pos: at,
+            button: egui::PointerButton::Primary,
+            pressed,
+            modifiers: Default::default(),
+        };
+        frame(vec![egui::Event::PointerMoved(at)], &mut window, &mut min);
+        frame(vec![button(true)], &mut window, &mut min);
+        frame(vec![button(false)], &mut window, &mut min);
+        let m = min.expect("a click sets the threshold");
+        assert!((m - 3.0).abs() < 1e-4, "a quarter of the way from 2 to 6: {m}");
+        assert_eq!(window, (0.0, 1.0));
     }
 
     #[test]

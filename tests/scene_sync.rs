@@ -760,3 +760,49 @@ fn tracking_streams_into_its_layer() {
     assert!(expected > 0 && expected < whole.n_streamlines(), "{expected} selected");
     assert_eq!(sets.iter().map(|s| s.1).sum::<usize>(), expected);
 }
+
+/// A tract layer coloured by a value per streamline reports the values' histogram to its panel (every
+/// streamline counted, those a threshold hides included); coloured otherwise, it reports none.
+#[test]
+fn value_coloured_tracts_report_their_histogram() {
+    use fascicle_scene::layers::LayerDataMap;
+    use fascicle_scene::model::{LayerSpec, TractColouring, TractMode, TractSource};
+    let path = repo_path("data/tracts/tracks300.trk");
+    let n = fascicle_core::io::Tractogram::read(&path).unwrap().n_streamlines();
+    // Streamline s weighs s / n: evenly spread over [0, (n - 1) / n].
+    let weights = std::env::temp_dir().join(format!("fascicle-hist-weights-{}.txt", std::process::id()));
+    let w: Vec<f32> = (0..n).map(|s| s as f32 / n as f32).collect();
+    fascicle_core::io::weights::write(&weights, &w).unwrap();
+    let colouring = TractColouring::Value {
+        weights: Some(weights.clone()),
+        name: String::new(),
+        window: (0.0, 1.0),
+        min: Some(0.5),
+    };
+    let kind = LayerKind::Tracts {
+        source: TractSource::File { path, tensors: None },
+        mode: TractMode::Lines,
+        render: Default::default(),
+        rois: vec![],
+        colouring,
+    };
+    let scene = Scene {
+        layers: vec![LayerSpec { name: "weighted".into(), visible: true, opacity: 1.0, kind }],
+        ..Scene::default_scene()
+    };
+    let Some(mut app) = scene_app(scene) else { return };
+    let values = app.world().resource::<LayerDataMap>().0.get(&0).and_then(|d| d.values.clone());
+    let values = values.expect("the layer's values reported");
+    assert_eq!(values.range, (0.0, w[n - 1]));
+    assert_eq!(values.counts.iter().sum::<u32>() as usize, n, "every streamline, the hidden half included");
+    let (lo, hi) = (n / fascicle_scene::jobs::VALUE_BINS, n.div_ceil(fascicle_scene::jobs::VALUE_BINS));
+    assert!(values.counts.iter().all(|c| (lo..=hi).contains(&(*c as usize))), "evenly spread: {:?}", values.counts);
+    if let LayerKind::Tracts { colouring, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[0].kind {
+        *colouring = TractColouring::Ends;
+    }
+    settle(&mut app);
+    settle(&mut app);
+    let data = app.world().resource::<LayerDataMap>();
+    assert!(data.0.get(&0).is_none_or(|d| d.values.is_none()), "no values once coloured by the ends");
+    std::fs::remove_file(&weights).ok();
+}

@@ -37,6 +37,40 @@ pub struct JobProgress {
     pub parts: Parts,
     /// The voxel grid the content comes from, once read (the crosshair's voxel on it).
     grid: Mutex<Option<fascicle_views::VoxelGrid>>,
+    /// A tract layer's values per streamline (all of them, before any threshold), once read.
+    values: Mutex<Option<Arc<ValueHistogram>>>,
+}
+
+/// Bins of a [`ValueHistogram`].
+pub const VALUE_BINS: usize = 64;
+
+/// How a tract layer's values per streamline (`tcksift2` weights, a TRX's or `.trk`'s per-streamline array) are
+/// distributed, for its panel: [`VALUE_BINS`] equal bins between the lowest and highest finite value.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ValueHistogram {
+    /// The lowest and highest finite value (both 0 when there is none).
+    pub range: (f32, f32),
+    /// Streamlines per bin, [`VALUE_BINS`] bins over `range` (the highest value in the last); non-finite values
+    /// are not counted.
+    pub counts: Vec<u32>,
+}
+
+impl ValueHistogram {
+    /// The histogram of `values`.
+    pub fn of(values: &[f32]) -> Self {
+        let finite = || values.iter().copied().filter(|v| v.is_finite());
+        let (lo, hi) = finite().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+        let mut counts = vec![0u32; VALUE_BINS];
+        if lo > hi {
+            return Self { range: (0.0, 0.0), counts };
+        }
+        let span = f64::from(hi) - f64::from(lo);
+        for v in finite() {
+            let at = if span > 0.0 { (f64::from(v) - f64::from(lo)) / span } else { 0.0 };
+            counts[((at * VALUE_BINS as f64) as usize).min(VALUE_BINS - 1)] += 1;
+        }
+        Self { range: (lo, hi), counts }
+    }
 }
 
 /// Parts of a layer's content that its job delivers while it runs, oldest first: streamlines as they are
@@ -97,6 +131,16 @@ impl JobProgress {
     /// The voxel grid the content is cut from, once the job has read it.
     pub fn grid(&self) -> Option<fascicle_views::VoxelGrid> {
         *self.grid.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Records how the layer's values per streamline are distributed.
+    pub fn set_values(&self, values: ValueHistogram) {
+        *self.values.lock().unwrap_or_else(|e| e.into_inner()) = Some(Arc::new(values));
+    }
+
+    /// How the layer's values per streamline are distributed, once the job has read them.
+    pub fn values(&self) -> Option<Arc<ValueHistogram>> {
+        self.values.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
     /// Starts a stage of `total` units (0: unknown); fails when the job was cancelled.
@@ -286,6 +330,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             let values = match colouring {
                 TractColouring::Value { weights, name, min, .. } => {
                     let mut v = streamline_values(&data.tractogram, weights.as_deref(), name)?;
+                    progress.set_values(ValueHistogram::of(&v));
                     if let Some(m) = min {
                         let keep: Vec<bool> = v.iter().map(|x| x >= m).collect();
                         data = subset_of(&data, &keep);
@@ -1752,6 +1797,23 @@ mod tests {
             matches!(tubes.geometry, fascicle_tracts::PreparedGeometry::Tubes { n_tubelets, .. } if n_tubelets > 1000)
         );
         std::fs::remove_file(ramp).ok();
+    }
+
+    /// The values' histogram: finite values only, the highest in the last bin, one value or none.
+    #[test]
+    fn value_histogram_counts_finite_values() {
+        let h = ValueHistogram::of(&[0.0, 1.0, f32::NAN, f32::INFINITY, 0.25, 0.5]);
+        assert_eq!(h.range, (0.0, 1.0));
+        assert_eq!(h.counts.len(), VALUE_BINS);
+        assert_eq!(h.counts.iter().sum::<u32>(), 4);
+        assert_eq!(
+            (h.counts[0], h.counts[VALUE_BINS / 4], h.counts[VALUE_BINS / 2], h.counts[VALUE_BINS - 1]),
+            (1, 1, 1, 1)
+        );
+        let one = ValueHistogram::of(&[2.5, 2.5, f32::NAN]);
+        assert_eq!((one.range, one.counts[0], one.counts.iter().sum::<u32>()), ((2.5, 2.5), 2, 2));
+        let none = ValueHistogram::of(&[f32::NAN]);
+        assert_eq!((none.range, none.counts.iter().sum::<u32>()), ((0.0, 0.0), 0));
     }
 
     /// A tensor file in FSL's or MRtrix3's element order reads as the same field as DIPY's.

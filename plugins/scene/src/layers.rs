@@ -30,7 +30,7 @@ use fascicle_views::{
 use fascicle_volume::{ScalarVolume, VolumeLayer, VolumePlugin, VolumeSet, VolumeSettings};
 
 use crate::cache::DataCache;
-use crate::jobs::{CANCELLED, Content, JobProgress, build, spawn_job, spawn_light_job};
+use crate::jobs::{CANCELLED, Content, JobProgress, ValueHistogram, build, spawn_job, spawn_light_job};
 use crate::model::{LayerKind, LayerSpec, Scene, TractColouring};
 
 /// What a spawned layer reports to the viewer's layer panel.
@@ -41,7 +41,14 @@ pub struct LayerData {
     pub eigenvalues: Arc<Vec<[f64; 3]>>,
     /// A volume layer's histogram over its transfer function's range.
     pub histogram: Arc<Vec<u32>>,
+    /// A tract layer coloured by a value per streamline: how the values are distributed (all streamlines,
+    /// those hidden by a threshold included).
+    pub values: Option<Arc<ValueHistogram>>,
 }
+
+/// On a tract layer's entity coloured by a value per streamline: the values' histogram its last job found.
+#[derive(Component, Clone, Debug)]
+pub struct StreamlineValues(pub Arc<ValueHistogram>);
 
 /// Per layer index, its [`LayerData`].
 #[derive(Resource, Clone, Debug, Default)]
@@ -379,6 +386,10 @@ fn finish_jobs(
             Some(grid) => commands.entity(e).insert(grid),
             None => commands.entity(e).remove::<VoxelGrid>(),
         };
+        match job.progress.values() {
+            Some(values) => commands.entity(e).insert(StreamlineValues(values)),
+            None => commands.entity(e).remove::<StreamlineValues>(),
+        };
         // Streamed content is in place already (its first part cleared the old); anything else replaces it.
         if !matches!(result, Ok(Content::Streamed { .. })) || job.parts_shown == 0 {
             clear_content(&mut commands, e, le.0, &layer.spec);
@@ -606,8 +617,9 @@ fn report_errors(
     errors.0 = failed.into_iter().map(|(_, m)| m).collect();
 }
 
-/// What refreshes the panels' layer data: content (re)spawned, or a volume's histogram redone.
-type LayerDataMoved = Or<(Added<LayerEntity>, Added<SplatSet>, Changed<VolumeSet>)>;
+/// What refreshes the panels' layer data: content (re)spawned, a volume's histogram redone, a tract layer's
+/// values read again.
+type LayerDataMoved = Or<(Added<LayerEntity>, Added<SplatSet>, Changed<VolumeSet>, Changed<StreamlineValues>)>;
 
 /// Refreshes what spawned layers report to their panels when a layer's content was (re)spawned.
 fn report_layer_data(
@@ -615,9 +627,11 @@ fn report_layer_data(
     sets: Query<(&SplatSet, &ChildOf)>,
     volumes: Query<(&VolumeSet, &ChildOf)>,
     layers: Query<&LayerEntity>,
+    values: Query<(&LayerEntity, &StreamlineValues)>,
+    mut removed_values: RemovedComponents<StreamlineValues>,
     mut map: ResMut<LayerDataMap>,
 ) {
-    if added.is_empty() {
+    if added.is_empty() && removed_values.read().count() == 0 {
         return;
     }
     map.0.clear();
@@ -633,6 +647,9 @@ fn report_layer_data(
         if let Ok(le) = layers.get(parent.parent()) {
             map.0.insert(le.0, LayerData { histogram: set.histogram.clone(), ..default() });
         }
+    }
+    for (le, v) in &values {
+        map.0.insert(le.0, LayerData { values: Some(v.0.clone()), ..default() });
     }
 }
 
