@@ -294,6 +294,16 @@ fn tract_colouring(
         {
             *colouring = TractColouring::Value { weights: None, name: String::new(), window: (0.0, 1.0), min: None };
         }
+        if ui
+            .radio(matches!(colouring, TractColouring::PointValue { .. }), "value per point")
+            .on_hover_text(
+                "a value per point: an MRtrix .tsf file (tcksample), or the file's own per-point array (TRX dpp)",
+            )
+            .clicked()
+            && !matches!(colouring, TractColouring::PointValue { .. })
+        {
+            *colouring = TractColouring::PointValue { file: None, name: String::new(), window: (0.0, 1.0) };
+        }
     });
     match colouring {
         TractColouring::Length { max_mm } => {
@@ -339,7 +349,29 @@ fn tract_colouring(
             });
             *min = hide.then_some(m);
             if let Some(values) = &data.values {
-                value_histogram(ui, values, window, min);
+                value_histogram(ui, values, "streamlines", window, Some(min));
+            }
+        }
+        TractColouring::PointValue { file, name, window } => {
+            let mut text = file.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
+            ui.horizontal(|ui| {
+                ui.label("track scalar file");
+                if ui.add(egui::TextEdit::singleline(&mut text).hint_text(".tsf, or empty")).changed() {
+                    *file = (!text.trim().is_empty()).then(|| text.trim().into());
+                }
+            });
+            if file.is_none() {
+                ui.horizontal(|ui| {
+                    ui.label("per-point array");
+                    ui.text_edit_singleline(name);
+                });
+            }
+            ui.horizontal(|ui| {
+                ui.add(egui::DragValue::new(&mut window.0).speed(0.01).prefix("from "));
+                ui.add(egui::DragValue::new(&mut window.1).speed(0.01).prefix("to "));
+            });
+            if let Some(values) = &data.values {
+                value_histogram(ui, values, "points", window, None);
             }
         }
         _ => {}
@@ -533,18 +565,20 @@ fn log_histogram(painter: &egui::Painter, rect: egui::Rect, counts: &[u32]) {
     }
 }
 
-/// The values per streamline of a tract layer: their histogram (log counts) with the colour window's ends
-/// (white) and the threshold (red; streamlines left of it hidden); a click sets the threshold there, and a
-/// button fits the window to the values' range. Returns where the histogram was drawn.
+/// The values of a tract layer (per streamline or per point: `of` names them): their histogram (log counts)
+/// with the colour window's ends (white) and, given `min`, the threshold (red; streamlines left of it hidden),
+/// which a click sets there; a button fits the window to the values' range. Returns where the histogram was
+/// drawn.
 fn value_histogram(
     ui: &mut egui::Ui,
     values: &ValueHistogram,
+    of: &str,
     window: &mut (f32, f32),
-    min: &mut Option<f32>,
+    mut min: Option<&mut Option<f32>>,
 ) -> egui::Rect {
     let (lo, hi) = values.range;
     let n: u64 = values.counts.iter().map(|c| u64::from(*c)).sum();
-    ui.label(format!("{n} streamlines with values from {lo:.4} to {hi:.4}"));
+    ui.label(format!("{n} {of} with values from {lo:.4} to {hi:.4}"));
     let (resp, painter) = ui.allocate_painter(egui::vec2(220.0, 60.0), egui::Sense::click());
     let rect = resp.rect;
     log_histogram(&painter, rect, &values.counts);
@@ -558,13 +592,14 @@ fn value_histogram(
     };
     mark(window.0, egui::Color32::WHITE);
     mark(window.1, egui::Color32::WHITE);
-    if let Some(m) = *min {
+    if let Some(&mut Some(m)) = min.as_deref_mut() {
         let hidden = egui::Rect::from_min_max(rect.left_top(), egui::pos2(x_of(m), rect.bottom()));
         painter.rect_filled(hidden, 0.0, egui::Color32::from_black_alpha(140));
         mark(m, egui::Color32::RED);
     }
     if resp.clicked()
         && let Some(p) = resp.interact_pointer_pos()
+        && let Some(min) = min
     {
         *min = Some(lo + span * ((p.x - rect.left()) / rect.width()).clamp(0.0, 1.0));
     }
@@ -865,7 +900,7 @@ mod tests {
         let frame = |events: Vec<egui::Event>, window: &mut (f32, f32), min: &mut Option<f32>| {
             let mut rect = egui::Rect::NOTHING;
             let input = egui::RawInput { events, ..Default::default() };
-            let _ = ctx.run_ui(input, |ui| rect = value_histogram(ui, &values, window, min));
+            let _ = ctx.run_ui(input, |ui| rect = value_histogram(ui, &values, "streamlines", window, Some(min)));
             rect
         };
         let rect = frame(vec![], &mut window, &mut min);

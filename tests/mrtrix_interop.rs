@@ -504,6 +504,7 @@ fn select_weights_as_tckedit() {
 /// Track scalar files (`.tsf`) both ways: `tcksample` of an image linear in x (trilinear sampling is exact on
 /// it) along Fascicle's streamlines reads back as each point's x, streamline by streamline; and a `.tsf` that
 /// Fascicle writes for those streamlines passes MRtrix3's own `tsfvalidate` and reads in `tsfinfo` with its count.
+/// The per-point values the viewer colours by are the points' x too.
 #[test]
 fn track_scalars_both_ways() {
     use fascicle_core::io::tsf;
@@ -537,6 +538,10 @@ fn track_scalars_both_ways() {
         .fold(0f32, f32::max);
     println!("tcksample of x along {} streamlines: worst |x - value| {worst:.2e} mm", t.n_streamlines());
     assert!(worst < 1e-3, "tcksample's values differ from the points' x by {worst}");
+    // The viewer's colouring by a value per point takes each point's own value from that file.
+    let per_point = fascicle_scene::jobs::point_values(&t, Some(&theirs), "").unwrap();
+    let worst = t.points.iter().zip(&per_point).map(|(p, v)| (p.x - v).abs()).fold(0f32, f32::max);
+    assert!(worst < 1e-3, "per-point values differ from the points' x by {worst}");
 
     let ours = scratch("tsf_fascicle.tsf");
     tsf::write(&ours, &tsf::TrackScalars::for_tractogram(&t, |i, k| t.streamline(i)[k].y)).unwrap();

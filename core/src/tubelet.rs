@@ -43,6 +43,8 @@ pub struct Tubelet {
     pub colours: [DVec3; 2],
     /// Index of the streamline.
     pub streamline: u32,
+    /// Index in its streamline of the segment's first point (its left end; the right end is the next point).
+    pub point: u32,
 }
 
 /// How tubelets are coloured.
@@ -423,6 +425,7 @@ pub fn tubelets(
             cuts: [local_cut(cut_at(i)), local_cut(cut_at(i + 1))],
             colours,
             streamline,
+            point: i as u32,
         });
     }
     out

@@ -302,8 +302,14 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
                 _ => None,
             };
-            let prepare = |part: TractData, first: usize, values: Option<&[f32]>| {
-                let part_values = values.map(|v| &v[first..first + part.tractogram.n_streamlines()]);
+            let prepare = |part: TractData, first: usize, values: Option<TractValues>| {
+                let n = part.tractogram.n_streamlines();
+                let part_values = values.map(|v| match v {
+                    TractValues::Streamlines(v) => TractValues::Streamlines(&v[first..first + n]),
+                    TractValues::Points { values, offsets } => {
+                        TractValues::Points { values, offsets: &offsets[first..first + n] }
+                    }
+                });
                 let colours = point_colours(colouring, &part.tractogram, scalar.as_deref(), part_values);
                 let colour = colours.as_deref();
                 let (t, tensors) = (part.tractogram, part.tensors.as_deref().map(|v| v.as_slice()));
@@ -317,17 +323,20 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             };
             // Tracking delivers its streamlines as they are computed.
             let streamed = AtomicBool::new(false);
-            let by_value = matches!(colouring, TractColouring::Value { .. });
+            let by_value = matches!(colouring, TractColouring::Value { .. } | TractColouring::PointValue { .. });
             if by_value && matches!(source, TractSource::Track { .. }) {
-                return Err("colouring by a value per streamline needs a file's streamlines, not tracking".into());
+                return Err(
+                    "colouring by values per streamline or per point needs a file's streamlines, not tracking".into()
+                );
             }
             let on_part = |part: TractData| {
                 streamed.store(true, Ordering::Relaxed);
                 progress.parts.push(prepare(part, 0, None));
             };
             let mut data = tract_data_in_parts(cache, source, progress, (!by_value).then_some(&on_part as OnPart))?;
-            // Values per streamline to colour by (those below a minimum hidden), aligned with the streamlines.
-            let values = match colouring {
+            // Values to colour by, aligned with the streamlines (those below a minimum hidden) or their points.
+            let (mut per_streamline, mut per_point) = (None, None);
+            match colouring {
                 TractColouring::Value { weights, name, min, .. } => {
                     let mut v = streamline_values(&data.tractogram, weights.as_deref(), name)?;
                     progress.set_values(ValueHistogram::of(&v));
@@ -336,11 +345,20 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                         data = subset_of(&data, &keep);
                         v.retain(|x| x >= m);
                     }
-                    Some(v)
+                    per_streamline = Some(v);
                 }
+                TractColouring::PointValue { file, name, .. } => {
+                    let v = point_values(&data.tractogram, file.as_deref(), name)?;
+                    progress.set_values(ValueHistogram::of(&v));
+                    per_point = Some((v, data.tractogram.offsets.clone()));
+                }
+                _ => {}
+            }
+            let values = match (&per_streamline, &per_point) {
+                (Some(v), _) => Some(TractValues::Streamlines(v)),
+                (_, Some((values, offsets))) => Some(TractValues::Points { values, offsets }),
                 _ => None,
             };
-            let values = values.as_deref();
             progress.stage("building the geometry", 0)?;
             let items = data.tractogram.n_streamlines();
             if streamed.load(Ordering::Relaxed) {
@@ -437,17 +455,31 @@ fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> 
     Ok(Content::Streamed { items })
 }
 
-/// A streamline point's colour: (streamline, world point) to linear RGB.
-pub type ColourFn = dyn Fn(usize, Vec3) -> [f32; 3] + Sync;
+/// A streamline point's colour: (streamline, the point's index in it, world point) to linear RGB.
+pub type ColourFn = dyn Fn(usize, usize, Vec3) -> [f32; 3] + Sync;
+
+/// Values to colour a tractogram (or a part of one) by, aligned with its streamlines.
+#[derive(Clone, Copy, Debug)]
+pub enum TractValues<'a> {
+    /// One per streamline.
+    Streamlines(&'a [f32]),
+    /// One per point: point `k` of streamline `i` has `values[offsets[i] + k]`.
+    Points {
+        /// The values, of this tractogram or of a larger one this is a part of.
+        values: &'a [f32],
+        /// Where each streamline's values start in `values`.
+        offsets: &'a [usize],
+    },
+}
 
 /// The colour of each point of `t`'s streamlines under `colouring` (None: the style's own), as a function of
 /// (streamline, point): the direction between a streamline's ends, its length, `scalar` sampled there, or its
-/// value in `values` (one per streamline of `t`).
+/// value in `values` (per streamline or per point of `t`, as the colouring takes them).
 pub fn point_colours(
     colouring: &TractColouring,
     t: &Tractogram,
     scalar: Option<&Volume<f32>>,
-    values: Option<&[f32]>,
+    values: Option<TractValues>,
 ) -> Option<Box<ColourFn>> {
     use fascicle_core::dti::splat::viridis;
     let on_viridis = |x: f64| viridis(x).as_vec3().to_array();
@@ -459,30 +491,75 @@ pub fn point_colours(
                 let d = (s[s.len().saturating_sub(1)] - s[0]).normalize_or_zero().abs();
                 d.to_array()
             });
-            Some(Box::new(move |i, _| c[i]))
+            Some(Box::new(move |i, _, _| c[i]))
         }
         TractColouring::Length { max_mm } => {
             let max = f64::from(max_mm.max(1e-6));
             let c = per_streamline(&|s| {
                 on_viridis(s.windows(2).map(|w| f64::from(w[0].distance(w[1]))).sum::<f64>() / max)
             });
-            Some(Box::new(move |i, _| c[i]))
+            Some(Box::new(move |i, _, _| c[i]))
         }
         TractColouring::Scalar { window: (lo, hi), .. } => {
             let vol = scalar?.clone();
             let inv = vol.world_from_voxel.inverse();
             let (lo, hi) = (f64::from(*lo), f64::from(*hi));
             let span = if hi > lo { hi - lo } else { 1.0 };
-            Some(Box::new(move |_, p| {
+            Some(Box::new(move |_, _, p| {
                 let v = fascicle_core::dvr::sample(&vol, inv.transform_point3(p.as_dvec3()));
                 on_viridis((v - lo) / span)
             }))
         }
         TractColouring::Value { window: (lo, hi), .. } => {
+            let Some(TractValues::Streamlines(values)) = values else { return None };
             let (lo, hi) = (f64::from(*lo), f64::from(*hi));
             let span = if hi > lo { hi - lo } else { 1.0 };
-            let c: Vec<[f32; 3]> = values?.iter().map(|v| on_viridis((f64::from(*v) - lo) / span)).collect();
-            Some(Box::new(move |i, _| c.get(i).copied().unwrap_or([0.5; 3])))
+            let c: Vec<[f32; 3]> = values.iter().map(|v| on_viridis((f64::from(*v) - lo) / span)).collect();
+            Some(Box::new(move |i, _, _| c.get(i).copied().unwrap_or([0.5; 3])))
+        }
+        TractColouring::PointValue { window: (lo, hi), .. } => {
+            let Some(TractValues::Points { values, offsets }) = values else { return None };
+            let (lo, hi) = (f64::from(*lo), f64::from(*hi));
+            let span = if hi > lo { hi - lo } else { 1.0 };
+            // This part's colours, point after point, and where each streamline's start.
+            let mut starts = Vec::with_capacity(t.n_streamlines());
+            let mut c: Vec<[f32; 3]> = Vec::with_capacity(t.points.len());
+            for (i, s) in t.iter().enumerate() {
+                starts.push(c.len());
+                let from = offsets.get(i).copied().unwrap_or(values.len());
+                let v = values.get(from..(from + s.len()).min(values.len())).unwrap_or_default();
+                c.extend(v.iter().map(|v| on_viridis((f64::from(*v) - lo) / span)));
+                c.resize(starts[i] + s.len(), [0.5; 3]);
+            }
+            Some(Box::new(move |i, k, _| starts.get(i).and_then(|s| c.get(s + k)).copied().unwrap_or([0.5; 3])))
+        }
+    }
+}
+
+/// One value per point of `t` (point `k` of streamline `i` at `t.offsets[i] + k`): the values of a `.tsf` file
+/// (checked as `tsfvalidate` does: as many streamlines, each with as many values as points) or, without one,
+/// `t`'s per-point array `name`.
+pub fn point_values(t: &Tractogram, file: Option<&Path>, name: &str) -> Result<Vec<f32>, String> {
+    if let Some(path) = file {
+        let scalars = fascicle_core::io::tsf::read(path).map_err(|e| e.to_string())?;
+        scalars.check_against(t, path).map_err(|e| e.to_string())?;
+        let mut out = vec![0.0; t.points.len()];
+        for i in 0..t.n_streamlines() {
+            out[t.offsets[i]..t.offsets[i + 1]].copy_from_slice(scalars.streamline(i));
+        }
+        return Ok(out);
+    }
+    match t.scalars.iter().find(|(n, _)| n == name) {
+        Some((_, v)) if v.len() == t.points.len() => Ok(v.clone()),
+        Some((_, v)) => {
+            Err(format!("the per-point array '{name}' has {} values for {} points", v.len(), t.points.len()))
+        }
+        None => {
+            let names: Vec<&str> = t.scalars.iter().map(|(n, _)| n.as_str()).collect();
+            Err(format!(
+                "no per-point values named '{name}' (the tractogram has {}); give a .tsf file or one of them",
+                if names.is_empty() { "none".to_string() } else { names.join(", ") }
+            ))
         }
     }
 }
@@ -1788,6 +1865,38 @@ mod tests {
         let e = build(&kind(named), &DataCache::default(), &JobProgress::default()).err().unwrap();
         assert!(e.contains("no per-streamline values named 'sift'"), "{e}");
         std::fs::remove_file(&weights).ok();
+        // A value per point from a track scalar file (`.tsf`, as tcksample writes it): point k of each
+        // streamline has the value k, so each vertex has the colour of its own point's index.
+        let tsf = std::env::temp_dir().join(format!("fascicle-points-{}.tsf", std::process::id()));
+        let by_index = fascicle_core::io::tsf::TrackScalars::for_tractogram(&t, |_, k| k as f32);
+        fascicle_core::io::tsf::write(&tsf, &by_index).unwrap();
+        let per_point = |file: Option<std::path::PathBuf>, name: &str| TractColouring::PointValue {
+            file,
+            name: name.into(),
+            window: (0.0, 100.0),
+        };
+        let (pos, by_point, owners) = colours(per_point(Some(tsf.clone()), ""));
+        assert!(pos.len() > 1000);
+        for ((c, p), &s) in by_point.iter().zip(&pos).zip(&owners) {
+            let k =
+                t.streamline(s).iter().position(|q| q.to_array() == *p).expect("a vertex is a point of its streamline");
+            assert!(close(*c, viridis(k as f64 / 100.0).as_vec3()), "streamline {s} point {k}: {c:?}");
+        }
+        // The tractogram's own per-point array by name (a .trk's scalars, a TRX's dpp) colours the same.
+        let mut named_t = t.clone();
+        named_t.scalars = vec![("index".into(), by_index.values.clone())];
+        assert_eq!(point_values(&named_t, None, "index").unwrap(), point_values(&t, Some(&tsf), "").unwrap());
+        let e = point_values(&named_t, None, "fa").err().unwrap();
+        assert!(e.contains("no per-point values named 'fa' (the tractogram has index)"), "{e}");
+        // A .tsf of another tractogram: an error naming the file.
+        let mut other = t.clone();
+        other.offsets.pop();
+        other.points.truncate(*other.offsets.last().unwrap());
+        fascicle_core::io::tsf::write(&tsf, &fascicle_core::io::tsf::TrackScalars::for_tractogram(&other, |_, _| 1.0))
+            .unwrap();
+        let e = point_values(&t, Some(&tsf), "").err().unwrap();
+        assert!(e.contains(&tsf.display().to_string()), "{e}");
+        std::fs::remove_file(&tsf).ok();
         // Hyperstreamlines: the tubelets' end colours (packed after the geometry) are the same function.
         let colouring = TractColouring::Scalar { source, window: (0.6, 1.2) };
         let c = point_colours(&colouring, &t, Some(&vol), None).unwrap();

@@ -721,7 +721,10 @@ pub fn colour_bar(layer: &LayerSpec) -> Option<ColourBar> {
             bar(ColourMap::Viridis, (0.0, 1.0))
         }
         LayerKind::Tracts {
-            colouring: TractColouring::Scalar { window: (lo, hi), .. } | TractColouring::Value { window: (lo, hi), .. },
+            colouring:
+                TractColouring::Scalar { window: (lo, hi), .. }
+                | TractColouring::Value { window: (lo, hi), .. }
+                | TractColouring::PointValue { window: (lo, hi), .. },
             ..
         } => bar(ColourMap::Viridis, (f64::from(*lo), f64::from(*hi))),
         _ => None,

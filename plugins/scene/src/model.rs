@@ -340,6 +340,19 @@ pub enum TractColouring {
         #[serde(default)]
         min: Option<f32>,
     },
+    /// A value per point on viridis over `window`: the values of `file` (an MRtrix `.tsf`, as `tcksample`
+    /// writes it, one per point of the file's streamlines) or, without it, the tractogram's own per-point array
+    /// `name` (a TRX's `dpp`, a `.trk`'s scalars).
+    PointValue {
+        /// A track scalar file (`.tsf`); none: the tractogram's array `name`.
+        #[serde(default)]
+        file: Option<PathBuf>,
+        /// The tractogram's per-point array, used without `file`.
+        #[serde(default)]
+        name: String,
+        /// The values at viridis' two ends.
+        window: (f32, f32),
+    },
 }
 
 /// Where tracking starts.

@@ -942,16 +942,19 @@ pub fn spawn_polygon_tubes(
     spawn_mesh_set(commands, meshes, materials, target, (mesh, None), opacity)
 }
 
-/// A colour for a point of a streamline: (the streamline's index in its set, the world point) to linear RGB.
-pub type PointColour<'a> = &'a (dyn Fn(usize, Vec3) -> [f32; 3] + Sync);
+/// A colour for a point of a streamline: (the streamline's index in its set, the point's index in the streamline,
+/// the world point) to linear RGB.
+pub type PointColour<'a> = &'a (dyn Fn(usize, usize, Vec3) -> [f32; 3] + Sync);
 
 /// Colours each tubelet's two ends by `colour` at the points where its axis meets its cut planes (the
 /// streamline's points).
 pub fn recolour(tubes: &mut [fascicle_core::tubelet::Tubelet], colour: PointColour) {
     for t in tubes {
         let axis = t.rotation * glam::DVec3::X * t.half_length;
-        let at = |p: glam::DVec3| glam::DVec3::from(colour(t.streamline as usize, p.as_vec3()).map(f64::from));
-        t.colours = [at(t.centre - axis), at(t.centre + axis)];
+        let at = |k: u32, p: glam::DVec3| {
+            glam::DVec3::from(colour(t.streamline as usize, k as usize, p.as_vec3()).map(f64::from))
+        };
+        t.colours = [at(t.point, t.centre - axis), at(t.point + 1, t.centre + axis)];
     }
 }
 
@@ -1057,7 +1060,7 @@ fn strided_line_mesh(t: &Tractogram, colour: Option<PointColour>, tolerance_mm: 
                     let d = (s[b as usize] - s[a as usize]).normalize_or_zero().abs();
                     [d.x, d.y, d.z]
                 },
-                |f| f(i, p),
+                |f| f(i, at as usize, p),
             );
             pos.push(p);
             col.push(rgba8(rgb));
@@ -1273,11 +1276,13 @@ mod tests {
         t.push(&[Vec3::new(5.0, 0.0, 0.0), Vec3::new(5.0, 0.0, 4.0)]);
         let mut tubes = tract_tubelets(&t, None, &TubeSettings::default());
         assert_eq!(tubes.len(), 3);
-        recolour(&mut tubes, &|s, p| [p.x, p.y, p.z + 10.0 * s as f32]);
+        // The colour also carries the point's index: each end is told which point of its streamline it is.
+        recolour(&mut tubes, &|s, k, p| [p.x + 100.0 * k as f32, p.y, p.z + 10.0 * s as f32]);
         for (tube, (s, k)) in tubes.iter().zip([(0, 0), (0, 1), (1, 0)]) {
             let pts = t.streamline(s);
-            for (end, p) in tube.colours.iter().zip([pts[k], pts[k + 1]]) {
-                let want = glam::DVec3::new(p.x as f64, p.y as f64, p.z as f64 + 10.0 * s as f64);
+            for (j, (end, p)) in tube.colours.iter().zip([pts[k], pts[k + 1]]).enumerate() {
+                let x = p.x as f64 + 100.0 * (k + j) as f64;
+                let want = glam::DVec3::new(x, p.y as f64, p.z as f64 + 10.0 * s as f64);
                 assert!((*end - want).length() < 1e-5, "streamline {s} segment {k}: {end} vs {want}");
             }
         }
