@@ -26,10 +26,11 @@ use fascicle_render::on_demand::{DrawOnDemand, DrawOnDemandPlugin, KeepAwake, Ne
 
 use crate::history::{RecentFiles, SceneHistory};
 use crate::panels::LayerPanels;
-use fascicle_core::roi::{RoiShape, SegmentGrid, select};
+use fascicle_core::roi::{SegmentGrid, select};
 use fascicle_render::layer::LayerStatus;
+use fascicle_scene::handles::{HandleSystems, HandlesPlugin, RoiDrag};
 use fascicle_scene::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin, view_camera};
-use fascicle_scene::model::{CameraSpec, LayerKind, LayerSpec, Scene, Seeds, TractSource};
+use fascicle_scene::model::{CameraSpec, LayerKind, LayerSpec, Scene};
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
 use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
 use fascicle_views::{Crosshair, MainView, OrthoView, SliceSource, ViewRegion, VoxelGrid, pick_in_view};
@@ -169,7 +170,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             .set(WindowPlugin { primary_window: Some(Window { title: "Fascicle".into(), ..default() }), ..default() }),
     )
     .add_plugins(EguiPlugin::default())
-    .add_plugins((FascicleRenderPlugin, ScenePlugin, DrawOnDemandPlugin))
+    .add_plugins((FascicleRenderPlugin, ScenePlugin, HandlesPlugin, DrawOnDemandPlugin))
     // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
     .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
     // Line previews while the view moves or a tractogram streams in (not with `--screenshot`, whose frame count
@@ -184,7 +185,6 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     )
     .insert_resource(ActiveScene(scene))
     .init_resource::<LayerPanels>()
-    .init_resource::<RoiDrag>()
     .init_resource::<FileDialog>()
     .init_resource::<SceneHistory>()
     .init_resource::<ViewPointer>()
@@ -220,17 +220,18 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
         Update,
         (
             view_input.run_if(not(egui_wants_any_pointer_input)),
-            (drag_roi, orbit_input).chain().run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
+            orbit_input.after(HandleSystems).run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
             pick_glyph.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
             keys.run_if(not(egui_wants_any_keyboard_input)),
             dropped_files,
             file_dialog,
             save_selection,
-            draw_seed_spheres.run_if(resource_exists::<bevy::gizmos::config::GizmoConfigStore>),
             undo_keys.run_if(not(egui_wants_any_keyboard_input)),
             apply_orbit.run_if(resource_changed::<Orbit>),
         ),
     )
+    // Handles are dragged only when the pointer is over the 3D view and not on the panel.
+    .configure_sets(Update, HandleSystems.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view))
     // Undo applies before the layers sync, so the scene it restores shows in the same frame.
     .add_systems(Update, scene_history.before(fascicle_scene::layers::SceneSystems::Sync))
     .add_systems(EguiPrimaryContextPass, panel)
@@ -347,181 +348,6 @@ fn view_input(
 /// four-view grid).
 fn cursor_ray(window: &Window, (cam, tf): (&Camera, &GlobalTransform)) -> Option<Ray3d> {
     fascicle_views::cursor_ray(cam, tf, window.cursor_position()?)
-}
-
-/// What a Shift + left-drag can hold: one of a tract layer's ROIs, the sphere its tracking is seeded from, or
-/// the free plane of an ODF glyph layer (its centre handle moves it, its normal handle tilts it).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Grip {
-    Roi(usize),
-    Seeds,
-    PlaneCentre,
-    PlaneNormal,
-}
-
-/// The glyph plane's two handles: the centre and the tip of the normal, half the plane's half size out.
-fn plane_handles(p: &fascicle_core::sh::glyph::GlyphPlane) -> [(Grip, RoiShape); 2] {
-    let c = glam::DVec3::from(p.centre);
-    let n = glam::DVec3::from(p.normal).normalize_or(glam::DVec3::Z);
-    let radius = (p.half_size * 0.06).max(1.0) as f32;
-    let tip = c + n * (0.5 * p.half_size);
-    [
-        (Grip::PlaneCentre, RoiShape::Sphere { centre: c.as_vec3().to_array(), radius }),
-        (Grip::PlaneNormal, RoiShape::Sphere { centre: tip.as_vec3().to_array(), radius }),
-    ]
-}
-
-/// The shapes a layer offers to a drag.
-fn grips(kind: &LayerKind) -> Vec<(Grip, RoiShape)> {
-    match kind {
-        LayerKind::Tracts { rois, source, .. } => {
-            let mut out: Vec<(Grip, RoiShape)> =
-                rois.iter().enumerate().map(|(k, r)| (Grip::Roi(k), r.shape)).collect();
-            if let TractSource::Track { seeds: Seeds::Sphere { centre, radius, .. }, .. } = source {
-                out.push((Grip::Seeds, RoiShape::Sphere { centre: *centre, radius: *radius }));
-            }
-            out
-        }
-        LayerKind::ShGlyphs { plane: Some(p), full_volume: false, .. } => plane_handles(p).to_vec(),
-        _ => vec![],
-    }
-}
-
-/// Moves the gripped shape of a layer to `shape` (a plane handle: the plane's centre moves with it, or its
-/// normal turns towards it); false when the layer has no such grip.
-fn set_grip(kind: &mut LayerKind, grip: Grip, shape: RoiShape) -> bool {
-    if let LayerKind::ShGlyphs { plane: Some(p), full_volume: false, .. } = kind {
-        let RoiShape::Sphere { centre: c, .. } = shape else { return false };
-        let c = glam::Vec3::from(c).as_dvec3();
-        match grip {
-            Grip::PlaneCentre => p.centre = c.to_array(),
-            Grip::PlaneNormal => {
-                let n = (c - glam::DVec3::from(p.centre)).normalize_or_zero();
-                if n == glam::DVec3::ZERO {
-                    return false;
-                }
-                p.normal = n.to_array();
-            }
-            _ => return false,
-        }
-        return true;
-    }
-    let LayerKind::Tracts { rois, source, .. } = kind else { return false };
-    match (grip, source, shape) {
-        (Grip::Roi(k), _, _) => rois.get_mut(k).map(|r| r.shape = shape).is_some(),
-        (
-            Grip::Seeds,
-            TractSource::Track { seeds: Seeds::Sphere { centre, radius, .. }, .. },
-            RoiShape::Sphere { centre: c, radius: r },
-        ) => {
-            (*centre, *radius) = (c, r);
-            true
-        }
-        _ => false,
-    }
-}
-
-/// A shape held by a Shift + left-drag: which one, where the cursor ray first met it, the view direction
-/// then, and its shape then. The drag moves it in the plane through that point facing the camera.
-#[derive(Clone, Copy, Debug)]
-struct RoiGrab {
-    layer: usize,
-    grip: Grip,
-    hit: Vec3,
-    normal: Vec3,
-    shape: RoiShape,
-}
-
-#[derive(Resource, Default)]
-struct RoiDrag(Option<RoiGrab>);
-
-/// The ROI or seed sphere of a visible tract layer that a ray meets first: (layer, what, distance).
-fn pick_roi(scene: &Scene, o: Vec3, d: Vec3) -> Option<(usize, Grip, f32)> {
-    scene
-        .layers
-        .iter()
-        .enumerate()
-        .filter(|(_, l)| l.visible)
-        .flat_map(|(i, l)| grips(&l.kind).into_iter().filter_map(move |(g, s)| s.ray_hit(o, d).map(|t| (i, g, t))))
-        .min_by(|a, b| a.2.total_cmp(&b.2))
-}
-
-/// The grabbed shape moved by where the cursor ray (`o`, `d`) meets the grab plane; None when the ray runs
-/// along the plane or meets it behind the camera.
-fn dragged_shape(g: &RoiGrab, o: Vec3, d: Vec3) -> Option<RoiShape> {
-    let denom = d.dot(g.normal);
-    if denom.abs() < 1e-6 {
-        return None;
-    }
-    let t = (g.hit - o).dot(g.normal) / denom;
-    (t > 0.0).then(|| g.shape.translated(o + d * t - g.hit))
-}
-
-/// Shift + left-drag on an ROI's outline moves it (in the plane facing the camera): the tracts re-select as
-/// it moves. On a seed sphere it moves the seeds: the layer tracks again, only from the seeds that are new.
-/// Writes the scene only when the shape actually moved.
-fn drag_roi(
-    buttons: Res<ButtonInput<MouseButton>>,
-    keys: Res<ButtonInput<KeyCode>>,
-    window: Single<&Window, With<PrimaryWindow>>,
-    camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
-    mut drag: ResMut<RoiDrag>,
-    mut scene: ResMut<ActiveScene>,
-) {
-    if !buttons.pressed(MouseButton::Left) {
-        drag.0 = None;
-        return;
-    }
-    let Some(ray) = cursor_ray(&window, *camera) else { return };
-    let (o, d) = (ray.origin, ray.direction.as_vec3());
-    if buttons.just_pressed(MouseButton::Left) && keys.any_pressed([KeyCode::ShiftLeft, KeyCode::ShiftRight]) {
-        drag.0 = pick_roi(&scene.0, o, d).and_then(|(layer, grip, t)| {
-            let shape = grips(&scene.0.layers[layer].kind).into_iter().find(|(g, _)| *g == grip)?.1;
-            Some(RoiGrab { layer, grip, hit: o + d * t, normal: camera.1.forward().as_vec3(), shape })
-        });
-    }
-    let Some(g) = drag.0 else { return };
-    let Some(shape) = dragged_shape(&g, o, d) else { return };
-    let current = scene.0.layers.get(g.layer).and_then(|l| grips(&l.kind).into_iter().find(|(k, _)| *k == g.grip));
-    if current.is_some_and(|(_, c)| c != shape) {
-        set_grip(&mut scene.0.layers[g.layer].kind, g.grip, shape);
-    }
-}
-
-/// Outlines the seed spheres of visible tracking layers (yellow; ROIs are drawn by the tracts plugin) and the
-/// free planes of glyph layers (cyan: the plane's square, its normal and the two handles).
-fn draw_seed_spheres(mut gizmos: Gizmos, scene: Res<ActiveScene>) {
-    for l in scene.0.layers.iter().filter(|l| l.visible) {
-        if let LayerKind::ShGlyphs { plane: Some(p), full_volume: false, .. } = &l.kind {
-            let colour = Color::linear_rgb(0.1, 0.85, 1.0);
-            let c = glam::DVec3::from(p.centre).as_vec3();
-            let n = glam::DVec3::from(p.normal).normalize_or(glam::DVec3::Z).as_vec3();
-            let (u, v) = n.any_orthonormal_pair();
-            let h = p.half_size as f32;
-            let corners = [c + (u + v) * h, c + (u - v) * h, c - (u + v) * h, c - (u - v) * h];
-            for k in 0..4 {
-                gizmos.line(corners[k], corners[(k + 1) % 4], colour);
-            }
-            let handles = plane_handles(p);
-            if let RoiShape::Sphere { centre: tip, .. } = handles[1].1 {
-                gizmos.line(c, Vec3::from(tip), colour);
-            }
-            for (_, shape) in handles {
-                if let RoiShape::Sphere { centre, radius } = shape {
-                    gizmos.sphere(Isometry3d::from_translation(Vec3::from(centre)), radius, colour);
-                }
-            }
-        }
-        for (grip, shape) in grips(&l.kind) {
-            if let (Grip::Seeds, RoiShape::Sphere { centre, radius }) = (grip, shape) {
-                gizmos.sphere(
-                    Isometry3d::from_translation(Vec3::from(centre)),
-                    radius,
-                    Color::linear_rgb(1.0, 0.85, 0.1),
-                );
-            }
-        }
-    }
 }
 
 /// A click (press and release without dragging) on an SH glyph toggles its highlight and reports its voxel.
@@ -1191,138 +1017,6 @@ mod tests {
             recent.len() == 2 && recent[0].ends_with("sh/func_coef.nii.gz") && recent[1].ends_with("tracks300.trk"),
             "{recent:?}"
         );
-    }
-
-    /// Picking and dragging ROIs: the first ROI along the ray among visible tract layers; a drag moves it by
-    /// the cursor's displacement in the plane facing the camera through the grab point.
-    #[test]
-    fn rois_are_picked_front_first_and_dragged_in_the_view_plane() {
-        use fascicle_core::roi::{Roi, RoiMode};
-        let tracts = |visible: bool, rois: Vec<RoiShape>| LayerSpec {
-            name: "tracts".into(),
-            visible,
-            opacity: 1.0,
-            kind: LayerKind::Tracts {
-                source: fascicle_scene::model::TractSource::PhantomRk4 { seed_spacing: 4 },
-                mode: fascicle_scene::model::TractMode::Tubes,
-                render: Default::default(),
-                rois: rois.into_iter().map(|shape| Roi { shape, mode: RoiMode::Include }).collect(),
-                colouring: Default::default(),
-            },
-        };
-        let near = RoiShape::Sphere { centre: [0.0, 0.0, 10.0], radius: 2.0 };
-        let far = RoiShape::Box { min: [-3.0, -3.0, -3.0], max: [3.0, 3.0, 3.0] };
-        let hidden = RoiShape::Sphere { centre: [0.0, 0.0, 20.0], radius: 2.0 };
-        let scene = Scene {
-            layers: vec![tracts(true, vec![far, near]), tracts(false, vec![hidden])],
-            camera: CameraSpec::default(),
-            views: Default::default(),
-        };
-        // Looking down -z from z = 40: the hidden layer's sphere is first along the ray but not pickable.
-        let (o, d) = (Vec3::new(0.0, 0.0, 40.0), -Vec3::Z);
-        assert_eq!(pick_roi(&scene, o, d), Some((0, Grip::Roi(1), 28.0)));
-        assert_eq!(pick_roi(&scene, Vec3::new(2.5, 2.5, 40.0), d), Some((0, Grip::Roi(0), 37.0)));
-        assert_eq!(pick_roi(&scene, Vec3::new(10.0, 0.0, 40.0), d), None);
-
-        // Grab the sphere at its top (z = 12) and drag the cursor: a ray from the eye through a point 3 mm
-        // to the right and 1 mm up in the grab plane moves the centre by exactly that.
-        let g = RoiGrab { layer: 0, grip: Grip::Roi(1), hit: o + d * 28.0, normal: d, shape: near };
-        let eye = Vec3::new(0.0, 0.0, 40.0);
-        let target = Vec3::new(3.0, 1.0, 12.0);
-        let moved = dragged_shape(&g, eye, (target - eye).normalize()).unwrap();
-        let RoiShape::Sphere { centre, radius } = moved else { panic!("{moved:?}") };
-        assert!((Vec3::from(centre) - Vec3::new(3.0, 1.0, 10.0)).length() < 1e-5 && radius == 2.0, "{centre:?}");
-        // A ray along the plane does not move it.
-        assert_eq!(dragged_shape(&g, eye, Vec3::X), None);
-    }
-
-    /// A tracking layer's seed sphere is picked and dragged like an ROI: the drag moves the sphere's centre in
-    /// the scene (its radius and seed count stay); grid seeds offer nothing to drag.
-    #[test]
-    fn seed_spheres_are_picked_and_dragged() {
-        use fascicle_scene::model::TensorSource;
-        let track = |seeds: Seeds| LayerSpec {
-            name: "tracking".into(),
-            visible: true,
-            opacity: 1.0,
-            kind: LayerKind::Tracts {
-                source: TractSource::Track { tensors: TensorSource::Phantom, seeds, params: Default::default() },
-                mode: fascicle_scene::model::TractMode::Tubes,
-                render: Default::default(),
-                rois: vec![],
-                colouring: Default::default(),
-            },
-        };
-        let sphere = Seeds::Sphere { centre: [28.0, 0.0, 0.0], radius: 6.0, per_voxel: 8 };
-        let mut scene = Scene {
-            layers: vec![track(Seeds::default()), track(sphere)],
-            camera: CameraSpec::default(),
-            views: Default::default(),
-        };
-        assert!(grips(&scene.layers[0].kind).is_empty());
-        let (o, d) = (Vec3::new(28.0, 0.0, 40.0), -Vec3::Z);
-        assert_eq!(pick_roi(&scene, o, d), Some((1, Grip::Seeds, 34.0)));
-        let shape = grips(&scene.layers[1].kind)[0].1;
-        let g = RoiGrab { layer: 1, grip: Grip::Seeds, hit: o + d * 34.0, normal: d, shape };
-        let target = Vec3::new(30.0, 4.0, 6.0);
-        let moved = dragged_shape(&g, o, (target - o).normalize()).unwrap();
-        assert!(set_grip(&mut scene.layers[1].kind, Grip::Seeds, moved));
-        let LayerKind::Tracts { source: TractSource::Track { seeds, .. }, .. } = &scene.layers[1].kind else {
-            unreachable!()
-        };
-        let Seeds::Sphere { centre, radius, per_voxel } = seeds else { panic!("{seeds:?}") };
-        assert!((Vec3::from(*centre) - Vec3::new(30.0, 4.0, 0.0)).length() < 1e-4, "{centre:?}");
-        assert_eq!((*radius, *per_voxel), (6.0, 8));
-        assert!(!set_grip(&mut scene.layers[0].kind, Grip::Seeds, moved), "grid seeds have no sphere");
-    }
-
-    /// A free glyph plane's handles: Shift + drag on the centre moves the plane, on the normal's tip tilts it.
-    #[test]
-    fn glyph_planes_are_moved_and_tilted_by_their_handles() {
-        use fascicle_core::sh::glyph::GlyphPlane;
-        let plane = GlyphPlane { centre: [0.0, 0.0, 1.0], normal: [0.0, 0.0, 1.0], half_size: 40.0, spacing: 2.0 };
-        let glyphs = |plane| LayerKind::ShGlyphs {
-            source: fascicle_scene::model::ShSource::PhantomCsa { l_max: 4 },
-            axis: fascicle_scene::model::SliceAxis::Z,
-            index: None,
-            spacing: 1,
-            plane,
-            sampling: Default::default(),
-            full_volume: false,
-            style: Default::default(),
-            render: Default::default(),
-        };
-        let mut kind = glyphs(Some(plane));
-        let mut scene = Scene {
-            layers: vec![LayerSpec { name: "odf".into(), visible: true, opacity: 1.0, kind: kind.clone() }],
-            camera: CameraSpec::default(),
-            views: Default::default(),
-        };
-        // From above: the normal's tip (z = 21) comes before the centre (z = 1).
-        let (o, d) = (Vec3::new(0.0, 0.0, 60.0), -Vec3::Z);
-        let radius = 40.0 * 0.06;
-        assert_eq!(pick_roi(&scene, o, d), Some((0, Grip::PlaneNormal, 60.0 - 21.0 - radius)));
-        // The centre, seen from the side.
-        let (o2, d2) = (Vec3::new(-60.0, 0.0, 1.0), Vec3::X);
-        assert_eq!(pick_roi(&scene, o2, d2), Some((0, Grip::PlaneCentre, 60.0 - radius)));
-        let centre = grips(&kind)[0].1;
-        let g =
-            RoiGrab { layer: 0, grip: Grip::PlaneCentre, hit: o2 + d2 * (60.0 - radius), normal: d2, shape: centre };
-        // The cursor now points at (y 5, z 9) on the grab plane (through the handle's front, facing the view).
-        let moved = dragged_shape(&g, o2, (Vec3::new(-radius, 5.0, 9.0) - o2).normalize()).unwrap();
-        assert!(set_grip(&mut kind, Grip::PlaneCentre, moved));
-        let LayerKind::ShGlyphs { plane: Some(p), .. } = &kind else { unreachable!() };
-        assert!((glam::DVec3::from(p.centre) - glam::DVec3::new(0.0, 5.0, 9.0)).length() < 1e-4, "{p:?}");
-        // The tip dragged sideways: the normal turns towards it, the centre stays.
-        let tip = RoiShape::Sphere { centre: [20.0, 5.0, 9.0], radius };
-        assert!(set_grip(&mut kind, Grip::PlaneNormal, tip));
-        let LayerKind::ShGlyphs { plane: Some(p), .. } = &kind else { unreachable!() };
-        assert!((glam::DVec3::from(p.normal) - glam::DVec3::X).length() < 1e-9, "{p:?}");
-        assert_eq!(p.centre, [0.0, 5.0, 9.0]);
-        // A hidden layer's handles are not picked; a slice-placed layer has none.
-        scene.layers[0].visible = false;
-        assert_eq!(pick_roi(&scene, o, d), None);
-        assert!(grips(&glyphs(None)).is_empty());
     }
 
     /// "Save selection" writes what the ROIs select: from a tract set's own selection flags, or, for a layer

@@ -9,11 +9,14 @@
 //!   cancel ([`JobProgress`]) and a shared [`DataCache`] ([`cache`]).
 //! - [`layers`]: the systems that keep one entity per layer in step with the scene: an edit restyles in place
 //!   (a settings component write) or starts a job for the layer it changed, never a respawn of the others.
+//! - [`handles`]: Shift + drag on an ROI, a seed sphere or a glyph plane in the 3D view moves it
+//!   ([`handles::HandlesPlugin`]).
 //! - [`headless`]: a scene rendered offscreen into an image.
 
 #![warn(missing_docs)]
 
 pub mod cache;
+pub mod handles;
 pub mod headless;
 pub mod jobs;
 pub mod layers;
