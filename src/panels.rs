@@ -318,29 +318,11 @@ fn tract_colouring(
                 }
             });
             ui.add(egui::DragValue::new(volume).prefix("volume "));
-            ui.horizontal(|ui| {
-                ui.add(egui::DragValue::new(&mut window.0).speed(0.01).prefix("from "));
-                ui.add(egui::DragValue::new(&mut window.1).speed(0.01).prefix("to "));
-            });
+            window_row(ui, window);
         }
         TractColouring::Value { weights, name, window, min } => {
-            let mut text = weights.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
-            ui.horizontal(|ui| {
-                ui.label("weights file");
-                if ui.add(egui::TextEdit::singleline(&mut text).hint_text("tcksift2 .txt, or empty")).changed() {
-                    *weights = (!text.trim().is_empty()).then(|| text.trim().into());
-                }
-            });
-            if weights.is_none() {
-                ui.horizontal(|ui| {
-                    ui.label("per-streamline array");
-                    ui.text_edit_singleline(name);
-                });
-            }
-            ui.horizontal(|ui| {
-                ui.add(egui::DragValue::new(&mut window.0).speed(0.01).prefix("from "));
-                ui.add(egui::DragValue::new(&mut window.1).speed(0.01).prefix("to "));
-            });
+            values_source(ui, weights, name, ["weights file", "tcksift2 .txt, or empty", "per-streamline array"]);
+            window_row(ui, window);
             let mut hide = min.is_some();
             let mut m = min.unwrap_or(window.0);
             ui.horizontal(|ui| {
@@ -353,28 +335,39 @@ fn tract_colouring(
             }
         }
         TractColouring::PointValue { file, name, window } => {
-            let mut text = file.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
-            ui.horizontal(|ui| {
-                ui.label("track scalar file");
-                if ui.add(egui::TextEdit::singleline(&mut text).hint_text(".tsf, or empty")).changed() {
-                    *file = (!text.trim().is_empty()).then(|| text.trim().into());
-                }
-            });
-            if file.is_none() {
-                ui.horizontal(|ui| {
-                    ui.label("per-point array");
-                    ui.text_edit_singleline(name);
-                });
-            }
-            ui.horizontal(|ui| {
-                ui.add(egui::DragValue::new(&mut window.0).speed(0.01).prefix("from "));
-                ui.add(egui::DragValue::new(&mut window.1).speed(0.01).prefix("to "));
-            });
+            values_source(ui, file, name, ["track scalar file", ".tsf, or empty", "per-point array"]);
+            window_row(ui, window);
             if let Some(values) = &data.values {
                 value_histogram(ui, values, "points", window, None);
             }
         }
         _ => {}
+    }
+}
+
+/// The two ends of a colour window.
+fn window_row(ui: &mut egui::Ui, window: &mut (f32, f32)) {
+    ui.horizontal(|ui| {
+        ui.add(egui::DragValue::new(&mut window.0).speed(0.01).prefix("from "));
+        ui.add(egui::DragValue::new(&mut window.1).speed(0.01).prefix("to "));
+    });
+}
+
+/// Where a tract layer's values come from: a file (empty: none), else the tractogram's own array `name`.
+/// `labels`: the file's label, its hint, the array's label.
+fn values_source(ui: &mut egui::Ui, file: &mut Option<std::path::PathBuf>, name: &mut String, labels: [&str; 3]) {
+    let mut text = file.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
+    ui.horizontal(|ui| {
+        ui.label(labels[0]);
+        if ui.add(egui::TextEdit::singleline(&mut text).hint_text(labels[1])).changed() {
+            *file = (!text.trim().is_empty()).then(|| text.trim().into());
+        }
+    });
+    if file.is_none() {
+        ui.horizontal(|ui| {
+            ui.label(labels[2]);
+            ui.text_edit_singleline(name);
+        });
     }
 }
 
