@@ -374,7 +374,7 @@ fn values_source(ui: &mut egui::Ui, file: &mut Option<std::path::PathBuf>, name:
 fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
     use fascicle_scene::model::TractMode;
-    let LayerKind::Tracts { source, mode, render, rois, colouring } = kind else { return };
+    let LayerKind::Tracts { source, mode, render, rois, masks, colouring } = kind else { return };
     ui.horizontal(|ui| {
         ui.radio_value(mode, TractMode::Tubes, "hyperstreamlines");
         ui.radio_value(mode, TractMode::Polygon, "polygon tubes");
@@ -434,6 +434,37 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
             rois.push(add(RoiShape::Plane { point: [0.0; 3], normal: [1.0, 0.0, 0.0] }));
         }
     });
+    mask_rois(ui, masks);
+}
+
+/// A tract layer's mask images: each with include or exclude and a remove button; a path typed in the field is
+/// added by the button (not at every keystroke: a mask change rebuilds the layer).
+fn mask_rois(ui: &mut egui::Ui, masks: &mut Vec<fascicle_scene::model::MaskRoi>) {
+    use fascicle_core::roi::RoiMode;
+    let mut remove = None;
+    for (i, m) in masks.iter_mut().enumerate() {
+        ui.horizontal(|ui| {
+            ui.label(format!("mask {}", m.path.display()));
+            ui.radio_value(&mut m.mode, RoiMode::Include, "include");
+            ui.radio_value(&mut m.mode, RoiMode::Exclude, "exclude");
+            if ui.small_button("x").clicked() {
+                remove = Some(i);
+            }
+        });
+    }
+    if let Some(i) = remove {
+        masks.remove(i);
+    }
+    let id = ui.id().with("new mask");
+    let mut path = ui.data_mut(|d| d.get_temp::<String>(id)).unwrap_or_default();
+    ui.horizontal(|ui| {
+        ui.add(egui::TextEdit::singleline(&mut path).hint_text("mask .nii.gz / .mif").desired_width(180.0));
+        if ui.button("+ mask").clicked() && !path.trim().is_empty() {
+            masks.push(fascicle_scene::model::MaskRoi { path: path.trim().into(), mode: RoiMode::Include });
+            path.clear();
+        }
+    });
+    ui.data_mut(|d| d.insert_temp(id, path));
 }
 
 /// A labelled row of three drag values (a point or direction in mm).
@@ -870,6 +901,7 @@ mod tests {
                 mode: fascicle_scene::model::TractMode::Lines,
                 render: Default::default(),
                 rois: vec![],
+                masks: vec![],
                 colouring: Default::default(),
             },
         ];

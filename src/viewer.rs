@@ -910,6 +910,7 @@ fn derived_layers(tensors: &fascicle_scene::model::TensorSource) -> Vec<(&'stati
                 mode: TractMode::Tubes,
                 render: Default::default(),
                 rois: vec![],
+                masks: vec![],
                 colouring: Default::default(),
             },
         ),
@@ -1043,6 +1044,7 @@ mod tests {
                 mode: fascicle_scene::model::TractMode::Lines,
                 render: Default::default(),
                 rois: rois.clone(),
+                masks: vec![],
                 colouring: Default::default(),
             },
         };

@@ -652,3 +652,42 @@ fn tensor_mif_reads_in_the_tensor_plugin_in_mrtrix_frame() {
     }
     assert!(checked > 50, "{checked} voxels with FA > 0.3");
 }
+
+/// A tract layer with a mask image as its include region shows exactly the streamlines `tckedit -include MASK`
+/// keeps (and `-exclude` the others): DIPY's small_64D tracts through the voxels where its FA exceeds 0.7.
+#[test]
+fn mask_layers_show_what_tckedit_keeps() {
+    use fascicle_core::roi::RoiMode;
+    use fascicle_scene::model::{LayerKind, MaskRoi, TractMode, TractSource};
+    use fascicle_scene::{DataCache, JobProgress, jobs};
+    if !mrtrix() {
+        return;
+    }
+    let tracks = data("tracts/small_64D_dti.tck");
+    let (mut fa, _) = nifti::read::<f32>(data("dti/small_64D_fa.nii.gz")).unwrap();
+    fa.data.iter_mut().for_each(|v| *v = f32::from(u8::from(*v > 0.7)));
+    let mask = scratch("layer_mask.nii");
+    nifti::write(&mask, &fa, nifti::WriteType::F32).unwrap();
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    for (mode, flag) in [(RoiMode::Include, "-include"), (RoiMode::Exclude, "-exclude")] {
+        let theirs = scratch(&format!("layer_mask{flag}.tck"));
+        run("tckedit", &["-quiet", "-force", &s(&tracks), flag, &s(&mask), &s(&theirs)]);
+        let theirs = Tractogram::read(&theirs).unwrap();
+        let kind = LayerKind::Tracts {
+            source: TractSource::File { path: tracks.clone(), tensors: None },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: vec![],
+            masks: vec![MaskRoi { path: mask.clone(), mode }],
+            colouring: Default::default(),
+        };
+        let Ok(jobs::Content::Tracts(ours)) = jobs::build(&kind, &DataCache::default(), &JobProgress::default()) else {
+            panic!("no tract set")
+        };
+        let ours = ours.tractogram.expect("streamlines");
+        println!("{flag} mask: tckedit kept {}, the layer {}", theirs.n_streamlines(), ours.n_streamlines());
+        assert!(theirs.n_streamlines() > 50, "{flag}: {} kept", theirs.n_streamlines());
+        assert_eq!(ours.offsets, theirs.offsets, "{flag}: the same streamlines, of the same lengths");
+        assert_eq!(ours.points, theirs.points, "{flag}: the same points");
+    }
+}

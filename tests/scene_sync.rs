@@ -434,6 +434,7 @@ fn rois_act_on_their_own_layer() {
             mode,
             render: Default::default(),
             rois,
+            masks: vec![],
             colouring: Default::default(),
         },
     };
@@ -718,6 +719,7 @@ fn tracking_streams_into_its_layer() {
             mode: TractMode::Tubes,
             render: default(),
             rois: rois.clone(),
+            masks: vec![],
             colouring: default(),
         },
     };
@@ -784,6 +786,7 @@ fn value_coloured_tracts_report_their_histogram() {
         mode: TractMode::Lines,
         render: Default::default(),
         rois: vec![],
+        masks: vec![],
         colouring,
     };
     let scene = Scene {

@@ -310,6 +310,7 @@ fn the_2d_views_show_streamlines_cropped_to_a_slab() {
             mode: fascicle_scene::model::TractMode::Lines,
             render: Default::default(),
             rois: vec![],
+            masks: vec![],
             colouring: Default::default(),
         },
     });

@@ -324,6 +324,7 @@ fn large_scene(dir: &Path) -> Result<Scene, String> {
                     shape: RoiShape::Sphere { centre: [0.0, 0.0, 0.0], radius: 10.0 },
                     mode: RoiMode::Include,
                 }],
+                masks: vec![],
                 colouring: Default::default(),
             },
         ),
@@ -347,6 +348,7 @@ fn seeded_tracking() -> LayerSpec {
             mode: TractMode::Tubes,
             render: Default::default(),
             rois: vec![],
+            masks: vec![],
             colouring: Default::default(),
         },
     }

@@ -236,6 +236,7 @@ mod tests {
                 mode: crate::model::TractMode::Tubes,
                 render: Default::default(),
                 rois: rois.into_iter().map(|shape| Roi { shape, mode: RoiMode::Include }).collect(),
+                masks: vec![],
                 colouring: Default::default(),
             },
         };
@@ -279,6 +280,7 @@ mod tests {
                 mode: crate::model::TractMode::Tubes,
                 render: Default::default(),
                 rois: vec![],
+                masks: vec![],
                 colouring: Default::default(),
             },
         };

@@ -20,7 +20,7 @@ use fascicle_tensors::{SplatShape, TensorField, TensorGlyphShape};
 
 use crate::cache::DataCache;
 use crate::model::{
-    LayerKind, ShSource, SliceAxis, TensorSource, TractColouring, TractMode, TractSource, VolumeSource,
+    LayerKind, MaskRoi, ShSource, SliceAxis, TensorSource, TractColouring, TractMode, TractSource, VolumeSource,
 };
 use fascicle_tracts::{LineDetail, PreparedTracts};
 use fascicle_views::{Channels, auto_window};
@@ -296,7 +296,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
-        LayerKind::Tracts { source, mode, render, colouring, rois, .. } => {
+        LayerKind::Tracts { source, mode, render, colouring, rois, masks } => {
             // A scalar image to colour by is read (through the cache) before any part is made.
             let scalar = match colouring {
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
@@ -333,27 +333,47 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 streamed.store(true, Ordering::Relaxed);
                 progress.parts.push(prepare(part, 0, None));
             };
-            let mut data = tract_data_in_parts(cache, source, progress, (!by_value).then_some(&on_part as OnPart))?;
+            // Mask regions and values need the whole tractogram: it is not shown in parts as it comes.
+            let whole = by_value || !masks.is_empty();
+            let mut data = tract_data_in_parts(cache, source, progress, (!whole).then_some(&on_part as OnPart))?;
+            // The streamlines the mask regions keep (tckedit's test of each point), before any value threshold.
+            let mut keep = mask_keeps(cache, masks, &data.tractogram, progress)?;
             // Values to colour by, aligned with the streamlines (those below a minimum hidden) or their points.
             let (mut per_streamline, mut per_point) = (None, None);
             match colouring {
                 TractColouring::Value { weights, name, min, .. } => {
-                    let mut v = streamline_values(&data.tractogram, weights.as_deref(), name)?;
+                    let v = streamline_values(&data.tractogram, weights.as_deref(), name)?;
                     progress.set_values(ValueHistogram::of(&v));
                     if let Some(m) = min {
-                        let keep: Vec<bool> = v.iter().map(|x| x >= m).collect();
-                        data = subset_of(&data, &keep);
-                        v.retain(|x| x >= m);
+                        let k = keep.get_or_insert_with(|| vec![true; v.len()]);
+                        k.iter_mut().zip(&v).for_each(|(k, x)| *k &= x >= m);
                     }
-                    per_streamline = Some(v);
+                    per_streamline = Some(match &keep {
+                        Some(k) => v.iter().zip(k).filter(|(_, k)| **k).map(|(x, _)| *x).collect(),
+                        None => v,
+                    });
                 }
                 TractColouring::PointValue { file, name, .. } => {
                     let v = point_values(&data.tractogram, file.as_deref(), name)?;
                     progress.set_values(ValueHistogram::of(&v));
-                    per_point = Some((v, data.tractogram.offsets.clone()));
+                    per_point = Some(match &keep {
+                        Some(k) => {
+                            let t = &data.tractogram;
+                            (0..t.n_streamlines())
+                                .filter(|s| k[*s])
+                                .flat_map(|s| &v[t.offsets[s]..t.offsets[s + 1]])
+                                .copied()
+                                .collect()
+                        }
+                        None => v,
+                    });
                 }
                 _ => {}
             }
+            if let Some(k) = &keep {
+                data = subset_of(&data, k);
+            }
+            let per_point = per_point.map(|v| (v, data.tractogram.offsets.clone()));
             let values = match (&per_streamline, &per_point) {
                 (Some(v), _) => Some(TractValues::Streamlines(v)),
                 (_, Some((values, offsets))) => Some(TractValues::Points { values, offsets }),
@@ -592,6 +612,40 @@ pub fn streamline_values(t: &Tractogram, weights: Option<&Path>, name: &str) -> 
 }
 
 /// The streamlines of `data` that `keep` marks, with their tensors.
+/// The streamlines of `t` that `masks` keep, as `tckedit` keeps them with image regions (every include mask
+/// met, no exclude mask met, by a point in a non-zero voxel); None when there are no masks. The images are read
+/// through the cache.
+fn mask_keeps(
+    cache: &DataCache,
+    masks: &[MaskRoi],
+    t: &Tractogram,
+    progress: &JobProgress,
+) -> Result<Option<Vec<bool>>, String> {
+    use fascicle_core::roi::{Criteria, MaskRegion, Region, RoiMode};
+    use rayon::prelude::*;
+    if masks.is_empty() {
+        return Ok(None);
+    }
+    let mut criteria = Criteria::default();
+    for m in masks {
+        let region = MaskRegion::new(&*image(cache, &m.path, progress)?);
+        if region.count() == 0 {
+            return Err(format!("{}: the mask image is empty (no non-zero voxel)", m.path.display()));
+        }
+        let to = if m.mode == RoiMode::Include { &mut criteria.include } else { &mut criteria.exclude };
+        to.push(Region::Mask(Arc::new(region)));
+    }
+    progress.stage("testing the streamlines against the masks", t.n_streamlines())?;
+    let keep = (0..t.n_streamlines())
+        .into_par_iter()
+        .map(|s| {
+            progress.advance(1);
+            criteria.keeps(t.streamline(s))
+        })
+        .collect();
+    Ok(Some(keep))
+}
+
 fn subset_of(data: &TractData, keep: &[bool]) -> TractData {
     let mut out = (Tractogram::new(), vec![]);
     for (s, _) in keep.iter().enumerate().filter(|(_, k)| **k) {
@@ -1689,6 +1743,7 @@ mod tests {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
+            masks: vec![],
             colouring: Default::default(),
         };
         let progress = JobProgress::default();
@@ -1782,6 +1837,7 @@ mod tests {
                 mode: TractMode::Lines,
                 render: Default::default(),
                 rois: vec![],
+                masks: vec![],
                 colouring,
             };
             let Ok(Content::Tracts(p)) = build(&kind, &DataCache::default(), &JobProgress::default()) else {
@@ -1857,6 +1913,7 @@ mod tests {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
+            masks: vec![],
             colouring,
         };
         let e = build(&kind(value(None)), &DataCache::default(), &JobProgress::default()).err().unwrap();
@@ -1906,6 +1963,80 @@ mod tests {
             matches!(tubes.geometry, fascicle_tracts::PreparedGeometry::Tubes { n_tubelets, .. } if n_tubelets > 1000)
         );
         std::fs::remove_file(ramp).ok();
+    }
+
+    /// Mask images as a tract layer's regions keep what tckedit's image regions keep (the core's `Criteria`,
+    /// itself tested against `tckedit`): an include mask the streamlines through a slab of voxels, an exclude
+    /// mask the others; with a value threshold, both apply. An empty mask is an error naming the file.
+    #[test]
+    fn mask_regions_keep_what_tckedit_keeps() {
+        use crate::model::{MaskRoi, TractColouring};
+        use fascicle_core::roi::{Criteria, MaskRegion, Region, RoiMode};
+        let path = data("tracts/tracks300.trk");
+        let t = Tractogram::read(&path).unwrap();
+        // A 1 mm grid over the streamlines, set on the slab 88 <= x < 94 mm.
+        let affine = glam::DMat4::from_translation(glam::DVec3::new(60.0, 75.0, 58.0));
+        let mut vol = Volume::<f32>::zeros(&[60, 50, 40], affine);
+        for (i, v) in vol.data.iter_mut().enumerate() {
+            *v = f32::from(u8::from((28..34).contains(&(i % 60))));
+        }
+        let mask = std::env::temp_dir().join(format!("fascicle-mask-{}.nii.gz", std::process::id()));
+        fascicle_core::io::nifti::write(&mask, &vol, fascicle_core::io::nifti::WriteType::F32).unwrap();
+        let region = Region::Mask(Arc::new(MaskRegion::new(&vol)));
+        let through: Vec<bool> = (0..t.n_streamlines())
+            .map(|s| Criteria { include: vec![region.clone()], ..Default::default() }.keeps(t.streamline(s)))
+            .collect();
+        let n_through = through.iter().filter(|k| **k).count();
+        assert!(n_through > 20 && n_through < t.n_streamlines() - 20, "{n_through} of {}", t.n_streamlines());
+        let kept = |mode, colouring| {
+            let kind = LayerKind::Tracts {
+                source: TractSource::File { path: path.clone(), tensors: None },
+                mode: TractMode::Lines,
+                render: Default::default(),
+                rois: vec![],
+                masks: vec![MaskRoi { path: mask.clone(), mode }],
+                colouring,
+            };
+            match build(&kind, &DataCache::default(), &JobProgress::default()) {
+                Ok(Content::Tracts(p)) => p.tractogram.expect("streamlines kept"),
+                Ok(_) => panic!("not one set"),
+                Err(e) => panic!("{e}"),
+            }
+        };
+        let first_points = |t: &Tractogram, keep: &dyn Fn(usize) -> bool| -> Vec<[f32; 3]> {
+            (0..t.n_streamlines()).filter(|s| keep(*s)).map(|s| t.streamline(s)[0].to_array()).collect()
+        };
+        let inc = kept(RoiMode::Include, TractColouring::Style);
+        assert_eq!(first_points(&inc, &|_| true), first_points(&t, &|s| through[s]));
+        let exc = kept(RoiMode::Exclude, TractColouring::Style);
+        assert_eq!(first_points(&exc, &|_| true), first_points(&t, &|s| !through[s]));
+        // With weights s / n and a threshold of 0.5: the streamlines through the slab in the upper half.
+        let weights = std::env::temp_dir().join(format!("fascicle-mask-weights-{}.txt", std::process::id()));
+        let n = t.n_streamlines();
+        fascicle_core::io::weights::write(&weights, &(0..n).map(|s| s as f32 / n as f32).collect::<Vec<_>>()).unwrap();
+        let value = TractColouring::Value {
+            weights: Some(weights.clone()),
+            name: String::new(),
+            window: (0.0, 1.0),
+            min: Some(0.5),
+        };
+        let both = kept(RoiMode::Include, value);
+        assert_eq!(first_points(&both, &|_| true), first_points(&t, &|s| through[s] && s * 2 >= n));
+        // An empty mask: an error naming it.
+        vol.data.iter_mut().for_each(|v| *v = 0.0);
+        fascicle_core::io::nifti::write(&mask, &vol, fascicle_core::io::nifti::WriteType::F32).unwrap();
+        let kind = LayerKind::Tracts {
+            source: TractSource::File { path: path.clone(), tensors: None },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: vec![],
+            masks: vec![MaskRoi { path: mask.clone(), mode: RoiMode::Include }],
+            colouring: TractColouring::Style,
+        };
+        let e = build(&kind, &DataCache::default(), &JobProgress::default()).err().unwrap();
+        assert!(e.contains(&mask.display().to_string()) && e.contains("empty"), "{e}");
+        std::fs::remove_file(&mask).ok();
+        std::fs::remove_file(&weights).ok();
     }
 
     /// The values' histogram: finite values only, the highest in the last bin, one value or none.
@@ -2000,6 +2131,7 @@ mod tests {
             mode: Default::default(),
             render: Default::default(),
             rois: vec![],
+            masks: vec![],
             colouring: Default::default(),
         };
         assert_eq!(build(&kind, &DataCache::default(), &p).err(), Some(CANCELLED.to_string()));

@@ -149,6 +149,10 @@ pub enum LayerKind {
         /// Include/exclude regions (AND): editing them re-selects, nothing is rebuilt.
         #[serde(default)]
         rois: Vec<Roi>,
+        /// Include/exclude mask images (as `tckedit` takes an image as a region: a point in a non-zero voxel,
+        /// the nearest voxel), with the regions above; a change rebuilds the layer. Default none.
+        #[serde(default)]
+        masks: Vec<MaskRoi>,
         /// What colours the streamlines (tubes and lines; polygon tubes keep their direction colours).
         #[serde(default)]
         colouring: TractColouring,
@@ -239,11 +243,12 @@ impl LayerKind {
                 },
             },
             // The ROIs and the per-pixel knobs are updated in place; sources, mode, scale and colour rebuild.
-            LayerKind::Tracts { source, mode, render, colouring, .. } => LayerKind::Tracts {
+            LayerKind::Tracts { source, mode, render, colouring, masks, .. } => LayerKind::Tracts {
                 source: source.clone(),
                 mode: *mode,
                 render: TubeSettings { scale: render.scale, colour: render.colour, ..TubeSettings::default() },
                 rois: vec![],
+                masks: masks.clone(),
                 colouring: colouring.clone(),
             },
             // Every setting is the volume plugin's to apply (`VolumeSettings`: a uniform, the tables, the proxy
@@ -259,6 +264,17 @@ impl LayerKind {
             other => other.clone(),
         }
     }
+}
+
+/// A mask image as a tract layer's region: a NIfTI or MRtrix image in the tractogram's world space (its first
+/// volume; non-zero voxels are in the region).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MaskRoi {
+    /// The image.
+    pub path: PathBuf,
+    /// Include (kept streamlines meet it) or exclude (streamlines that meet it are dropped). Default include.
+    #[serde(default)]
+    pub mode: RoiMode,
 }
 
 /// Where tracts come from.
@@ -639,6 +655,7 @@ impl Scene {
                             shape: RoiShape::Sphere { centre: [0.0, 28.0, 1.0], radius: 4.0 },
                             mode: RoiMode::Include,
                         }],
+                        masks: vec![],
                         colouring: Default::default(),
                     },
                 },
@@ -725,6 +742,7 @@ pub fn layer_kind_for(path: &Path, kind: &ImageKind) -> LayerKind {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: Vec::new(),
+            masks: vec![],
             colouring: Default::default(),
         },
         ImageKind::Sh { basis, .. } => LayerKind::ShGlyphs {
