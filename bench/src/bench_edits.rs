@@ -22,7 +22,8 @@ use fascicle_render::headless;
 use fascicle_render::layer::LayerStatus;
 use fascicle_scene::layers::{ActiveScene, LayerJob, ScenePlugin};
 use fascicle_scene::model::{
-    LayerKind, LayerSpec, Scene, Seeds, ShSource, SliceAxis, TensorSource, TractMode, TractSource, VolumeSource,
+    LayerKind, LayerSpec, MaskRoi, Scene, Seeds, ShSource, SliceAxis, TensorSource, TractMode, TractSource,
+    VolumeSource,
 };
 use rand::{RngExt, SeedableRng};
 
@@ -197,6 +198,25 @@ fn measure(name: &'static str, scene: Scene, drags: usize) -> Result<Vec<Row>, S
                 centre[1] += 2.0;
             }
         })?;
+    }
+    // A mask image as the tract layer's include region (issue #36's `mask_roi`): the volume layer's image (256³
+    // in the large scene; its non-zero voxels). The layer is rebuilt through the mask; the mask goes again,
+    // unrecorded, before the drag below.
+    if let (Some(t), Some(v)) = (tracts, volume)
+        && let LayerKind::Volume { source: VolumeSource::Nifti { path, .. }, .. } = &scene.layers[v].kind
+    {
+        let mask = MaskRoi { path: path.clone(), mode: RoiMode::Include };
+        time(&mut app, "mask_roi", &|s| {
+            if let LayerKind::Tracts { masks, .. } = &mut s.layers[t].kind {
+                masks.push(mask.clone());
+            }
+        })?;
+        edit_scene(&mut app, |s| {
+            if let LayerKind::Tracts { masks, .. } = &mut s.layers[t].kind {
+                masks.clear();
+            }
+        });
+        until_settled(&mut app)?;
     }
     if let Some(t) = tracts {
         // Drag the first sphere ROI by 0.5 mm steps: one row, the median step.
