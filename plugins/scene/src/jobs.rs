@@ -37,7 +37,7 @@ pub struct JobProgress {
     pub parts: Parts,
     /// The voxel grid the content comes from, once read (the crosshair's voxel on it).
     grid: Mutex<Option<fascicle_views::VoxelGrid>>,
-    /// A tract layer's values per streamline (all of them, before any threshold), once read.
+    /// A tract layer's values per streamline or per point (all of them, before any threshold or mask), once read.
     values: Mutex<Option<Arc<ValueHistogram>>>,
 }
 
@@ -133,7 +133,7 @@ impl JobProgress {
         *self.grid.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Records how the layer's values per streamline are distributed.
+    /// Records how the layer's values (per streamline or per point) are distributed.
     pub fn set_values(&self, values: ValueHistogram) {
         *self.values.lock().unwrap_or_else(|e| e.into_inner()) = Some(Arc::new(values));
     }
@@ -373,10 +373,11 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             if let Some(k) = &keep {
                 data = subset_of(&data, k);
             }
-            let per_point = per_point.map(|v| (v, data.tractogram.offsets.clone()));
+            // The whole (kept) tractogram's offsets locate each streamline's values in every part.
+            let whole_tracts = data.tractogram.clone();
             let values = match (&per_streamline, &per_point) {
                 (Some(v), _) => Some(TractValues::Streamlines(v)),
-                (_, Some((values, offsets))) => Some(TractValues::Points { values, offsets }),
+                (_, Some(values)) => Some(TractValues::Points { values, offsets: &whole_tracts.offsets }),
                 _ => None,
             };
             progress.stage("building the geometry", 0)?;
@@ -1988,21 +1989,20 @@ mod tests {
             .collect();
         let n_through = through.iter().filter(|k| **k).count();
         assert!(n_through > 20 && n_through < t.n_streamlines() - 20, "{n_through} of {}", t.n_streamlines());
-        let kept = |mode, colouring| {
-            let kind = LayerKind::Tracts {
-                source: TractSource::File { path: path.clone(), tensors: None },
-                mode: TractMode::Lines,
-                render: Default::default(),
-                rois: vec![],
-                masks: vec![MaskRoi { path: mask.clone(), mode }],
-                colouring,
-            };
-            match build(&kind, &DataCache::default(), &JobProgress::default()) {
+        let layer = |mode, colouring| LayerKind::Tracts {
+            source: TractSource::File { path: path.clone(), tensors: None },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: vec![],
+            masks: vec![MaskRoi { path: mask.clone(), mode }],
+            colouring,
+        };
+        let kept =
+            |mode, colouring| match build(&layer(mode, colouring), &DataCache::default(), &JobProgress::default()) {
                 Ok(Content::Tracts(p)) => p.tractogram.expect("streamlines kept"),
                 Ok(_) => panic!("not one set"),
                 Err(e) => panic!("{e}"),
-            }
-        };
+            };
         let first_points = |t: &Tractogram, keep: &dyn Fn(usize) -> bool| -> Vec<[f32; 3]> {
             (0..t.n_streamlines()).filter(|s| keep(*s)).map(|s| t.streamline(s)[0].to_array()).collect()
         };
@@ -2025,15 +2025,8 @@ mod tests {
         // An empty mask: an error naming it.
         vol.data.iter_mut().for_each(|v| *v = 0.0);
         fascicle_core::io::nifti::write(&mask, &vol, fascicle_core::io::nifti::WriteType::F32).unwrap();
-        let kind = LayerKind::Tracts {
-            source: TractSource::File { path: path.clone(), tensors: None },
-            mode: TractMode::Lines,
-            render: Default::default(),
-            rois: vec![],
-            masks: vec![MaskRoi { path: mask.clone(), mode: RoiMode::Include }],
-            colouring: TractColouring::Style,
-        };
-        let e = build(&kind, &DataCache::default(), &JobProgress::default()).err().unwrap();
+        let empty = layer(RoiMode::Include, TractColouring::Style);
+        let e = build(&empty, &DataCache::default(), &JobProgress::default()).err().unwrap();
         assert!(e.contains(&mask.display().to_string()) && e.contains("empty"), "{e}");
         std::fs::remove_file(&mask).ok();
         std::fs::remove_file(&weights).ok();

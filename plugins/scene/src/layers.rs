@@ -4,8 +4,8 @@
 //! [`LayerStatus`] and visibility); what it draws (the plugins' glyph sets, splats, tubes, volumes, meshes) are
 //! its children. A scene edit touches only the layers it changed, and for each only the stage it changed:
 //! - visibility, opacity and draw settings update the existing entities and materials (a uniform write);
-//! - a change of what a layer is (its source, slice, shape) starts a background job ([`LayerJob`], on Bevy's
-//!   async compute pool) that reads and fits through the [`DataCache`]; the old content stays until the new
+//! - a change of what a layer is (its source, slice, shape) starts a background job ([`LayerJob`]: a thread of
+//!   its own, awaited on Bevy's async compute pool) that reads and fits through the [`DataCache`]; the old content stays until the new
 //!   content swaps in, and the other layers are not touched;
 //! - reordering moves the tags, nothing is rebuilt; a removed layer's entity goes with its content.
 //!
@@ -41,14 +41,15 @@ pub struct LayerData {
     pub eigenvalues: Arc<Vec<[f64; 3]>>,
     /// A volume layer's histogram over its transfer function's range.
     pub histogram: Arc<Vec<u32>>,
-    /// A tract layer coloured by a value per streamline: how the values are distributed (all streamlines,
-    /// those hidden by a threshold included).
+    /// A tract layer coloured by values per streamline or per point: how the values are distributed (all of
+    /// them, those of streamlines a threshold or mask hides included).
     pub values: Option<Arc<ValueHistogram>>,
 }
 
-/// On a tract layer's entity coloured by a value per streamline: the values' histogram its last job found.
+/// On a tract layer's entity coloured by values per streamline or per point: the values' histogram its last job
+/// found.
 #[derive(Component, Clone, Debug)]
-pub struct StreamlineValues(pub Arc<ValueHistogram>);
+pub struct TractValueHistogram(pub Arc<ValueHistogram>);
 
 /// Per layer index, its [`LayerData`].
 #[derive(Resource, Clone, Debug, Default)]
@@ -387,8 +388,8 @@ fn finish_jobs(
             None => commands.entity(e).remove::<VoxelGrid>(),
         };
         match job.progress.values() {
-            Some(values) => commands.entity(e).insert(StreamlineValues(values)),
-            None => commands.entity(e).remove::<StreamlineValues>(),
+            Some(values) => commands.entity(e).insert(TractValueHistogram(values)),
+            None => commands.entity(e).remove::<TractValueHistogram>(),
         };
         // Streamed content is in place already (its first part cleared the old); anything else replaces it.
         if !matches!(result, Ok(Content::Streamed { .. })) || job.parts_shown == 0 {
@@ -619,7 +620,7 @@ fn report_errors(
 
 /// What refreshes the panels' layer data: content (re)spawned, a volume's histogram redone, a tract layer's
 /// values read again.
-type LayerDataMoved = Or<(Added<LayerEntity>, Added<SplatSet>, Changed<VolumeSet>, Changed<StreamlineValues>)>;
+type LayerDataMoved = Or<(Added<LayerEntity>, Added<SplatSet>, Changed<VolumeSet>, Changed<TractValueHistogram>)>;
 
 /// Refreshes what spawned layers report to their panels when a layer's content was (re)spawned.
 fn report_layer_data(
@@ -627,11 +628,13 @@ fn report_layer_data(
     sets: Query<(&SplatSet, &ChildOf)>,
     volumes: Query<(&VolumeSet, &ChildOf)>,
     layers: Query<&LayerEntity>,
-    values: Query<(&LayerEntity, &StreamlineValues)>,
-    mut removed_values: RemovedComponents<StreamlineValues>,
+    values: Query<(&LayerEntity, &TractValueHistogram)>,
+    mut removed_values: RemovedComponents<TractValueHistogram>,
     mut map: ResMut<LayerDataMap>,
 ) {
-    if added.is_empty() && removed_values.read().count() == 0 {
+    // Read every frame, so a removal is seen once, in the frame it happened.
+    let removed = removed_values.read().count() > 0;
+    if added.is_empty() && !removed {
         return;
     }
     map.0.clear();
