@@ -22,6 +22,7 @@ use bevy::window::{FileDragAndDrop, PrimaryWindow};
 use bevy_egui::input::{egui_wants_any_keyboard_input, egui_wants_any_pointer_input};
 use bevy_egui::{EguiContexts, EguiGlobalSettings, EguiPlugin, EguiPrimaryContextPass, PrimaryEguiContext, egui};
 use fascicle_render::FascicleRenderPlugin;
+use fascicle_render::budget::{BudgetState, FrameBudget, FrameBudgetPlugin, RenderScale};
 use fascicle_render::on_demand::{DrawOnDemand, DrawOnDemandPlugin, KeepAwake, NextFrame, ScheduleNextFrame};
 
 use crate::history::{RecentFiles, SceneHistory};
@@ -158,8 +159,12 @@ fn auto_screenshot(mut commands: Commands, mut shot: ResMut<AutoScreenshot>) {
 /// PNG at frame 240 and the viewer exits.
 pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     let (scene, errors) = initial_scene(&files);
+    let frame_log = std::env::var_os("FASCICLE_FRAME_LOG").and_then(|p| FrameLog::create(p.into()));
     let orbit = Orbit::from_spec(&scene.camera);
     let mut app = App::new();
+    if let Some(log) = frame_log {
+        app.insert_resource(log);
+    }
     let draw_on_demand = screenshot.is_none();
     if let Some(path) = screenshot {
         app.insert_resource(AutoScreenshot { path, frame: 0 })
@@ -170,13 +175,16 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             .set(WindowPlugin { primary_window: Some(Window { title: "Fascicle".into(), ..default() }), ..default() }),
     )
     .add_plugins(EguiPlugin::default())
-    .add_plugins((FascicleRenderPlugin, ScenePlugin, HandlesPlugin, DrawOnDemandPlugin))
+    .add_plugins((FascicleRenderPlugin, ScenePlugin, HandlesPlugin, DrawOnDemandPlugin, FrameBudgetPlugin))
     // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
     .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
+    // While the view moves the 3D view draws at the scale the frame budget affords (not with `--screenshot`).
+    .insert_resource(FrameBudget { enabled: draw_on_demand, ..default() })
     // Line previews while the view moves or a tractogram streams in (not with `--screenshot`, whose frame count
     // stands for a settled scene).
     .insert_resource(fascicle_tracts::TractDetail { enabled: draw_on_demand, ..default() })
     .add_systems(Last, keep_awake_while_working.before(ScheduleNextFrame))
+    .add_systems(Last, log_frame.after(ScheduleNextFrame).run_if(resource_exists::<FrameLog>))
     .add_systems(
         PreUpdate,
         drop_repeated_modifier_events
@@ -197,7 +205,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
         ..default()
     })
     .add_systems(Startup, |mut commands: Commands, mut egui_settings: ResMut<EguiGlobalSettings>| {
-        commands.spawn((view_camera(), Transform::default()));
+        commands.spawn((view_camera(), Transform::default(), RenderScale::default()));
         // egui gets its own camera drawn over the 3D view, so the 3D camera can take a viewport.
         egui_settings.auto_create_primary_context = false;
         commands.spawn((
@@ -244,9 +252,15 @@ fn orbit_input(
     scroll: Res<AccumulatedMouseScroll>,
     drag: Res<RoiDrag>,
     mut orbit: ResMut<Orbit>,
+    mut interacting: ResMut<fascicle_render::budget::Interacting>,
 ) {
     if drag.0.is_some() {
         return;
+    }
+    // A drag is an interaction from its press (whose frame already draws at the scale the frame budget
+    // affords) to its release, frames without motion included.
+    if buttons.any_pressed([MouseButton::Left, MouseButton::Right]) {
+        interacting.mark();
     }
     let d = motion.delta;
     if buttons.pressed(MouseButton::Left) && d != Vec2::ZERO {
@@ -524,6 +538,58 @@ struct FileDialog(Option<bevy::tasks::Task<Option<Vec<PathBuf>>>>);
 /// Draws every [`DrawOnDemand::busy_wait`] while layers are being built, neighbouring slices prefetched or
 /// the file dialog is open, so that progress bars move and finished work shows without input; and draws again
 /// after egui's textures changed (text with glyphs new to the font atlas is drawn whole in the next frame).
+/// A line per frame for `fascicle-bench interact` (the file named by `FASCICLE_FRAME_LOG`): the wall clock
+/// (Unix ms) and the frame's time (ms, the real time since the frame before, as the panel's readout), the 3D view's render scale, whether the view moved, when the next frame is
+/// due, and the window position (logical px) of the first visible tract layer's first ROI or seed sphere.
+#[derive(Resource)]
+struct FrameLog(std::io::LineWriter<std::fs::File>);
+
+impl FrameLog {
+    fn create(path: PathBuf) -> Option<FrameLog> {
+        match std::fs::File::create(&path) {
+            Ok(f) => Some(FrameLog(std::io::LineWriter::new(f))),
+            Err(e) => {
+                warn!("FASCICLE_FRAME_LOG {}: {e}", path.display());
+                None
+            }
+        }
+    }
+}
+
+fn log_frame(
+    mut log: ResMut<FrameLog>,
+    time: Res<Time<bevy::time::Real>>,
+    (budget, next): (Res<BudgetState>, Res<NextFrame>),
+    scene: Res<ActiveScene>,
+    camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
+) {
+    use std::io::Write;
+    let roi = scene
+        .0
+        .layers
+        .iter()
+        .filter(|l| l.visible)
+        .flat_map(|l| fascicle_scene::handles::grips(&l.kind))
+        .find_map(|(_, shape)| match shape {
+            fascicle_core::roi::RoiShape::Sphere { centre, .. } => {
+                camera.0.world_to_viewport(camera.1, Vec3::from(centre)).ok()
+            }
+            _ => None,
+        })
+        .unwrap_or(Vec2::NAN);
+    let line = format!(
+        "{} {:.2} {} {} {:?} {:.0} {:.0}",
+        std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis()),
+        time.delta_secs_f64() * 1e3,
+        budget.scale,
+        budget.moving,
+        *next,
+        roi.x,
+        roi.y
+    );
+    let _ = writeln!(log.0, "{line}");
+}
+
 fn keep_awake_while_working(
     jobs: Query<(), With<fascicle_scene::layers::LayerJob>>,
     prefetches: Res<fascicle_scene::layers::Prefetches>,
@@ -633,7 +699,7 @@ fn panel(
     (mut region, crosshair): (ResMut<ViewRegion>, Res<Crosshair>),
     window: Single<&Window, With<PrimaryWindow>>,
     (history, recent): (Res<SceneHistory>, Res<RecentFiles>),
-    (draw, next_frame): (Res<DrawOnDemand>, Res<NextFrame>),
+    (draw, next_frame, budget): (Res<DrawOnDemand>, Res<NextFrame>, Res<BudgetState>),
 ) -> Result {
     let ctx = contexts.ctx_mut()?;
     trace!("egui repaint causes: {:?}; events {:?}", ctx.repaint_causes(), ctx.input(|i| i.events.clone()));
@@ -655,8 +721,13 @@ fn panel(
             (true, NextFrame::Poll) => "while working",
             (true, _) => "on demand",
         };
-        ui.label(format!("frame {:.1} ms, drawn {drawing}", ui_state.frame_ms))
-            .on_hover_text("the cost of a frame drawn back to back; an idle window draws nothing");
+        ui.label(format!("frame {:.1} ms, scale {:.2}, drawn {drawing}", ui_state.frame_ms, budget.scale))
+            .on_hover_text(format!(
+                "the cost of a frame drawn back to back; an idle window draws nothing. While the view moves the \
+                 3D view draws at the scale (of its side) that holds the frame budget, {} ms, and at full scale \
+                 once still",
+                budget.budget.as_millis()
+            ));
         ui.separator();
         ui.heading("Layers");
         let mut remove = None;

@@ -254,7 +254,7 @@ fn measure(name: &'static str, scene: Scene, drags: usize) -> Result<Vec<Row>, S
 
 /// The large scene's files, written once into `dir`: a 256³ volume, a 150x150x8 order-8 SH field and 1M
 /// eight-point streamlines.
-fn large_scene(dir: &Path) -> Result<Scene, String> {
+pub(crate) fn large_scene(dir: &Path) -> Result<Scene, String> {
     use fascicle_core::Volume;
     use fascicle_core::io::nifti::{self, WriteType};
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
@@ -354,7 +354,7 @@ fn large_scene(dir: &Path) -> Result<Scene, String> {
 }
 
 /// Tracking of the phantom's tensors from a seed sphere on its ring (6 mm, 8 seeds per voxel), as hyperstreamlines.
-fn seeded_tracking() -> LayerSpec {
+pub(crate) fn seeded_tracking() -> LayerSpec {
     LayerSpec {
         name: "seeded tracking".into(),
         visible: true,

@@ -6,6 +6,7 @@ mod bench_all;
 mod bench_edits;
 mod bench_fits;
 mod bench_glyphs;
+mod bench_interact;
 mod bench_scale;
 mod bench_splats;
 mod bench_tracking;

@@ -133,6 +133,26 @@ pub enum BenchCommand {
         #[arg(long)]
         data: Option<PathBuf>,
     },
+    /// The real viewer window (on Xvfb when there is no display), driven by xdotool: per scene an orbit and an
+    /// ROI drag (frames between press and release: median and 95th percentile of the frame time, the time
+    /// from the release to the full-quality frame) and the idle window's CPU use.
+    Interact {
+        /// Scenes: `default`, `large` (bench edits' large scene) or files the viewer opens, comma-separated.
+        #[arg(long, default_value = "default,large", value_delimiter = ',')]
+        scenes: Vec<String>,
+        /// Where the large scene's files are written once (default: the system's temporary directory).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// The window's size, WxH (the display's when the bench starts Xvfb).
+        #[arg(long, default_value = "1280x720")]
+        size: String,
+        /// Also write the rows as CSV (scene,action,frames,median_ms,p95_ms,refine_ms,idle_cpu_pct).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Seconds a scene may take to load and settle.
+        #[arg(long, default_value_t = 600)]
+        settle_timeout: u64,
+    },
     /// Whole-brain-sized tractograms (1M and 10M streamlines as .tck, .trk, .trx, made once in --dir): `info`,
     /// `select`, `convert` as whole processes with peak memory, beside tckinfo, tckedit, nibabel and trx-python
     /// (when installed: bench/install_peers.sh), and an ROI drag step.
@@ -196,6 +216,18 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         }
         BenchCommand::Soak { frames, size, csv, max_growth } => {
             crate::soak::run(frames, &size, csv.as_deref(), max_growth).map_err(Error::Param)
+        }
+        BenchCommand::Interact { scenes, data, size, csv, settle_timeout } => {
+            let size = fascicle_scene::headless::parse_size(&size).map_err(Error::Param)?;
+            let data = data.unwrap_or_else(|| std::env::temp_dir().join("fascicle-bench-edits"));
+            crate::bench_interact::run(crate::bench_interact::InteractOptions {
+                scenes: &scenes,
+                data: &data,
+                size,
+                csv: csv.as_deref(),
+                settle_timeout: std::time::Duration::from_secs(settle_timeout),
+            })
+            .map_err(Error::Param)
         }
         BenchCommand::Edits { quick, csv, data } => {
             crate::bench_edits::run(quick, csv.as_deref(), data).map_err(Error::Param)

@@ -11,10 +11,12 @@
 //! - [`layer`]: what every data layer shares: its status (loading, ready, failed), its voxel selection and
 //!   the per-stage work counters.
 //! - [`reference`](mod@reference): f64 CPU references of the shared shader math, for tests.
+//! - [`budget`]: a frame budget held by adaptive render scale while the view moves ([`budget::FrameBudgetPlugin`]).
 //! - [`AdapterKind`]: whether the renderer is a software rasteriser, for plugins that lower their cost there.
 
 #![warn(missing_docs)]
 
+pub mod budget;
 pub mod example;
 pub mod headless;
 pub mod impostor;

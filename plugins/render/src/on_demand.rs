@@ -76,6 +76,12 @@ pub enum NextFrame {
     Idle,
 }
 
+/// The settle frames still to be drawn after the current one ([`DrawOnDemand::settle_frames`] after input or
+/// a redraw request), as the last frame left it: a system that wants its picture drawn once, when nothing
+/// else is due, waits for 0 (the frame budget draws its full-quality frame then).
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Settling(pub u32);
+
 /// The system in `Last` that decides when the next frame is due: systems that call [`KeepAwake`] in `Last`
 /// run before it.
 #[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
@@ -97,6 +103,7 @@ impl Plugin for DrawOnDemandPlugin {
             .init_resource::<KeepAwake>()
             .init_resource::<crate::Unsettled>()
             .init_resource::<NextFrame>()
+            .init_resource::<Settling>()
             .insert_resource(pending.clone())
             .add_systems(First, forget_redraw_requests.after(bevy::ecs::message::MessageUpdateSystems))
             .add_systems(Last, schedule_next_frame.in_set(ScheduleNextFrame));
@@ -184,7 +191,7 @@ fn schedule_next_frame(
     mut winit: ResMut<WinitSettings>,
     mut redraws: ResMut<Messages<RequestRedraw>>,
     mut state: ResMut<NextFrame>,
-    mut settle: Local<u32>,
+    mut settle: ResMut<Settling>,
     unsettled: Option<ResMut<crate::Unsettled>>,
 ) {
     let input = inputs.any();
@@ -199,10 +206,10 @@ fn schedule_next_frame(
         return;
     }
     if input || request {
-        *settle = settings.settle_frames;
+        settle.0 = settings.settle_frames;
     }
-    let settling = *settle > 0;
-    *settle = settle.saturating_sub(1);
+    let settling = settle.0 > 0;
+    settle.0 = settle.0.saturating_sub(1);
     let pending = pending.0.load(Ordering::Relaxed);
     let next = next_frame(pending, input, request, settling, busy);
     trace!(

@@ -41,6 +41,7 @@ struct View {
     world_from_clip: mat4x4<f32>,
     world_position: vec3<f32>,
     viewport: vec4<f32>,
+    main_pass_viewport: vec4<f32>,
 };
 @group(0) @binding(0) var<uniform> view: View;",
     ),

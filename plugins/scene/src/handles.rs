@@ -158,6 +158,7 @@ pub fn drag_roi(
     camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
     mut drag: ResMut<RoiDrag>,
     mut scene: ResMut<ActiveScene>,
+    interacting: Option<ResMut<fascicle_render::budget::Interacting>>,
 ) {
     if !buttons.pressed(MouseButton::Left) {
         drag.0 = None;
@@ -174,6 +175,10 @@ pub fn drag_roi(
         });
     }
     let Some(g) = drag.0 else { return };
+    // A drag is an interaction for the frame budget (it moves no camera).
+    if let Some(mut interacting) = interacting {
+        interacting.mark();
+    }
     let Some(shape) = dragged_shape(&g, o, d) else { return };
     let current = scene.0.layers.get(g.layer).and_then(|l| grips(&l.kind).into_iter().find(|(k, _)| *k == g.grip));
     if current.is_some_and(|(_, c)| c != shape) {

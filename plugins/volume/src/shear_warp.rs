@@ -157,7 +157,7 @@ fn extract(
 /// The pass, per view (in `Core3d`, ordered by the plugin).
 #[allow(clippy::too_many_arguments, reason = "the render-world resources one compute pass reads")]
 pub(crate) fn composite(
-    view: ViewQuery<(&ExtractedView, Option<&RenderLayers>)>,
+    view: ViewQuery<(&ExtractedView, Option<&RenderLayers>, Option<&bevy::camera::MainPassResolutionOverride>)>,
     jobs: Res<Jobs>,
     pipeline: Option<Res<Pipeline>>,
     cache: Res<PipelineCache>,
@@ -171,7 +171,13 @@ pub(crate) fn composite(
     }
     let Some(pipeline) = pipeline else { return };
     let Some(compute) = cache.get_compute_pipeline(pipeline.id) else { return };
-    let (view, view_layers) = view.into_inner();
+    let (view, view_layers, scaled) = view.into_inner();
+    // A main pass drawn at a lower scale (`fascicle_render::budget`) covers the top-left part of the viewport.
+    let mut viewport = view.viewport.as_vec4();
+    if let Some(size) = scaled {
+        viewport.z = size.x as f32;
+        viewport.w = size.y as f32;
+    }
     let view_layers = view_layers.cloned().unwrap_or_default();
     let world_from_view = view.world_from_view.to_matrix();
     let clip_from_world = view.clip_from_world.unwrap_or(view.clip_from_view * world_from_view.inverse());
@@ -200,7 +206,7 @@ pub(crate) fn composite(
             job.per_voxel,
             job.edge,
         );
-        let u = uniform(job, &sw, voxel_from_world, clip_from_world, view.viewport.as_vec4());
+        let u = uniform(job, &sw, voxel_from_world, clip_from_world, viewport);
         let mut bytes = encase::UniformBuffer::new(Vec::<u8>::new());
         if bytes.write(&u).is_err() {
             continue;

@@ -83,7 +83,7 @@ fn vertex(v: SplatVertex) -> SplatVertexOutput {
     }
     let w = mat3x3<f32>(view.view_from_world[0].xyz, view.view_from_world[1].xyz, view.view_from_world[2].xyz) * m;
     let vc = w * cov_local * transpose(w);
-    let f = view.clip_from_view[1][1] * view.viewport.w * 0.5;
+    let f = view.clip_from_view[1][1] * view.main_pass_viewport.w * 0.5;
     let j0 = vec3<f32>(f / z, 0.0, f * p.x / (z * z));
     let j1 = vec3<f32>(0.0, -f / z, -f * p.y / (z * z));
     let a = dot(j0, vc * j0) + params.dilation;
@@ -105,8 +105,8 @@ fn vertex(v: SplatVertex) -> SplatVertexOutput {
     let offset = v.position.x * 3.0 * sqrt(l1) * e1 + v.position.y * 3.0 * sqrt(l2) * e2;
     let clip = view.clip_from_view * vec4<f32>(p, 1.0);
     out.clip_position = clip + vec4<f32>(
-        offset.x * 2.0 / view.viewport.z * clip.w,
-        -offset.y * 2.0 / view.viewport.w * clip.w,
+        offset.x * 2.0 / view.main_pass_viewport.z * clip.w,
+        -offset.y * 2.0 / view.main_pass_viewport.w * clip.w,
         0.0,
         0.0,
     );

@@ -340,7 +340,7 @@ fn opaque_distance(frag: vec4<f32>, r: Ray) -> f32 {
     if z <= 0.0 {
         return 1e30;
     }
-    let uv = (frag.xy - view.viewport.xy) / view.viewport.zw;
+    let uv = (frag.xy - view.main_pass_viewport.xy) / view.main_pass_viewport.zw;
     let ndc = vec4<f32>(uv.x * 2.0 - 1.0, 1.0 - uv.y * 2.0, z, 1.0);
     let pv = view.view_from_clip * ndc;
     let pw = (view.world_from_view * vec4<f32>(pv.xyz / pv.w, 1.0)).xyz;

@@ -1,0 +1,369 @@
+//! A frame budget held by adaptive render scale: while the view moves, cameras marked [`RenderScale`] draw
+//! their main pass at a fraction of their viewport, chosen from the measured frame times, and the picture is
+//! stretched back over the viewport; when the view has been still for [`FrameBudget::refine_after`], the next
+//! frame draws at full scale, the same image an app without the plugin draws.
+//!
+//! - **Budget**: [`FrameBudget`], a resource: 100 ms a frame on a software adapter, 16 ms on a hardware GPU.
+//! - **Moving**: a camera marked [`RenderScale`] whose transform changed, or an app's [`Interacting::mark`]
+//!   (a drag of an ROI changes the scene, not the camera).
+//! - **Measured**: a frame's time is the real time since the frame before, counted only when that one asked
+//!   for the next at once (in a window drawn on demand, [`crate::on_demand::NextFrame::Now`]; the first frame
+//!   after an idle wait measures the wait). The main pass's cost is taken as proportional to its pixels, so a
+//!   frame `t` over budget `b` scales the side by `sqrt(b / t)` (at most 4x less a frame), and a frame under
+//!   60 % of the budget raises it (at most 1.25x), in steps of 1/16. An interaction starts at the scale the
+//!   last measured frame affords (a still scene's settling frames are measured too), so its first frame is
+//!   not the slow one.
+//! - **Drawn**: the main pass renders into the top-left `scale` part of the camera's viewport (Bevy's
+//!   `MainPassResolutionOverride`; shaders that need the viewport read `view.main_pass_viewport`), and a
+//!   copy-and-blit pass, after the main pass and before post-processing, stretches it over the viewport with
+//!   Bevy's blit pipeline (nearest texel).
+//! - **Read**: [`BudgetState`] holds the current scale and the last moving frame's time, for readouts.
+//!
+//! A window drawn on demand ([`crate::on_demand`]) reaches the refining frame through [`crate::Unsettled`]:
+//! while the scale is under 1 and the view is still, the plugin asks for frames at the busy rate.
+
+use std::time::Duration;
+
+use bevy::camera::{MainPassResolutionOverride, Viewport};
+use bevy::core_pipeline::blit::{BlitPipeline, BlitPipelineKey};
+use bevy::core_pipeline::{Core3dSystems, schedule::Core3d};
+use bevy::prelude::*;
+use bevy::render::camera::ExtractedCamera;
+use bevy::render::render_resource::{
+    CachedRenderPipelineId, Extent3d, Operations, Origin3d, PipelineCache, RenderPassColorAttachment,
+    RenderPassDescriptor, SpecializedRenderPipelines, TexelCopyTextureInfo, TextureAspect, TextureDescriptor,
+    TextureDimension, TextureUsages,
+};
+use bevy::render::renderer::{RenderContext, RenderDevice, ViewQuery};
+use bevy::render::sync_world::RenderEntity;
+use bevy::render::texture::{CachedTexture, TextureCache};
+use bevy::render::view::ViewTarget;
+use bevy::render::{Extract, ExtractSchedule, Render, RenderApp, RenderSystems};
+
+/// Adds the frame budget (see the module docs). Needs [`crate::FascicleRenderPlugin`] (for [`crate::AdapterKind`]
+/// and [`crate::Unsettled`]), which it adds when missing.
+pub struct FrameBudgetPlugin;
+
+/// The frame budget, a resource (defaults below).
+#[derive(Resource, Clone, Debug, PartialEq)]
+pub struct FrameBudget {
+    /// Whether the scale adapts at all (default true); false draws every frame at full scale.
+    pub enabled: bool,
+    /// The budget on a software adapter (default 100 ms).
+    pub software: Duration,
+    /// The budget on a hardware GPU (default 16 ms).
+    pub hardware: Duration,
+    /// The smallest scale of a viewport's side (default 0.125: a 1280-pixel-wide view draws 160 pixels).
+    pub min_scale: f32,
+    /// How long the view stays still before the full-scale frame is drawn (default 150 ms).
+    pub refine_after: Duration,
+}
+
+impl Default for FrameBudget {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            software: Duration::from_millis(100),
+            hardware: Duration::from_millis(16),
+            min_scale: 0.125,
+            refine_after: Duration::from_millis(150),
+        }
+    }
+}
+
+impl FrameBudget {
+    /// The budget for the adapter (software or not).
+    pub fn for_adapter(&self, software: bool) -> Duration {
+        if software { self.software } else { self.hardware }
+    }
+}
+
+/// Marks a 3D camera whose main pass follows the frame budget; holds the scale of its viewport's side the
+/// current frame draws with (1: full, written by the plugin).
+#[derive(Component, Clone, Copy, Debug, PartialEq)]
+pub struct RenderScale(pub f32);
+
+impl Default for RenderScale {
+    fn default() -> Self {
+        RenderScale(1.0)
+    }
+}
+
+/// Interaction an app reports: an ROI drag, a window/level drag (which move no camera), or a button held
+/// down on the view (a drag whose frames may see no motion: a frame slower than
+/// [`FrameBudget::refine_after`] must not end it). Frames while it is marked count as moving. Cleared every
+/// frame.
+#[derive(Resource, Default, Debug)]
+pub struct Interacting(bool);
+
+impl Interacting {
+    /// The user is interacting this frame.
+    pub fn mark(&mut self) {
+        self.0 = true;
+    }
+}
+
+/// What the budget decided, for readouts and tests.
+#[derive(Resource, Clone, Copy, Debug, PartialEq)]
+pub struct BudgetState {
+    /// The scale of the viewport's side this frame draws with (1: full).
+    pub scale: f32,
+    /// Whether the view is moving: it moved (camera or [`Interacting`]) less than
+    /// [`FrameBudget::refine_after`] ago, or a window drawn on demand has settle frames left to draw at the
+    /// lower scale before the full-quality one.
+    pub moving: bool,
+    /// The last measured frame (one drawn right after the one before) and the scale it was drawn at.
+    pub last_frame: Option<(Duration, f32)>,
+    /// The budget in force (by the adapter).
+    pub budget: Duration,
+    /// When the view last moved (the wall clock at that frame's update: under pipelined rendering Bevy's
+    /// real time is the render world's, a frame late).
+    pub last_moved: Option<std::time::Instant>,
+}
+
+impl Default for BudgetState {
+    fn default() -> Self {
+        Self { scale: 1.0, moving: false, last_frame: None, budget: FrameBudget::default().software, last_moved: None }
+    }
+}
+
+/// The systems that set the scale, in `Last` (apps marking [`Interacting`] in `Last` run before them).
+#[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
+pub struct BudgetSystems;
+
+impl Plugin for FrameBudgetPlugin {
+    fn build(&self, app: &mut App) {
+        app.add_plugins(crate::FascicleRenderPlugin)
+            .init_resource::<FrameBudget>()
+            .init_resource::<Interacting>()
+            .init_resource::<BudgetState>()
+            .add_systems(Last, hold_budget.in_set(BudgetSystems));
+        #[cfg(feature = "winit")]
+        app.configure_sets(Last, BudgetSystems.before(crate::on_demand::ScheduleNextFrame));
+        if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
+            render_app
+                .add_systems(ExtractSchedule, extract_scale)
+                .add_systems(Render, prepare_upscale.in_set(RenderSystems::PrepareResources))
+                .add_systems(Core3d, upscale.after(Core3dSystems::MainPass).before(Core3dSystems::PostProcess));
+        }
+    }
+}
+
+/// The next scale of a viewport's side after a moving frame of `frame` at `scale` against `budget`: the
+/// main pass's cost taken as proportional to its pixels; lowered when over budget (the side at most 4x less),
+/// raised when under 60 % of it (at most 1.25x); in steps of 1/16 between `min` and 1.
+pub fn next_scale(scale: f32, frame: Duration, budget: Duration, min: f32) -> f32 {
+    let t = frame.as_secs_f32().max(1e-6);
+    let b = budget.as_secs_f32();
+    let factor = if t > b {
+        (b / t).sqrt().max(0.25)
+    } else if t < 0.6 * b {
+        (b / t).sqrt().min(1.25)
+    } else {
+        1.0
+    };
+    let next = (scale * factor * 16.0).floor() / 16.0;
+    // Raising by less than a step keeps the scale: only a whole step up counts.
+    let next = if factor > 1.0 { next.max(scale) } else { next };
+    next.clamp(min.min(1.0), 1.0)
+}
+
+#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
+fn hold_budget(
+    budget: Res<FrameBudget>,
+    adapter: Option<Res<crate::AdapterKind>>,
+    time: Res<Time<bevy::time::Real>>,
+    mut interacting: ResMut<Interacting>,
+    moved: Query<(), (With<RenderScale>, Changed<GlobalTransform>)>,
+    mut cameras: Query<&mut RenderScale>,
+    mut state: ResMut<BudgetState>,
+    mut unsettled: ResMut<crate::Unsettled>,
+    pipelined: Option<Res<bevy::render::pipelined_rendering::RenderAppChannels>>,
+    mut chosen: Local<[f32; 2]>,
+    #[cfg(feature = "winit")] on_demand: (
+        Option<Res<crate::on_demand::NextFrame>>,
+        Option<Res<crate::on_demand::Settling>>,
+    ),
+) {
+    let now = std::time::Instant::now();
+    // This frame followed the last one at once (a window drawn on demand may have waited for input).
+    #[cfg(feature = "winit")]
+    let (back_to_back, settling) =
+        (on_demand.0.is_none_or(|n| *n == crate::on_demand::NextFrame::Now), on_demand.1.is_some_and(|s| s.0 > 0));
+    #[cfg(not(feature = "winit"))]
+    let (back_to_back, settling) = (true, false);
+    if *chosen == [0.0; 2] {
+        *chosen = [1.0; 2];
+    }
+    if back_to_back && time.delta() > Duration::ZERO {
+        // The frame just measured was drawn at the scale the last update chose; with pipelined rendering
+        // (an update runs while the render world draws the one before), the update before that.
+        let drawn = if pipelined.is_some() { chosen[1] } else { chosen[0] };
+        state.last_frame = Some((time.delta(), drawn));
+    }
+    if std::mem::take(&mut interacting.0) || !moved.is_empty() {
+        state.last_moved = Some(now);
+    }
+    let was_moving = state.moving;
+    // Still, but a window drawn on demand still has settle frames to draw (after the release, say): they stay
+    // coarse, and the full-quality frame is the last one, drawn once.
+    let coarse_still = state.scale < 1.0 && settling;
+    state.moving =
+        state.last_moved.is_some_and(|t| now.saturating_duration_since(t) < budget.refine_after) || coarse_still;
+    state.budget = budget.for_adapter(adapter.is_some_and(|a| a.is_software()));
+    let min = budget.min_scale;
+    state.scale = match (budget.enabled, state.moving, state.last_frame) {
+        (true, true, Some((frame, drawn))) if was_moving && back_to_back => {
+            next_scale(state.scale.min(drawn), frame, state.budget, min)
+        }
+        // An interaction starts at the scale the last measured frame affords, with no limit on the step.
+        (true, true, Some((frame, drawn))) if !was_moving => start_scale(drawn, frame, state.budget, min),
+        (true, true, _) => state.scale,
+        _ => 1.0,
+    };
+    if state.moving && state.scale < 1.0 {
+        // Frames until the view is still: the one that finds it still draws at full scale.
+        unsettled.request();
+    }
+    *chosen = [state.scale, chosen[0]];
+    for mut camera in &mut cameras {
+        if camera.0 != state.scale {
+            camera.0 = state.scale;
+        }
+    }
+}
+
+/// The scale an interaction starts at, after a frame of `frame` drawn at `drawn`: the side that frame's
+/// pixels would have needed to meet `budget`, in steps of 1/16 between `min` and 1.
+pub fn start_scale(drawn: f32, frame: Duration, budget: Duration, min: f32) -> f32 {
+    let t = frame.as_secs_f32().max(1e-6);
+    let s = drawn * (budget.as_secs_f32() / t).sqrt();
+    ((s * 16.0).floor() / 16.0).clamp(min.min(1.0), 1.0)
+}
+
+/// On a camera in the render world: its main pass draws at a lower scale and is stretched back.
+#[derive(Component)]
+struct ScaledMainPass;
+
+fn extract_scale(mut commands: Commands, cameras: Extract<Query<(RenderEntity, &RenderScale, &Camera)>>) {
+    for (entity, scale, camera) in &cameras {
+        let size = camera.physical_viewport_size().unwrap_or_default();
+        let scaled = (size.as_vec2() * scale.0).round().as_uvec2().max(UVec2::ONE);
+        if scale.0 < 1.0 && size.x > 1 && size.y > 1 && scaled != size {
+            commands.entity(entity).insert((MainPassResolutionOverride(scaled), ScaledMainPass));
+        } else {
+            commands.entity(entity).remove::<(MainPassResolutionOverride, ScaledMainPass)>();
+        }
+    }
+}
+
+/// The blit pipeline and the texture that holds the main pass's scaled picture, per scaled view.
+#[derive(Component)]
+struct Upscale {
+    pipeline: CachedRenderPipelineId,
+    texture: CachedTexture,
+}
+
+#[allow(clippy::type_complexity, reason = "a Bevy system's query")]
+fn prepare_upscale(
+    mut commands: Commands,
+    views: Query<(Entity, &ViewTarget, &MainPassResolutionOverride), With<ScaledMainPass>>,
+    blit: Option<Res<BlitPipeline>>,
+    mut pipelines: ResMut<SpecializedRenderPipelines<BlitPipeline>>,
+    cache: Res<PipelineCache>,
+    mut textures: ResMut<TextureCache>,
+    device: Res<RenderDevice>,
+) {
+    let Some(blit) = blit else { return };
+    for (entity, target, size) in &views {
+        let format = target.main_texture_format();
+        let key = BlitPipelineKey { target_format: format, blend_state: None, samples: 1, source_space: None };
+        let pipeline = pipelines.specialize(&cache, &blit, key);
+        let texture = textures.get(
+            &device,
+            TextureDescriptor {
+                label: Some("fascicle_scaled_main_pass"),
+                size: Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: TextureDimension::D2,
+                format,
+                usage: TextureUsages::TEXTURE_BINDING | TextureUsages::COPY_DST,
+                view_formats: &[],
+            },
+        );
+        commands.entity(entity).insert(Upscale { pipeline, texture });
+    }
+}
+
+/// Copies the main pass's scaled picture out of the main texture and stretches it over the viewport.
+fn upscale(
+    view: ViewQuery<(&ViewTarget, &ExtractedCamera, &MainPassResolutionOverride, &Upscale), With<ScaledMainPass>>,
+    cache: Res<PipelineCache>,
+    blit: Option<Res<BlitPipeline>>,
+    mut ctx: RenderContext,
+) {
+    let (target, camera, size, upscale) = view.into_inner();
+    let (Some(blit), Some(pipeline)) = (blit, cache.get_render_pipeline(upscale.pipeline)) else { return };
+    let viewport = camera
+        .viewport
+        .clone()
+        .unwrap_or_else(|| Viewport { physical_size: camera.physical_viewport_size.unwrap_or_default(), ..default() });
+    let texture = &upscale.texture.texture;
+    if texture.width() != size.x || texture.height() != size.y {
+        return;
+    }
+    let origin = viewport.physical_position;
+    ctx.command_encoder().copy_texture_to_texture(
+        TexelCopyTextureInfo {
+            texture: target.main_texture(),
+            mip_level: 0,
+            origin: Origin3d { x: origin.x, y: origin.y, z: 0 },
+            aspect: TextureAspect::All,
+        },
+        TexelCopyTextureInfo { texture, mip_level: 0, origin: Origin3d::ZERO, aspect: TextureAspect::All },
+        Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 },
+    );
+    let bind_group = blit.create_bind_group(ctx.render_device(), &upscale.texture.default_view, &cache);
+    let mut attachment: RenderPassColorAttachment = target.get_unsampled_color_attachment();
+    attachment.ops = Operations::default();
+    let mut pass = ctx.command_encoder().begin_render_pass(&RenderPassDescriptor {
+        label: Some("fascicle_upscale"),
+        color_attachments: &[Some(attachment)],
+        depth_stencil_attachment: None,
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    let (p, s) = (viewport.physical_position.as_vec2(), viewport.physical_size.as_vec2());
+    pass.set_viewport(p.x, p.y, s.x, s.y, 0.0, 1.0);
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &bind_group, &[]);
+    pass.draw(0..3, 0..1);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_scale_follows_the_measured_frame_time() {
+        let ms = Duration::from_millis;
+        // 4x over budget: pixels must drop 4x, the side 2x.
+        assert_eq!(next_scale(1.0, ms(400), ms(100), 0.25), 0.5);
+        // Far over: the side at most 4x less a frame, never under the minimum.
+        assert_eq!(next_scale(1.0, ms(5000), ms(100), 0.1), 0.25);
+        assert_eq!(next_scale(0.25, ms(5000), ms(100), 0.25), 0.25);
+        // Within 60-100 % of the budget: kept.
+        assert_eq!(next_scale(0.5, ms(80), ms(100), 0.25), 0.5);
+        // Well under: raised, at most 1.25x, never over 1.
+        assert_eq!(next_scale(0.5, ms(10), ms(100), 0.25), 0.625);
+        assert_eq!(next_scale(0.9375, ms(10), ms(100), 0.25), 1.0);
+        // Slightly over: lowered by at least a step.
+        assert!(next_scale(0.5, ms(110), ms(100), 0.25) < 0.5);
+        // An interaction starts where the last frame says the budget is met, up or down.
+        assert_eq!(start_scale(1.0, ms(1600), ms(100), 0.1), 0.25);
+        assert_eq!(start_scale(0.25, ms(10), ms(100), 0.1), 0.75);
+        assert_eq!(start_scale(1.0, ms(10), ms(100), 0.1), 1.0);
+    }
+}
