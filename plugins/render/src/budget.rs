@@ -127,7 +127,10 @@ impl Default for BudgetState {
     }
 }
 
-/// The systems that set the scale, in `Last` (apps marking [`Interacting`] in `Last` run before them).
+/// The system that sets the scale, in `PostUpdate` before the asset events are sent (it reads camera moves
+/// as changes of their `Transform`, made in `Update`), so that plugins lowering their own quality while the view moves (the
+/// volume's step) change their materials, `.after` it, in the frame that draws with them. Apps mark
+/// [`Interacting`] in `Update`.
 #[derive(SystemSet, Clone, Debug, PartialEq, Eq, Hash)]
 pub struct BudgetSystems;
 
@@ -137,9 +140,8 @@ impl Plugin for FrameBudgetPlugin {
             .init_resource::<FrameBudget>()
             .init_resource::<Interacting>()
             .init_resource::<BudgetState>()
-            .add_systems(Last, hold_budget.in_set(BudgetSystems));
-        #[cfg(feature = "winit")]
-        app.configure_sets(Last, BudgetSystems.before(crate::on_demand::ScheduleNextFrame));
+            .configure_sets(PostUpdate, BudgetSystems.before(bevy::asset::AssetEventSystems))
+            .add_systems(PostUpdate, hold_budget.in_set(BudgetSystems));
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
             render_app
                 .add_systems(ExtractSchedule, extract_scale)
@@ -163,8 +165,8 @@ pub fn next_scale(scale: f32, frame: Duration, budget: Duration, min: f32) -> f3
         1.0
     };
     let next = (scale * factor * 16.0).floor() / 16.0;
-    // Raising by less than a step keeps the scale: only a whole step up counts.
-    let next = if factor > 1.0 { next.max(scale) } else { next };
+    // Raising goes up a whole step at least (1.25x of a small scale is less than a step).
+    let next = if factor > 1.0 { next.max(scale + 1.0 / 16.0) } else { next };
     next.clamp(min.min(1.0), 1.0)
 }
 
@@ -174,7 +176,7 @@ fn hold_budget(
     adapter: Option<Res<crate::AdapterKind>>,
     time: Res<Time<bevy::time::Real>>,
     mut interacting: ResMut<Interacting>,
-    moved: Query<(), (With<RenderScale>, Changed<GlobalTransform>)>,
+    moved: Query<(), (With<RenderScale>, Changed<Transform>)>,
     mut cameras: Query<&mut RenderScale>,
     mut state: ResMut<BudgetState>,
     mut unsettled: ResMut<crate::Unsettled>,
@@ -359,6 +361,8 @@ mod tests {
         // Well under: raised, at most 1.25x, never over 1.
         assert_eq!(next_scale(0.5, ms(10), ms(100), 0.25), 0.625);
         assert_eq!(next_scale(0.9375, ms(10), ms(100), 0.25), 1.0);
+        // From a small scale, a step at least.
+        assert_eq!(next_scale(0.125, ms(10), ms(100), 0.125), 0.1875);
         // Slightly over: lowered by at least a step.
         assert!(next_scale(0.5, ms(110), ms(100), 0.25) < 0.5);
         // An interaction starts where the last frame says the budget is met, up or down.

@@ -376,7 +376,13 @@ impl Plugin for VolumePlugin {
         shaders::register(app);
         app.add_plugins((MaterialPlugin::<VolumeMaterial>::default(), ExtractResourcePlugin::<OpaqueDepth>::default()))
             .add_systems(Startup, create_opaque_depth)
-            .add_systems(PostUpdate, (prepare_cameras, fit_opaque_depth));
+            .add_systems(PostUpdate, (prepare_cameras, fit_opaque_depth))
+            .add_systems(
+                PostUpdate,
+                coarse_step_while_moving
+                    .after(fascicle_render::budget::BudgetSystems)
+                    .before(bevy::asset::AssetEventSystems),
+            );
         layer::build(app);
         shear_warp::build(app);
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
@@ -387,6 +393,28 @@ impl Plugin for VolumePlugin {
                     .after(main_opaque_pass_3d)
                     .before(main_transparent_pass_3d),
             );
+        }
+    }
+}
+
+/// While the frame budget draws at a lower scale (the view moves: [`fascicle_render::budget`]), ray-cast
+/// volumes with post-classification march at twice their step (half the samples; opacity is per mm, so the
+/// picture keeps its brightness); the frame that returns to full scale writes their own step back. A uniform
+/// write at each change, nothing else. Pre-integrated volumes keep their step (their table depends on it).
+fn coarse_step_while_moving(
+    budget: Option<Res<fascicle_render::budget::BudgetState>>,
+    sets: Query<&VolumeSet>,
+    mut materials: ResMut<Assets<VolumeMaterial>>,
+    mut coarse: Local<bool>,
+) {
+    let want = budget.is_some_and(|b| b.scale < 1.0);
+    if want == *coarse {
+        return;
+    }
+    *coarse = want;
+    for set in sets.iter().filter(|s| s.settings.method == VolumeMethod::Raycast && !s.settings.preintegrated) {
+        if let Some(mut m) = materials.get_mut(&set.material) {
+            m.params.step = set.settings.step as f32 * if want { 2.0 } else { 1.0 };
         }
     }
 }
