@@ -46,6 +46,23 @@ struct Row {
     scale: f64,
 }
 
+impl Row {
+    /// The row's fields: for the printed table (with the render scale, fewer digits), or for the CSV
+    /// ([`CSV_HEADER`]); a figure the row does not have is empty.
+    fn fields(&self, table: bool) -> Vec<String> {
+        let num = |v: f64, digits: usize| if v.is_finite() { format!("{v:.digits$}") } else { String::new() };
+        let opt = |v: Option<f64>, digits: usize| num(v.unwrap_or(f64::NAN), digits);
+        let d = usize::from(!table);
+        let mut f = vec![self.scene.clone(), self.action.to_string(), self.frames.to_string()];
+        f.extend([num(self.median_ms, 1 + d), num(self.p95_ms, 1 + d)]);
+        if table {
+            f.push(num(self.scale, 3));
+        }
+        f.extend([opt(self.refine_ms, d), opt(self.idle_cpu_pct, 2 + d)]);
+        f
+    }
+}
+
 /// Xvfb started by the bench, stopped when dropped.
 struct Display(Option<Child>);
 
@@ -351,41 +368,18 @@ pub fn run(o: InteractOptions) -> Result<(), String> {
             );
         }
     }
-    let opt = |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
-    let num = |v: f64, digits: usize| if v.is_finite() { format!("{v:.digits$}") } else { String::new() };
     println!(
         "| scene | action | frames | median ms | p95 ms | render scale (median) | refine ms | idle CPU % |\n\
          |---|---|---:|---:|---:|---:|---:|---:|"
     );
     for r in &rows {
-        println!(
-            "| {} | {} | {} | {} | {} | {} | {} | {} |",
-            r.scene,
-            r.action,
-            r.frames,
-            num(r.median_ms, 1),
-            num(r.p95_ms, 1),
-            num(r.scale, 3),
-            opt(r.refine_ms, 0),
-            opt(r.idle_cpu_pct, 2)
-        );
+        println!("| {} |", r.fields(true).join(" | "));
     }
     if let Some(p) = o.csv {
         let mut f = std::fs::File::create(p).map_err(|e| format!("{}: {e}", p.display()))?;
         writeln!(f, "{CSV_HEADER}").map_err(|e| e.to_string())?;
         for r in &rows {
-            writeln!(
-                f,
-                "{},{},{},{},{},{},{}",
-                r.scene,
-                r.action,
-                r.frames,
-                num(r.median_ms, 2),
-                num(r.p95_ms, 2),
-                opt(r.refine_ms, 1),
-                opt(r.idle_cpu_pct, 3)
-            )
-            .map_err(|e| e.to_string())?;
+            writeln!(f, "{}", r.fields(false).join(",")).map_err(|e| e.to_string())?;
         }
     }
     eprintln!("frame logs and the viewer's output: {}", tmp.display());
@@ -411,5 +405,18 @@ mod tests {
         let v: Vec<f64> = (1..=20).map(f64::from).collect();
         assert_eq!((percentile(&v, 0.5), percentile(&v, 0.95)), (11.0, 19.0));
         assert!(cpu_ticks(std::process::id()).is_some());
+        let row = Row {
+            scene: "default".into(),
+            action: "idle",
+            frames: 0,
+            median_ms: f64::NAN,
+            p95_ms: f64::NAN,
+            refine_ms: None,
+            idle_cpu_pct: Some(0.25),
+            scale: f64::NAN,
+        };
+        assert_eq!(row.fields(false).join(","), "default,idle,0,,,,0.250");
+        assert_eq!(row.fields(false).len(), CSV_HEADER.split(',').count());
+        assert_eq!(row.fields(true).len(), 8);
     }
 }
