@@ -159,6 +159,12 @@ pub struct TubeSet {
     pub material: Handle<TubeletMaterial>,
     /// How many tubelets the set draws (0: the entity has no mesh and draws nothing).
     pub n_tubelets: usize,
+    /// The proxy boxes of every tubelet ([`boxes`]); the entity's [`Mesh3d`] holds it unless it draws the preview.
+    pub full: Handle<Mesh>,
+    /// The proxy boxes of every [`TUBE_PREVIEW_STRIDE`]-th streamline's tubelets (sets of more than
+    /// [`TUBE_PREVIEW_MAX`] tubelets), drawn while the view moves and the frame budget cannot be held by render
+    /// scale alone ([`tube_detail`]).
+    pub preview: Option<Handle<Mesh>>,
     /// The settings the tubelets were made and are drawn with.
     pub settings: TubeSettings,
 }
@@ -261,6 +267,32 @@ fn tract_detail(
     }
     if moving && let Some(mut unsettled) = unsettled {
         unsettled.request();
+    }
+}
+
+/// Hyperstreamline previews under the frame budget ([`fascicle_render::budget`]): once, during an
+/// interaction, a frame at the smallest render scale is still over budget (the cost is geometry: tubelet
+/// proxies and their overdraw, which render scale does not lower), sets with a preview ([`tube_preview`])
+/// draw it until the view is still; the frame that returns to full scale draws them whole. A change of the
+/// entity's [`Mesh3d`] handle: nothing is rebuilt or uploaded. Apps without the budget are not affected.
+fn tube_detail(
+    budget: Option<Res<fascicle_render::budget::BudgetState>>,
+    settings: Option<Res<fascicle_render::budget::FrameBudget>>,
+    mut sets: Query<(&TubeSet, &mut Mesh3d)>,
+    mut coarse: Local<bool>,
+) {
+    let Some(b) = budget else { return };
+    let min = settings.map_or(0.125, |s| s.min_scale);
+    let over = b.scale <= min && b.last_frame.is_some_and(|(t, _)| t > b.budget);
+    *coarse = b.moving && (*coarse || over);
+    for (set, mut mesh) in &mut sets {
+        let want = match (&set.preview, *coarse) {
+            (Some(preview), true) => preview,
+            _ => &set.full,
+        };
+        if mesh.0 != *want {
+            mesh.0 = want.clone();
+        }
     }
 }
 
@@ -484,6 +516,7 @@ impl Plugin for TractPlugin {
                     apply_rois.in_set(TractSystems::Select),
                     line_msaa,
                     tract_detail.after(bevy::transform::TransformSystems::Propagate).before(sync_slabs),
+                    tube_detail.after(fascicle_render::budget::BudgetSystems),
                     sync_slabs,
                     warm_up,
                 ),
@@ -621,17 +654,41 @@ pub fn pack(tubes: &[Tubelet]) -> Vec<u8> {
 
 /// 8 vertices (slot, corner, 0) and 12 outward counter-clockwise triangles per tubelet.
 pub fn boxes(n: usize) -> Mesh {
-    let mut pos = Vec::with_capacity(8 * n);
-    let mut idx = Vec::with_capacity(36 * n);
-    for i in 0..n.max(1) {
+    boxes_of(&(0..n.max(1) as u32).collect::<Vec<_>>())
+}
+
+/// The proxy boxes of the tubelets in `slots` (their indices in the set's buffer), as [`boxes`] lays them out.
+pub fn boxes_of(slots: &[u32]) -> Mesh {
+    let mut pos = Vec::with_capacity(8 * slots.len());
+    let mut idx = Vec::with_capacity(36 * slots.len());
+    for (k, &slot) in slots.iter().enumerate() {
         for c in 0..8 {
-            pos.push([i as f32, c as f32, 0.0]);
+            pos.push([slot as f32, c as f32, 0.0]);
         }
-        idx.extend(fascicle_render::meshes::BOX_TRIANGLES.iter().map(|k| k + 8 * i as u32));
+        idx.extend(fascicle_render::meshes::BOX_TRIANGLES.iter().map(|i| i + 8 * k as u32));
     }
     Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
         .with_inserted_indices(Indices::U32(idx))
+}
+
+/// Tubelets a hyperstreamline set may hold before it gets a preview: 4,000.
+pub const TUBE_PREVIEW_MAX: usize = 4_000;
+
+/// One streamline in this many is in a hyperstreamline preview: 16 (as [`PREVIEW_STRIDE`] for lines). A fixed
+/// stride, not one per set's size: a tracked or streamed layer comes as many sets, and the preview of the
+/// whole layer must be small.
+pub const TUBE_PREVIEW_STRIDE: usize = 16;
+
+/// The preview of a set of more than [`TUBE_PREVIEW_MAX`] tubelets: the tubelets of one streamline in
+/// [`TUBE_PREVIEW_STRIDE`] (whole streamlines, so the preview shows fewer tracts, not broken ones), as the
+/// indices of their slots; `None` for a smaller set.
+pub fn tube_preview(tubes: &[Tubelet]) -> Option<Vec<u32>> {
+    (tubes.len() > TUBE_PREVIEW_MAX).then(|| {
+        (0..tubes.len() as u32)
+            .filter(|&i| (tubes[i as usize].streamline as usize).is_multiple_of(TUBE_PREVIEW_STRIDE))
+            .collect()
+    })
 }
 
 /// The tubelets of a tractogram with optional per-point world tensors (lower-triangular, mm²/s).
@@ -674,6 +731,8 @@ pub enum PreparedGeometry {
         settings: TubeSettings,
         /// The proxy mesh ([`boxes`]): 8 vertices (slot, corner, 0) and 12 triangles per tubelet.
         boxes: Box<Mesh>,
+        /// The preview's proxy mesh ([`tube_preview`]; sets of more than [`TUBE_PREVIEW_MAX`] tubelets).
+        preview: Option<Box<Mesh>>,
     },
     /// Lines or polygon tubes, and for lines the preview [`TractDetail`] may draw instead.
     Mesh {
@@ -730,6 +789,7 @@ impl PreparedTracts {
             n_tubelets: tubes.len(),
             settings: *settings,
             boxes: Box::new(boxes(tubes.len())),
+            preview: tube_preview(&tubes).map(|slots| Box::new(boxes_of(&slots))),
         };
         PreparedTracts::with(tractogram, geometry)
     }
@@ -796,8 +856,8 @@ pub(crate) fn insert_prepared(
         None => Selection { flags: all_selected(buffers, n_streamlines), target: None },
     };
     match geometry {
-        PreparedGeometry::Tubes { packed, n_tubelets, settings, boxes } => {
-            let tubes = (&packed[..], n_tubelets, *boxes);
+        PreparedGeometry::Tubes { packed, n_tubelets, settings, boxes, preview } => {
+            let tubes = (&packed[..], n_tubelets, *boxes, preview.map(|p| *p));
             insert_tube_set(e, meshes, tube_materials, buffers, target, tubes, settings)
         }
         PreparedGeometry::Mesh { mesh, preview } => {
@@ -815,7 +875,7 @@ fn spawn_tube_set(
     materials: &mut Assets<TubeletMaterial>,
     buffers: &mut Assets<ShaderBuffer>,
     selection: Selection,
-    tubes: (&[u8], usize, Mesh),
+    tubes: (&[u8], usize, Mesh, Option<Mesh>),
     settings: TubeSettings,
 ) -> Entity {
     let mut e = commands.spawn_empty();
@@ -831,7 +891,7 @@ fn insert_tube_set(
     materials: &mut Assets<TubeletMaterial>,
     buffers: &mut Assets<ShaderBuffer>,
     selection: Selection,
-    (packed, n_tubelets, proxies): (&[u8], usize, Mesh),
+    (packed, n_tubelets, proxies, preview): (&[u8], usize, Mesh, Option<Mesh>),
     settings: TubeSettings,
 ) {
     let material = materials.add(TubeletMaterial {
@@ -839,8 +899,10 @@ fn insert_tube_set(
         tubes: buffers.add(ShaderBuffer::new(packed, RenderAssetUsages::RENDER_WORLD)),
         selected: selection.flags,
     });
+    let full = meshes.add(proxies);
+    let preview = preview.map(|p| meshes.add(p));
     e.insert((
-        TubeSet { material: material.clone(), n_tubelets, settings },
+        TubeSet { material: material.clone(), n_tubelets, full: full.clone(), preview, settings },
         Transform::default(),
         Visibility::default(),
     ));
@@ -848,7 +910,7 @@ fn insert_tube_set(
         e.insert(target);
     }
     if n_tubelets > 0 {
-        e.insert((Mesh3d(meshes.add(proxies)), MeshMaterial3d(material), NoFrustumCulling));
+        e.insert((Mesh3d(full), MeshMaterial3d(material), NoFrustumCulling));
     }
 }
 
@@ -905,7 +967,8 @@ pub fn spawn_tubes(
 ) -> Entity {
     let tubes = tract_tubelets(&tractogram, tensors, settings);
     let target = tract_set(buffers, tractogram, LazyGrid::default());
-    let proxies = (&pack(&tubes)[..], tubes.len(), boxes(tubes.len()));
+    let preview = tube_preview(&tubes).map(|slots| boxes_of(&slots));
+    let proxies = (&pack(&tubes)[..], tubes.len(), boxes(tubes.len()), preview);
     spawn_tube_set(commands, meshes, materials, buffers, target, proxies, *settings)
 }
 
@@ -1265,6 +1328,57 @@ mod tests {
         assert!(!use_previews(Some(ms(300)), ms(300), 2_000_000, 1_000_000), "still for still_after");
         assert!(!use_previews(None, ms(300), 2_000_000, 1_000_000), "nothing ever moved");
         assert!(!use_previews(Some(ms(0)), ms(300), 1_000_000, 1_000_000), "within the limit");
+    }
+
+    /// A hyperstreamline set over the limit previews whole streamlines, one in 16; the frame
+    /// budget switches to the preview once a frame at the smallest scale is over budget while moving, keeps it
+    /// for the interaction, and returns to the whole set when the view is still.
+    #[test]
+    fn tube_previews_hold_whole_streamlines_and_follow_the_budget() {
+        use fascicle_render::budget::{BudgetState, FrameBudget};
+        let mut t = Tractogram::new();
+        for s in 0..2_500 {
+            t.push(&(0..11).map(|k| Vec3::new(s as f32, k as f32, 0.0)).collect::<Vec<_>>());
+        }
+        let tubes = tract_tubelets(&t, None, &TubeSettings::default());
+        assert_eq!(tubes.len(), 25_000);
+        let slots = tube_preview(&tubes).expect("over the limit");
+        // Streamlines 0, 16, 32, ..., 2,496, each with its 10 tubelets.
+        assert_eq!(slots.len(), 157 * 10);
+        assert!(slots.iter().all(|&i| tubes[i as usize].streamline.is_multiple_of(16)));
+        assert!(tube_preview(&tubes[..TUBE_PREVIEW_MAX]).is_none());
+        assert_eq!(boxes_of(&slots).count_vertices(), 8 * slots.len());
+
+        let mut app = App::new();
+        app.add_plugins((MinimalPlugins, bevy::asset::AssetPlugin::default()))
+            .init_asset::<Mesh>()
+            .init_resource::<FrameBudget>()
+            .insert_resource(BudgetState::default())
+            .add_systems(Update, tube_detail);
+        let (full, preview) = {
+            let mut meshes = app.world_mut().resource_mut::<Assets<Mesh>>();
+            (meshes.add(boxes(tubes.len())), meshes.add(boxes_of(&slots)))
+        };
+        let set = TubeSet {
+            material: Handle::default(),
+            n_tubelets: tubes.len(),
+            full: full.clone(),
+            preview: Some(preview.clone()),
+            settings: TubeSettings::default(),
+        };
+        let e = app.world_mut().spawn((set, Mesh3d(full.clone()))).id();
+        let ms = std::time::Duration::from_millis;
+        let mut step = |moving: bool, scale: f32, frame_ms: u64| {
+            let mut b = app.world_mut().resource_mut::<BudgetState>();
+            (b.moving, b.scale, b.last_frame, b.budget) = (moving, scale, Some((ms(frame_ms), scale)), ms(100));
+            app.update();
+            app.world().get::<Mesh3d>(e).expect("mesh").0.clone()
+        };
+        assert_eq!(step(true, 0.5, 400), full, "render scale can still lower the cost");
+        assert_eq!(step(true, 0.125, 90), full, "within budget at the smallest scale");
+        assert_eq!(step(true, 0.125, 300), preview, "over budget at the smallest scale");
+        assert_eq!(step(true, 0.25, 40), preview, "kept for the interaction");
+        assert_eq!(step(false, 1.0, 40), full, "still: the whole set");
     }
 
     /// A tubelet's end colours are the colour function at its streamline's two points (here the colour is
