@@ -163,7 +163,7 @@ pub struct TubeSet {
     pub full: Handle<Mesh>,
     /// The proxy boxes of every [`TUBE_PREVIEW_STRIDE`]-th streamline's tubelets (sets of more than
     /// [`TUBE_PREVIEW_MAX`] tubelets), drawn while the view moves and the frame budget cannot be held by render
-    /// scale alone ([`tube_detail`]).
+    /// scale alone (the plugin's `tube_detail` system).
     pub preview: Option<Handle<Mesh>>,
     /// The settings the tubelets were made and are drawn with.
     pub settings: TubeSettings,
