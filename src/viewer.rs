@@ -24,6 +24,7 @@ use bevy_egui::{EguiContexts, EguiGlobalSettings, EguiPlugin, EguiPrimaryContext
 use fascicle_render::FascicleRenderPlugin;
 use fascicle_render::budget::{BudgetState, FrameBudget, FrameBudgetPlugin, RenderScale};
 use fascicle_render::on_demand::{DrawOnDemand, DrawOnDemandPlugin, KeepAwake, NextFrame, ScheduleNextFrame};
+use fascicle_render::retain::{RetainPicture, RetainedPicturePlugin};
 
 use crate::history::{RecentFiles, SceneHistory};
 use crate::panels::LayerPanels;
@@ -176,6 +177,8 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     )
     .add_plugins(EguiPlugin::default())
     .add_plugins((FascicleRenderPlugin, ScenePlugin, HandlesPlugin, DrawOnDemandPlugin, FrameBudgetPlugin))
+    .add_plugins(RetainedPicturePlugin)
+    .add_systems(PostUpdate, egui_images_outside_picture)
     // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
     .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
     // While the view moves the 3D view draws at the scale the frame budget affords (not with `--screenshot`).
@@ -205,7 +208,8 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
         ..default()
     })
     .add_systems(Startup, |mut commands: Commands, mut egui_settings: ResMut<EguiGlobalSettings>| {
-        commands.spawn((view_camera(), Transform::default(), RenderScale::default()));
+        // A pointer move that changes nothing puts the last picture back (fascicle_render::retain).
+        commands.spawn((view_camera(), Transform::default(), RenderScale::default(), RetainPicture));
         // egui gets its own camera drawn over the 3D view, so the 3D camera can take a viewport.
         egui_settings.auto_create_primary_context = false;
         commands.spawn((
@@ -1018,6 +1022,19 @@ fn layer_status(ui: &mut egui::Ui, status: &LayerStatus, job: Option<&LayerJob>,
                 retry();
             }
         });
+    }
+}
+
+/// Tells the retained picture which images are egui's (its font atlas grows as new text appears): their
+/// changes are not the scene's.
+fn egui_images_outside_picture(
+    textures: Res<bevy_egui::EguiManagedTextures>,
+    outside: Option<ResMut<fascicle_render::retain::ImagesOutsidePicture>>,
+) {
+    if let Some(mut outside) = outside
+        && textures.is_changed()
+    {
+        outside.0 = textures.values().map(|t| t.handle.id()).collect();
     }
 }
 

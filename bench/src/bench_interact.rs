@@ -1,10 +1,11 @@
 //! `fascicle-bench interact`: the real viewer window (winit, on Xvfb when there is no display), driven through
-//! the window system's event path by `xdotool`: per scene, an orbit (a left drag over the 3D view) and an ROI
-//! drag (Shift + left drag from the first ROI sphere), then the idle window.
+//! the window system's event path by `xdotool`: per scene, an orbit (a left drag over the 3D view), a hover
+//! (the pointer crossing the still 3D view, no button), an ROI drag (Shift + left drag from the first ROI
+//! sphere), then the idle window.
 //!
 //! The viewer writes a line per frame to the file named by `FASCICLE_FRAME_LOG` (wall clock, the frame's time
 //! as the panel's readout shows it, the render scale, the ROI's window position). Per action: the frames drawn
-//! between the press and the release, each timed from the frame before (the wall clock of the lines: the
+//! between the press and the release (a hover: its first and last move), each timed from the frame before (the wall clock of the lines: the
 //! readout's time comes from the render world, a frame late under pipelined rendering), their median and
 //! 95th percentile; `refine_ms`, from the release until the process stops using the CPU (the
 //! full-quality frame drawn, read from `/proc/PID/stat` every 10 ms until 600 ms pass without a tick); and for
@@ -209,14 +210,17 @@ fn drag_script((dx, dy): (i32, i32), steps: usize, shift: bool) -> String {
         s += "keydown shift\n";
     }
     s += "mousedown 1\n";
-    for _ in 0..steps {
-        s += &format!("mousemove_relative -- {dx} {dy}\nsleep 0.033\n");
-    }
+    s += &hover_script((dx, dy), steps);
     s += "mouseup 1\n";
     if shift {
         s += "keyup shift\n";
     }
     s
+}
+
+/// Pointer moves with no button held: `steps` moves of (dx, dy) pixels, one every 33 ms.
+fn hover_script((dx, dy): (i32, i32), steps: usize) -> String {
+    (0..steps).map(|_| format!("mousemove_relative -- {dx} {dy}\nsleep 0.033\n")).collect()
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -336,6 +340,18 @@ pub fn run(o: InteractOptions) -> Result<(), String> {
         let (cx, cy) = (0.6 * o.size.0 as f64, 0.5 * o.size.1 as f64);
         let orbit = drag_script((6, 0), 60, false);
         rows.push(measure_drag(&name, "orbit", &mut viewer, &display, (cx, cy), &orbit, o.settle_timeout)?);
+        wait_settled(&mut viewer, o.settle_timeout)?;
+        // The pointer crossing the still view: every move is a frame (egui's hover), the scene unchanged.
+        let hover = hover_script((4, 2), 60);
+        rows.push(measure_drag(
+            &name,
+            "hover",
+            &mut viewer,
+            &display,
+            (cx - 120.0, cy - 60.0),
+            &hover,
+            o.settle_timeout,
+        )?);
         wait_settled(&mut viewer, o.settle_timeout)?;
         match read_log(&viewer.log).last().and_then(|f| f.roi) {
             Some(at) => {

@@ -27,12 +27,13 @@ use std::time::Duration;
 use bevy::camera::{MainPassResolutionOverride, Viewport};
 use bevy::core_pipeline::blit::{BlitPipeline, BlitPipelineKey};
 use bevy::core_pipeline::{Core3dSystems, schedule::Core3d};
+use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
 use bevy::render::camera::ExtractedCamera;
 use bevy::render::render_resource::{
-    CachedRenderPipelineId, Extent3d, Operations, Origin3d, PipelineCache, RenderPassColorAttachment,
+    BindGroup, CachedRenderPipelineId, Extent3d, Operations, Origin3d, PipelineCache, RenderPassColorAttachment,
     RenderPassDescriptor, SpecializedRenderPipelines, TexelCopyTextureInfo, TextureAspect, TextureDescriptor,
-    TextureDimension, TextureUsages,
+    TextureDimension, TextureUsages, TextureViewId,
 };
 use bevy::render::renderer::{RenderContext, RenderDevice, ViewQuery};
 use bevy::render::sync_world::RenderEntity;
@@ -181,7 +182,8 @@ fn hold_budget(
     mut state: ResMut<BudgetState>,
     mut unsettled: ResMut<crate::Unsettled>,
     pipelined: Option<Res<bevy::render::pipelined_rendering::RenderAppChannels>>,
-    mut chosen: Local<[f32; 2]>,
+    mut chosen: Local<Chosen>,
+    retained: Option<Res<crate::RecentlyRetained>>,
     #[cfg(feature = "winit")] on_demand: (
         Option<Res<crate::on_demand::NextFrame>>,
         Option<Res<crate::on_demand::Settling>>,
@@ -194,13 +196,12 @@ fn hold_budget(
         (on_demand.0.is_none_or(|n| *n == crate::on_demand::NextFrame::Now), on_demand.1.is_some_and(|s| s.0 > 0));
     #[cfg(not(feature = "winit"))]
     let (back_to_back, settling) = (true, false);
-    if *chosen == [0.0; 2] {
-        *chosen = [1.0; 2];
-    }
-    if back_to_back && time.delta() > Duration::ZERO {
+    // A frame that put a retained picture back drew no scene: its time says nothing of the scene's cost.
+    let drew_scene = retained.is_none_or(|r| !r.any(2));
+    if back_to_back && drew_scene && time.delta() > Duration::ZERO {
         // The frame just measured was drawn at the scale the last update chose; with pipelined rendering
         // (an update runs while the render world draws the one before), the update before that.
-        let drawn = if pipelined.is_some() { chosen[1] } else { chosen[0] };
+        let drawn = if pipelined.is_some() { chosen.0[1] } else { chosen.0[0] };
         state.last_frame = Some((time.delta(), drawn));
     }
     if std::mem::take(&mut interacting.0) || !moved.is_empty() {
@@ -227,11 +228,20 @@ fn hold_budget(
         // Frames until the view is still: the one that finds it still draws at full scale.
         unsettled.request();
     }
-    *chosen = [state.scale, chosen[0]];
+    chosen.0 = [state.scale, chosen.0[0]];
     for mut camera in &mut cameras {
         if camera.0 != state.scale {
             camera.0 = state.scale;
         }
+    }
+}
+
+/// The scales the last two updates chose, newest first (full scale before any).
+struct Chosen([f32; 2]);
+
+impl Default for Chosen {
+    fn default() -> Self {
+        Chosen([1.0; 2])
     }
 }
 
@@ -245,15 +255,19 @@ pub fn start_scale(drawn: f32, frame: Duration, budget: Duration, min: f32) -> f
 
 /// On a camera in the render world: its main pass draws at a lower scale and is stretched back.
 #[derive(Component)]
-struct ScaledMainPass;
+pub(crate) struct ScaledMainPass;
 
-fn extract_scale(mut commands: Commands, cameras: Extract<Query<(RenderEntity, &RenderScale, &Camera)>>) {
+fn extract_scale(
+    mut commands: Commands,
+    cameras: Extract<Query<(RenderEntity, &RenderScale, &Camera)>>,
+    scaled_views: Query<(), With<ScaledMainPass>>,
+) {
     for (entity, scale, camera) in &cameras {
         let size = camera.physical_viewport_size().unwrap_or_default();
         let scaled = (size.as_vec2() * scale.0).round().as_uvec2().max(UVec2::ONE);
         if scale.0 < 1.0 && size.x > 1 && size.y > 1 && scaled != size {
             commands.entity(entity).insert((MainPassResolutionOverride(scaled), ScaledMainPass));
-        } else {
+        } else if scaled_views.contains(entity) {
             commands.entity(entity).remove::<(MainPassResolutionOverride, ScaledMainPass)>();
         }
     }
@@ -261,12 +275,13 @@ fn extract_scale(mut commands: Commands, cameras: Extract<Query<(RenderEntity, &
 
 /// The blit pipeline and the texture that holds the main pass's scaled picture, per scaled view.
 #[derive(Component)]
-struct Upscale {
+pub(crate) struct Upscale {
     pipeline: CachedRenderPipelineId,
     texture: CachedTexture,
+    bind_group: BindGroup,
 }
 
-#[allow(clippy::type_complexity, reason = "a Bevy system's query")]
+#[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's parameters")]
 fn prepare_upscale(
     mut commands: Commands,
     views: Query<(Entity, &ViewTarget, &MainPassResolutionOverride), With<ScaledMainPass>>,
@@ -275,8 +290,10 @@ fn prepare_upscale(
     cache: Res<PipelineCache>,
     mut textures: ResMut<TextureCache>,
     device: Res<RenderDevice>,
+    mut bind_groups: Local<HashMap<Entity, (TextureViewId, BindGroup)>>,
 ) {
     let Some(blit) = blit else { return };
+    bind_groups.retain(|e, _| views.contains(*e));
     for (entity, target, size) in &views {
         let format = target.main_texture_format();
         let key = BlitPipelineKey { target_format: format, blend_state: None, samples: 1, source_space: None };
@@ -294,19 +311,28 @@ fn prepare_upscale(
                 view_formats: &[],
             },
         );
-        commands.entity(entity).insert(Upscale { pipeline, texture });
+        // The texture cache hands back the same texture while the size holds: its bind group is kept, as
+        // Bevy's own upscaling keeps its own.
+        let bind_group = match bind_groups.get(&entity) {
+            Some((id, group)) if *id == texture.default_view.id() => group.clone(),
+            _ => {
+                let group = blit.create_bind_group(&device, &texture.default_view, &cache);
+                bind_groups.insert(entity, (texture.default_view.id(), group.clone()));
+                group
+            }
+        };
+        commands.entity(entity).insert(Upscale { pipeline, texture, bind_group });
     }
 }
 
 /// Copies the main pass's scaled picture out of the main texture and stretches it over the viewport.
-fn upscale(
+pub(crate) fn upscale(
     view: ViewQuery<(&ViewTarget, &ExtractedCamera, &MainPassResolutionOverride, &Upscale), With<ScaledMainPass>>,
     cache: Res<PipelineCache>,
-    blit: Option<Res<BlitPipeline>>,
     mut ctx: RenderContext,
 ) {
     let (target, camera, size, upscale) = view.into_inner();
-    let (Some(blit), Some(pipeline)) = (blit, cache.get_render_pipeline(upscale.pipeline)) else { return };
+    let Some(pipeline) = cache.get_render_pipeline(upscale.pipeline) else { return };
     let viewport = camera
         .viewport
         .clone()
@@ -326,7 +352,6 @@ fn upscale(
         TexelCopyTextureInfo { texture, mip_level: 0, origin: Origin3d::ZERO, aspect: TextureAspect::All },
         Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 },
     );
-    let bind_group = blit.create_bind_group(ctx.render_device(), &upscale.texture.default_view, &cache);
     let mut attachment: RenderPassColorAttachment = target.get_unsampled_color_attachment();
     attachment.ops = Operations::default();
     let mut pass = ctx.command_encoder().begin_render_pass(&RenderPassDescriptor {
@@ -340,7 +365,7 @@ fn upscale(
     let (p, s) = (viewport.physical_position.as_vec2(), viewport.physical_size.as_vec2());
     pass.set_viewport(p.x, p.y, s.x, s.y, 0.0, 1.0);
     pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, &bind_group, &[]);
+    pass.set_bind_group(0, &upscale.bind_group, &[]);
     pass.draw(0..3, 0..1);
 }
 

@@ -559,6 +559,21 @@ pub fn capture_with_depth(
     result
 }
 
+/// Reads `target` back as the app's next frame draws it, as it is: no warm-up, no viewport shrinking, the
+/// cameras not paused while the readback arrives (each frame until then is drawn, or put back by
+/// [`crate::retain`]). For tests of what one frame draws; [`capture`] prepares the frame first.
+pub fn capture_next_frame(app: &mut App, target: Handle<Image>) -> Result<Capture, HeadlessError> {
+    initialise(app)?;
+    let colour: Arc<Mutex<Option<Image>>> = Arc::default();
+    let sink = colour.clone();
+    app.world_mut().spawn(Screenshot::image(target)).observe(move |ev: On<ScreenshotCaptured>| {
+        if let Ok(mut s) = sink.lock() {
+            *s = Some(ev.image.clone());
+        }
+    });
+    await_readback(app, (&colour, &Arc::default()), None, None).map(|(c, _)| c)
+}
+
 /// A captured colour image and depth bytes, as the observers leave them.
 type Sinks<'a> = (&'a Arc<Mutex<Option<Image>>>, &'a Arc<Mutex<Option<Vec<u8>>>>);
 

@@ -12,6 +12,7 @@
 //!   the per-stage work counters.
 //! - [`reference`](mod@reference): f64 CPU references of the shared shader math, for tests.
 //! - [`budget`]: a frame budget held by adaptive render scale while the view moves ([`budget::FrameBudgetPlugin`]).
+//! - [`retain`]: a retained 3D picture, put back while nothing it shows changes ([`retain::RetainedPicturePlugin`]).
 //! - [`AdapterKind`]: whether the renderer is a software rasteriser, for plugins that lower their cost there.
 
 #![warn(missing_docs)]
@@ -25,7 +26,11 @@ pub mod meshes;
 #[cfg(feature = "winit")]
 pub mod on_demand;
 pub mod reference;
+pub mod retain;
 pub mod shaders;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
 use bevy::prelude::*;
 
@@ -52,6 +57,7 @@ impl Plugin for FascicleRenderPlugin {
             render_app.insert_resource(adapter).add_systems(bevy::render::RenderStartup, detect_adapter);
         }
         shaders::embed(app);
+        retain::watch_asset::<impostor::SphereImpostorMaterial>(app);
         app.add_plugins((MaterialPlugin::<impostor::SphereImpostorMaterial>::default(), headless::DepthCopyPlugin));
     }
 }
@@ -95,4 +101,31 @@ impl AdapterKind {
 fn detect_adapter(adapter: Res<bevy::render::renderer::RenderAdapter>, kind: Res<AdapterKind>) {
     // wgpu's `DeviceType::Cpu` (Bevy does not re-export the type).
     kind.set_software(format!("{:?}", adapter.get_info().device_type) == "Cpu");
+}
+
+/// Whether the last frames put the stored picture back, newest in bit 0 (shared between the worlds): a frame
+/// time measured over such a frame is not the scene's ([`budget`] skips it); written by [`retain`].
+#[derive(Resource, Clone, Default, Debug)]
+pub struct RecentlyRetained(Arc<AtomicU32>, Arc<AtomicU64>);
+
+impl RecentlyRetained {
+    /// How many frames put a stored picture back since the app started.
+    pub fn frames_put_back(&self) -> u64 {
+        self.1.load(Ordering::Relaxed)
+    }
+    /// Whether every one of the last `frames` extracted frames (at most 32) put the stored picture back.
+    pub fn all_of_last(&self, frames: u32) -> bool {
+        let mask = if frames >= 32 { u32::MAX } else { (1u32 << frames) - 1 };
+        self.0.load(Ordering::Relaxed) & mask == mask
+    }
+    /// Whether any of the last `frames` extracted frames (at most 32) put the stored picture back.
+    pub fn any(&self, frames: u32) -> bool {
+        let mask = if frames >= 32 { u32::MAX } else { (1u32 << frames) - 1 };
+        self.0.load(Ordering::Relaxed) & mask != 0
+    }
+    pub(crate) fn push(&self, retained: bool) {
+        let bits = self.0.load(Ordering::Relaxed);
+        self.0.store((bits << 1) | u32::from(retained), Ordering::Relaxed);
+        self.1.fetch_add(u64::from(retained), Ordering::Relaxed);
+    }
 }

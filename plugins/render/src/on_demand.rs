@@ -196,7 +196,8 @@ fn schedule_next_frame(
 ) {
     let input = inputs.any();
     let request = std::mem::take(&mut keep.redraw);
-    let unsettled = unsettled.is_some_and(|mut u| u.take());
+    // Taken without marking it changed: a request marks it (the retained picture watches it).
+    let unsettled = unsettled.is_some_and(|mut u| u.bypass_change_detection().take());
     let busy = std::mem::take(&mut keep.busy) || unsettled || layers.iter().any(|s| matches!(s, LayerStatus::Loading));
     if !settings.enabled {
         let game = WinitSettings::game();

@@ -64,6 +64,8 @@ pub struct ShGlyphPlugin;
 impl Plugin for ShGlyphPlugin {
     fn build(&self, app: &mut App) {
         shaders::register(app);
+        fascicle_render::retain::watch_asset::<ShGlyphMaterial>(app);
+        fascicle_render::retain::watch_asset::<ShField>(app);
         app.add_plugins(MaterialPlugin::<ShGlyphMaterial>::default());
         layer::build(app);
         placed::build(app);

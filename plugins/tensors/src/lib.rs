@@ -35,6 +35,11 @@ pub struct TensorGlyphPlugin;
 impl Plugin for TensorGlyphPlugin {
     fn build(&self, app: &mut App) {
         shaders::register(app);
+        use fascicle_render::retain::{watch, watch_asset};
+        watch_asset::<TensorGlyphMaterial>(app);
+        watch_asset::<splat::SplatMaterial>(app);
+        watch_asset::<TensorField>(app);
+        watch::<sort_order::SplatSortMode>(app);
         app.add_plugins((
             MaterialPlugin::<TensorGlyphMaterial>::default(),
             MaterialPlugin::<splat::SplatMaterial>::default(),
@@ -48,7 +53,12 @@ impl Plugin for TensorGlyphPlugin {
             use bevy::core_pipeline::core_3d::{main_opaque_pass_3d, main_transparent_pass_3d};
             render_app.add_systems(
                 bevy::core_pipeline::schedule::Core3d,
-                gpu_sort::sort.after(main_opaque_pass_3d).before(main_transparent_pass_3d),
+                // In the main pass's set: a frame that puts a retained picture back skips it
+                // (fascicle_render::retain).
+                gpu_sort::sort
+                    .after(main_opaque_pass_3d)
+                    .before(main_transparent_pass_3d)
+                    .in_set(bevy::core_pipeline::Core3dSystems::MainPass),
             );
         }
     }

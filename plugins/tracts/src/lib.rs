@@ -506,6 +506,12 @@ pub struct TractPlugin;
 impl Plugin for TractPlugin {
     fn build(&self, app: &mut App) {
         shaders::register(app);
+        use fascicle_render::retain::{watch, watch_asset};
+        watch_asset::<TubeletMaterial>(app);
+        watch_asset::<TractMeshMaterial>(app);
+        watch_asset::<TractogramAsset>(app);
+        watch::<LineMsaa>(app);
+        watch::<TractDetail>(app);
         app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
             .init_resource::<LineMsaa>()

@@ -227,13 +227,20 @@ fn view_camera_bundle(order: isize, layer: usize, clear_color: ClearColorConfig)
 }
 
 /// A new main camera: its clear colour, target, MSAA and whether it is HDR.
-type NewMain = (&'static Camera, Option<&'static RenderTarget>, Option<&'static Msaa>, Has<bevy::camera::Hdr>);
+type NewMain = (
+    &'static Camera,
+    Option<&'static RenderTarget>,
+    Option<&'static Msaa>,
+    Has<bevy::camera::Hdr>,
+    Has<fascicle_render::retain::RetainPicture>,
+);
 
-/// Gives every new main camera its 2D views (cleared as it is) and its colour-bar overlay, on the same target.
+/// Gives every new main camera its 2D views (cleared as it is) and its colour-bar overlay, on the same target
+/// (and retaining their pictures when it retains its own: [`fascicle_render::retain`]).
 /// They are HDR when it is: cameras sharing a target must share its intermediate textures, or a later camera
 /// writes over the earlier ones' pixels.
 fn spawn_view_cameras(mut commands: Commands, mains: Query<NewMain, Added<MainView>>) {
-    for (main, target, msaa, hdr) in &mains {
+    for (main, target, msaa, hdr, retain) in &mains {
         let msaa = msaa.copied().unwrap_or_default();
         let clear = match &main.clear_color {
             ClearColorConfig::None => ClearColorConfig::Default,
@@ -251,6 +258,9 @@ fn spawn_view_cameras(mut commands: Commands, mains: Query<NewMain, Added<MainVi
             }
             if hdr {
                 e.insert(bevy::camera::Hdr);
+            }
+            if retain {
+                e.insert(fascicle_render::retain::RetainPicture);
             }
         }
         let mut e = commands.spawn((
@@ -270,6 +280,9 @@ fn spawn_view_cameras(mut commands: Commands, mains: Query<NewMain, Added<MainVi
         if hdr {
             e.insert(bevy::camera::Hdr);
         }
+        if retain {
+            e.insert(fascicle_render::retain::RetainPicture);
+        }
     }
 }
 
@@ -277,7 +290,9 @@ fn viewport(r: URect) -> Viewport {
     Viewport { physical_position: r.min, physical_size: r.size().max(UVec2::ONE), ..default() }
 }
 
-fn set_viewport(camera: &mut Camera, r: URect) {
+/// Sets a camera's viewport when it differs (through `Mut`: a `&mut Camera` taken from it marks the camera
+/// changed every frame, and a retained picture is then never put back).
+fn set_viewport(camera: &mut Mut<Camera>, r: URect) {
     let v = viewport(r);
     let same = camera
         .viewport

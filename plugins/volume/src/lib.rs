@@ -374,6 +374,9 @@ pub struct VolumePlugin;
 impl Plugin for VolumePlugin {
     fn build(&self, app: &mut App) {
         shaders::register(app);
+        fascicle_render::retain::watch_asset::<VolumeMaterial>(app);
+        fascicle_render::retain::watch_asset::<ScalarVolume>(app);
+        fascicle_render::retain::watch::<OpaqueDepth>(app);
         app.add_plugins((MaterialPlugin::<VolumeMaterial>::default(), ExtractResourcePlugin::<OpaqueDepth>::default()))
             .add_systems(Startup, create_opaque_depth)
             .add_systems(PostUpdate, (prepare_cameras, fit_opaque_depth))
@@ -391,7 +394,9 @@ impl Plugin for VolumePlugin {
                 (copy_opaque_depth, shear_warp::composite)
                     .chain()
                     .after(main_opaque_pass_3d)
-                    .before(main_transparent_pass_3d),
+                    .before(main_transparent_pass_3d)
+                    // A frame that puts a retained picture back skips the main pass's set.
+                    .in_set(bevy::core_pipeline::Core3dSystems::MainPass),
             );
         }
     }
