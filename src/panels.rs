@@ -374,7 +374,7 @@ fn values_source(ui: &mut egui::Ui, file: &mut Option<std::path::PathBuf>, name:
 fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
     use fascicle_scene::model::TractMode;
-    let LayerKind::Tracts { source, mode, render, rois, masks, colouring } = kind else { return };
+    let LayerKind::Tracts { source, mode, render, rois, masks, colouring, ends_only } = kind else { return };
     ui.horizontal(|ui| {
         ui.radio_value(mode, TractMode::Tubes, "hyperstreamlines");
         ui.radio_value(mode, TractMode::Polygon, "polygon tubes");
@@ -393,6 +393,7 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     ui.add(egui::Slider::new(&mut render.iterations, 1..=32).text("iterations"));
     tract_colouring(ui, colouring, render, data);
     ui.label("ROIs (a streamline shows when it meets every include and no exclude)");
+    ui.checkbox(ends_only, "ends only: regions test each streamline's first and last points (tckedit -ends_only)");
     let mut remove = None;
     for (i, roi) in rois.iter_mut().enumerate() {
         ui.push_id(i, |ui| {
@@ -902,6 +903,7 @@ mod tests {
                 render: Default::default(),
                 rois: vec![],
                 masks: vec![],
+                ends_only: false,
                 colouring: Default::default(),
             },
         ];

@@ -670,11 +670,15 @@ fn save_selection(
         [(set, selection, _)] => Ok((selected_tractogram(set, selection), set.tractogram.n_streamlines())),
         // None, or the streamlines in parts (as they were tracked): from the source, in its order.
         _ => match scene.0.layers.get(layer).map(|l| &l.kind) {
-            Some(LayerKind::Tracts { source, rois, .. }) => {
+            Some(LayerKind::Tracts { source, rois, ends_only, .. }) => {
                 fascicle_scene::jobs::tract_data(&cache, source, &Default::default()).map(|d| {
                     let t = &d.tractogram;
-                    let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
-                    (t.subset(&select(&t.points, &t.offsets, &grid, rois)), t.n_streamlines())
+                    let keep = if *ends_only {
+                        fascicle_core::roi::select_ends(&t.points, &t.offsets, rois)
+                    } else {
+                        select(&t.points, &t.offsets, &SegmentGrid::new(&t.points, &t.offsets, 4.0), rois)
+                    };
+                    (t.subset(&keep), t.n_streamlines())
                 })
             }
             _ => Err(format!("layer {layer} is not a tract layer")),
@@ -986,6 +990,7 @@ fn derived_layers(tensors: &fascicle_scene::model::TensorSource) -> Vec<(&'stati
                 render: Default::default(),
                 rois: vec![],
                 masks: vec![],
+                ends_only: false,
                 colouring: Default::default(),
             },
         ),
@@ -1133,6 +1138,7 @@ mod tests {
                 render: Default::default(),
                 rois: rois.clone(),
                 masks: vec![],
+                ends_only: false,
                 colouring: Default::default(),
             },
         };

@@ -100,6 +100,24 @@ fn info_json_reports_kind_counts_and_the_recorded_sh_basis() {
     assert_eq!(v["sh_basis"]["convention"], "tournier07");
     assert_eq!(v["sh_basis"]["recorded"], true);
     assert_eq!(v["shape"].as_array().map(Vec::len), Some(4));
+
+    // A track scalar file (values per point, as tcksample writes them): counts and range. (NaN and infinity
+    // are the format's delimiters: a file holds finite values only.)
+    use fascicle_core::io::tsf;
+    let tsf_path = dir.join("v.tsf");
+    tsf::write(&tsf_path, &tsf::TrackScalars::for_tractogram(&t, |s, k| (s * 1000 + k) as f32)).unwrap();
+    let v: serde_json::Value =
+        serde_json::from_slice(&fascicle(&["info", "--json", tsf_path.to_str().unwrap()]).stdout).unwrap();
+    assert_eq!((v["kind"].as_str(), v["count"].as_u64()), (Some("track_scalars"), Some(300)));
+    assert_eq!(v["points"].as_u64(), Some(t.points.len() as u64));
+    let last = 299 * 1000 + (t.offsets[300] - t.offsets[299] - 1);
+    assert_eq!((v["range"][0].as_f64(), v["range"][1].as_f64()), (Some(0.0), Some(last as f64)));
+    let text = fascicle(&["info", tsf_path.to_str().unwrap()]);
+    assert!(text.status.success() && String::from_utf8_lossy(&text.stdout).contains("streamlines 300"), "{text:?}");
+    // A file cut short: an error naming it, no panic.
+    let bad = fascicle(&["info", &data("malformed/cut_short.tsf")]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success() && err.contains("cut_short.tsf") && !err.contains("panicked"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

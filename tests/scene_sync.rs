@@ -435,6 +435,7 @@ fn rois_act_on_their_own_layer() {
             render: Default::default(),
             rois,
             masks: vec![],
+            ends_only: false,
             colouring: Default::default(),
         },
     };
@@ -720,6 +721,7 @@ fn tracking_streams_into_its_layer() {
             render: default(),
             rois: rois.clone(),
             masks: vec![],
+            ends_only: false,
             colouring: default(),
         },
     };
@@ -787,6 +789,7 @@ fn value_coloured_tracts_report_their_histogram() {
         render: Default::default(),
         rois: vec![],
         masks: vec![],
+        ends_only: false,
         colouring,
     };
     let scene = Scene {

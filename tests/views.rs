@@ -311,6 +311,7 @@ fn the_2d_views_show_streamlines_cropped_to_a_slab() {
             render: Default::default(),
             rois: vec![],
             masks: vec![],
+            ends_only: false,
             colouring: Default::default(),
         },
     });

@@ -345,6 +345,7 @@ pub(crate) fn large_scene(dir: &Path) -> Result<Scene, String> {
                     mode: RoiMode::Include,
                 }],
                 masks: vec![],
+                ends_only: false,
                 colouring: Default::default(),
             },
         ),
@@ -369,6 +370,7 @@ pub(crate) fn seeded_tracking() -> LayerSpec {
             render: Default::default(),
             rois: vec![],
             masks: vec![],
+            ends_only: false,
             colouring: Default::default(),
         },
     }

@@ -434,6 +434,29 @@ pub fn select(points: &[Vec3], offsets: &[usize], grid: &SegmentGrid, rois: &[Ro
     alive
 }
 
+/// Which streamlines the ROIs select when only their end points count (`tckedit -ends_only`): every include
+/// region holds the first or the last point, no exclude region holds either (with no include, every
+/// streamline not excluded; a streamline without points meets nothing). Planes, which have no inside, are met
+/// by a step crossing them anywhere along the streamline, as [`Criteria::keeps`] has them.
+pub fn select_ends(points: &[Vec3], offsets: &[usize], rois: &[Roi]) -> Vec<bool> {
+    let n = offsets.len().saturating_sub(1);
+    (0..n)
+        .into_par_iter()
+        .map(|s| {
+            let pts = &points[offsets[s]..offsets[s + 1]];
+            rois.iter().all(|r| {
+                let met = match (&r.shape, pts) {
+                    (_, []) => false,
+                    (RoiShape::Plane { .. }, _) => r.shape.meets_streamline(pts),
+                    (shape, [first, .., last]) => shape.contains(*first) || shape.contains(*last),
+                    (shape, [only]) => shape.contains(*only),
+                };
+                met == (r.mode == RoiMode::Include)
+            })
+        })
+        .collect()
+}
+
 /// Whether a polyline meets a region under the selection rule.
 fn streamline_meets(pts: &[Vec3], shape: &RoiShape) -> bool {
     shape.meets_streamline(pts)

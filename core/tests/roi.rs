@@ -3,7 +3,7 @@
 //! every segment selects; and the segment predicates agree with dense sampling of each segment.
 
 use fascicle_core::io::Tractogram;
-use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, select};
+use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, select, select_ends};
 use glam::Vec3;
 use rand::{RngExt, SeedableRng};
 
@@ -53,7 +53,7 @@ fn check(t: &Tractogram, seed: u64) -> (usize, usize) {
     }
     let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    let (mut selected, mut cases) = (0, 0);
+    let (mut selected, mut cases, mut ends_selected) = (0, 0, 0);
     for _ in 0..60 {
         let rois: Vec<Roi> = (0..rng.random_range(1..4)).map(|_| random_roi(&mut rng, lo, hi)).collect();
         let got = select(&t.points, &t.offsets, &grid, &rois);
@@ -66,9 +66,18 @@ fn check(t: &Tractogram, seed: u64) -> (usize, usize) {
         };
         let streamed: Vec<bool> = t.iter().map(|s| criteria.keeps(s)).collect();
         assert_eq!(streamed, got, "{rois:?}");
+        // Ends only (the viewer's live selection, tckedit's -ends_only as `fascicle select` streams it).
+        let ends = select_ends(&t.points, &t.offsets, &rois);
+        let streamed: Vec<bool> = t.iter().map(|s| Criteria { ends_only: true, ..criteria.clone() }.keeps(s)).collect();
+        assert_eq!(ends, streamed, "ends only: {rois:?}");
+        if rois.iter().all(|r| r.mode == RoiMode::Include && !matches!(r.shape, RoiShape::Plane { .. })) {
+            assert!(ends.iter().zip(&got).all(|(e, g)| !e || *g), "an end inside is a point inside");
+        }
+        ends_selected += ends.iter().filter(|s| **s).count();
         selected += got.iter().filter(|s| **s).count();
         cases += 1;
     }
+    assert!(ends_selected > 0 && ends_selected < selected, "ends only selected {ends_selected} of {selected}");
     (selected, cases)
 }
 

@@ -49,6 +49,19 @@ pub fn run(path: &Path, json: bool) -> Result<(), Error> {
         return Ok(());
     }
     match tractogram::extension(path).as_str() {
+        "tsf" => {
+            let v = info_json(path)?;
+            println!("{}: {}", path.display(), v["format"].as_str().unwrap_or(""));
+            println!("  streamlines {}", v["count"]);
+            println!("  values      {} (one per point)", v["points"]);
+            match (v["range"][0].as_f64(), v["range"][1].as_f64()) {
+                (Some(lo), Some(hi)) => println!("  range       {lo} .. {hi}"),
+                _ => println!("  range       no finite value"),
+            }
+            for (k, val) in v["header"].as_object().into_iter().flatten() {
+                println!("  {k}: {}", val.as_str().unwrap_or("").replace('\n', "\n    "));
+            }
+        }
         "trk" | "tck" | "trx" => {
             let (h, s) = summary(path)?;
             println!("{}: {}", path.display(), h.format.name());
@@ -85,12 +98,36 @@ pub fn run(path: &Path, json: bool) -> Result<(), Error> {
         }
         other => {
             return Err(Error::Param(format!(
-                "{}: unknown file type '{other}' (NIfTI, .mif, .trk, .tck or .trx)",
+                "{}: unknown file type '{other}' (NIfTI, .mif, .trk, .tck, .trx or .tsf)",
                 path.display()
             )));
         }
     }
     Ok(())
+}
+
+/// What `info --json` prints of an MRtrix track scalar file (`.tsf`: values per point of a tractogram, as
+/// `tcksample` writes them): `count` (streamlines), `points` (values), `range` (the least and greatest value,
+/// null when none) and the `header` entries (its `timestamp` matches the `.tck` it was made from).
+fn tsf_json(path: &Path) -> Result<serde_json::Value, Error> {
+    use serde_json::json;
+    let s = fascicle_core::io::tsf::read(path)?;
+    let range = s
+        .values
+        .iter()
+        .copied()
+        .fold(None, |r: Option<(f32, f32)>, v| Some(r.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v)))));
+    let header: serde_json::Map<String, serde_json::Value> =
+        s.header.iter().map(|(k, v)| (k.clone(), json!(v))).collect();
+    Ok(json!({
+        "file": path.display().to_string(),
+        "format": "MRtrix track scalar file",
+        "kind": "track_scalars",
+        "count": s.n_streamlines(),
+        "points": s.values.len(),
+        "range": range.map_or(json!(null), |(lo, hi)| json!([lo, hi])),
+        "header": header,
+    }))
 }
 
 /// A tractogram's header and one streamed pass over it (the header only for a TRX), with a progress bar on
@@ -103,9 +140,10 @@ fn summary(path: &Path) -> Result<(StreamHeader, Summary), Error> {
     Ok((reader.header().clone(), s))
 }
 
-/// What `info --json` prints: `kind` (tractogram, or for images dwi / tensor / sh / peaks / rgb / scalar /
-/// volume as far as the shape and the files beside it tell), `shape`, `voxel_size`, `affine` (rows), and for
-/// tractograms `count` (streamlines), `points` and the header's `space`.
+/// What `info --json` prints: `kind` (tractogram, track_scalars, or for images dwi / tensor / sh / peaks / rgb /
+/// scalar / volume as far as the shape and the files beside it tell), `shape`, `voxel_size`, `affine` (rows), and
+/// for tractograms `count` (streamlines), `points` and the header's `space`; for `.tsf` files `count`, `points`,
+/// `range` and `header`.
 pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
     use serde_json::json;
     let name = path.to_string_lossy().to_ascii_lowercase();
@@ -169,9 +207,12 @@ pub fn info_json(path: &Path) -> Result<serde_json::Value, Error> {
         }
         return Ok(v);
     }
+    if tractogram::extension(path) == "tsf" {
+        return tsf_json(path);
+    }
     if !matches!(tractogram::extension(path).as_str(), "trk" | "tck" | "trx") {
         return Err(Error::Param(format!(
-            "{}: unknown file type '{}' (NIfTI, .mif, .trk, .tck or .trx)",
+            "{}: unknown file type '{}' (NIfTI, .mif, .trk, .tck, .trx or .tsf)",
             path.display(),
             tractogram::extension(path)
         )));

@@ -242,6 +242,7 @@ mod tests {
                 render: Default::default(),
                 rois: rois.into_iter().map(|shape| Roi { shape, mode: RoiMode::Include }).collect(),
                 masks: vec![],
+                ends_only: false,
                 colouring: Default::default(),
             },
         };
@@ -286,6 +287,7 @@ mod tests {
                 render: Default::default(),
                 rois: vec![],
                 masks: vec![],
+                ends_only: false,
                 colouring: Default::default(),
             },
         };

@@ -296,7 +296,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
-        LayerKind::Tracts { source, mode, render, colouring, rois, masks } => {
+        LayerKind::Tracts { source, mode, render, colouring, rois, masks, ends_only } => {
             // A scalar image to colour by is read (through the cache) before any part is made.
             let scalar = match colouring {
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
@@ -337,7 +337,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             let whole = by_value || !masks.is_empty();
             let mut data = tract_data_in_parts(cache, source, progress, (!whole).then_some(&on_part as OnPart))?;
             // The streamlines the mask regions keep (tckedit's test of each point), before any value threshold.
-            let mut keep = mask_keeps(cache, masks, &data.tractogram, progress)?;
+            let mut keep = mask_keeps(cache, masks, *ends_only, &data.tractogram, progress)?;
             // Values to colour by, aligned with the streamlines (those below a minimum hidden) or their points.
             let (mut per_streamline, mut per_point) = (None, None);
             match colouring {
@@ -614,11 +614,12 @@ pub fn streamline_values(t: &Tractogram, weights: Option<&Path>, name: &str) -> 
 
 /// The streamlines of `data` that `keep` marks, with their tensors.
 /// The streamlines of `t` that `masks` keep, as `tckedit` keeps them with image regions (every include mask
-/// met, no exclude mask met, by a point in a non-zero voxel); None when there are no masks. The images are read
-/// through the cache.
+/// met, no exclude mask met, by a point in a non-zero voxel; with `ends_only`, by the first or last point); None
+/// when there are no masks. The images are read through the cache.
 fn mask_keeps(
     cache: &DataCache,
     masks: &[MaskRoi],
+    ends_only: bool,
     t: &Tractogram,
     progress: &JobProgress,
 ) -> Result<Option<Vec<bool>>, String> {
@@ -627,7 +628,7 @@ fn mask_keeps(
     if masks.is_empty() {
         return Ok(None);
     }
-    let mut criteria = Criteria::default();
+    let mut criteria = Criteria { ends_only, ..Criteria::default() };
     for m in masks {
         let region = MaskRegion::new(&*image(cache, &m.path, progress)?);
         if region.count() == 0 {
@@ -1745,6 +1746,7 @@ mod tests {
             render: Default::default(),
             rois: vec![],
             masks: vec![],
+            ends_only: false,
             colouring: Default::default(),
         };
         let progress = JobProgress::default();
@@ -1839,6 +1841,7 @@ mod tests {
                 render: Default::default(),
                 rois: vec![],
                 masks: vec![],
+                ends_only: false,
                 colouring,
             };
             let Ok(Content::Tracts(p)) = build(&kind, &DataCache::default(), &JobProgress::default()) else {
@@ -1915,6 +1918,7 @@ mod tests {
             render: Default::default(),
             rois: vec![],
             masks: vec![],
+            ends_only: false,
             colouring,
         };
         let e = build(&kind(value(None)), &DataCache::default(), &JobProgress::default()).err().unwrap();
@@ -1968,7 +1972,8 @@ mod tests {
 
     /// Mask images as a tract layer's regions keep what tckedit's image regions keep (the core's `Criteria`,
     /// itself tested against `tckedit`): an include mask the streamlines through a slab of voxels, an exclude
-    /// mask the others; with a value threshold, both apply. An empty mask is an error naming the file.
+    /// mask the others, with ends only those with an end in it; with a value threshold, both apply. An empty
+    /// mask is an error naming the file.
     #[test]
     fn mask_regions_keep_what_tckedit_keeps() {
         use crate::model::{MaskRoi, TractColouring};
@@ -1989,20 +1994,22 @@ mod tests {
             .collect();
         let n_through = through.iter().filter(|k| **k).count();
         assert!(n_through > 20 && n_through < t.n_streamlines() - 20, "{n_through} of {}", t.n_streamlines());
-        let layer = |mode, colouring| LayerKind::Tracts {
+        let layer_ends = |mode, colouring, ends_only| LayerKind::Tracts {
             source: TractSource::File { path: path.clone(), tensors: None },
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
             masks: vec![MaskRoi { path: mask.clone(), mode }],
+            ends_only,
             colouring,
         };
-        let kept =
-            |mode, colouring| match build(&layer(mode, colouring), &DataCache::default(), &JobProgress::default()) {
-                Ok(Content::Tracts(p)) => p.tractogram.expect("streamlines kept"),
-                Ok(_) => panic!("not one set"),
-                Err(e) => panic!("{e}"),
-            };
+        let layer = |mode, colouring| layer_ends(mode, colouring, false);
+        let built = |kind: &LayerKind| match build(kind, &DataCache::default(), &JobProgress::default()) {
+            Ok(Content::Tracts(p)) => p.tractogram.expect("streamlines kept"),
+            Ok(_) => panic!("not one set"),
+            Err(e) => panic!("{e}"),
+        };
+        let kept = |mode, colouring| built(&layer(mode, colouring));
         let first_points = |t: &Tractogram, keep: &dyn Fn(usize) -> bool| -> Vec<[f32; 3]> {
             (0..t.n_streamlines()).filter(|s| keep(*s)).map(|s| t.streamline(s)[0].to_array()).collect()
         };
@@ -2010,6 +2017,16 @@ mod tests {
         assert_eq!(first_points(&inc, &|_| true), first_points(&t, &|s| through[s]));
         let exc = kept(RoiMode::Exclude, TractColouring::Style);
         assert_eq!(first_points(&exc, &|_| true), first_points(&t, &|s| !through[s]));
+        // Ends only (tckedit's -ends_only): the streamlines with an end in the slab, fewer than those through it.
+        let ends: Vec<bool> = (0..t.n_streamlines())
+            .map(|s| {
+                let criteria = Criteria { include: vec![region.clone()], ends_only: true, ..Default::default() };
+                criteria.keeps(t.streamline(s))
+            })
+            .collect();
+        let ends_kept = built(&layer_ends(RoiMode::Include, TractColouring::Style, true));
+        assert_eq!(first_points(&ends_kept, &|_| true), first_points(&t, &|s| ends[s]));
+        assert!(ends_kept.n_streamlines() < n_through, "{} with an end in the slab", ends_kept.n_streamlines());
         // With weights s / n and a threshold of 0.5: the streamlines through the slab in the upper half.
         let weights = std::env::temp_dir().join(format!("fascicle-mask-weights-{}.txt", std::process::id()));
         let n = t.n_streamlines();
@@ -2125,6 +2142,7 @@ mod tests {
             render: Default::default(),
             rois: vec![],
             masks: vec![],
+            ends_only: false,
             colouring: Default::default(),
         };
         assert_eq!(build(&kind, &DataCache::default(), &p).err(), Some(CANCELLED.to_string()));

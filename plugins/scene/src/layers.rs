@@ -354,7 +354,8 @@ const PART_BUDGET: std::time::Duration = std::time::Duration::from_millis(8);
 fn clear_content(commands: &mut Commands, e: Entity, index: usize, spec: &LayerSpec) {
     // A slice layer's image goes with it (new slice content brings its own).
     commands.entity(e).despawn_related::<Children>().remove::<(SliceLayer, VolumeLayer)>();
-    if let LayerKind::Tracts { rois, .. } = &spec.kind {
+    if let LayerKind::Tracts { rois, ends_only, .. } = &spec.kind {
+        commands.entity(e).insert(fascicle_tracts::RoiRules { ends_only: *ends_only });
         spawn_rois(commands, rois, index, e);
     }
 }
@@ -571,7 +572,13 @@ fn restyle_layers(
                     settings.set_if_neq(want);
                 }
             }
-            (LayerKind::Tracts { rois: ra, .. }, LayerKind::Tracts { rois: rb, .. }) => {
+            (LayerKind::Tracts { rois: ra, ends_only: ea, .. }, LayerKind::Tracts { rois: rb, ends_only: eb, .. }) => {
+                if ea != eb
+                    && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)
+                {
+                    // The tract plugin re-selects (tckedit's -ends_only).
+                    commands.entity(layer).insert(fascicle_tracts::RoiRules { ends_only: *eb });
+                }
                 if ra != rb
                     && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)
                 {

@@ -153,6 +153,10 @@ pub enum LayerKind {
         /// the nearest voxel), with the regions above; a change rebuilds the layer. Default none.
         #[serde(default)]
         masks: Vec<MaskRoi>,
+        /// The regions (ROIs and masks) test only each streamline's first and last points (`tckedit
+        /// -ends_only`); default false. A change re-selects; with masks, it rebuilds.
+        #[serde(default)]
+        ends_only: bool,
         /// What colours the streamlines (tubes and lines; polygon tubes keep their direction colours).
         #[serde(default)]
         colouring: TractColouring,
@@ -243,12 +247,14 @@ impl LayerKind {
                 },
             },
             // The ROIs and the per-pixel knobs are updated in place; sources, mode, scale and colour rebuild.
-            LayerKind::Tracts { source, mode, render, colouring, masks, .. } => LayerKind::Tracts {
+            LayerKind::Tracts { source, mode, render, colouring, masks, ends_only, .. } => LayerKind::Tracts {
                 source: source.clone(),
                 mode: *mode,
                 render: TubeSettings { scale: render.scale, colour: render.colour, ..TubeSettings::default() },
                 rois: vec![],
                 masks: masks.clone(),
+                // The masks are applied when the layer is built; without them the rule is a re-selection.
+                ends_only: *ends_only && !masks.is_empty(),
                 colouring: colouring.clone(),
             },
             // Every setting is the volume plugin's to apply (`VolumeSettings`: a uniform, the tables, the proxy
@@ -656,6 +662,7 @@ impl Scene {
                             mode: RoiMode::Include,
                         }],
                         masks: vec![],
+                        ends_only: false,
                         colouring: Default::default(),
                     },
                 },
@@ -743,6 +750,7 @@ pub fn layer_kind_for(path: &Path, kind: &ImageKind) -> LayerKind {
             render: Default::default(),
             rois: Vec::new(),
             masks: vec![],
+            ends_only: false,
             colouring: Default::default(),
         },
         ImageKind::Sh { basis, .. } => LayerKind::ShGlyphs {

@@ -488,6 +488,15 @@ pub struct TractSelection(pub Vec<bool>);
 #[derive(Component, Clone, Copy, Debug, PartialEq)]
 pub struct TractRoi(pub Roi);
 
+/// How the ROIs test a tract layer's streamlines, on the layer's entity (the parent of its tract sets) or on
+/// a tract set: by default every point and the steps between them; with `ends_only`, the first and last points
+/// only (`tckedit -ends_only`: a bundle that ends in a region, not one that passes through it).
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RoiRules {
+    /// Test only each streamline's first and last points (default false).
+    pub ends_only: bool,
+}
+
 /// The cost of the last ROI re-selection.
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct RoiStats {
@@ -1192,16 +1201,18 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
 
 /// Re-evaluates every tract set's selection when an ROI or a set changed (never otherwise), and rewrites
 /// the sets' flag buffers.
-#[allow(clippy::type_complexity, reason = "a Bevy system's change filters")]
+#[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's change filters")]
 pub fn apply_rois(
-    changed_rois: Query<(), Or<(Added<TractRoi>, Changed<TractRoi>)>>,
+    changed_rois: Query<(), Or<(Added<TractRoi>, Changed<TractRoi>, Changed<RoiRules>)>>,
     mut removed: RemovedComponents<TractRoi>,
+    mut removed_rules: RemovedComponents<RoiRules>,
     rois: Query<(&TractRoi, Option<&ChildOf>)>,
+    rules: Query<&RoiRules>,
     mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection, Option<&ChildOf>)>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
 ) {
-    let removed_any = removed.read().count() > 0;
+    let removed_any = removed.read().count() + removed_rules.read().count() > 0;
     // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
     let rois_changed = !changed_rois.is_empty() || removed_any;
     if !rois_changed && !sets.iter().any(|(_, s, _, _)| s.is_added()) {
@@ -1217,10 +1228,18 @@ pub fn apply_rois(
         // An ROI acts on its parent set, on the sets of its parent layer, or (without a parent) on all.
         let owner = |p: &ChildOf| p.parent() == entity || layer.is_some_and(|l| l.parent() == p.parent());
         let list: Vec<Roi> = rois.iter().filter(|(_, parent)| parent.is_none_or(owner)).map(|(r, _)| r.0).collect();
+        let ends_only = rules
+            .get(entity)
+            .ok()
+            .or_else(|| layer.and_then(|l| rules.get(l.parent()).ok()))
+            .is_some_and(|r| r.ends_only);
+        let t = &set.tractogram;
         let sel = if list.is_empty() {
-            vec![true; set.tractogram.n_streamlines()]
+            vec![true; t.n_streamlines()]
+        } else if ends_only {
+            fascicle_core::roi::select_ends(&t.points, &t.offsets, &list)
         } else {
-            select(&set.tractogram.points, &set.tractogram.offsets, set.grid.get(&set.tractogram), &list)
+            select(&t.points, &t.offsets, set.grid.get(t), &list)
         };
         selected += sel.iter().filter(|s| **s).count();
         let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();

@@ -1,7 +1,8 @@
 //! Tract layers driven by components: the example shows exactly the streamlines through its ROI (checked
 //! against a brute-force segment-sphere test), and after the ROI is dragged, those through its new place,
-//! with nothing rebuilt; a style change rebuilds that layer only and keeps its ROIs; a file that is not a
-//! tractogram leaves the layer failed with a message.
+//! with nothing rebuilt; with the layer's `RoiRules { ends_only }`, those with an end in it (re-selected, not
+//! rebuilt); a style change rebuilds that layer only and keeps its ROIs; a file that is not a tractogram leaves
+//! the layer failed with a message.
 
 #[allow(dead_code)]
 #[path = "../examples/tracts.rs"]
@@ -14,7 +15,7 @@ use fascicle_render::example::ExampleApp;
 use fascicle_render::headless;
 use fascicle_render::headless::Capture;
 use fascicle_tracts::{
-    LayerStatus, RoiStats, TractCounts, TractPlugin, TractRoi, TractSelection, TractSet, TractStyle, Tracts,
+    LayerStatus, RoiRules, RoiStats, TractCounts, TractPlugin, TractRoi, TractSelection, TractSet, TractStyle, Tracts,
 };
 
 fn gpu_skipped() -> bool {
@@ -120,6 +121,38 @@ fn the_example_shows_the_streamlines_through_the_roi_as_it_moves() {
     check_selection(&frame, &camera, &at, &t, &want);
     assert_eq!(*world.resource::<TractCounts>(), counts, "moving an ROI rebuilds nothing");
     assert!(world.get::<Children>(layer).unwrap().contains(&set));
+
+    // Ends only (tckedit's -ends_only), on the layer: the ROI, moved to the first point of a streamline
+    // through it, now keeps the streamlines with an end inside it (brute force), without a rebuild.
+    let s0 = want.iter().position(|s| *s).expect("a streamline through the ROI");
+    let end = t.points[t.offsets[s0]];
+    let sphere = RoiShape::Sphere { centre: end.to_array(), radius: example::ROI_RADIUS };
+    world.get_mut::<TractRoi>(roi).unwrap().0.shape = sphere;
+    world.entity_mut(layer).insert(RoiRules { ends_only: true });
+    ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
+    let ends: Vec<bool> = (0..t.n_streamlines())
+        .map(|s| {
+            let p = &t.points[t.offsets[s]..t.offsets[s + 1]];
+            sphere.contains(p[0]) || sphere.contains(p[p.len() - 1])
+        })
+        .collect();
+    // Without the rule: a point inside (tckedit's test of each point, as the core's selection has it).
+    let through: Vec<bool> = (0..t.n_streamlines())
+        .map(|s| t.points[t.offsets[s]..t.offsets[s + 1]].iter().any(|p| sphere.contains(*p)))
+        .collect();
+    let n_ends = ends.iter().filter(|s| **s).count();
+    assert!(ends[s0] && n_ends < through.iter().filter(|s| **s).count(), "{n_ends} ends in the ROI");
+    assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, ends);
+    assert_eq!(*world.resource::<TractCounts>(), counts, "the rule re-selects, nothing is rebuilt");
+    world.entity_mut(layer).insert(RoiRules { ends_only: false });
+    ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
+    assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, through);
+    world.get_mut::<TractRoi>(roi).unwrap().0.shape =
+        RoiShape::Sphere { centre: moved.to_array(), radius: example::ROI_RADIUS };
+    ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
 
     // A style change rebuilds the set; the ROI (a child of the layer) survives and still selects.
     *world.get_mut::<TractStyle>(layer).unwrap() = TractStyle::Lines { opacity: 1.0 };
