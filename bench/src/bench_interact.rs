@@ -218,6 +218,20 @@ fn drag_script((dx, dy): (i32, i32), steps: usize, shift: bool) -> String {
     s
 }
 
+/// Gives the keyboard focus to the viewer's window (found by its process id).
+fn focus_viewer(display: &str, pid: u32) -> Result<(), String> {
+    let out = Command::new("xdotool")
+        .args(["search", "--sync", "--pid", &pid.to_string(), "--name", "Fascicle", "windowfocus", "--sync"])
+        .env("DISPLAY", display)
+        .output()
+        .map_err(|e| format!("xdotool: {e}"))?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(format!("xdotool could not focus the viewer's window: {}", String::from_utf8_lossy(&out.stderr)))
+    }
+}
+
 /// Pointer moves with no button held: `steps` moves of (dx, dy) pixels, one every 33 ms.
 fn hover_script((dx, dy): (i32, i32), steps: usize) -> String {
     (0..steps).map(|_| format!("mousemove_relative -- {dx} {dy}\nsleep 0.033\n")).collect()
@@ -336,6 +350,9 @@ pub fn run(o: InteractOptions) -> Result<(), String> {
         let mut viewer = Viewer { child, log };
         wait_settled(&mut viewer, o.settle_timeout)?;
         eprintln!("  settled after {:.1} s", opened.elapsed().as_secs_f64());
+        // Keys go to the focused window: an Xvfb without a window manager focuses none, and the ROI drag's
+        // Shift would never reach the viewer (the drag would orbit instead).
+        focus_viewer(&display, viewer.child.id())?;
         // The 3D view is the window right of the panel (about 300 px): orbit from its middle.
         let (cx, cy) = (0.6 * o.size.0 as f64, 0.5 * o.size.1 as f64);
         let orbit = drag_script((6, 0), 60, false);

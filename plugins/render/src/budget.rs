@@ -24,16 +24,15 @@
 
 use std::time::Duration;
 
-use bevy::camera::{MainPassResolutionOverride, Viewport};
+use bevy::camera::MainPassResolutionOverride;
 use bevy::core_pipeline::blit::{BlitPipeline, BlitPipelineKey};
 use bevy::core_pipeline::{Core3dSystems, schedule::Core3d};
 use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
 use bevy::render::camera::ExtractedCamera;
 use bevy::render::render_resource::{
-    BindGroup, CachedRenderPipelineId, Extent3d, Operations, Origin3d, PipelineCache, RenderPassColorAttachment,
-    RenderPassDescriptor, SpecializedRenderPipelines, TexelCopyTextureInfo, TextureAspect, TextureDescriptor,
-    TextureDimension, TextureUsages, TextureViewId,
+    BindGroup, CachedRenderPipelineId, Operations, PipelineCache, RenderPassColorAttachment,
+    SpecializedRenderPipelines, TextureViewId,
 };
 use bevy::render::renderer::{RenderContext, RenderDevice, ViewQuery};
 use bevy::render::sync_world::RenderEntity;
@@ -298,19 +297,8 @@ fn prepare_upscale(
         let format = target.main_texture_format();
         let key = BlitPipelineKey { target_format: format, blend_state: None, samples: 1, source_space: None };
         let pipeline = pipelines.specialize(&cache, &blit, key);
-        let texture = textures.get(
-            &device,
-            TextureDescriptor {
-                label: Some("fascicle_scaled_main_pass"),
-                size: Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: TextureDimension::D2,
-                format,
-                usage: TextureUsages::TEXTURE_BINDING | TextureUsages::COPY_DST,
-                view_formats: &[],
-            },
-        );
+        let texture =
+            textures.get(&device, crate::viewport::picture_texture("fascicle_scaled_main_pass", size.0, format));
         // The texture cache hands back the same texture while the size holds: its bind group is kept, as
         // Bevy's own upscaling keeps its own.
         let bind_group = match bind_groups.get(&entity) {
@@ -333,40 +321,15 @@ pub(crate) fn upscale(
 ) {
     let (target, camera, size, upscale) = view.into_inner();
     let Some(pipeline) = cache.get_render_pipeline(upscale.pipeline) else { return };
-    let viewport = camera
-        .viewport
-        .clone()
-        .unwrap_or_else(|| Viewport { physical_size: camera.physical_viewport_size.unwrap_or_default(), ..default() });
+    let viewport = crate::viewport::physical_viewport(camera);
     let texture = &upscale.texture.texture;
     if texture.width() != size.x || texture.height() != size.y {
         return;
     }
-    let origin = viewport.physical_position;
-    ctx.command_encoder().copy_texture_to_texture(
-        TexelCopyTextureInfo {
-            texture: target.main_texture(),
-            mip_level: 0,
-            origin: Origin3d { x: origin.x, y: origin.y, z: 0 },
-            aspect: TextureAspect::All,
-        },
-        TexelCopyTextureInfo { texture, mip_level: 0, origin: Origin3d::ZERO, aspect: TextureAspect::All },
-        Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 },
-    );
+    crate::viewport::copy_out(&mut ctx, target, &viewport, size.0, texture);
     let mut attachment: RenderPassColorAttachment = target.get_unsampled_color_attachment();
     attachment.ops = Operations::default();
-    let mut pass = ctx.command_encoder().begin_render_pass(&RenderPassDescriptor {
-        label: Some("fascicle_upscale"),
-        color_attachments: &[Some(attachment)],
-        depth_stencil_attachment: None,
-        timestamp_writes: None,
-        occlusion_query_set: None,
-        multiview_mask: None,
-    });
-    let (p, s) = (viewport.physical_position.as_vec2(), viewport.physical_size.as_vec2());
-    pass.set_viewport(p.x, p.y, s.x, s.y, 0.0, 1.0);
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, &upscale.bind_group, &[]);
-    pass.draw(0..3, 0..1);
+    crate::viewport::blit_over(&mut ctx, "fascicle_upscale", attachment, &viewport, pipeline, &upscale.bind_group);
 }
 
 #[cfg(test)]

@@ -28,6 +28,7 @@ pub mod on_demand;
 pub mod reference;
 pub mod retain;
 pub mod shaders;
+mod viewport;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};

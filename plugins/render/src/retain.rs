@@ -32,7 +32,6 @@ use std::any::TypeId;
 use std::hash::{Hash, Hasher};
 
 use bevy::asset::AssetEvent;
-use bevy::camera::Viewport;
 use bevy::camera::visibility::VisibleEntities;
 use bevy::core_pipeline::blit::{BlitPipeline, BlitPipelineKey};
 use bevy::core_pipeline::{Core3dSystems, schedule::Core3d};
@@ -46,9 +45,7 @@ use bevy::gizmos::retained::Gizmo;
 use bevy::prelude::*;
 use bevy::render::camera::ExtractedCamera;
 use bevy::render::render_resource::{
-    BindGroup, CachedRenderPipelineId, Extent3d, Origin3d, PipelineCache, RenderPassDescriptor,
-    SpecializedRenderPipelines, TexelCopyTextureInfo, Texture, TextureAspect, TextureDescriptor, TextureDimension,
-    TextureFormat, TextureUsages,
+    BindGroup, CachedRenderPipelineId, PipelineCache, SpecializedRenderPipelines, Texture, TextureFormat,
 };
 use bevy::render::renderer::{CurrentView, RenderContext, RenderDevice, ViewQuery};
 use bevy::render::sync_world::RenderEntity;
@@ -56,6 +53,7 @@ use bevy::render::view::ViewTarget;
 use bevy::render::{Extract, ExtractSchedule, MainWorld, Render, RenderApp, RenderSystems};
 
 use crate::RecentlyRetained;
+use crate::viewport::physical_viewport;
 
 /// Adds the retained picture (see the module docs).
 pub struct RetainedPicturePlugin;
@@ -398,28 +396,12 @@ fn prepare_retaining(
         if size.x == 0 || size.y == 0 || stored.is_some_and(|s| s.size == size && s.format == format) {
             continue;
         }
-        let texture = device.create_texture(&TextureDescriptor {
-            label: Some("fascicle_retained_picture"),
-            size: Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: TextureDimension::D2,
-            format,
-            usage: TextureUsages::TEXTURE_BINDING | TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let texture =
+            device.create_texture(&crate::viewport::picture_texture("fascicle_retained_picture", size, format));
         let view = texture.create_view(&default());
         let bind_group = blit.create_bind_group(&device, &view, &cache);
         commands.entity(entity).insert(StoredPicture { texture, bind_group, size, format, complete: false });
     }
-}
-
-/// The camera's viewport in physical pixels of its target.
-fn physical_viewport(camera: &ExtractedCamera) -> Viewport {
-    camera
-        .viewport
-        .clone()
-        .unwrap_or_else(|| Viewport { physical_size: camera.physical_viewport_size.unwrap_or_default(), ..default() })
 }
 
 /// After the main pass of a full-scale frame, copies the camera's viewport out of the main texture; the copy
@@ -443,22 +425,7 @@ fn store_picture(
         return;
     }
     picture.complete = cache.waiting_pipelines().next().is_none();
-    let origin = viewport.physical_position;
-    ctx.command_encoder().copy_texture_to_texture(
-        TexelCopyTextureInfo {
-            texture: target.main_texture(),
-            mip_level: 0,
-            origin: Origin3d { x: origin.x, y: origin.y, z: 0 },
-            aspect: TextureAspect::All,
-        },
-        TexelCopyTextureInfo {
-            texture: &picture.texture,
-            mip_level: 0,
-            origin: Origin3d::ZERO,
-            aspect: TextureAspect::All,
-        },
-        Extent3d { width: picture.size.x, height: picture.size.y, depth_or_array_layers: 1 },
-    );
+    crate::viewport::copy_out(&mut ctx, target, &viewport, picture.size, &picture.texture);
 }
 
 /// In a frame that draws no scene, puts the stored picture back into the camera's viewport, as the skipped
@@ -478,19 +445,14 @@ fn put_back_picture(
     };
     let viewport = physical_viewport(camera);
     let attachment = target.get_color_attachment();
-    let mut pass = ctx.command_encoder().begin_render_pass(&RenderPassDescriptor {
-        label: Some("fascicle_retained_picture"),
-        color_attachments: &[Some(attachment)],
-        depth_stencil_attachment: None,
-        timestamp_writes: None,
-        occlusion_query_set: None,
-        multiview_mask: None,
-    });
-    let (p, s) = (viewport.physical_position.as_vec2(), viewport.physical_size.as_vec2());
-    pass.set_viewport(p.x, p.y, s.x, s.y, 0.0, 1.0);
-    pass.set_pipeline(pipeline);
-    pass.set_bind_group(0, &picture.bind_group, &[]);
-    pass.draw(0..3, 0..1);
+    crate::viewport::blit_over(
+        &mut ctx,
+        "fascicle_retained_picture",
+        attachment,
+        &viewport,
+        pipeline,
+        &picture.bind_group,
+    );
 }
 
 /// A name for a component id, for trace logs (Bevy keeps type names only with its `debug` feature).

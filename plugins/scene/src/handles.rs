@@ -1,7 +1,8 @@
 //! Handles in the 3D view, on the scene's layers: Shift + left-drag on a tract layer's ROI, on a tracking
 //! layer's seed sphere or on a free ODF glyph plane's handles moves it in the plane facing the camera (the
-//! plane's normal handle tilts it), editing the [`ActiveScene`]: an ROI re-selects, a seed sphere tracks again
-//! from its new seeds, a plane places its glyphs again. [`HandlesPlugin`] adds the drag (in [`HandleSystems`],
+//! plane's normal handle tilts it; a box ROI's two corner handles resize it, a sphere ROI's radius handle
+//! scales it), editing the [`ActiveScene`]: an ROI re-selects, a seed sphere tracks again from its new seeds,
+//! a plane places its glyphs again. [`HandlesPlugin`] adds the drag (in [`HandleSystems`],
 //! which an app may run only when the pointer is its own) and draws the seed spheres and glyph planes as gizmos
 //! (ROIs are drawn by the tracts plugin).
 
@@ -36,6 +37,12 @@ impl Plugin for HandlesPlugin {
 pub enum Grip {
     /// A tract layer's ROI, by its index in the layer's list.
     Roi(usize),
+    /// A corner handle of a tract layer's box ROI (by its index): 0 the corner of least coordinates, 1 the
+    /// greatest. A drag moves that corner; the box keeps at least [`MIN_BOX_SIDE`] a side.
+    RoiCorner(usize, usize),
+    /// The radius handle of a tract layer's sphere ROI (by its index), on the sphere at +x of its centre: a
+    /// drag sets the radius to the handle's distance from the centre (at least [`MIN_BOX_SIDE`]).
+    RoiRadius(usize),
     /// A tracking layer's seed sphere.
     Seeds,
     /// A free glyph plane's centre: a drag moves the plane.
@@ -56,12 +63,40 @@ pub fn plane_handles(p: &fascicle_core::sh::glyph::GlyphPlane) -> [(Grip, RoiSha
     ]
 }
 
+/// The least side of a box ROI, and the least radius of a sphere ROI, that their handles leave (mm): 0.5.
+pub const MIN_BOX_SIDE: f32 = 0.5;
+
+/// The resize handles of an ROI (by its index `k`): a box's two corners, a sphere's point at +x; small
+/// spheres (a twentieth of the box's diagonal or a sixth of the radius, at least 1 mm).
+pub fn roi_handles(k: usize, shape: &RoiShape) -> Vec<(Grip, RoiShape)> {
+    match *shape {
+        RoiShape::Box { min, max } => {
+            let radius = ((Vec3::from(max) - Vec3::from(min)).length() / 20.0).max(1.0);
+            vec![
+                (Grip::RoiCorner(k, 0), RoiShape::Sphere { centre: min, radius }),
+                (Grip::RoiCorner(k, 1), RoiShape::Sphere { centre: max, radius }),
+            ]
+        }
+        RoiShape::Sphere { centre, radius } => {
+            let at = (Vec3::from(centre) + Vec3::X * radius).to_array();
+            vec![(Grip::RoiRadius(k), RoiShape::Sphere { centre: at, radius: (radius / 6.0).max(1.0) })]
+        }
+        RoiShape::Plane { .. } => vec![],
+    }
+}
+
+/// Whether a grip is a resize handle (picked before the shapes, which they sit on).
+fn is_handle(grip: Grip) -> bool {
+    matches!(grip, Grip::RoiCorner(..) | Grip::RoiRadius(_) | Grip::PlaneCentre | Grip::PlaneNormal)
+}
+
 /// The shapes a layer offers to a drag.
 pub fn grips(kind: &LayerKind) -> Vec<(Grip, RoiShape)> {
     match kind {
         LayerKind::Tracts { rois, source, .. } => {
             let mut out: Vec<(Grip, RoiShape)> =
                 rois.iter().enumerate().map(|(k, r)| (Grip::Roi(k), r.shape)).collect();
+            out.extend(rois.iter().enumerate().flat_map(|(k, r)| roi_handles(k, &r.shape)));
             if let TractSource::Track { seeds: Seeds::Sphere { centre, radius, .. }, .. } = source {
                 out.push((Grip::Seeds, RoiShape::Sphere { centre: *centre, radius: *radius }));
             }
@@ -94,6 +129,23 @@ pub fn set_grip(kind: &mut LayerKind, grip: Grip, shape: RoiShape) -> bool {
     let LayerKind::Tracts { rois, source, .. } = kind else { return false };
     match (grip, source, shape) {
         (Grip::Roi(k), _, _) => rois.get_mut(k).map(|r| r.shape = shape).is_some(),
+        (Grip::RoiCorner(k, corner), _, RoiShape::Sphere { centre: p, .. }) => {
+            let Some(RoiShape::Box { min, max }) = rois.get_mut(k).map(|r| &mut r.shape) else { return false };
+            let (p, lo, hi) = (Vec3::from(p), Vec3::from(*min), Vec3::from(*max));
+            if corner == 0 {
+                *min = p.min(hi - MIN_BOX_SIDE).to_array();
+            } else {
+                *max = p.max(lo + MIN_BOX_SIDE).to_array();
+            }
+            true
+        }
+        (Grip::RoiRadius(k), _, RoiShape::Sphere { centre: p, .. }) => {
+            let Some(RoiShape::Sphere { centre, radius }) = rois.get_mut(k).map(|r| &mut r.shape) else {
+                return false;
+            };
+            *radius = (Vec3::from(p) - Vec3::from(*centre)).length().max(MIN_BOX_SIDE);
+            true
+        }
         (
             Grip::Seeds,
             TractSource::Track { seeds: Seeds::Sphere { centre, radius, .. }, .. },
@@ -126,7 +178,8 @@ pub struct RoiGrab {
 #[derive(Resource, Default, Debug)]
 pub struct RoiDrag(pub Option<RoiGrab>);
 
-/// The ROI or seed sphere of a visible tract layer that a ray meets first: (layer, what, distance).
+/// The ROI or seed sphere of a visible tract layer that a ray meets first: (layer, what, distance). Resize
+/// handles, which sit on their shapes, come before any shape.
 pub fn pick_roi(scene: &Scene, o: Vec3, d: Vec3) -> Option<(usize, Grip, f32)> {
     scene
         .layers
@@ -134,7 +187,7 @@ pub fn pick_roi(scene: &Scene, o: Vec3, d: Vec3) -> Option<(usize, Grip, f32)> {
         .enumerate()
         .filter(|(_, l)| l.visible)
         .flat_map(|(i, l)| grips(&l.kind).into_iter().filter_map(move |(g, s)| s.ray_hit(o, d).map(|t| (i, g, t))))
-        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .min_by(|a, b| is_handle(b.1).cmp(&is_handle(a.1)).then(a.2.total_cmp(&b.2)))
 }
 
 /// The grabbed shape moved by where the cursor ray (`o`, `d`) meets the grab plane; None when the ray runs
@@ -186,8 +239,9 @@ pub fn drag_roi(
     }
 }
 
-/// Outlines the seed spheres of visible tracking layers (yellow; ROIs are drawn by the tracts plugin) and the
-/// free planes of glyph layers (cyan: the plane's square, its normal and the two handles).
+/// Outlines the seed spheres of visible tracking layers (yellow; ROIs are drawn by the tracts plugin), the ROIs'
+/// resize handles (white) and the free planes of glyph layers (cyan: the plane's square, its normal and the two
+/// handles).
 pub fn draw_handles(mut gizmos: Gizmos, scene: Res<ActiveScene>) {
     for l in scene.0.layers.iter().filter(|l| l.visible) {
         if let LayerKind::ShGlyphs { plane: Some(p), full_volume: false, .. } = &l.kind {
@@ -211,12 +265,14 @@ pub fn draw_handles(mut gizmos: Gizmos, scene: Res<ActiveScene>) {
             }
         }
         for (grip, shape) in grips(&l.kind) {
-            if let (Grip::Seeds, RoiShape::Sphere { centre, radius }) = (grip, shape) {
-                gizmos.sphere(
-                    Isometry3d::from_translation(Vec3::from(centre)),
-                    radius,
-                    Color::linear_rgb(1.0, 0.85, 0.1),
-                );
+            let colour = match grip {
+                Grip::Seeds => Color::linear_rgb(1.0, 0.85, 0.1),
+                // ROI resize handles: white.
+                Grip::RoiCorner(..) | Grip::RoiRadius(_) => Color::WHITE,
+                _ => continue,
+            };
+            if let RoiShape::Sphere { centre, radius } = shape {
+                gizmos.sphere(Isometry3d::from_translation(Vec3::from(centre)), radius, colour);
             }
         }
     }
@@ -257,7 +313,7 @@ mod tests {
         // Looking down -z from z = 40: the hidden layer's sphere is first along the ray but not pickable.
         let (o, d) = (Vec3::new(0.0, 0.0, 40.0), -Vec3::Z);
         assert_eq!(pick_roi(&scene, o, d), Some((0, Grip::Roi(1), 28.0)));
-        assert_eq!(pick_roi(&scene, Vec3::new(2.5, 2.5, 40.0), d), Some((0, Grip::Roi(0), 37.0)));
+        assert_eq!(pick_roi(&scene, Vec3::new(2.0, -2.0, 40.0), d), Some((0, Grip::Roi(0), 37.0)));
         assert_eq!(pick_roi(&scene, Vec3::new(10.0, 0.0, 40.0), d), None);
 
         // Grab the sphere at its top (z = 12) and drag the cursor: a ray from the eye through a point 3 mm
@@ -270,6 +326,71 @@ mod tests {
         assert!((Vec3::from(centre) - Vec3::new(3.0, 1.0, 10.0)).length() < 1e-5 && radius == 2.0, "{centre:?}");
         // A ray along the plane does not move it.
         assert_eq!(dragged_shape(&g, eye, Vec3::X), None);
+    }
+
+    /// Resize handles: a box's corner handle is picked before the box it sits on and moves that corner only
+    /// (never past the other one); a sphere's radius handle sets the radius to its distance from the centre.
+    #[test]
+    fn box_corners_and_sphere_radii_are_dragged_by_their_handles() {
+        use fascicle_core::roi::{Roi, RoiMode};
+        let roi = |shape| Roi { shape, mode: RoiMode::Include };
+        let boxed = RoiShape::Box { min: [-10.0, -10.0, -10.0], max: [10.0, 10.0, 10.0] };
+        let sphere = RoiShape::Sphere { centre: [40.0, 0.0, 0.0], radius: 6.0 };
+        let mut scene = Scene {
+            layers: vec![LayerSpec {
+                name: "tracts".into(),
+                visible: true,
+                opacity: 1.0,
+                kind: LayerKind::Tracts {
+                    source: crate::model::TractSource::PhantomRk4 { seed_spacing: 4 },
+                    mode: crate::model::TractMode::Lines,
+                    render: Default::default(),
+                    rois: vec![roi(boxed), roi(sphere)],
+                    masks: vec![],
+                    ends_only: false,
+                    colouring: Default::default(),
+                },
+            }],
+            camera: CameraSpec::default(),
+            views: Default::default(),
+        };
+        let d = -Vec3::Z;
+        // Down onto the max corner (10, 10, 10): its handle (radius 1.73 mm), not the box's top face.
+        let (layer, grip, t) = pick_roi(&scene, Vec3::new(10.0, 10.0, 40.0), d).unwrap();
+        assert_eq!((layer, grip), (0, Grip::RoiCorner(0, 1)));
+        assert!((t - (30.0 - 3f32.sqrt())).abs() < 1e-3, "{t}");
+        // Elsewhere on the top face: the box itself.
+        assert_eq!(pick_roi(&scene, Vec3::new(0.0, 0.0, 40.0), d).map(|p| p.1), Some(Grip::Roi(0)));
+        let handle = grips(&scene.layers[0].kind).into_iter().find(|(g, _)| *g == Grip::RoiCorner(0, 1)).unwrap().1;
+        let g = RoiGrab {
+            layer: 0,
+            grip: Grip::RoiCorner(0, 1),
+            hit: Vec3::new(10.0, 10.0, 10.0),
+            normal: d,
+            shape: handle,
+        };
+        let eye = Vec3::new(10.0, 10.0, 40.0);
+        let moved = dragged_shape(&g, eye, (Vec3::new(14.0, 12.0, 10.0) - eye).normalize()).unwrap();
+        assert!(set_grip(&mut scene.layers[0].kind, g.grip, moved));
+        let LayerKind::Tracts { rois, .. } = &scene.layers[0].kind else { unreachable!() };
+        let RoiShape::Box { min, max } = rois[0].shape else { panic!() };
+        assert_eq!(min, [-10.0; 3], "the other corner stays");
+        assert!((Vec3::from(max) - Vec3::new(14.0, 12.0, 10.0)).length() < 1e-4, "{max:?}");
+        // Dragged past the other corner: stopped half a millimetre short of it.
+        let past = RoiShape::Sphere { centre: [-20.0, 0.0, 10.0], radius: 1.0 };
+        assert!(set_grip(&mut scene.layers[0].kind, Grip::RoiCorner(0, 1), past));
+        let LayerKind::Tracts { rois, .. } = &scene.layers[0].kind else { unreachable!() };
+        assert_eq!(rois[0].shape, RoiShape::Box { min: [-10.0; 3], max: [-9.5, 0.0, 10.0] });
+
+        // The sphere's radius handle at (46, 0, 0), radius 1 mm: picked, then dragged out to x = 49.
+        assert_eq!(pick_roi(&scene, Vec3::new(46.0, 0.0, 40.0), d).map(|p| p.1), Some(Grip::RoiRadius(1)));
+        let out = RoiShape::Sphere { centre: [49.0, 0.0, 0.0], radius: 1.0 };
+        assert!(set_grip(&mut scene.layers[0].kind, Grip::RoiRadius(1), out));
+        let LayerKind::Tracts { rois, .. } = &scene.layers[0].kind else { unreachable!() };
+        assert_eq!(rois[1].shape, RoiShape::Sphere { centre: [40.0, 0.0, 0.0], radius: 9.0 });
+        // A radius handle on a box, a corner on a sphere: nothing.
+        assert!(!set_grip(&mut scene.layers[0].kind, Grip::RoiRadius(0), out));
+        assert!(!set_grip(&mut scene.layers[0].kind, Grip::RoiCorner(1, 0), out));
     }
 
     /// A tracking layer's seed sphere is picked and dragged like an ROI: the drag moves the sphere's centre in
