@@ -374,7 +374,9 @@ fn values_source(ui: &mut egui::Ui, file: &mut Option<std::path::PathBuf>, name:
 fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
     use fascicle_scene::model::TractMode;
-    let LayerKind::Tracts { source, mode, render, rois, masks, colouring, ends_only } = kind else { return };
+    let LayerKind::Tracts { source, mode, render, rois, masks, colouring, ends_only, deleted: _ } = kind else {
+        return;
+    };
     ui.horizontal(|ui| {
         ui.radio_value(mode, TractMode::Tubes, "hyperstreamlines");
         ui.radio_value(mode, TractMode::Polygon, "polygon tubes");
@@ -904,6 +906,7 @@ mod tests {
                 rois: vec![],
                 masks: vec![],
                 ends_only: false,
+                deleted: vec![],
                 colouring: Default::default(),
             },
         ];

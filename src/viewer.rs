@@ -92,6 +92,113 @@ struct UiState {
     history_step: Option<bool>,
     /// A recent file the panel asked to open.
     open_recent: Option<PathBuf>,
+    /// Streamlines picked by Ctrl + click in the 3D view, for the panel's "delete" / "keep only".
+    picked: Option<Picked>,
+}
+
+/// Streamlines picked in one tract layer (of one tract set): indices into its streamlines.
+#[derive(Clone, Debug, Default, PartialEq)]
+struct Picked {
+    /// The layer's index in the scene.
+    layer: usize,
+    /// How many streamlines the layer's set holds.
+    n_streamlines: usize,
+    /// The picked streamlines.
+    streamlines: std::collections::BTreeSet<u32>,
+}
+
+/// What the panel's "delete picked" (false) or "keep only the picked" (true) makes of a layer's deleted list.
+fn deleted_after(deleted: &[u32], picked: &Picked, keep_only: bool) -> Vec<u32> {
+    let mut out: std::collections::BTreeSet<u32> = deleted.iter().copied().collect();
+    if keep_only {
+        out.extend((0..picked.n_streamlines as u32).filter(|s| !picked.streamlines.contains(s)));
+    } else {
+        out.extend(picked.streamlines.iter().copied());
+    }
+    out.into_iter().collect()
+}
+
+/// Ctrl + click (press and release without dragging) in the 3D view picks the streamline under the cursor
+/// (within 4 pixels, the nearest along the ray; hidden ones skipped) of a visible tract layer shown as one set,
+/// or unpicks it; the picked are outlined in white.
+#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
+fn pick_streamline(
+    buttons: Res<ButtonInput<MouseButton>>,
+    keys: Res<ButtonInput<KeyCode>>,
+    motion: Res<AccumulatedMouseMotion>,
+    mut dragged: Local<f32>,
+    window: Single<&Window, With<PrimaryWindow>>,
+    camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
+    sets: Query<(&TractSet, &TractSelection, &LayerEntity, &InheritedVisibility)>,
+    scene: Res<ActiveScene>,
+    mut ui: ResMut<UiState>,
+) {
+    if buttons.just_pressed(MouseButton::Left) {
+        *dragged = 0.0;
+    }
+    if buttons.pressed(MouseButton::Left) {
+        *dragged += motion.delta.length();
+    }
+    let ctrl = keys.any_pressed([KeyCode::ControlLeft, KeyCode::ControlRight]);
+    if !ctrl || !buttons.just_released(MouseButton::Left) || *dragged > 3.0 {
+        return;
+    }
+    let Some(at) = window.cursor_position() else { return };
+    let (cam, tf) = *camera;
+    let (Some(ray), Some(beside)) =
+        (fascicle_views::cursor_ray(cam, tf, at), fascicle_views::cursor_ray(cam, tf, at + Vec2::new(4.0, 0.0)))
+    else {
+        return;
+    };
+    let (o, d) = (ray.origin, ray.direction.as_vec3());
+    // 4 pixels as an angle: the cone around the ray a step must come within.
+    let tolerance = (beside.direction.as_vec3() - d).length().max(1e-6);
+    let mut counts = std::collections::HashMap::new();
+    for (_, _, le, _) in &sets {
+        *counts.entry(le.0).or_insert(0) += 1;
+    }
+    let best = sets
+        .iter()
+        .filter(|(_, _, le, v)| v.get() && counts.get(&le.0) == Some(&1))
+        .filter_map(|(set, sel, le, _)| {
+            let t = &set.tractogram;
+            let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
+            fascicle_core::roi::pick_streamline(&t.points, &t.offsets, shown, o, d, tolerance)
+                .map(|(s, dist)| (le.0, t.n_streamlines(), s as u32, dist))
+        })
+        .min_by(|a, b| a.3.total_cmp(&b.3));
+    let Some((layer, n_streamlines, s, _)) = best else {
+        ui.message = Some("no streamline under the cursor (Ctrl + click picks one)".into());
+        return;
+    };
+    let picked = ui.picked.get_or_insert_with(Picked::default);
+    if picked.layer != layer || picked.n_streamlines != n_streamlines {
+        *picked = Picked { layer, n_streamlines, streamlines: Default::default() };
+    }
+    if !picked.streamlines.remove(&s) {
+        picked.streamlines.insert(s);
+    }
+    let name = scene.0.layers.get(layer).map_or("?", |l| l.name.as_str());
+    let n = picked.streamlines.len();
+    ui.message = Some(format!(
+        "streamline {s} of '{name}' {}: {n} picked; the layer's panel deletes them or keeps only them",
+        if picked.streamlines.contains(&s) { "picked" } else { "unpicked" }
+    ));
+}
+
+/// Outlines the picked streamlines in white (the first 2,000).
+fn draw_picked(mut gizmos: Gizmos, ui: Res<UiState>, sets: Query<(&TractSet, &LayerEntity)>) {
+    let Some(picked) = &ui.picked else { return };
+    let Some((set, _)) =
+        sets.iter().find(|(s, le)| le.0 == picked.layer && s.tractogram.n_streamlines() == picked.n_streamlines)
+    else {
+        return;
+    };
+    for &s in picked.streamlines.iter().take(2000) {
+        if let Some(pts) = set.tractogram.offsets.get(s as usize..s as usize + 2) {
+            gizmos.linestrip(set.tractogram.points[pts[0]..pts[1]].iter().copied(), Color::WHITE);
+        }
+    }
 }
 
 /// Builds the starting scene from command-line files: scene files replace the scene, data files add layers.
@@ -234,6 +341,8 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             view_input.run_if(not(egui_wants_any_pointer_input)),
             orbit_input.after(HandleSystems).run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
             pick_glyph.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
+            pick_streamline.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
+            draw_picked,
             keys.run_if(not(egui_wants_any_keyboard_input)),
             dropped_files,
             file_dialog,
@@ -779,6 +888,35 @@ fn panel(
                     let kind = LayerKind::Slice { source, axis: fascicle_scene::model::SliceAxis::Z, index: None, window: None };
                     added.push(LayerSpec { name, visible: true, opacity: 1.0, kind });
                 }
+                if let LayerKind::Tracts { deleted, .. } = &mut layer.kind {
+                    ui.push_id(("picked", i), |ui| {
+                        ui.horizontal(|ui| {
+                            let picked = ui_state.picked.clone().filter(|p| p.layer == i && !p.streamlines.is_empty());
+                            match &picked {
+                                Some(p) => {
+                                    ui.label(format!("{} picked", p.streamlines.len()));
+                                    if ui.small_button("delete").clicked() {
+                                        *deleted = deleted_after(deleted, p, false);
+                                        ui_state.picked = None;
+                                    }
+                                    if ui.small_button("keep only these").clicked() {
+                                        *deleted = deleted_after(deleted, p, true);
+                                        ui_state.picked = None;
+                                    }
+                                    if ui.small_button("unpick").clicked() {
+                                        ui_state.picked = None;
+                                    }
+                                }
+                                None => {
+                                    ui.label("Ctrl + click picks streamlines");
+                                }
+                            }
+                            if !deleted.is_empty() && ui.small_button(format!("restore {} deleted", deleted.len())).clicked() {
+                                deleted.clear();
+                            }
+                        });
+                    });
+                }
                 if matches!(layer.kind, LayerKind::Tracts { .. }) {
                     ui.push_id(("selection", i), |ui| {
                         ui.horizontal(|ui| {
@@ -991,6 +1129,7 @@ fn derived_layers(tensors: &fascicle_scene::model::TensorSource) -> Vec<(&'stati
                 rois: vec![],
                 masks: vec![],
                 ends_only: false,
+                deleted: vec![],
                 colouring: Default::default(),
             },
         ),
@@ -1046,6 +1185,16 @@ fn egui_images_outside_picture(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// "Delete" adds the picked to the deleted; "keep only these" deletes every other streamline; both keep
+    /// what was deleted before, sorted, once each.
+    #[test]
+    fn picked_streamlines_are_deleted_or_kept() {
+        let picked = Picked { layer: 0, n_streamlines: 6, streamlines: [1, 4].into_iter().collect() };
+        assert_eq!(deleted_after(&[4, 5], &picked, false), vec![1, 4, 5]);
+        assert_eq!(deleted_after(&[4, 5], &picked, true), vec![0, 2, 3, 4, 5]);
+        assert_eq!(deleted_after(&[], &picked, true), vec![0, 2, 3, 5]);
+    }
 
     /// Dropping files: a good one becomes a layer, a bad one an error message; the app keeps running and the
     /// scene keeps what it had.
@@ -1139,6 +1288,7 @@ mod tests {
                 rois: rois.clone(),
                 masks: vec![],
                 ends_only: false,
+                deleted: vec![],
                 colouring: Default::default(),
             },
         };

@@ -680,6 +680,7 @@ fn mask_layers_show_what_tckedit_keeps() {
             rois: vec![],
             masks: vec![MaskRoi { path: mask.clone(), mode }],
             ends_only: false,
+            deleted: vec![],
             colouring: Default::default(),
         };
         let Ok(jobs::Content::Tracts(ours)) = jobs::build(&kind, &DataCache::default(), &JobProgress::default()) else {

@@ -436,6 +436,7 @@ fn rois_act_on_their_own_layer() {
             rois,
             masks: vec![],
             ends_only: false,
+            deleted: vec![],
             colouring: Default::default(),
         },
     };
@@ -722,6 +723,7 @@ fn tracking_streams_into_its_layer() {
             rois: rois.clone(),
             masks: vec![],
             ends_only: false,
+            deleted: vec![],
             colouring: default(),
         },
     };
@@ -790,6 +792,7 @@ fn value_coloured_tracts_report_their_histogram() {
         rois: vec![],
         masks: vec![],
         ends_only: false,
+        deleted: vec![],
         colouring,
     };
     let scene = Scene {

@@ -312,6 +312,7 @@ fn the_2d_views_show_streamlines_cropped_to_a_slab() {
             rois: vec![],
             masks: vec![],
             ends_only: false,
+            deleted: vec![],
             colouring: Default::default(),
         },
     });

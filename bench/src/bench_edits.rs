@@ -346,6 +346,7 @@ pub(crate) fn large_scene(dir: &Path) -> Result<Scene, String> {
                 }],
                 masks: vec![],
                 ends_only: false,
+                deleted: vec![],
                 colouring: Default::default(),
             },
         ),
@@ -371,6 +372,7 @@ pub(crate) fn seeded_tracking() -> LayerSpec {
             rois: vec![],
             masks: vec![],
             ends_only: false,
+            deleted: vec![],
             colouring: Default::default(),
         },
     }

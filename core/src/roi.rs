@@ -457,6 +457,53 @@ pub fn select_ends(points: &[Vec3], offsets: &[usize], rois: &[Roi]) -> Vec<bool
         .collect()
 }
 
+/// The streamline a ray picks (a click in a view): of the streamlines `shown`, the one with a step that comes
+/// within the cone of half-angle `atan(tolerance)` around the ray (origin `o`, unit direction `d`; a click's
+/// tolerance in pixels over the focal length in pixels), nearest along the ray; with its distance along the
+/// ray. A one-point streamline is a point. Brute force over every step, in parallel.
+pub fn pick_streamline(
+    points: &[Vec3],
+    offsets: &[usize],
+    shown: impl Fn(usize) -> bool + Sync,
+    o: Vec3,
+    d: Vec3,
+    tolerance: f32,
+) -> Option<(usize, f32)> {
+    let n = offsets.len().saturating_sub(1);
+    (0..n)
+        .into_par_iter()
+        .filter(|&s| shown(s))
+        .filter_map(|s| {
+            let pts = &points[offsets[s]..offsets[s + 1]];
+            let steps: Box<dyn Iterator<Item = (Vec3, Vec3)>> = match pts {
+                [p] => Box::new(std::iter::once((*p, *p))),
+                _ => Box::new(pts.windows(2).map(|w| (w[0], w[1]))),
+            };
+            steps
+                .filter_map(|(a, b)| {
+                    let (t, dist) = ray_step_approach(o, d, a, b);
+                    (t > 0.0 && dist <= tolerance * t).then_some(t)
+                })
+                .min_by(f32::total_cmp)
+                .map(|t| (s, t))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+}
+
+/// The closest approach of a ray (origin `o`, unit direction `d`) and the step `a`-`b`: the distance along the
+/// ray of its closest point, and the distance between the two closest points.
+fn ray_step_approach(o: Vec3, d: Vec3, a: Vec3, b: Vec3) -> (f32, f32) {
+    let u = b - a;
+    let w = a - o;
+    let (uu, ud, uw, dw) = (u.dot(u), u.dot(d), u.dot(w), d.dot(w));
+    let denom = uu - ud * ud;
+    // The step's parameter of the closest approach, clamped to the step (a point, or parallel: its start).
+    let s = if uu <= f32::EPSILON || denom <= 1e-9 * uu { 0.0 } else { ((ud * dw - uw) / denom).clamp(0.0, 1.0) };
+    let p = a + u * s;
+    let t = (p - o).dot(d);
+    (t, (o + d * t - p).length())
+}
+
 /// Whether a polyline meets a region under the selection rule.
 fn streamline_meets(pts: &[Vec3], shape: &RoiShape) -> bool {
     shape.meets_streamline(pts)

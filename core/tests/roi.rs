@@ -3,7 +3,9 @@
 //! every segment selects; and the segment predicates agree with dense sampling of each segment.
 
 use fascicle_core::io::Tractogram;
-use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, select, select_ends};
+use fascicle_core::roi::{
+    Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, pick_streamline, select, select_ends,
+};
 use glam::Vec3;
 use rand::{RngExt, SeedableRng};
 
@@ -286,4 +288,69 @@ fn points_not_segments_and_ends_only_as_tckedit() {
     // x = 5 mm is voxel 3.0; rounding takes 2.5..3.5 (x in [4, 6)), with halves away from zero.
     assert!(at(5.0) && at(4.0) && at(5.99) && !at(3.99) && !at(6.0));
     assert!(!Criteria { include: vec![mask], ..Default::default() }.keeps(&[Vec3::new(-4.0, -1.0, -1.0)]));
+}
+
+/// A click picks the streamline nearest along the ray within the cone of its tolerance: three parallel lines
+/// stacked under the ray, the top one first; a hidden one is skipped; a ray beside them within the cone
+/// picks, outside it does not; a one-point streamline is a point; against brute force (each step's densely
+/// sampled point nearest the ray) on tracks300.
+#[test]
+fn a_click_picks_the_nearest_streamline_within_its_cone() {
+    let mut points = vec![];
+    let mut offsets = vec![0];
+    for z in [0.0, 5.0, 10.0] {
+        points.extend((0..11).map(|k| Vec3::new(k as f32, 0.0, z)));
+        offsets.push(points.len());
+    }
+    points.push(Vec3::new(20.0, 0.0, 20.0));
+    offsets.push(points.len());
+    let all = |_: usize| true;
+    let down = -Vec3::Z;
+    let pick = |o: Vec3, shown: &(dyn Fn(usize) -> bool + Sync), tol: f32| {
+        pick_streamline(&points, &offsets, shown, o, down, tol)
+    };
+    assert_eq!(pick(Vec3::new(3.0, 0.0, 100.0), &all, 0.01), Some((2, 90.0)));
+    assert_eq!(pick(Vec3::new(3.0, 0.0, 100.0), &|s| s != 2, 0.01), Some((1, 95.0)));
+    // 0.5 mm beside the lines: within 0.01 x 90 mm at the top line; 2 mm beside: outside every cone.
+    assert_eq!(pick(Vec3::new(3.0, 0.5, 100.0), &all, 0.01).map(|p| p.0), Some(2));
+    assert_eq!(pick(Vec3::new(3.0, 2.0, 100.0), &all, 0.01), None);
+    // Beyond the lines' ends (x = 10): the step's end is the nearest point.
+    assert_eq!(pick(Vec3::new(10.5, 0.0, 100.0), &all, 0.01).map(|p| p.0), Some(2));
+    assert_eq!(pick(Vec3::new(12.0, 0.0, 100.0), &all, 0.01), None);
+    assert_eq!(pick(Vec3::new(20.0, 0.2, 100.0), &all, 0.01), Some((3, 80.0)));
+    // Behind the origin: nothing.
+    assert_eq!(pick(Vec3::new(3.0, 0.0, -1.0), &all, 0.01), None);
+
+    // tracks300: rays through points of the streamlines; brute force samples every step densely.
+    let t = Tractogram::read(data("data/tracts/tracks300.trk")).unwrap();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    let tol = 0.004;
+    for _ in 0..40 {
+        let s = rng.random_range(0..t.n_streamlines());
+        let pts = t.streamline(s);
+        let target = pts[rng.random_range(0..pts.len())];
+        let o = target + Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, 1.0).normalize() * 150.0;
+        let d = (target - o).normalize();
+        let got = pick_streamline(&t.points, &t.offsets, |_| true, o, d, tol).expect("the ray passes a point");
+        // Brute force: per step, its densely sampled point nearest the ray's line; in the cone there, the
+        // nearest such along the ray wins.
+        let mut best: Option<(usize, f32)> = None;
+        for s in 0..t.n_streamlines() {
+            for w in t.streamline(s).windows(2) {
+                let (dist, along) = (0..=400)
+                    .map(|k| {
+                        let p = w[0] + (w[1] - w[0]) * (k as f32 / 400.0);
+                        let along = (p - o).dot(d);
+                        ((o + d * along - p).length(), along)
+                    })
+                    .min_by(|a, b| a.0.total_cmp(&b.0))
+                    .unwrap();
+                if along > 0.0 && dist <= tol * along && best.is_none_or(|b| along < b.1) {
+                    best = Some((s, along));
+                }
+            }
+        }
+        let best = best.expect("brute force finds the target");
+        assert!(got.0 == best.0 && (got.1 - best.1).abs() < 0.02, "picked {got:?}, brute force {best:?}");
+    }
 }

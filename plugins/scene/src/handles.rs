@@ -299,6 +299,7 @@ mod tests {
                 rois: rois.into_iter().map(|shape| Roi { shape, mode: RoiMode::Include }).collect(),
                 masks: vec![],
                 ends_only: false,
+                deleted: vec![],
                 colouring: Default::default(),
             },
         };
@@ -348,6 +349,7 @@ mod tests {
                     rois: vec![roi(boxed), roi(sphere)],
                     masks: vec![],
                     ends_only: false,
+                    deleted: vec![],
                     colouring: Default::default(),
                 },
             }],
@@ -409,6 +411,7 @@ mod tests {
                 rois: vec![],
                 masks: vec![],
                 ends_only: false,
+                deleted: vec![],
                 colouring: Default::default(),
             },
         };

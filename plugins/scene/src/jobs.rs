@@ -296,7 +296,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
-        LayerKind::Tracts { source, mode, render, colouring, rois, masks, ends_only } => {
+        LayerKind::Tracts { source, mode, render, colouring, rois, masks, ends_only, .. } => {
             // A scalar image to colour by is read (through the cache) before any part is made.
             let scalar = match colouring {
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
@@ -1747,6 +1747,7 @@ mod tests {
             rois: vec![],
             masks: vec![],
             ends_only: false,
+            deleted: vec![],
             colouring: Default::default(),
         };
         let progress = JobProgress::default();
@@ -1842,6 +1843,7 @@ mod tests {
                 rois: vec![],
                 masks: vec![],
                 ends_only: false,
+                deleted: vec![],
                 colouring,
             };
             let Ok(Content::Tracts(p)) = build(&kind, &DataCache::default(), &JobProgress::default()) else {
@@ -1919,6 +1921,7 @@ mod tests {
             rois: vec![],
             masks: vec![],
             ends_only: false,
+            deleted: vec![],
             colouring,
         };
         let e = build(&kind(value(None)), &DataCache::default(), &JobProgress::default()).err().unwrap();
@@ -2001,6 +2004,7 @@ mod tests {
             rois: vec![],
             masks: vec![MaskRoi { path: mask.clone(), mode }],
             ends_only,
+            deleted: vec![],
             colouring,
         };
         let layer = |mode, colouring| layer_ends(mode, colouring, false);
@@ -2143,6 +2147,7 @@ mod tests {
             rois: vec![],
             masks: vec![],
             ends_only: false,
+            deleted: vec![],
             colouring: Default::default(),
         };
         assert_eq!(build(&kind, &DataCache::default(), &p).err(), Some(CANCELLED.to_string()));

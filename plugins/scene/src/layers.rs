@@ -354,8 +354,11 @@ const PART_BUDGET: std::time::Duration = std::time::Duration::from_millis(8);
 fn clear_content(commands: &mut Commands, e: Entity, index: usize, spec: &LayerSpec) {
     // A slice layer's image goes with it (new slice content brings its own).
     commands.entity(e).despawn_related::<Children>().remove::<(SliceLayer, VolumeLayer)>();
-    if let LayerKind::Tracts { rois, ends_only, .. } = &spec.kind {
-        commands.entity(e).insert(fascicle_tracts::RoiRules { ends_only: *ends_only });
+    if let LayerKind::Tracts { rois, ends_only, deleted, .. } = &spec.kind {
+        commands.entity(e).insert((
+            fascicle_tracts::RoiRules { ends_only: *ends_only },
+            fascicle_tracts::DeletedStreamlines(Arc::new(deleted.clone())),
+        ));
         spawn_rois(commands, rois, index, e);
     }
 }
@@ -572,7 +575,16 @@ fn restyle_layers(
                     settings.set_if_neq(want);
                 }
             }
-            (LayerKind::Tracts { rois: ra, ends_only: ea, .. }, LayerKind::Tracts { rois: rb, ends_only: eb, .. }) => {
+            (
+                LayerKind::Tracts { rois: ra, ends_only: ea, deleted: da, .. },
+                LayerKind::Tracts { rois: rb, ends_only: eb, deleted: db, .. },
+            ) => {
+                if da != db
+                    && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)
+                {
+                    // The tract plugin hides them (a re-selection, nothing rebuilt).
+                    commands.entity(layer).insert(fascicle_tracts::DeletedStreamlines(Arc::new(db.clone())));
+                }
                 if ea != eb
                     && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)
                 {

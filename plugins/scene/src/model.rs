@@ -157,6 +157,11 @@ pub enum LayerKind {
         /// -ends_only`); default false. A change re-selects; with masks, it rebuilds.
         #[serde(default)]
         ends_only: bool,
+        /// Streamlines deleted by hand (indices into the layer's streamlines as built: after its masks and
+        /// value threshold), sorted; hidden whatever the regions select, left out of a saved selection. A change
+        /// re-selects. Default none.
+        #[serde(default, skip_serializing_if = "Vec::is_empty")]
+        deleted: Vec<u32>,
         /// What colours the streamlines (tubes and lines; polygon tubes keep their direction colours).
         #[serde(default)]
         colouring: TractColouring,
@@ -255,6 +260,7 @@ impl LayerKind {
                 masks: masks.clone(),
                 // The masks are applied when the layer is built; without them the rule is a re-selection.
                 ends_only: *ends_only && !masks.is_empty(),
+                deleted: vec![],
                 colouring: colouring.clone(),
             },
             // Every setting is the volume plugin's to apply (`VolumeSettings`: a uniform, the tables, the proxy
@@ -663,6 +669,7 @@ impl Scene {
                         }],
                         masks: vec![],
                         ends_only: false,
+                        deleted: vec![],
                         colouring: Default::default(),
                     },
                 },
@@ -751,6 +758,7 @@ pub fn layer_kind_for(path: &Path, kind: &ImageKind) -> LayerKind {
             rois: Vec::new(),
             masks: vec![],
             ends_only: false,
+            deleted: vec![],
             colouring: Default::default(),
         },
         ImageKind::Sh { basis, .. } => LayerKind::ShGlyphs {

@@ -497,6 +497,12 @@ pub struct RoiRules {
     pub ends_only: bool,
 }
 
+/// Streamlines deleted by hand (picked in a view, then deleted or all others deleted), on a tract layer's
+/// entity or on a tract set: indices into the set's streamlines (a layer of one set: its streamlines), sorted;
+/// they stay hidden whatever the ROIs select, and "save selection" leaves them out. Default none.
+#[derive(Component, Clone, Debug, Default, PartialEq, Eq)]
+pub struct DeletedStreamlines(pub Arc<Vec<u32>>);
+
 /// The cost of the last ROI re-selection.
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct RoiStats {
@@ -1203,16 +1209,18 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
 /// the sets' flag buffers.
 #[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's change filters")]
 pub fn apply_rois(
-    changed_rois: Query<(), Or<(Added<TractRoi>, Changed<TractRoi>, Changed<RoiRules>)>>,
+    changed_rois: Query<(), Or<(Added<TractRoi>, Changed<TractRoi>, Changed<RoiRules>, Changed<DeletedStreamlines>)>>,
     mut removed: RemovedComponents<TractRoi>,
     mut removed_rules: RemovedComponents<RoiRules>,
+    mut removed_deletions: RemovedComponents<DeletedStreamlines>,
     rois: Query<(&TractRoi, Option<&ChildOf>)>,
     rules: Query<&RoiRules>,
+    deleted: Query<&DeletedStreamlines>,
     mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection, Option<&ChildOf>)>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
 ) {
-    let removed_any = removed.read().count() + removed_rules.read().count() > 0;
+    let removed_any = removed.read().count() + removed_rules.read().count() + removed_deletions.read().count() > 0;
     // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
     let rois_changed = !changed_rois.is_empty() || removed_any;
     if !rois_changed && !sets.iter().any(|(_, s, _, _)| s.is_added()) {
@@ -1234,13 +1242,19 @@ pub fn apply_rois(
             .or_else(|| layer.and_then(|l| rules.get(l.parent()).ok()))
             .is_some_and(|r| r.ends_only);
         let t = &set.tractogram;
-        let sel = if list.is_empty() {
+        let mut sel = if list.is_empty() {
             vec![true; t.n_streamlines()]
         } else if ends_only {
             fascicle_core::roi::select_ends(&t.points, &t.offsets, &list)
         } else {
             select(&t.points, &t.offsets, set.grid.get(t), &list)
         };
+        let own = deleted.get(entity).ok().or_else(|| layer.and_then(|l| deleted.get(l.parent()).ok()));
+        for &s in own.iter().flat_map(|d| d.0.iter()) {
+            if let Some(k) = sel.get_mut(s as usize) {
+                *k = false;
+            }
+        }
         selected += sel.iter().filter(|s| **s).count();
         let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();
         selection.0 = sel;

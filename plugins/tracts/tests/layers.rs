@@ -15,7 +15,8 @@ use fascicle_render::example::ExampleApp;
 use fascicle_render::headless;
 use fascicle_render::headless::Capture;
 use fascicle_tracts::{
-    LayerStatus, RoiRules, RoiStats, TractCounts, TractPlugin, TractRoi, TractSelection, TractSet, TractStyle, Tracts,
+    DeletedStreamlines, LayerStatus, RoiRules, RoiStats, TractCounts, TractPlugin, TractRoi, TractSelection, TractSet,
+    TractStyle, Tracts,
 };
 
 fn gpu_skipped() -> bool {
@@ -149,6 +150,17 @@ fn the_example_shows_the_streamlines_through_the_roi_as_it_moves() {
     ex.render().expect("offscreen render");
     let world = ex.app.world_mut();
     assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, through);
+    // Streamlines deleted by hand (DeletedStreamlines on the layer) stay hidden whatever the ROI selects.
+    let gone: Vec<u32> = (0..t.n_streamlines() as u32).filter(|s| through[*s as usize]).take(3).collect();
+    world.entity_mut(layer).insert(DeletedStreamlines(std::sync::Arc::new(gone.clone())));
+    ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
+    let mut want_now = through.clone();
+    gone.iter().for_each(|s| want_now[*s as usize] = false);
+    assert_eq!(gone.len(), 3);
+    assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, want_now);
+    assert_eq!(*world.resource::<TractCounts>(), counts, "deleting re-selects, nothing is rebuilt");
+    world.entity_mut(layer).remove::<DeletedStreamlines>();
     world.get_mut::<TractRoi>(roi).unwrap().0.shape =
         RoiShape::Sphere { centre: moved.to_array(), radius: example::ROI_RADIUS };
     ex.render().expect("offscreen render");
