@@ -186,12 +186,14 @@ fn pick_streamline(
     ));
 }
 
-/// Outlines the picked streamlines in white (the first 2,000).
-fn draw_picked(mut gizmos: Gizmos, ui: Res<UiState>, sets: Query<(&TractSet, &LayerEntity)>) {
+/// Outlines the picked streamlines in white (the first 2,000); forgets the picks when their layer no longer
+/// shows the set they index (removed, rebuilt, reordered), so that no edit applies them to other streamlines.
+fn draw_picked(mut gizmos: Gizmos, mut ui: ResMut<UiState>, sets: Query<(&TractSet, &LayerEntity)>) {
     let Some(picked) = &ui.picked else { return };
     let Some((set, _)) =
         sets.iter().find(|(s, le)| le.0 == picked.layer && s.tractogram.n_streamlines() == picked.n_streamlines)
     else {
+        ui.picked = None;
         return;
     };
     for &s in picked.streamlines.iter().take(2000) {
