@@ -579,17 +579,15 @@ fn restyle_layers(
                 LayerKind::Tracts { rois: ra, ends_only: ea, deleted: da, .. },
                 LayerKind::Tracts { rois: rb, ends_only: eb, deleted: db, .. },
             ) => {
-                if da != db
+                // The rule (tckedit's -ends_only) and the streamlines deleted by hand: the tract plugin
+                // re-selects, nothing is rebuilt.
+                if (ea != eb || da != db)
                     && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)
                 {
-                    // The tract plugin hides them (a re-selection, nothing rebuilt).
-                    commands.entity(layer).insert(fascicle_tracts::DeletedStreamlines(Arc::new(db.clone())));
-                }
-                if ea != eb
-                    && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)
-                {
-                    // The tract plugin re-selects (tckedit's -ends_only).
-                    commands.entity(layer).insert(fascicle_tracts::RoiRules { ends_only: *eb });
+                    commands.entity(layer).insert((
+                        fascicle_tracts::RoiRules { ends_only: *eb },
+                        fascicle_tracts::DeletedStreamlines(Arc::new(db.clone())),
+                    ));
                 }
                 if ra != rb
                     && let Some((layer, _)) = layer_entities.iter().find(|(_, le)| le.0 == i)

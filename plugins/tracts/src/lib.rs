@@ -1236,11 +1236,7 @@ pub fn apply_rois(
         // An ROI acts on its parent set, on the sets of its parent layer, or (without a parent) on all.
         let owner = |p: &ChildOf| p.parent() == entity || layer.is_some_and(|l| l.parent() == p.parent());
         let list: Vec<Roi> = rois.iter().filter(|(_, parent)| parent.is_none_or(owner)).map(|(r, _)| r.0).collect();
-        let ends_only = rules
-            .get(entity)
-            .ok()
-            .or_else(|| layer.and_then(|l| rules.get(l.parent()).ok()))
-            .is_some_and(|r| r.ends_only);
+        let ends_only = on_set_or_layer(&rules, entity, layer).is_some_and(|r| r.ends_only);
         let t = &set.tractogram;
         let mut sel = if list.is_empty() {
             vec![true; t.n_streamlines()]
@@ -1249,8 +1245,7 @@ pub fn apply_rois(
         } else {
             select(&t.points, &t.offsets, set.grid.get(t), &list)
         };
-        let own = deleted.get(entity).ok().or_else(|| layer.and_then(|l| deleted.get(l.parent()).ok()));
-        for &s in own.iter().flat_map(|d| d.0.iter()) {
+        for &s in on_set_or_layer(&deleted, entity, layer).iter().flat_map(|d| d.0.iter()) {
             if let Some(k) = sel.get_mut(s as usize) {
                 *k = false;
             }
@@ -1267,6 +1262,11 @@ pub fn apply_rois(
     stats.evaluations += 1;
     stats.last_ms = t0.elapsed().as_secs_f64() * 1e3;
     stats.selected = selected;
+}
+
+/// A tract set's own `T`, else its layer's (the set's parent).
+fn on_set_or_layer<'a, T: Component>(q: &'a Query<&T>, set: Entity, layer: Option<&ChildOf>) -> Option<&'a T> {
+    q.get(set).ok().or_else(|| layer.and_then(|l| q.get(l.parent()).ok()))
 }
 
 /// Outlines every ROI in the 3D view (where gizmos are available: the viewer): includes green, excludes red.
