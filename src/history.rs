@@ -175,7 +175,8 @@ mod tests {
     /// The newest file first, each once, at most `RECENT_FILES`, kept across runs in the file.
     #[test]
     fn recent_files_persist_newest_first() {
-        let dir = std::env::temp_dir().join(format!("fascicle-recent-{}", std::process::id()));
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-recent-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let store = dir.join("cfg").join("recent.txt");
         let mut r = RecentFiles::load(store.clone());
         assert!(r.files.is_empty());
@@ -189,6 +190,5 @@ mod tests {
         assert_eq!(again.files[0], files[5]);
         assert_eq!(again.files[1], files[14]);
         assert_eq!(again.files.iter().filter(|f| **f == files[5]).count(), 1);
-        std::fs::remove_dir_all(dir).ok();
     }
 }

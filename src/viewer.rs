@@ -1274,8 +1274,8 @@ mod tests {
         use std::sync::Arc;
         let trk = crate::repo_path("data/tracts/tracks300.trk");
         let t = Tractogram::read(&trk).unwrap();
-        let dir = std::env::temp_dir().join(format!("fascicle-save-selection-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-save-selection-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         // An include sphere around the middle point of streamline 0.
         let p = t.streamline(0)[t.streamline(0).len() / 2];
         let rois = vec![Roi { shape: RoiShape::Sphere { centre: p.to_array(), radius: 5.0 }, mode: RoiMode::Include }];
@@ -1351,6 +1351,5 @@ mod tests {
         let msg = save(&mut app, 7, &out);
         assert!(msg.contains("layer 7 is not a tract layer"), "{msg}");
         app.update(); // still running
-        std::fs::remove_dir_all(dir).ok();
     }
 }

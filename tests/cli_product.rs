@@ -20,8 +20,8 @@ fn fascicle(args: &[&str]) -> std::process::Output {
 
 #[test]
 fn outputs_are_kept_unless_forced_and_choices_are_listed() {
-    let dir = std::env::temp_dir().join(format!("fascicle-product-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-product-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let out = dir.join("sel.tck");
     std::fs::write(&out, b"precious").unwrap();
     let args = ["select", &data("tracts/tracks300.trk"), "--sphere", "0,0,0,500", "--out", out.to_str().unwrap()];
@@ -61,7 +61,6 @@ fn outputs_are_kept_unless_forced_and_choices_are_listed() {
     ]);
     assert!(o.status.success(), "{o:?}");
     assert!(dir.join("sub/s25_fa.nii.gz").is_file() && dir.join("sub/s25_tensor.nii.gz").is_file());
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
@@ -72,8 +71,8 @@ fn info_json_reports_kind_counts_and_the_recorded_sh_basis() {
     let t = fascicle_core::io::Tractogram::read(data("tracts/tracks300.trk")).unwrap();
     assert_eq!(v["points"].as_u64(), Some(t.points.len() as u64));
 
-    let dir = std::env::temp_dir().join(format!("fascicle-info-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-info-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let sh = dir.join("csa.nii.gz");
     let o = fascicle(&[
         "fit",
@@ -118,7 +117,6 @@ fn info_json_reports_kind_counts_and_the_recorded_sh_basis() {
     let bad = fascicle(&["info", &data("malformed/cut_short.tsf")]);
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(!bad.status.success() && err.contains("cut_short.tsf") && !err.contains("panicked"), "{err}");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 #[test]
@@ -154,8 +152,8 @@ fn fitted_odfs_open_in_the_viewer_along_the_true_fibres() {
     use fascicle_sh_glyphs::layer::{ShFieldSettings, field_glyphs, read_field};
     use fascicle_sh_glyphs::{GlyphShape, Selection, SliceAxis};
 
-    let dir = std::env::temp_dir().join(format!("fascicle-fit-view-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-fit-view-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let out = dir.join("csa.nii.gz");
     let o = fascicle(&[
         "fit",
@@ -231,15 +229,14 @@ fn fitted_odfs_open_in_the_viewer_along_the_true_fibres() {
     let (_, wrong) = median_error(ShFieldSettings::default(), Some(ShBasis::Tournier07 { legacy: false }));
     println!("read as tournier07: {wrong:.1} deg");
     assert!(wrong > 3.0 * recorded.max(2.0), "the wrong convention also fits: {wrong} degrees");
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// `convert` between NIfTI and MRtrix images and between `.trk` and `.tck`: values, affine and streamlines come
 /// back unchanged; `info --json` reads the `.mif`; mixing an image with a tractogram is a clear error.
 #[test]
 fn convert_round_trips_images_and_tractograms() {
-    let dir = std::env::temp_dir().join(format!("fascicle-convert-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-convert-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     // TRX both ways: trx-python's file to .tck and back to .trx keeps every point; info --json counts it.
     let (tck, trx) = (dir.join("from_trx.tck"), dir.join("back.trx"));
     let o = fascicle(&["convert", &data("tracts/tracks300_f32_deflate.trx"), tck.to_str().unwrap(), "--quiet"]);
@@ -284,7 +281,6 @@ fn convert_round_trips_images_and_tractograms() {
     let o = fascicle(&["convert", &data("tracts/tracks300.trk"), dir.join("x.nii").to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("both must be images"), "{o:?}");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// `convert --sh-basis`: DIPY coefficients on a flipped, oblique image to MRtrix3's basis (scanner axes) as
@@ -294,8 +290,8 @@ fn convert_round_trips_images_and_tractograms() {
 fn sh_bases_convert_both_ways_through_the_affine() {
     use fascicle_core::io::nifti;
     use fascicle_core::sh::{self, ShBasis};
-    let dir = std::env::temp_dir().join(format!("fascicle-sh-convert-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-sh-convert-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let m = glam::DMat3::from_rotation_x(0.25) * glam::DMat3::from_diagonal(glam::DVec3::new(-1.5, 1.5, 2.0));
     let (l_max, k) = (4, sh::n_coeffs(4));
     let mut vol = fascicle_core::Volume::<f32>::zeros(&[2, 2, 1, k], glam::DMat4::from_mat3(m));
@@ -330,14 +326,13 @@ fn sh_bases_convert_both_ways_through_the_affine() {
     let trk = data("tracts/tracks300.trk");
     let o = fascicle(&["convert", "--sh-basis", "tournier07", &trk, &path(&dir.join("t.tck"))]);
     assert_eq!(o.status.code(), Some(1));
-    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// `select` with a malformed mask image or weights file: exit 1, the message names the file; no output.
 #[test]
 fn select_refuses_malformed_masks_and_weights() {
-    let dir = std::env::temp_dir().join(format!("fascicle-select-bad-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-select-bad-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let out = dir.join("out.tck");
     let input = data("tracts/standard.tck");
     for (args, file) in [
@@ -352,5 +347,4 @@ fn select_refuses_malformed_masks_and_weights() {
         assert!(err.contains(file), "{err}");
         assert!(!out.exists(), "no output after an error");
     }
-    std::fs::remove_dir_all(&dir).ok();
 }

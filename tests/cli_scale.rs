@@ -3,7 +3,7 @@
 //! (measured from the process by `wait4`), and agree with an in-memory reading of the same file. The full
 //! sizes (1M and 10M streamlines) are in `fascicle-bench scale`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 
 use fascicle_core::io::Tractogram;
@@ -49,10 +49,9 @@ fn fascicle(args: &[&str]) -> (String, f64) {
     (out, usage.ru_maxrss as f64 / 1024.0)
 }
 
-fn scratch() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("fascicle-scale-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+/// A folder removed when the test ends, passed or failed (the files it holds at once add up to about 500 MB).
+fn scratch() -> tempfile::TempDir {
+    tempfile::Builder::new().prefix("fascicle-scale-").tempdir().unwrap()
 }
 
 fn s(p: &Path) -> &str {
@@ -73,7 +72,8 @@ fn write_helper() {
 /// hide the child's own figure.
 #[test]
 fn commands_stream_a_large_tractogram_in_bounded_memory() {
-    let dir = scratch();
+    let scratch = scratch();
+    let dir = scratch.path();
     let tck = dir.join("brain100k.tck");
     let helper = Command::new(std::env::current_exe().unwrap())
         .args(["--exact", "write_helper", "--quiet"])
@@ -158,5 +158,4 @@ fn commands_stream_a_large_tractogram_in_bounded_memory() {
     assert_eq!(back.offsets, whole.offsets);
     let worst = back.points.iter().zip(&whole.points).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
     assert!(worst < 1e-4, "points moved by {worst} mm through .trx and .trk");
-    std::fs::remove_dir_all(dir).ok();
 }

@@ -299,7 +299,8 @@ fn no_module_imports_itself_through_others() {
 /// and not a child using its parent.
 #[test]
 fn the_check_sees_a_circle() {
-    let dir = std::env::temp_dir().join(format!("fascicle-cycles-{}", std::process::id()));
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-cycles-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     std::fs::create_dir_all(dir.join("io")).unwrap();
     std::fs::write(dir.join("lib.rs"), "mod io; mod sh;\n").unwrap();
     std::fs::write(dir.join("io/mod.rs"), "mod a; mod b; pub use a::{Thing, other::*};\n").unwrap();
@@ -308,7 +309,6 @@ fn the_check_sees_a_circle() {
         .unwrap();
     std::fs::write(dir.join("sh.rs"), "use crate::io; #[cfg(test)]\nmod tests { use crate::sh; }\n").unwrap();
     let found = circles(&dir);
-    std::fs::remove_dir_all(&dir).ok();
     let want: BTreeSet<String> = ["io::a", "io::b"].map(String::from).into();
     assert_eq!(found, vec![want]);
 }

@@ -34,10 +34,35 @@ fn data(p: &str) -> PathBuf {
         .join(p)
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("fascicle-mrtrix-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+/// A file name in a folder of its own, removed with the value when the test ends, passed or failed.
+struct Scratch {
+    _dir: tempfile::TempDir,
+    path: PathBuf,
+}
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl AsRef<Path> for Scratch {
+    fn as_ref(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for Scratch {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.path.as_os_str()
+    }
+}
+
+fn scratch(name: &str) -> Scratch {
+    let dir = tempfile::Builder::new().prefix("fascicle-mrtrix-").tempdir().unwrap();
+    let path = dir.path().join(name);
+    Scratch { _dir: dir, path }
 }
 
 /// Every voxel of `a` holds the value of the voxel of `b` at the same scanner position (the grids may store
@@ -247,7 +272,7 @@ fn dwi_mif_from_mrtrix_fits_as_its_nifti() {
     let args = ["-quiet", "-force", dwi.to_str().unwrap(), "-fslgrad", bvec.to_str().unwrap(), bval.to_str().unwrap()];
     run("mrconvert", &[&args[..], &[mif.to_str().unwrap()]].concat());
     let (a, b) = (scratch("fit_nifti"), scratch("fit_mif"));
-    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
     fascicle(&[
         "fit",
         "dti",
@@ -273,9 +298,8 @@ fn dwi_mif_from_mrtrix_fits_as_its_nifti() {
 /// FA and principal eigenvectors of two `fascicle fit dti` outputs (prefixes) of the same DWI stored two ways,
 /// compared at every scanner position: the worst FA difference, the worst 1 - |cos| between the principal
 /// directions taken to scanner axes where FA > 0.3, and how many voxels were compared.
-fn compare_dti_fits(a: &PathBuf, b: &PathBuf) -> (f64, f64, usize) {
-    let read =
-        |prefix: &PathBuf, what: &str| nifti::read::<f32>(format!("{}_{what}.nii.gz", prefix.display())).unwrap().0;
+fn compare_dti_fits(a: &Path, b: &Path) -> (f64, f64, usize) {
+    let read = |prefix: &Path, what: &str| nifti::read::<f32>(format!("{}_{what}.nii.gz", prefix.display())).unwrap().0;
     let (fa_a, fa_b) = (read(a, "fa"), read(b, "fa"));
     let (ev_a, ev_b) = (read(a, "evecs"), read(b, "evecs"));
     let axes = |v: &Volume<f32>| fascicle_core::sh::world_from_voxel_axes(v.world_from_voxel);
@@ -316,7 +340,7 @@ fn fsl_bvecs_are_read_in_mrtrix_frame() {
     if !mrtrix() {
         return;
     }
-    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
     for (name, positive) in [("small_25", true), ("small_64D", false)] {
         let img = s(&data(&format!("dwi/{name}.nii{}", if name == "small_25" { ".gz" } else { "" })));
         let (bval, bvec) = (s(&data(&format!("dwi/{name}.bval"))), s(&data(&format!("dwi/{name}.bvec"))));
@@ -365,7 +389,7 @@ fn fsl_bvecs_are_read_in_mrtrix_frame() {
     run("mrconvert", &[&args[..], &["-export_grad_fsl", &s(&cbvec), &s(&cbval)]].concat());
     let affine = nifti::read::<f32>(&copy).unwrap().0.world_from_voxel;
     assert!(glam::DMat3::from_mat4(affine).determinant() > 0.0, "MRtrix3 kept the determinant's sign");
-    let fit = |dwi: &str, bval: &str, bvec: &str, convention: &str, out: &PathBuf| {
+    let fit = |dwi: &str, bval: &str, bvec: &str, convention: &str, out: &Path| {
         let args = ["fit", "dti", dwi, "--bval", bval, "--bvec", bvec, "--bvec-convention", convention];
         fascicle(&[&args[..], &["--quiet", "--force", "--out", &s(out)]].concat());
     };
@@ -498,7 +522,7 @@ fn select_weights_as_tckedit() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("brain20k_short.txt") && err.contains("19999 weights, fewer"), "{err}");
-    assert!(!out.exists() && !scratch("selw_short.tck.part").exists(), "no output after an error");
+    assert!(!out.exists() && !Path::new(&format!("{}.part", out.display())).exists(), "no output after an error");
 }
 
 /// Track scalar files (`.tsf`) both ways: `tcksample` of an image linear in x (trilinear sampling is exact on
@@ -529,7 +553,7 @@ fn track_scalars_both_ways() {
     let image = scratch("tsf_linear_x.nii");
     nifti::write(&image, &img, nifti::WriteType::F32).unwrap();
     let theirs = scratch("tsf_mrtrix.tsf");
-    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
     run("tcksample", &["-quiet", "-force", &s(&tracks), &s(&image), &s(&theirs)]);
     let sampled = tsf::read(&theirs).unwrap();
     sampled.check_against(&t, &theirs).unwrap();
@@ -668,7 +692,7 @@ fn mask_layers_show_what_tckedit_keeps() {
     fa.data.iter_mut().for_each(|v| *v = f32::from(u8::from(*v > 0.7)));
     let mask = scratch("layer_mask.nii");
     nifti::write(&mask, &fa, nifti::WriteType::F32).unwrap();
-    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
     for (mode, flag) in [(RoiMode::Include, "-include"), (RoiMode::Exclude, "-exclude")] {
         let theirs = scratch(&format!("layer_mask{flag}.tck"));
         run("tckedit", &["-quiet", "-force", &s(&tracks), flag, &s(&mask), &s(&theirs)]);
@@ -678,7 +702,7 @@ fn mask_layers_show_what_tckedit_keeps() {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
-            masks: vec![MaskRoi { path: mask.clone(), mode }],
+            masks: vec![MaskRoi { path: mask.to_path_buf(), mode }],
             ends_only: false,
             deleted: vec![],
             colouring: Default::default(),

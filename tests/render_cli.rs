@@ -25,8 +25,8 @@ fn default_scene_renders_deterministically() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
     }
-    let dir = std::env::temp_dir().join(format!("fascicle-render-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-render-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let (a, b) = (dir.join("a.png"), dir.join("b.png"));
     render(&a, "200x150");
     render(&b, "200x150");
@@ -39,13 +39,12 @@ fn default_scene_renders_deterministically() {
     let bright = px.chunks(4).filter(|p| p[0] > 180 && p[1] > 180 && p[2] > 180).count();
     let dark = px.chunks(4).filter(|p| p[0] < 60).count();
     assert!(bright > 300 && dark > 10000, "bright {bright}, dark {dark}");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
 fn bad_scene_file_is_a_clear_error() {
-    let dir = std::env::temp_dir().join(format!("fascicle-badscene-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-badscene-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     std::fs::write(dir.join("bad.ron"), "(layers: [oops])").unwrap();
     let out = Command::new(env!("CARGO_BIN_EXE_fascicle"))
         .args(["render", dir.join("bad.ron").to_str().unwrap(), "--out", dir.join("x.png").to_str().unwrap()])
@@ -54,13 +53,13 @@ fn bad_scene_file_is_a_clear_error() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.ron") && err.contains("not a scene file"), "{err}");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
 fn scene_files_round_trip() {
     let s = fascicle_scene::model::Scene::default_scene();
-    let p = std::env::temp_dir().join(format!("fascicle-scene-{}.ron", std::process::id()));
+    let tmp_p = tempfile::tempdir().unwrap();
+    let p = tmp_p.path().join("fascicle-scene.ron");
     s.save(&p).unwrap();
     assert_eq!(fascicle_scene::model::Scene::load(&p).unwrap(), s);
     std::fs::remove_file(p).ok();
@@ -75,8 +74,8 @@ fn depth_export_matches_the_slice_plane() {
         return;
     }
     use fascicle_scene::model::{CameraSpec, Scene};
-    let dir = std::env::temp_dir().join(format!("fascicle-depth-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-depth-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let mut scene = Scene::default_scene();
     scene.layers.truncate(1); // the axial slice only
     scene.camera = CameraSpec { eye: [0.0, 0.0, 200.0], target: [0.0, 0.0, 0.0], up: [0.0, 1.0, 0.0], fov_y_deg: 45.0 };
@@ -114,7 +113,6 @@ fn depth_export_matches_the_slice_plane() {
             assert_eq!(v, 0, "pixel {i}: background depth {v}");
         }
     }
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// The seed's 50-tensor spiral scene renders: lit barycentric splats, green (linear) at one end of the
@@ -125,8 +123,8 @@ fn spiral_scene_renders() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
     }
-    let dir = std::env::temp_dir().join(format!("fascicle-spiral-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-spiral-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let out = dir.join("spiral.png");
     let scene = format!(
         "{}/scenes/spiral50.ron",
@@ -143,5 +141,4 @@ fn spiral_scene_renders() {
     let red = px.chunks(4).map(rgb).filter(|&(r, g, b)| r > 60 && r > g + 15 && r > b + 15).count();
     println!("green {green}, red {red}");
     assert!(green > 50 && red > 50, "green {green}, red {red}");
-    std::fs::remove_dir_all(dir).ok();
 }

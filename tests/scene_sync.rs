@@ -776,7 +776,8 @@ fn value_coloured_tracts_report_their_histogram() {
     let path = repo_path("data/tracts/tracks300.trk");
     let n = fascicle_core::io::Tractogram::read(&path).unwrap().n_streamlines();
     // Streamline s weighs s / n: evenly spread over [0, (n - 1) / n].
-    let weights = std::env::temp_dir().join(format!("fascicle-hist-weights-{}.txt", std::process::id()));
+    let tmp_weights = tempfile::tempdir().unwrap();
+    let weights = tmp_weights.path().join("fascicle-hist-weights.txt");
     let w: Vec<f32> = (0..n).map(|s| s as f32 / n as f32).collect();
     fascicle_core::io::weights::write(&weights, &w).unwrap();
     let colouring = TractColouring::Value {

@@ -21,8 +21,8 @@ fn fascicle(args: &[&str]) -> std::process::Output {
 
 #[test]
 fn track_writes_what_the_library_computes() {
-    let dir = std::env::temp_dir().join(format!("fascicle-track-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-track-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let out = dir.join("t.trk");
     let seeds = data("reference/tracking/small_64D_eudx_seeds_rasmm.npy");
     let o = fascicle(&[
@@ -90,8 +90,8 @@ fn track_rejects_bad_input_clearly() {
 fn select_writes_the_streamlines_the_rois_keep() {
     use fascicle_core::io::Tractogram;
     use fascicle_core::roi::{Roi, RoiMode, RoiShape};
-    let dir = std::env::temp_dir().join(format!("fascicle-select-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-select-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let input = std::path::Path::new(
         &std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| env!("CARGO_MANIFEST_DIR").into()),
     )
@@ -120,7 +120,6 @@ fn select_writes_the_streamlines_the_rois_keep() {
         .unwrap();
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("'x' is not a number"));
-    std::fs::remove_dir_all(dir).ok();
 }
 
 fn phantom(ext: &str) -> String {
@@ -133,8 +132,8 @@ fn phantom(ext: &str) -> String {
 fn track_honours_the_model() {
     use fascicle_core::sh::{self, OdfKind, OdfModel, PeakParams, ShBasis, ShGrid, Sphere};
     use fascicle_core::tracking::seeds_from_mask;
-    let dir = std::env::temp_dir().join(format!("fascicle-track-model-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-track-model-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let (dwi, _) = nifti::read::<f32>(phantom("nii.gz")).unwrap();
     let gtab = GradientTable::from_fsl(phantom("bval"), phantom("bvec"), 50.0).unwrap();
     let dims = dwi.dims3();
@@ -206,5 +205,4 @@ fn track_honours_the_model() {
     let o = fascicle(&["track", "--peaks", pk.to_str().unwrap(), "--out", "/tmp/x.tck"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--stop-map"));
-    std::fs::remove_dir_all(dir).ok();
 }

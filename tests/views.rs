@@ -297,7 +297,8 @@ fn the_2d_views_show_streamlines_cropped_to_a_slab() {
     let mut t = fascicle_core::io::Tractogram::new();
     let points: Vec<Vec3> = (-160..=160).map(|k| (through + d * (f64::from(k) * 0.125)).as_vec3()).collect();
     t.push(&points);
-    let path = std::env::temp_dir().join(format!("fascicle-slab-{}.tck", std::process::id()));
+    let tmp_path = tempfile::tempdir().unwrap();
+    let path = tmp_path.path().join("fascicle-slab.tck");
     fascicle_core::io::tck::write(&path, &t, &[]).unwrap();
     let mut scene = ortho_scene(c.as_vec3().to_array());
     scene.layers.retain(|l| matches!(l.kind, LayerKind::Slice { .. }));

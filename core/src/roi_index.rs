@@ -135,12 +135,11 @@ mod tests {
     /// on a generated whole brain with streamlines leaving the grid's bounds.
     #[test]
     fn the_index_selects_as_the_segment_grid() {
-        let dir = std::env::temp_dir().join(format!("fascicle-roi-index-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-roi-index-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let path = dir.join("brain.tck");
         crate::phantom::write_whole_brain(&path, 3000, 7).unwrap();
         let t = crate::io::Tractogram::read(&path).unwrap();
-        std::fs::remove_dir_all(&dir).ok();
         let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
         // Bounds tighter than the points: border cells hold the rest.
         let (lo, hi) = (Vec3::splat(-40.0), Vec3::splat(40.0));

@@ -78,8 +78,8 @@ fn trk_scalars_and_properties() {
 
 #[test]
 fn trk_and_tck_round_trip() {
-    let dir = std::env::temp_dir().join(format!("fascicle-io-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-io-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let (t, _) = trk::read(data("tracts/complex.trk")).unwrap();
     // An oblique, LPS-like reference grid exercises the voxel-order and corner conventions on write.
     let affine = DMat4::from_cols(
@@ -101,13 +101,12 @@ fn trk_and_tck_round_trip() {
     assert_eq!(back.points, t.points);
     assert_eq!(back.offsets, t.offsets);
     assert!(header.iter().any(|(k, v)| k == "comment" && v == "line one\nline two"));
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
 fn gzipped_tractograms_round_trip_and_match_nibabel() {
-    let dir = std::env::temp_dir().join(format!("fascicle-io-gz-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-io-gz-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let (t, h) = trk::read(data("tracts/standard.trk")).unwrap();
     // Written gzipped (by name), read back by name and by content; the same streamlines as nibabel reads.
     trk::write(dir.join("a.trk.gz"), &t, h.vox_to_ras, h.dims.map(|d| d as usize)).unwrap();
@@ -125,7 +124,6 @@ fn gzipped_tractograms_round_trip_and_match_nibabel() {
     std::fs::write(dir.join("cut.tck.gz"), &bytes[..bytes.len() / 2]).unwrap();
     let e = Tractogram::read(dir.join("cut.tck.gz")).unwrap_err().to_string();
     assert!(e.contains("cut.tck.gz") && e.contains("gzip"), "{e}");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
@@ -143,8 +141,8 @@ fn malformed_tractograms_give_clear_errors() {
     }
     // truncation anywhere in a trk: an error naming the problem, never a panic
     let bytes = std::fs::read(data("tracts/complex.trk")).unwrap();
-    let dir = std::env::temp_dir().join(format!("fascicle-trunc-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-trunc-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     for cut in [0, 3, 500, 999, 1003, 1010, bytes.len() - 1] {
         let p = dir.join("cut.trk");
         std::fs::write(&p, &bytes[..cut]).unwrap();
@@ -153,7 +151,6 @@ fn malformed_tractograms_give_clear_errors() {
     }
     let e = Tractogram::read(data("dwi/small_25.bval")).unwrap_err();
     assert!(e.to_string().contains("extension"));
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// The malformed track value files (`data/malformed`): a `.tsf` cut short and a weights file with a word among
@@ -200,8 +197,8 @@ fn nifti2_equals_nifti1_and_writes_round_trip() {
     let (c, hc) = nifti::read::<f32>(data("dwi/small_64D.nii")).unwrap();
     assert_eq!(hc.affine_source, nifti::AffineSource::Sform);
     assert_eq!(fascicle_core::io::tractogram::axcodes(&c.world_from_voxel), "PLS");
-    let dir = std::env::temp_dir().join(format!("fascicle-nii-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-nii-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     for name in ["c.nii", "c.nii.gz"] {
         nifti::write(dir.join(name), &c, nifti::WriteType::F32).unwrap();
         let (back, hb) = nifti::read::<f32>(dir.join(name)).unwrap();
@@ -211,13 +208,12 @@ fn nifti2_equals_nifti1_and_writes_round_trip() {
         // the qform written alongside describes the same grid (up to the sform's shear)
         assert_eq!(hb.qform_code, 1);
     }
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
 fn malformed_nifti_and_gradients_give_clear_errors() {
-    let dir = std::env::temp_dir().join(format!("fascicle-bad-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-bad-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let good = std::fs::read(data("dwi/small_64D.nii")).unwrap();
     for (cut, needle) in
         [(0, "too short"), (100, "truncated NIfTI-1 header"), (348, "truncated NIfTI"), (5000, "truncated NIfTI")]
@@ -255,19 +251,17 @@ fn malformed_nifti_and_gradients_give_clear_errors() {
     let (v3, _) = nifti::read::<f32>(data("tracts/standard.nii.gz")).unwrap();
     let e = fascicle_core::dti::fit_volume(&v3, &g, fascicle_core::dti::FitMethod::Wls, None).unwrap_err().to_string();
     assert!(e.contains("must be 4D"), "{e}");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 #[test]
 fn bvec_orientation_either_way() {
-    let dir = std::env::temp_dir().join(format!("fascicle-bvec-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-bvec-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let g = GradientTable::from_fsl(data("dwi/small_25.bval"), data("dwi/small_25.bvec"), 50.0).unwrap();
     let rows: String = g.bvecs.iter().map(|v| format!("{} {} {}\n", v.x, v.y, v.z)).collect();
     std::fs::write(dir.join("t.bvec"), rows).unwrap();
     let t = GradientTable::from_fsl(data("dwi/small_25.bval"), dir.join("t.bvec"), 50.0).unwrap();
     assert_eq!(t.bvecs, g.bvecs);
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// tckgen pads the first line with spaces ("mrtrix tracks    "): such files read like any other.
@@ -283,7 +277,8 @@ fn tck_with_a_padded_first_line_reads() {
     {
         b.extend_from_slice(&v.to_le_bytes());
     }
-    let path = std::env::temp_dir().join(format!("fascicle-padded-{}.tck", std::process::id()));
+    let tmp_path = tempfile::tempdir().unwrap();
+    let path = tmp_path.path().join("fascicle-padded.tck");
     std::fs::write(&path, &b).unwrap();
     let (t, _) = fascicle_core::io::tck::read(&path).unwrap();
     let _ = std::fs::remove_file(&path);
@@ -296,8 +291,8 @@ fn tck_with_a_padded_first_line_reads() {
 #[test]
 fn nifti_writer_keeps_codes_and_intent_and_header_reads_stop_early() {
     use fascicle_core::io::nifti::{self, WriteMeta, WriteType};
-    let dir = std::env::temp_dir().join(format!("fascicle-nifti-meta-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-nifti-meta-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let vol = fascicle_core::Volume::<f32> {
         shape: vec![2, 3, 4, 6],
         data: (0..144).map(|v| v as f32).collect(),
@@ -325,7 +320,6 @@ fn nifti_writer_keeps_codes_and_intent_and_header_reads_stop_early() {
     let h = nifti::read_header(&cut).unwrap();
     assert_eq!(h.shape, vec![48, 48, 24, 65]);
     assert!(nifti::read::<f32>(&cut).is_err(), "the full read of a truncated file fails");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// TRX files written by trx-python: the float32 deflated one holds nibabel's points of `tracks300.trk`; the
@@ -365,8 +359,8 @@ fn trx_round_trips_in_every_precision() {
     let (mut t, h) = trx::read(data("tracts/tracks300_f16.trx")).unwrap();
     let exact = Tractogram::read(data("tracts/tracks300.trk")).unwrap();
     t.points = exact.points.clone();
-    let dir = std::env::temp_dir().join(format!("fascicle-trx-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-trx-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     for (kind, name) in [(PositionType::F32, "a32.trx"), (PositionType::F64, "a64.trx"), (PositionType::F16, "a16.trx")]
     {
         let path = dir.join(name);
@@ -390,7 +384,6 @@ fn trx_round_trips_in_every_precision() {
     let (plain, hp) = trx::read(dir.join("plain.trx")).unwrap();
     assert_eq!(plain.points, exact.points);
     assert!(hp.groups.is_empty() && hp.dims.iter().all(|d| *d > 1));
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// Half precision: every finite half survives a round trip through single precision; rounding is to nearest
@@ -489,8 +482,8 @@ fn mif_dw_scheme_gives_voxel_axis_gradients() {
     let rows = [[0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 1000.0], [0.0, 0.6, 0.8, 2000.0]];
     let extra: Vec<(String, String)> =
         rows.iter().map(|r| ("dw_scheme".to_string(), format!("{},{},{},{}", r[0], r[1], r[2], r[3]))).collect();
-    let dir = std::env::temp_dir().join(format!("fascicle-dwscheme-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-dwscheme-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     for name in ["dwi.mif", "dwi.mif.gz"] {
         let path = dir.join(name);
         mif::write(&path, &vol, &extra).unwrap();
@@ -505,5 +498,4 @@ fn mif_dw_scheme_gives_voxel_axis_gradients() {
         assert_eq!(g.bvecs[0], DVec3::ZERO);
     }
     assert!(GradientTable::of_image(&dir.join("none.nii"), DMat4::IDENTITY, Default::default(), 50.0).is_none());
-    std::fs::remove_dir_all(dir).ok();
 }

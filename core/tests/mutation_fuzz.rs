@@ -45,8 +45,8 @@ fn mutants(seed: &[u8], n: usize, rng: &mut impl RngExt) -> Vec<Vec<u8>> {
 #[test]
 fn readers_never_panic_on_mutated_files() {
     let mut rng = rand_pcg::Pcg64::seed_from_u64(2);
-    let dir = std::env::temp_dir().join(format!("fascicle-mut-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-mut-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let cases: [(&str, &str); 7] = [
         ("dwi/small_25.nii.gz", "m.nii.gz"),
         ("dwi/qform_be_scaled.nii", "m.nii"),
@@ -89,7 +89,6 @@ fn readers_never_panic_on_mutated_files() {
     }
     println!("mutants read: {}, rejected with an error: {}", outcomes.0, outcomes.1);
     assert!(outcomes.1 > 1000, "mutations should mostly be rejected");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// The track value readers (`.tsf`, weights text) on mutants of files written here: an error or values, never
@@ -98,8 +97,8 @@ fn readers_never_panic_on_mutated_files() {
 fn track_value_readers_never_panic_on_mutated_files() {
     use fascicle_core::io::{tsf, weights};
     let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
-    let dir = std::env::temp_dir().join(format!("fascicle-mut-values-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-mut-values-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let t = fascicle_core::phantom::whole_brain_streamlines(1, 0, 20);
     let (tsf_path, w_path) = (dir.join("v.tsf"), dir.join("w.txt"));
     tsf::write(&tsf_path, &tsf::TrackScalars::for_tractogram(&t, |i, k| (i * 1000 + k) as f32)).unwrap();
@@ -126,7 +125,6 @@ fn track_value_readers_never_panic_on_mutated_files() {
     }
     println!("value mutants matching the tractogram: {}, rejected: {}", outcomes.0, outcomes.1);
     assert!(outcomes.0 > 100 && outcomes.1 > 1000, "{outcomes:?}");
-    std::fs::remove_dir_all(dir).ok();
 }
 
 /// Every streamline of a file through the streaming reader, in small chunks.

@@ -234,8 +234,8 @@ fn peak_files_round_trip_in_both_layouts_through_an_oblique_frame() {
     // An oblique, flipped affine: directions are stored in world coordinates by the MRtrix layout.
     let rot = glam::DMat4::from_quat(glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.3, -0.5, 1.1));
     let affine = rot * glam::DMat4::from_scale(DVec3::new(-2.0, 2.0, 2.5));
-    let dir = std::env::temp_dir().join(format!("fascicle-peaks-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-peaks-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let mrtrix = dir.join("peaks.nii.gz");
     peaks::write_mrtrix(&mrtrix, &ours, affine).unwrap();
     let written = peaks::write_dipy(dir.join("pam"), &ours, affine).unwrap();
@@ -272,7 +272,6 @@ fn peak_files_round_trip_in_both_layouts_through_an_oblique_frame() {
     // A file of another shape is refused with the shapes named.
     let e = peaks::read(dir.join("pam_values.nii.gz")).unwrap_err().to_string();
     assert!(e.contains("(X,Y,Z,3N)"), "{e}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// FSL dtifit's eigenvector image (`PREFIX_V1`, 3 volumes, with `PREFIX_FA` beside) opens as a one-peak image:
@@ -297,8 +296,8 @@ fn fsl_dtifit_v1_opens_as_one_peak_per_voxel() {
             }
         }
     }
-    let dir = std::env::temp_dir().join(format!("fascicle-dtifit-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp_dir = tempfile::Builder::new().prefix("fascicle-dtifit-").tempdir().unwrap();
+    let dir = tmp_dir.path().to_path_buf();
     let (v1_path, fa_path) = (dir.join("dti_V1.nii.gz"), dir.join("dti_FA.nii.gz"));
     nifti::write(&v1_path, &v1, nifti::WriteType::F32).unwrap();
     nifti::write(&fa_path, &fa, nifti::WriteType::F32).unwrap();
@@ -318,5 +317,4 @@ fn fsl_dtifit_v1_opens_as_one_peak_per_voxel() {
     std::fs::remove_file(&fa_path).unwrap();
     let bare = peaks::read(&v1_path).unwrap();
     assert!((0..n).filter(|&v| e1[v] != DVec3::ZERO).all(|v| bare.amplitudes[v] == 1.0));
-    std::fs::remove_dir_all(dir).ok();
 }

@@ -390,8 +390,8 @@ mod tests {
     /// Each element order of a 6-volume tensor image is told by content alone, and reordering gives DIPY's.
     #[test]
     fn tensor_orders_are_told_by_content() {
-        let dir = std::env::temp_dir().join(format!("fascicle-classify-t-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-classify-t-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let dipy = tensors(TensorOrder::Dipy);
         for order in TensorOrder::ALL {
             let v = tensors(order);
@@ -403,7 +403,6 @@ mod tests {
             order.to_dipy(&mut back);
             assert_eq!(back.data, dipy.data);
         }
-        std::fs::remove_dir_all(dir).ok();
     }
 
     /// SH counts: 15 volumes with c00 > 0 open as SH (l_max 4), the same count with mixed signs as peaks,
@@ -411,8 +410,8 @@ mod tests {
     /// scalar and a 7-volume image a series.
     #[test]
     fn sh_peaks_dwi_and_others_by_metadata_and_content() {
-        let dir = std::env::temp_dir().join(format!("fascicle-classify-s-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-classify-s-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let mut sh15 = Volume::<f32>::zeros(&[3, 3, 2, 15], glam::DMat4::IDENTITY);
         let n = 18;
         for v in 0..n {
@@ -462,7 +461,6 @@ mod tests {
         );
         let series = Volume::<f32>::zeros(&[3, 3, 2, 7], glam::DMat4::IDENTITY);
         assert_eq!(classify(&write(&dir, "s.nii.gz", &series, &WriteMeta::default())).unwrap().kind, ImageKind::Series);
-        std::fs::remove_dir_all(dir).ok();
     }
 
     /// Six volumes that are neither tensors nor clearly SH are ambiguous, with both offered.
@@ -475,11 +473,10 @@ mod tests {
                 v.data[vox + n * k] = if (vox + k) % 2 == 0 { 1.0 } else { -1.0 };
             }
         }
-        let dir = std::env::temp_dir().join(format!("fascicle-classify-a-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-classify-a-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let c = classify(&write(&dir, "x.nii", &v, &WriteMeta::default())).unwrap();
         assert_eq!(c.ambiguous.len(), 2, "{c:?}");
-        std::fs::remove_dir_all(dir).ok();
     }
 }
 
@@ -492,8 +489,8 @@ mod rgb_tests {
     /// as RGB.
     #[test]
     fn rgb24_images_read_as_three_volumes() {
-        let dir = std::env::temp_dir().join(format!("fascicle-rgb24-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-rgb24-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let path = dir.join("color_fa.nii");
         // A u8 image of 6x2x1 holds the 12 bytes of 2x2x1 RGB voxels; its header is then patched to RGB24.
         let bytes: Vec<u8> = vec![255, 0, 0, 0, 255, 0, 0, 0, 255, 10, 20, 30];
@@ -510,6 +507,5 @@ mod rgb_tests {
         // Channel-major: red of the four voxels, then green, then blue.
         assert_eq!(img.data, vec![255.0, 0.0, 0.0, 10.0, 0.0, 255.0, 0.0, 20.0, 0.0, 0.0, 255.0, 30.0]);
         assert_eq!(classify(&path).unwrap().kind, ImageKind::Rgb);
-        std::fs::remove_dir_all(dir).ok();
     }
 }

@@ -317,8 +317,8 @@ mod convention_tests {
     #[test]
     fn one_fsl_file_gives_the_same_world_directions_for_either_storage() {
         let (neg, pos) = affines();
-        let dir = std::env::temp_dir().join(format!("fascicle_bvec_{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle_bvec-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let (bval, bvec) = (dir.join("g.bval"), dir.join("g.bvec"));
         table().write_fsl(&bval, &bvec, neg, BvecConvention::Fsl).unwrap();
         let read = |a, c| GradientTable::from_fsl_for_image(&bval, &bvec, a, c, 50.0).unwrap().world_bvecs(a);
@@ -337,6 +337,5 @@ mod convention_tests {
         let back = GradientTable::from_fsl_for_image(&bval, &bvec, pos, BvecConvention::Fsl, 50.0).unwrap();
         assert_eq!(back.bvecs, table().bvecs);
         assert_eq!(back.bvals, table().bvals);
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

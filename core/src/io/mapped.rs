@@ -107,8 +107,8 @@ mod tests {
         t.push(&[]);
         t.push(&[Vec3::new(-7.0, 8.5, 0.25)]);
         t.push(&[Vec3::ZERO, Vec3::X, Vec3::Y]);
-        let dir = std::env::temp_dir().join(format!("fascicle-mapped-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-mapped-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let path = dir.join("t.tck");
         crate::io::tck::write(&path, &t, &[]).unwrap();
         let m = MappedTck::open(&path).unwrap();
@@ -124,6 +124,5 @@ mod tests {
         let c = MappedTck::open(&cut).unwrap();
         assert_eq!(c.n_streamlines(), 4);
         assert_eq!(c.streamline(3), t.streamline(3));
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

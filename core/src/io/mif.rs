@@ -340,8 +340,8 @@ mod tests {
     /// and gzipped, with its extra header lines kept.
     #[test]
     fn images_round_trip() {
-        let dir = std::env::temp_dir().join(format!("fascicle-mif-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-mif-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let mut v = Volume::<f32>::zeros(&[4, 3, 2, 5], oblique());
         v.data.iter_mut().enumerate().for_each(|(i, x)| *x = i as f32 * 0.25 - 7.0);
         let extra = vec![("dw_scheme".to_string(), "0,0,1,1000".to_string())];
@@ -357,7 +357,6 @@ mod tests {
             assert!(worst < 1e-12, "{worst}");
             assert_eq!(h.dw_scheme, vec![[0.0, 0.0, 1.0, 1000.0]]);
         }
-        std::fs::remove_dir_all(dir).ok();
     }
 
     /// Layouts other than x-fastest (MRtrix's own `-0,-1,+2,+3`, volumes fastest `+1,+2,+3,+0`), big-endian

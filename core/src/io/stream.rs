@@ -1301,8 +1301,8 @@ mod tests {
     #[test]
     fn chunks_round_trip_in_every_format() {
         let t = sample();
-        let dir = std::env::temp_dir().join(format!("fascicle-stream-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-stream-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         for name in ["a.tck", "a.tck.gz", "a.trk", "a.trk.gz", "a.trx"] {
             let path = dir.join(name);
             let mut options = WriteOptions::default();
@@ -1349,6 +1349,5 @@ mod tests {
             assert_eq!((summary.streamlines, summary.points), (1000, t.points.len()), "{name}");
             assert!(!dir.join(format!("{name}.part")).exists());
         }
-        std::fs::remove_dir_all(dir).ok();
     }
 }

@@ -239,7 +239,8 @@ mod tests {
         }
         let (t, _) = read_bytes(&b, Path::new("empty.tck")).unwrap();
         assert_eq!(t.offsets, vec![0, 1, 1, 3, 3]);
-        let path = std::env::temp_dir().join(format!("fascicle-empty-{}.tck", std::process::id()));
+        let tmp_path = tempfile::tempdir().unwrap();
+        let path = tmp_path.path().join("fascicle-empty.tck");
         write(&path, &t, &[]).unwrap();
         assert_eq!(read(&path).unwrap().0, t);
         std::fs::remove_file(path).ok();

@@ -128,8 +128,8 @@ mod tests {
 
     #[test]
     fn round_trip_and_validation() {
-        let dir = std::env::temp_dir().join(format!("fascicle_tsf_{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle_tsf-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let p = dir.join("v.tsf");
         let t = tractogram();
         let mut s = TrackScalars::for_tractogram(&t, |i, k| (10 * i + k) as f32 + 0.5);
@@ -149,13 +149,12 @@ mod tests {
         *short.offsets.last_mut().unwrap() -= 1;
         let e = back.check_against(&short, &p).unwrap_err().to_string();
         assert!(e.contains("streamline 2 has 4 values but 3 points"), "{e}");
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
     fn malformed_files_are_errors_naming_them() {
-        let dir = std::env::temp_dir().join(format!("fascicle_tsf_bad_{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle_tsf_bad-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let p = dir.join("bad.tsf");
         let good = {
             let mut s = TrackScalars::for_tractogram(&tractogram(), |_, _| 1.0);
@@ -174,6 +173,5 @@ mod tests {
             let e = read(&p).unwrap_err().to_string();
             assert!(e.contains("bad.tsf") && e.contains(want), "{want}: {e}");
         }
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

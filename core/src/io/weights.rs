@@ -237,8 +237,8 @@ mod tests {
 
     #[test]
     fn writes_one_line_that_reads_back() {
-        let dir = std::env::temp_dir().join(format!("fascicle_weights_{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle_weights-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let p = dir.join("w.txt");
         let ws = [0.8474f32, 1e-7, 3.0, 123_456.8];
         let mut w = WeightWriter::create(&p).unwrap();
@@ -253,6 +253,5 @@ mod tests {
         let text = std::fs::read_to_string(&p).unwrap();
         assert_eq!(text.lines().count(), 1);
         assert_eq!(read(&p).unwrap(), ws);
-        std::fs::remove_dir_all(&dir).ok();
     }
 }

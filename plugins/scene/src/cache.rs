@@ -172,8 +172,8 @@ mod tests {
     /// loads again; another key loads; errors are not kept; past the budget the least recently used goes.
     #[test]
     fn values_are_kept_per_key_and_file_state() {
-        let dir = std::env::temp_dir().join(format!("fascicle-cache-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-cache-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let file = dir.join("a.txt");
         std::fs::write(&file, "one").unwrap();
         let cache = DataCache::with_budget(100);
@@ -200,6 +200,5 @@ mod tests {
         assert_eq!(cache.stats().evictions, 2, "'a' and then 'x' were evicted");
         big("y").unwrap();
         assert_eq!(cache.stats().hits, 2);
-        std::fs::remove_dir_all(dir).ok();
     }
 }

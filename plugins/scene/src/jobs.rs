@@ -1520,7 +1520,8 @@ mod tests {
         let (cache, p) = (DataCache::default(), JobProgress::default());
         let tracked = tract_data(&cache, &TractSource::PhantomRk4 { seed_spacing: 6 }, &p).unwrap();
         let (t, tracked) = (tracked.tractogram, tracked.tensors.unwrap());
-        let path = std::env::temp_dir().join(format!("fascicle-file-tensors-{}.tck", std::process::id()));
+        let tmp_path = tempfile::tempdir().unwrap();
+        let path = tmp_path.path().join("fascicle-file-tensors.tck");
         fascicle_core::io::tck::write(&path, &t, &[]).unwrap();
         let file = |tensors| TractSource::File { path: path.clone(), tensors };
         let back = tract_data(&cache, &file(Some(TensorSource::Phantom)), &p).unwrap();
@@ -1738,7 +1739,8 @@ mod tests {
         for k in 0..(PART_POINTS / 100 + 10) {
             big.push(&(0..100).map(|i| Vec3::new(k as f32 * 0.01, i as f32 * 0.5, 0.0)).collect::<Vec<_>>());
         }
-        let path = std::env::temp_dir().join(format!("fascicle-parts-{}.tck", std::process::id()));
+        let tmp_path = tempfile::tempdir().unwrap();
+        let path = tmp_path.path().join("fascicle-parts.tck");
         fascicle_core::io::tck::write(&path, &big, &[]).unwrap();
         let kind = LayerKind::Tracts {
             source: TractSource::File { path: path.clone(), tensors: None },
@@ -1796,7 +1798,8 @@ mod tests {
                 .collect();
             big.push(&s);
         }
-        let path = std::env::temp_dir().join(format!("fascicle-stream-lines-{}.tck", std::process::id()));
+        let tmp_path = tempfile::tempdir().unwrap();
+        let path = tmp_path.path().join("fascicle-stream-lines.tck");
         fascicle_core::io::tck::write(&path, &big, &[]).unwrap();
         let progress = JobProgress::default();
         let content = build(&LayerKind::Tractogram { path: path.clone() }, &DataCache::default(), &progress);
@@ -1822,7 +1825,8 @@ mod tests {
         let path = data("tracts/tracks300.trk");
         let t = Tractogram::read(&path).unwrap();
         // A ramp along x: value = (x mm) / 100, on a 2 mm grid covering the streamlines.
-        let ramp = std::env::temp_dir().join(format!("fascicle-ramp-{}.nii.gz", std::process::id()));
+        let tmp_ramp = tempfile::tempdir().unwrap();
+        let ramp = tmp_ramp.path().join("fascicle-ramp.nii.gz");
         let affine = glam::DMat4::from_scale_rotation_translation(
             glam::DVec3::splat(2.0),
             glam::DQuat::IDENTITY,
@@ -1889,7 +1893,8 @@ mod tests {
         }
         // A value per streamline from a weights file (tcksift2's text): streamline s weighs s / 300; with a
         // minimum of 0.5 only the upper half is drawn, each in viridis of its weight.
-        let weights = std::env::temp_dir().join(format!("fascicle-weights-{}.txt", std::process::id()));
+        let tmp_weights = tempfile::tempdir().unwrap();
+        let weights = tmp_weights.path().join("fascicle-weights.txt");
         let w: Vec<f32> = (0..t.n_streamlines()).map(|s| s as f32 / 300.0).collect();
         fascicle_core::io::weights::write(&weights, &w).unwrap();
         let value = |min| TractColouring::Value {
@@ -1932,7 +1937,8 @@ mod tests {
         std::fs::remove_file(&weights).ok();
         // A value per point from a track scalar file (`.tsf`, as tcksample writes it): point k of each
         // streamline has the value k, so each vertex has the colour of its own point's index.
-        let tsf = std::env::temp_dir().join(format!("fascicle-points-{}.tsf", std::process::id()));
+        let tmp_tsf = tempfile::tempdir().unwrap();
+        let tsf = tmp_tsf.path().join("fascicle-points.tsf");
         let by_index = fascicle_core::io::tsf::TrackScalars::for_tractogram(&t, |_, k| k as f32);
         fascicle_core::io::tsf::write(&tsf, &by_index).unwrap();
         let per_point = |file: Option<std::path::PathBuf>, name: &str| TractColouring::PointValue {
@@ -1989,7 +1995,8 @@ mod tests {
         for (i, v) in vol.data.iter_mut().enumerate() {
             *v = f32::from(u8::from((28..34).contains(&(i % 60))));
         }
-        let mask = std::env::temp_dir().join(format!("fascicle-mask-{}.nii.gz", std::process::id()));
+        let tmp_mask = tempfile::tempdir().unwrap();
+        let mask = tmp_mask.path().join("fascicle-mask.nii.gz");
         fascicle_core::io::nifti::write(&mask, &vol, fascicle_core::io::nifti::WriteType::F32).unwrap();
         let region = Region::Mask(Arc::new(MaskRegion::new(&vol)));
         let through: Vec<bool> = (0..t.n_streamlines())
@@ -2032,7 +2039,8 @@ mod tests {
         assert_eq!(first_points(&ends_kept, &|_| true), first_points(&t, &|s| ends[s]));
         assert!(ends_kept.n_streamlines() < n_through, "{} with an end in the slab", ends_kept.n_streamlines());
         // With weights s / n and a threshold of 0.5: the streamlines through the slab in the upper half.
-        let weights = std::env::temp_dir().join(format!("fascicle-mask-weights-{}.txt", std::process::id()));
+        let tmp_weights = tempfile::tempdir().unwrap();
+        let weights = tmp_weights.path().join("fascicle-mask-weights.txt");
         let n = t.n_streamlines();
         fascicle_core::io::weights::write(&weights, &(0..n).map(|s| s as f32 / n as f32).collect::<Vec<_>>()).unwrap();
         let value = TractColouring::Value {
@@ -2079,8 +2087,8 @@ mod tests {
         let path = data("dti/small_64D_tensor.nii.gz");
         let dipy =
             tensor_field(&cache, &TensorSource::Nifti { path: path.clone(), order: TensorOrder::Dipy }, &p).unwrap();
-        let dir = std::env::temp_dir().join(format!("fascicle-orders-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-orders-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         for order in [TensorOrder::Fsl, TensorOrder::Mrtrix] {
             let mut v = (*dipy.tensors).clone();
             let n = v.n_voxels();
@@ -2093,7 +2101,6 @@ mod tests {
             assert_eq!(source, TensorSource::Nifti { path: out.clone(), order });
             assert_eq!(tensor_field(&cache, &source, &p).unwrap().tensors.data, dipy.tensors.data);
         }
-        std::fs::remove_dir_all(dir).ok();
     }
 
     /// The slices placed ahead are the ones next to the layer's, inside the grid; free planes and full
@@ -2178,8 +2185,8 @@ mod tests {
         let affine = glam::DMat4::from_cols_array(&[
             -2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0, 10.0, 0.0, 0.0, 1.0,
         ]);
-        let dir = std::env::temp_dir().join(format!("fascicle-peak-layer-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-peak-layer-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
         let path = dir.join("csa_peaks.nii.gz");
         fascicle_core::io::peaks::write_mrtrix(&path, &peaks, affine).unwrap();
         let spec = crate::model::Scene::layer_for_file(&path).unwrap();
@@ -2202,6 +2209,5 @@ mod tests {
             "{a:?}"
         );
         assert!(((b[1] - b[0]).abs() - glam::Vec3::new(0.0, 0.9, 0.0)).length() < 1e-5, "{b:?}");
-        std::fs::remove_dir_all(dir).ok();
     }
 }

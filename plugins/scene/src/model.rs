@@ -876,7 +876,8 @@ mod tests {
             big.push(&line);
         }
         big.push(&[glam::Vec3::splat(1000.0), glam::Vec3::splat(1001.0)]);
-        let path = std::env::temp_dir().join(format!("fascicle-framing-{}.tck", std::process::id()));
+        let tmp_path = tempfile::tempdir().unwrap();
+        let path = tmp_path.path().join("fascicle-framing.tck");
         fascicle_core::io::tck::write(&path, &big, &[]).unwrap();
         let bounds = file_bounds(&path);
         std::fs::remove_file(&path).ok();
@@ -890,7 +891,8 @@ mod tests {
     fn mif_images_have_the_bounds_of_their_nifti() {
         let nii = crate::repo_path("data/dti/small_64D_fa.nii.gz");
         let (v, _) = fascicle_core::io::nifti::read::<f32>(&nii).unwrap();
-        let mif = std::env::temp_dir().join(format!("fascicle-bounds-{}.mif", std::process::id()));
+        let tmp_mif = tempfile::tempdir().unwrap();
+        let mif = tmp_mif.path().join("fascicle-bounds.mif");
         fascicle_core::io::mif::write(&mif, &v, &[]).unwrap();
         let (a, b) = (file_bounds(&nii).unwrap(), file_bounds(&mif).unwrap());
         assert!((a.0 - b.0).abs().max_element() < 1e-5 && (a.1 - b.1).abs().max_element() < 1e-5, "{a:?} {b:?}");
