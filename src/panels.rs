@@ -447,7 +447,10 @@ fn mask_rois(ui: &mut egui::Ui, masks: &mut Vec<fascicle_scene::model::MaskRoi>)
     let mut remove = None;
     for (i, m) in masks.iter_mut().enumerate() {
         ui.horizontal(|ui| {
-            ui.label(format!("mask {}", m.path.display()));
+            match &m.painted {
+                Some(p) => ui.label(format!("painted {} voxels, saved as {}", p.voxels.len(), m.path.display())),
+                None => ui.label(format!("mask {}", m.path.display())),
+            };
             ui.radio_value(&mut m.mode, RoiMode::Include, "include");
             ui.radio_value(&mut m.mode, RoiMode::Exclude, "exclude");
             if ui.small_button("x").clicked() {
@@ -463,7 +466,11 @@ fn mask_rois(ui: &mut egui::Ui, masks: &mut Vec<fascicle_scene::model::MaskRoi>)
     ui.horizontal(|ui| {
         ui.add(egui::TextEdit::singleline(&mut path).hint_text("mask .nii.gz / .mif").desired_width(180.0));
         if ui.button("+ mask").clicked() && !path.trim().is_empty() {
-            masks.push(fascicle_scene::model::MaskRoi { path: path.trim().into(), mode: RoiMode::Include });
+            masks.push(fascicle_scene::model::MaskRoi {
+                path: path.trim().into(),
+                mode: RoiMode::Include,
+                painted: None,
+            });
             path.clear();
         }
     });

@@ -5,7 +5,8 @@
 //!
 //! Mouse: left-drag orbits, right-drag pans, wheel zooms, a left click on an SH glyph highlights it and
 //! reports its voxel, Shift + left-drag on a tract ROI, a seed sphere or a glyph plane's handle moves it (the
-//! plane's normal handle tilts it). Keys: R resets the view, F12 saves a screenshot
+//! plane's normal handle tilts it), Ctrl + click picks a streamline and Ctrl + drag draws a lasso around
+//! streamlines (in the 3D view and the 2D views; `pick_streamlines`). Keys: R resets the view, F12 saves a screenshot
 //! (`fascicle-YYYYMMDD-HHMMSS.png`, never overwriting).
 //! Files dropped on the window are added as layers; a file that fails to load shows an error and the
 //! viewer keeps running.
@@ -32,7 +33,7 @@ use fascicle_core::roi::{SegmentGrid, select};
 use fascicle_render::layer::LayerStatus;
 use fascicle_scene::handles::{HandleSystems, HandlesPlugin, RoiDrag};
 use fascicle_scene::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin, view_camera};
-use fascicle_scene::model::{CameraSpec, LayerKind, LayerSpec, Scene};
+use fascicle_scene::model::{CameraSpec, LayerKind, LayerSpec, MaskRoi, PaintedMask, Scene};
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
 use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
 use fascicle_views::{Crosshair, MainView, OrthoView, SliceSource, ViewRegion, VoxelGrid, pick_in_view};
@@ -92,8 +93,14 @@ struct UiState {
     history_step: Option<bool>,
     /// A recent file the panel asked to open.
     open_recent: Option<PathBuf>,
-    /// Streamlines picked by Ctrl + click in the 3D view, for the panel's "delete" / "keep only".
+    /// Streamlines picked by Ctrl + click or lasso (Ctrl + drag), for the panel's "delete" / "keep only".
     picked: Option<Picked>,
+    /// The lasso being drawn (window positions, logical pixels).
+    lasso: Vec<Vec2>,
+    /// The brush of a tract layer's painted ROI, while the panel's "paint ROI" is on.
+    brush: Option<Brush>,
+    /// The brush stroke being drawn.
+    stroke: Option<Stroke>,
 }
 
 /// Streamlines picked in one tract layer (of one tract set): indices into its streamlines.
@@ -118,57 +125,171 @@ fn deleted_after(deleted: &[u32], picked: &Picked, keep_only: bool) -> Vec<u32> 
     out.into_iter().collect()
 }
 
-/// Ctrl + click (press and release without dragging) in the 3D view picks the streamline under the cursor
-/// (within 4 pixels, the nearest along the ray; hidden ones skipped) of a visible tract layer shown as one set,
-/// or unpicks it; the picked are outlined in white.
+/// Where a Ctrl + left press began: the 3D view (`None`) or 2D view `Some(a)`; with the pointer's travel since.
+#[derive(Default)]
+struct PickGesture {
+    view: Option<Option<usize>>,
+    dragged: f32,
+}
+
+/// The window position (logical pixels) of world points through a view's camera: `None` behind the camera.
+fn screen_projection(cam: &Camera, tf: &GlobalTransform) -> Option<impl Fn(Vec3) -> Option<Vec2> + Sync + Copy> {
+    let rect = cam.logical_viewport_rect()?;
+    let clip_from_world = cam.clip_from_view() * tf.to_matrix().inverse();
+    Some(move |p: Vec3| {
+        let c = clip_from_world * p.extend(1.0);
+        (c.w > 1e-6).then(|| {
+            let ndc = c.truncate() / c.w;
+            rect.min + Vec2::new(ndc.x + 1.0, 1.0 - ndc.y) * 0.5 * rect.size()
+        })
+    })
+}
+
+/// Picks streamlines of a visible tract layer shown as one set, in the 3D view or a 2D view; the picked are
+/// outlined in white, and the layer's panel deletes them or keeps only them.
+/// - Ctrl + click (press and release without dragging) picks the streamline under the cursor, or unpicks it: in
+///   the 3D view within 4 pixels, the nearest along the ray (`fascicle_core::roi::pick_streamline`); in a 2D
+///   view the step of the view's slab nearest the cursor on screen, within 4 pixels
+///   (`fascicle_core::roi::pick_projected`).
+/// - Ctrl + drag draws a lasso: on release the streamlines with a point inside it are picked (in a 2D view,
+///   a point of the view's slab; `fascicle_core::roi::lasso_streamlines`), added to those already picked in
+///   the same layer; of several layers, the one with the most.
+///
+/// Hidden streamlines (outside the ROIs, deleted) are never picked.
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
-fn pick_streamline(
+fn pick_streamlines(
     buttons: Res<ButtonInput<MouseButton>>,
     keys: Res<ButtonInput<KeyCode>>,
     motion: Res<AccumulatedMouseMotion>,
-    mut dragged: Local<f32>,
+    mut gesture: Local<PickGesture>,
+    pointer: Res<ViewPointer>,
     window: Single<&Window, With<PrimaryWindow>>,
-    camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
-    sets: Query<(&TractSet, &TractSelection, &LayerEntity, &InheritedVisibility)>,
+    main: Single<(&Camera, &GlobalTransform), With<MainView>>,
+    views: Query<(&Camera, &GlobalTransform, &OrthoView)>,
+    sets: Query<(Entity, &TractSet, &TractSelection, &LayerEntity, &InheritedVisibility)>,
+    slabs: Query<&fascicle_tracts::TractSlab>,
     scene: Res<ActiveScene>,
     mut ui: ResMut<UiState>,
 ) {
+    let cursor = window.cursor_position();
+    let ctrl = keys.any_pressed([KeyCode::ControlLeft, KeyCode::ControlRight]);
     if buttons.just_pressed(MouseButton::Left) {
-        *dragged = 0.0;
+        *gesture = PickGesture { view: ctrl.then_some(pointer.hovered), dragged: 0.0 };
+        ui.lasso = cursor.filter(|_| ctrl).into_iter().collect();
+    }
+    if gesture.view.is_none() {
+        return;
     }
     if buttons.pressed(MouseButton::Left) {
-        *dragged += motion.delta.length();
+        // The travel from the press: the pointer's motion, or its window positions (which a pointer moved by
+        // absolute positions, as a tablet or a remote display, gives alone).
+        let from_start = match (ui.lasso.first(), cursor) {
+            (Some(s), Some(c)) => s.distance(c),
+            _ => 0.0,
+        };
+        gesture.dragged = (gesture.dragged + motion.delta.length()).max(from_start);
+        if let Some(c) = cursor
+            && ui.lasso.last().is_none_or(|l| l.distance(c) >= 2.0)
+        {
+            ui.lasso.push(c);
+        }
     }
-    let ctrl = keys.any_pressed([KeyCode::ControlLeft, KeyCode::ControlRight]);
-    if !ctrl || !buttons.just_released(MouseButton::Left) || *dragged > 3.0 {
+    if !buttons.just_released(MouseButton::Left) {
         return;
     }
-    let Some(at) = window.cursor_position() else { return };
-    let (cam, tf) = *camera;
-    let (Some(ray), Some(beside)) =
-        (fascicle_views::cursor_ray(cam, tf, at), fascicle_views::cursor_ray(cam, tf, at + Vec2::new(4.0, 0.0)))
-    else {
-        return;
+    let Some(view) = gesture.view.take() else { return };
+    let lasso = std::mem::take(&mut ui.lasso);
+    let Some(at) = cursor else { return };
+    let ((cam, tf), slab_axis) = match view {
+        None => (*main, None),
+        Some(a) => match views.iter().find(|(.., v)| v.0 == a) {
+            Some((cam, tf, _)) => ((cam, tf), Some(a)),
+            None => return,
+        },
     };
-    let (o, d) = (ray.origin, ray.direction.as_vec3());
-    // 4 pixels as an angle: the cone around the ray a step must come within.
-    let tolerance = (beside.direction.as_vec3() - d).length().max(1e-6);
+    let Some(project) = screen_projection(cam, tf) else { return };
     let mut counts = std::collections::HashMap::new();
-    for (_, _, le, _) in &sets {
+    for (.., le, _) in &sets {
         *counts.entry(le.0).or_insert(0) += 1;
     }
-    let best = sets
-        .iter()
-        .filter(|(_, _, le, v)| v.get() && counts.get(&le.0) == Some(&1))
-        .filter_map(|(set, sel, le, _)| {
-            let t = &set.tractogram;
-            let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
-            fascicle_core::roi::pick_streamline(&t.points, &t.offsets, shown, o, d, tolerance)
-                .map(|(s, dist)| (le.0, t.n_streamlines(), s as u32, dist))
-        })
-        .min_by(|a, b| a.3.total_cmp(&b.3));
+    let eligible = sets.iter().filter(|(.., le, v)| v.get() && counts.get(&le.0) == Some(&1));
+    // In a 2D view only the points of its slab around the set (as drawn) are picked.
+    let slab_of = |set: Entity| {
+        let a = slab_axis?;
+        slabs.iter().find(|s| s.set == set && s.normal == Vec3::AXES[a]).copied()
+    };
+    let in_view = |slab: Option<fascicle_tracts::TractSlab>| {
+        move |p: Vec3| {
+            let inside = slab.is_none_or(|s| (p.dot(s.normal) - s.offset).abs() <= s.half_thickness);
+            if inside { project(p) } else { None }
+        }
+    };
+    if slab_axis.is_some() && slabs.is_empty() {
+        ui.message = Some("the 2D views show no streamlines to pick".into());
+        return;
+    }
+    let name = |layer: usize| scene.0.layers.get(layer).map_or("?", |l| l.name.as_str()).to_string();
+    if gesture.dragged > 3.0 && lasso.len() >= 3 {
+        let best = eligible
+            .map(|(e, set, sel, le, _)| {
+                let t = &set.tractogram;
+                let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
+                let inside =
+                    fascicle_core::roi::lasso_streamlines(&t.points, &t.offsets, shown, in_view(slab_of(e)), &lasso);
+                (le.0, t.n_streamlines(), inside)
+            })
+            .max_by_key(|(.., inside)| inside.len());
+        let Some((layer, n_streamlines, inside)) = best.filter(|b| !b.2.is_empty()) else {
+            ui.message = Some("no streamline inside the lasso".into());
+            return;
+        };
+        let picked = ui.picked.get_or_insert_with(Picked::default);
+        if picked.layer != layer || picked.n_streamlines != n_streamlines {
+            *picked = Picked { layer, n_streamlines, streamlines: Default::default() };
+        }
+        picked.streamlines.extend(inside.iter().map(|&s| s as u32));
+        let n = picked.streamlines.len();
+        ui.message = Some(format!(
+            "{} streamlines of '{}' in the lasso: {n} picked; the layer's panel deletes them or keeps only them",
+            inside.len(),
+            name(layer)
+        ));
+        return;
+    }
+    if gesture.dragged > 3.0 {
+        return;
+    }
+    let best = match slab_axis {
+        None => {
+            let (Some(ray), Some(beside)) = (
+                fascicle_views::cursor_ray(cam, tf, at),
+                fascicle_views::cursor_ray(cam, tf, at + Vec2::new(4.0, 0.0)),
+            ) else {
+                return;
+            };
+            let (o, d) = (ray.origin, ray.direction.as_vec3());
+            // 4 pixels as an angle: the cone around the ray a step must come within.
+            let tolerance = (beside.direction.as_vec3() - d).length().max(1e-6);
+            eligible
+                .filter_map(|(_, set, sel, le, _)| {
+                    let t = &set.tractogram;
+                    let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
+                    fascicle_core::roi::pick_streamline(&t.points, &t.offsets, shown, o, d, tolerance)
+                        .map(|(s, dist)| (le.0, t.n_streamlines(), s as u32, dist))
+                })
+                .min_by(|a, b| a.3.total_cmp(&b.3))
+        }
+        Some(_) => eligible
+            .filter_map(|(e, set, sel, le, _)| {
+                let t = &set.tractogram;
+                let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
+                fascicle_core::roi::pick_projected(&t.points, &t.offsets, shown, in_view(slab_of(e)), at, 4.0)
+                    .map(|(s, dist)| (le.0, t.n_streamlines(), s as u32, dist))
+            })
+            .min_by(|a, b| a.3.total_cmp(&b.3)),
+    };
     let Some((layer, n_streamlines, s, _)) = best else {
-        ui.message = Some("no streamline under the cursor (Ctrl + click picks one)".into());
+        ui.message = Some("no streamline under the cursor (Ctrl + click picks one, Ctrl + drag a lasso)".into());
         return;
     };
     let picked = ui.picked.get_or_insert_with(Picked::default);
@@ -178,13 +299,236 @@ fn pick_streamline(
     if !picked.streamlines.remove(&s) {
         picked.streamlines.insert(s);
     }
-    let name = scene.0.layers.get(layer).map_or("?", |l| l.name.as_str());
     let n = picked.streamlines.len();
     ui.message = Some(format!(
-        "streamline {s} of '{name}' {}: {n} picked; the layer's panel deletes them or keeps only them",
+        "streamline {s} of '{}' {}: {n} picked; the layer's panel deletes them or keeps only them",
+        name(layer),
         if picked.streamlines.contains(&s) { "picked" } else { "unpicked" }
     ));
 }
+
+/// The brush of a tract layer's painted ROI (the layer panel's "paint ROI"): a left drag in a 2D view paints
+/// the voxels of the top image's slice at the crosshair within `radius_mm` of the pointer (Shift + drag
+/// erases); on release the stroke joins the layer's painted mask as one edit (undo takes it back; the layer
+/// re-selects its streamlines once), and the mask is saved as NIfTI ([`save_painted_masks`]).
+#[derive(Clone, Debug, PartialEq)]
+struct Brush {
+    /// The tract layer's index in the scene.
+    layer: usize,
+    /// The brush's radius in the view's plane, mm; default 3.
+    radius_mm: f32,
+}
+
+/// A brush stroke being drawn: the voxels it covered so far, of the grid it began on.
+#[derive(Clone, Debug)]
+struct Stroke {
+    grid: VoxelGrid,
+    voxels: std::collections::BTreeSet<u32>,
+    erase: bool,
+}
+
+/// The voxels of `grid`'s slice through `at` seen in 2D view `a` whose centres lie within `radius` mm of `at`
+/// in the view's plane: indices `x + nx * (y + ny * z)`; none when `at` is outside the grid.
+fn brush_voxels(grid: &VoxelGrid, a: usize, at: Vec3, radius: f32) -> Vec<u32> {
+    let k = grid.axis_along(a);
+    let Some(slice) = grid.index_at(at, k) else { return vec![] };
+    let q = grid.world_from_voxel.inverse().transform_point3(at.as_dvec3());
+    let [nx, ny, _] = grid.dims;
+    let mut out = vec![];
+    let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+    let reach = |axis: usize| {
+        let size = grid.world_from_voxel.col(axis).truncate().length().max(1e-6);
+        (radius as f64 / size).ceil() as i64 + 1
+    };
+    let (ri, rj) = (reach(i), reach(j));
+    let (ci, cj) = (q[i].round() as i64, q[j].round() as i64);
+    for u in ci - ri..=ci + ri {
+        for w in cj - rj..=cj + rj {
+            if u < 0 || w < 0 || u as usize >= grid.dims[i] || w as usize >= grid.dims[j] {
+                continue;
+            }
+            let mut v = [0usize; 3];
+            (v[i], v[j], v[k]) = (u as usize, w as usize, slice);
+            let centre =
+                grid.world_from_voxel.transform_point3(glam::DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64));
+            let mut d = centre.as_vec3() - at;
+            d[a] = 0.0;
+            if d.length() <= radius {
+                out.push((v[0] + nx * (v[1] + ny * v[2])) as u32);
+            }
+        }
+    }
+    out
+}
+
+/// The grid of the top visible slice layer (the image the 2D views show on top).
+fn top_grid(scene: &Scene, sources: &Query<(&LayerEntity, &VoxelGrid, &SliceSource)>) -> Option<VoxelGrid> {
+    scene.layers.iter().enumerate().rev().find_map(|(i, l)| {
+        let grid = sources.iter().find(|(le, ..)| le.0 == i).map(|(_, g, _)| *g)?;
+        (l.visible && matches!(l.kind, LayerKind::Slice { .. })).then_some(grid)
+    })
+}
+
+/// The brush's input (see [`Brush`]): strokes in the 2D views; the stroke joins the layer's painted mask on
+/// release (the layer's first painted mask, else a new include mask saved beside the working folder as
+/// `<layer>_roi.nii.gz`).
+#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
+fn paint_roi(
+    buttons: Res<ButtonInput<MouseButton>>,
+    keys: Res<ButtonInput<KeyCode>>,
+    pointer: Res<ViewPointer>,
+    window: Single<&Window, With<PrimaryWindow>>,
+    views: Query<(&Camera, &GlobalTransform, &OrthoView)>,
+    crosshair: Res<Crosshair>,
+    sources: Query<(&LayerEntity, &VoxelGrid, &SliceSource)>,
+    mut scene: ResMut<ActiveScene>,
+    mut ui: ResMut<UiState>,
+) {
+    let Some(brush) = ui.brush.clone() else {
+        ui.stroke = None;
+        return;
+    };
+    if !matches!(scene.0.layers.get(brush.layer).map(|l| &l.kind), Some(LayerKind::Tracts { .. })) {
+        ui.brush = None;
+        return;
+    }
+    if let Some((a, MouseButton::Left)) = pointer.dragging
+        && let Some(c) = window.cursor_position()
+        && let Some((cam, tf, view)) = views.iter().find(|(.., v)| v.0 == a)
+        && let Some(at) = pick_in_view(cam, tf, *view, c, crosshair.world)
+    {
+        if ui.stroke.is_none() {
+            let Some(grid) = top_grid(&scene.0, &sources) else {
+                ui.message = Some("the brush paints on an image: add a slice layer first".into());
+                return;
+            };
+            let erase = keys.any_pressed([KeyCode::ShiftLeft, KeyCode::ShiftRight]);
+            ui.stroke = Some(Stroke { grid, voxels: Default::default(), erase });
+        }
+        if let Some(stroke) = &mut ui.stroke {
+            let voxels = brush_voxels(&stroke.grid, a, at, brush.radius_mm);
+            stroke.voxels.extend(voxels);
+        }
+        return;
+    }
+    if pointer.dragging.is_some() || buttons.pressed(MouseButton::Left) {
+        return;
+    }
+    let Some(stroke) = ui.stroke.take() else { return };
+    let layer = &mut scene.0.layers[brush.layer];
+    let name: String = layer.name.chars().map(|c| if c.is_alphanumeric() { c } else { '_' }).collect();
+    let LayerKind::Tracts { masks, .. } = &mut layer.kind else { return };
+    let grid = (stroke.grid.dims, stroke.grid.world_from_voxel.to_cols_array_2d());
+    let painted = masks.iter_mut().filter_map(|m| m.painted.as_mut()).find(|p| (p.dims, p.world_from_voxel) == grid);
+    let mut fresh = PaintedMask::on_grid(stroke.grid.dims, stroke.grid.world_from_voxel);
+    let target = match painted {
+        Some(p) => p,
+        None => &mut fresh,
+    };
+    let before = target.voxels.len();
+    target.paint(stroke.voxels.iter().copied(), stroke.erase);
+    let after = target.voxels.len();
+    if !fresh.voxels.is_empty() {
+        let path = PathBuf::from(format!("{name}_roi.nii.gz"));
+        masks.push(MaskRoi { path, mode: fascicle_core::roi::RoiMode::Include, painted: Some(fresh) });
+    }
+    ui.message = Some(format!("painted ROI: {after} voxels ({:+})", after as i64 - before as i64));
+}
+
+/// Saves each painted mask as NIfTI (uint8, the grid's affine) at its path whenever its voxels change (a
+/// stroke, undo, redo, a scene opened); a failed write is reported and the viewer keeps running.
+fn save_painted_masks(
+    scene: Res<ActiveScene>,
+    mut saved: Local<std::collections::HashMap<PathBuf, PaintedMask>>,
+    mut ui: ResMut<UiState>,
+) {
+    if !scene.is_changed() {
+        return;
+    }
+    for layer in &scene.0.layers {
+        let LayerKind::Tracts { masks, .. } = &layer.kind else { continue };
+        for m in masks {
+            let Some(p) = &m.painted else { continue };
+            if saved.get(&m.path) == Some(p) {
+                continue;
+            }
+            saved.insert(m.path.clone(), p.clone());
+            if let Err(e) =
+                fascicle_core::io::nifti::write(&m.path, &p.volume(), fascicle_core::io::nifti::WriteType::U8)
+            {
+                ui.message = Some(format!("{}: could not save the painted ROI: {e}", m.path.display()));
+            }
+        }
+    }
+}
+
+/// Draws the painted masks and the stroke being drawn in the 2D views: the outline of each painted voxel of
+/// the slice a view shows (the first 20,000), yellow, the stroke's cyan (red when it erases).
+fn draw_painted(
+    mut gizmos: Gizmos<BrushGizmos>,
+    scene: Res<ActiveScene>,
+    ui: Res<UiState>,
+    crosshair: Res<Crosshair>,
+    views: Res<fascicle_views::Views>,
+) {
+    if !views.ortho {
+        return;
+    }
+    let stroke = ui.stroke.iter().map(|s| {
+        let m = PaintedMask {
+            dims: s.grid.dims,
+            world_from_voxel: s.grid.world_from_voxel.to_cols_array_2d(),
+            voxels: s.voxels.iter().copied().collect(),
+        };
+        (m, if s.erase { Color::srgb(1.0, 0.2, 0.2) } else { Color::srgb(0.2, 0.9, 1.0) })
+    });
+    let painted = scene.0.layers.iter().filter(|l| l.visible).flat_map(|l| match &l.kind {
+        LayerKind::Tracts { masks, .. } => masks.iter().filter_map(|m| m.painted.clone()).collect(),
+        _ => vec![],
+    });
+    let all: Vec<(PaintedMask, Color)> = painted.map(|p| (p, Color::srgb(1.0, 0.85, 0.1))).chain(stroke).collect();
+    for a in 0..3 {
+        let (from, _) = fascicle_views::view_axes(a);
+        let mut drawn = 0;
+        for (mask, colour) in &all {
+            let grid = VoxelGrid {
+                dims: mask.dims,
+                world_from_voxel: glam::DMat4::from_cols_array_2d(&mask.world_from_voxel),
+            };
+            let k = grid.axis_along(a);
+            let Some(slice) = grid.index_at(crosshair.world, k) else { continue };
+            let (i, j) = ((k + 1) % 3, (k + 2) % 3);
+            let (ei, ej) = (
+                grid.world_from_voxel.col(i).truncate().as_vec3() * 0.5,
+                grid.world_from_voxel.col(j).truncate().as_vec3() * 0.5,
+            );
+            let [nx, ny, _] = mask.dims;
+            for &v in &mask.voxels {
+                let v = v as usize;
+                let xyz = [v % nx, (v / nx) % ny, v / (nx * ny)];
+                if xyz[k] != slice || drawn >= 20_000 {
+                    continue;
+                }
+                drawn += 1;
+                let mut c = grid
+                    .world_from_voxel
+                    .transform_point3(glam::DVec3::new(xyz[0] as f64, xyz[1] as f64, xyz[2] as f64))
+                    .as_vec3();
+                // On the view's plane, 1 mm towards the eye (over the image, as the tract slabs).
+                c[a] = crosshair.world[a] + from[a].signum();
+                let corners = [c - ei - ej, c + ei - ej, c + ei + ej, c - ei + ej].map(|mut p| {
+                    p[a] = c[a];
+                    p
+                });
+                gizmos.linestrip(corners.into_iter().chain([corners[0]]), *colour);
+            }
+        }
+    }
+}
+
+/// The gizmos of the painted ROIs: in the 2D views only.
+#[derive(Default, Reflect, GizmoConfigGroup)]
+struct BrushGizmos;
 
 /// Outlines the picked streamlines in white (the first 2,000); forgets the picks when their layer no longer
 /// shows the set they index (removed, rebuilt, reordered), so that no edit applies them to other streamlines.
@@ -287,6 +631,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .add_plugins(EguiPlugin::default())
     .add_plugins((FascicleRenderPlugin, ScenePlugin, HandlesPlugin, DrawOnDemandPlugin, FrameBudgetPlugin))
     .add_plugins(RetainedPicturePlugin)
+    .init_gizmo_group::<BrushGizmos>()
     .add_systems(PostUpdate, egui_images_outside_picture)
     // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
     .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
@@ -316,35 +661,47 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
         selection_path: "selection.trk".into(),
         ..default()
     })
-    .add_systems(Startup, |mut commands: Commands, mut egui_settings: ResMut<EguiGlobalSettings>| {
-        // A pointer move that changes nothing puts the last picture back (fascicle_render::retain).
-        commands.spawn((view_camera(), Transform::default(), RenderScale::default(), RetainPicture));
-        // egui gets its own camera drawn over the 3D view, so the 3D camera can take a viewport.
-        egui_settings.auto_create_primary_context = false;
-        commands.spawn((
-            PrimaryEguiContext,
-            Camera2d,
-            RenderLayers::none(),
-            Camera {
-                // Over the 3D view, the 2D views and the colour bars' overlay (order 1).
-                order: 2,
-                output_mode: CameraOutputMode::Write {
-                    blend_state: Some(BlendState::ALPHA_BLENDING),
-                    clear_color: ClearColorConfig::None,
+    .add_systems(
+        Startup,
+        |mut commands: Commands,
+         mut egui_settings: ResMut<EguiGlobalSettings>,
+         mut gizmo_config: ResMut<GizmoConfigStore>| {
+            // The brush's gizmos show in the 2D views, over the images.
+            let (config, _) = gizmo_config.config_mut::<BrushGizmos>();
+            config.render_layers = RenderLayers::from_layers(&fascicle_views::VIEW_LAYERS);
+            config.depth_bias = -1.0;
+            // A pointer move that changes nothing puts the last picture back (fascicle_render::retain).
+            commands.spawn((view_camera(), Transform::default(), RenderScale::default(), RetainPicture));
+            // egui gets its own camera drawn over the 3D view, so the 3D camera can take a viewport.
+            egui_settings.auto_create_primary_context = false;
+            commands.spawn((
+                PrimaryEguiContext,
+                Camera2d,
+                RenderLayers::none(),
+                Camera {
+                    // Over the 3D view, the 2D views and the colour bars' overlay (order 1).
+                    order: 2,
+                    output_mode: CameraOutputMode::Write {
+                        blend_state: Some(BlendState::ALPHA_BLENDING),
+                        clear_color: ClearColorConfig::None,
+                    },
+                    clear_color: ClearColorConfig::Custom(Color::NONE),
+                    ..default()
                 },
-                clear_color: ClearColorConfig::Custom(Color::NONE),
-                ..default()
-            },
-        ));
-    })
+            ));
+        },
+    )
     .add_systems(
         Update,
         (
             view_input.run_if(not(egui_wants_any_pointer_input)),
             orbit_input.after(HandleSystems).run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
             pick_glyph.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
-            pick_streamline.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
+            pick_streamlines.after(view_input).run_if(not(egui_wants_any_pointer_input)),
             draw_picked,
+            paint_roi.after(view_input).run_if(not(egui_wants_any_pointer_input)),
+            save_painted_masks,
+            draw_painted,
             keys.run_if(not(egui_wants_any_keyboard_input)),
             dropped_files,
             file_dialog,
@@ -363,13 +720,16 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
 
 fn orbit_input(
     buttons: Res<ButtonInput<MouseButton>>,
+    keys: Res<ButtonInput<KeyCode>>,
     motion: Res<AccumulatedMouseMotion>,
     scroll: Res<AccumulatedMouseScroll>,
     drag: Res<RoiDrag>,
     mut orbit: ResMut<Orbit>,
     mut interacting: ResMut<fascicle_render::budget::Interacting>,
 ) {
-    if drag.0.is_some() {
+    // A Ctrl + left drag draws a lasso (pick_streamlines): the view stays.
+    let lasso = buttons.pressed(MouseButton::Left) && keys.any_pressed([KeyCode::ControlLeft, KeyCode::ControlRight]);
+    if drag.0.is_some() || lasso {
         return;
     }
     // A drag is an interaction from its press (whose frame already draws at the scale the frame budget
@@ -405,12 +765,14 @@ fn pointer_in_3d_view(pointer: Res<ViewPointer>) -> bool {
     pointer.hovered.is_none() && pointer.dragging.is_none()
 }
 
-/// Mouse input in the 2D views: a left click or drag moves the crosshair in the view's plane, the wheel steps
+/// Mouse input in the 2D views: a left click or drag (without Ctrl) moves the crosshair in the view's plane, the wheel steps
 /// it one voxel through the plane, a right drag sets the window of the top visible slice layer (horizontal:
 /// contrast, vertical: brightness).
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
 fn view_input(
     buttons: Res<ButtonInput<MouseButton>>,
+    keys: Res<ButtonInput<KeyCode>>,
+    ui: Res<UiState>,
     motion: Res<AccumulatedMouseMotion>,
     scroll: Res<AccumulatedMouseScroll>,
     window: Single<&Window, With<PrimaryWindow>>,
@@ -447,7 +809,10 @@ fn view_input(
         views_edit.crosshair = Some(at.to_array());
     }
     match pointer.dragging {
-        Some((a, MouseButton::Left)) => {
+        // Ctrl + left picks streamlines (pick_streamlines); with the brush on, left paints (paint_roi).
+        Some((a, MouseButton::Left))
+            if !keys.any_pressed([KeyCode::ControlLeft, KeyCode::ControlRight]) && ui.brush.is_none() =>
+        {
             if let Some(c) = cursor
                 && let Some((cam, tf, view)) = views.iter().find(|(.., v)| v.0 == a)
                 && let Some(p) = pick_in_view(cam, tf, *view, c, at)
@@ -910,7 +1275,7 @@ fn panel(
                                     }
                                 }
                                 None => {
-                                    ui.label("Ctrl + click picks streamlines");
+                                    ui.label("Ctrl + click or Ctrl + drag (a lasso) picks streamlines");
                                 }
                             }
                             if !deleted.is_empty() && ui.small_button(format!("restore {} deleted", deleted.len())).clicked() {
@@ -920,6 +1285,19 @@ fn panel(
                     });
                 }
                 if matches!(layer.kind, LayerKind::Tracts { .. }) {
+                    ui.push_id(("brush", i), |ui| {
+                        ui.horizontal(|ui| {
+                            let on = ui_state.brush.as_ref().is_some_and(|b| b.layer == i);
+                            let hint = "a left drag in a 2D view paints an include ROI on the top image's slice \
+                                        (Shift + drag erases); saved as NIfTI after every stroke";
+                            if ui.selectable_label(on, "paint ROI").on_hover_text(hint).clicked() {
+                                ui_state.brush = (!on).then_some(Brush { layer: i, radius_mm: 3.0 });
+                            }
+                            if let Some(b) = ui_state.brush.as_mut().filter(|b| b.layer == i) {
+                                ui.add(egui::Slider::new(&mut b.radius_mm, 0.5..=20.0).text("brush radius (mm)"));
+                            }
+                        });
+                    });
                     ui.push_id(("selection", i), |ui| {
                         ui.horizontal(|ui| {
                             ui.text_edit_singleline(&mut ui_state.selection_path);
@@ -1030,6 +1408,12 @@ fn panel(
         if chosen.is_some() || !open {
             ui_state.ask = None;
         }
+    }
+    // The lasso being drawn (Ctrl + drag), over the views.
+    if ui_state.lasso.len() > 1 {
+        let line: Vec<egui::Pos2> = ui_state.lasso.iter().map(|p| egui::pos2(p.x, p.y)).collect();
+        ctx.layer_painter(egui::LayerId::new(egui::Order::Foreground, egui::Id::new("lasso")))
+            .add(egui::Shape::closed_line(line, egui::Stroke::new(1.5, egui::Color32::WHITE)));
     }
     let left = (panel_width.response.rect.width() * window.scale_factor()) as u32;
     if region.left != left {
@@ -1187,6 +1571,36 @@ fn egui_images_outside_picture(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The brush covers the voxels of the slice whose centres lie within its radius in the view's plane: on a
+    /// 1 mm grid a radius of 2 mm about a voxel centre is the 13 lattice points of the disk, in the slice the
+    /// point lies in, whichever view; on a permuted, flipped 2 mm grid a radius of 4 mm the same 13; clipped at
+    /// the grid's edge; nothing outside the grid.
+    #[test]
+    fn the_brush_paints_the_voxels_of_a_disk_in_the_slice() {
+        let grid = VoxelGrid { world_from_voxel: glam::DMat4::IDENTITY, dims: [20, 20, 20] };
+        let at = Vec3::new(10.0, 10.0, 7.2);
+        let axial = brush_voxels(&grid, 2, at, 2.0);
+        assert_eq!(axial.len(), 13);
+        assert!(axial.iter().all(|v| v / 400 == 7), "every voxel in slice z = 7");
+        assert!(axial.contains(&(12 + 20 * 10 + 400 * 7)) && !axial.contains(&(12 + 20 * 11 + 400 * 7)));
+        assert_eq!(brush_voxels(&grid, 0, Vec3::new(10.3, 10.0, 7.0), 2.0).len(), 13);
+        // At a corner of the grid: the quarter disk inside (6 of 13).
+        assert_eq!(brush_voxels(&grid, 2, Vec3::new(0.0, 0.0, 3.0), 2.0).len(), 6);
+        assert!(brush_voxels(&grid, 2, Vec3::new(0.0, 0.0, 30.0), 2.0).is_empty());
+        // Voxel x along world -y, y along z, z along x (2 mm): the axial view cuts voxel axis y.
+        let m = glam::DMat4::from_cols(
+            glam::DVec4::new(0.0, -2.0, 0.0, 0.0),
+            glam::DVec4::new(0.0, 0.0, 2.0, 0.0),
+            glam::DVec4::new(2.0, 0.0, 0.0, 0.0),
+            glam::DVec4::new(-10.0, 20.0, 0.0, 1.0),
+        );
+        let grid = VoxelGrid { world_from_voxel: m, dims: [30, 40, 10] };
+        let centre = m.transform_point3(glam::DVec3::new(8.0, 6.0, 4.0)).as_vec3();
+        let v = brush_voxels(&grid, 2, centre, 4.0);
+        assert_eq!(v.len(), 13);
+        assert!(v.iter().all(|&i| (i as usize / 30) % 40 == 6), "every voxel in voxel slice y = 6");
+    }
 
     /// "Delete" adds the picked to the deleted; "keep only these" deletes every other streamline; both keep
     /// what was deleted before, sorted, once each.

@@ -702,7 +702,7 @@ fn mask_layers_show_what_tckedit_keeps() {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
-            masks: vec![MaskRoi { path: mask.to_path_buf(), mode }],
+            masks: vec![MaskRoi { path: mask.to_path_buf(), mode, painted: None }],
             ends_only: false,
             deleted: vec![],
             colouring: Default::default(),

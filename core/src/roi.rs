@@ -11,7 +11,7 @@
 //! [`select`] is parallel over streamlines and uses a uniform grid of segments, so a small ROI only tests
 //! the streamlines near it; [`Criteria`] tests one streamline at a time, for streams of any length.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
 /// A region's shape, in the tractogram's world space (RAS+ mm).
@@ -486,6 +486,82 @@ pub fn pick_streamline(
                 })
                 .min_by(f32::total_cmp)
                 .map(|t| (s, t))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+}
+
+/// The streamlines a lasso picks: of the streamlines `shown`, those with a point whose screen position
+/// (`project`, pixels; `None` for a point that cannot be picked: behind the camera, outside a 2D view's slab)
+/// lies inside `polygon` (screen positions, pixels; closed from its last vertex to its first; the even-odd
+/// rule, so a lasso that crosses itself leaves out what it circles twice). The points are tested, not the steps
+/// between them, as the ROIs test them (see the module). Parallel over streamlines; in increasing order.
+pub fn lasso_streamlines(
+    points: &[Vec3],
+    offsets: &[usize],
+    shown: impl Fn(usize) -> bool + Sync,
+    project: impl Fn(Vec3) -> Option<Vec2> + Sync,
+    polygon: &[Vec2],
+) -> Vec<usize> {
+    if polygon.len() < 3 {
+        return vec![];
+    }
+    let (lo, hi) = polygon.iter().fold((Vec2::MAX, Vec2::MIN), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let inside = |q: Vec2| q.cmpge(lo).all() && q.cmple(hi).all() && in_polygon(polygon, q);
+    let n = offsets.len().saturating_sub(1);
+    (0..n)
+        .into_par_iter()
+        .filter(|&s| shown(s) && points[offsets[s]..offsets[s + 1]].iter().any(|p| project(*p).is_some_and(inside)))
+        .collect()
+}
+
+/// Whether `q` lies inside the closed polygon (even-odd rule: a ray from `q` towards +x crosses its edges an
+/// odd number of times; a point on a left or bottom edge is inside, on a right or top edge outside).
+pub fn in_polygon(polygon: &[Vec2], q: Vec2) -> bool {
+    let mut inside = false;
+    let mut j = polygon.len().wrapping_sub(1);
+    for (i, a) in polygon.iter().enumerate() {
+        let b = polygon[j];
+        if (a.y > q.y) != (b.y > q.y) && q.x < a.x + (q.y - a.y) * (b.x - a.x) / (b.y - a.y) {
+            inside = !inside;
+        }
+        j = i;
+    }
+    inside
+}
+
+/// The streamline a click picks in a projected view (a 2D view): of the streamlines `shown`, the one with a
+/// step whose screen image (`project` of its two points, pixels; a step with a point `None` is left out, as a
+/// step leaving a 2D view's slab) comes nearest `at`, within `radius` pixels; with that distance. A one-point
+/// streamline is a point. Ties go to the lower index. Brute force over every step, in parallel.
+pub fn pick_projected(
+    points: &[Vec3],
+    offsets: &[usize],
+    shown: impl Fn(usize) -> bool + Sync,
+    project: impl Fn(Vec3) -> Option<Vec2> + Sync,
+    at: Vec2,
+    radius: f32,
+) -> Option<(usize, f32)> {
+    let n = offsets.len().saturating_sub(1);
+    let near = |a: Vec2, b: Vec2| {
+        let u = b - a;
+        let t = if u.length_squared() <= f32::EPSILON { 0.0 } else { ((at - a).dot(u) / u.dot(u)).clamp(0.0, 1.0) };
+        (a + u * t).distance(at)
+    };
+    (0..n)
+        .into_par_iter()
+        .filter(|&s| shown(s))
+        .filter_map(|s| {
+            let pts = &points[offsets[s]..offsets[s + 1]];
+            let screen: Vec<Option<Vec2>> = pts.iter().map(|p| project(*p)).collect();
+            let steps: Box<dyn Iterator<Item = (Option<Vec2>, Option<Vec2>)>> = match &screen[..] {
+                [p] => Box::new(std::iter::once((*p, *p))),
+                _ => Box::new(screen.windows(2).map(|w| (w[0], w[1]))),
+            };
+            steps
+                .filter_map(|(a, b)| Some(near(a?, b?)))
+                .filter(|d| *d <= radius)
+                .min_by(f32::total_cmp)
+                .map(|d| (s, d))
         })
         .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
 }

@@ -4,9 +4,10 @@
 
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{
-    Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, pick_streamline, select, select_ends,
+    Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, in_polygon, lasso_streamlines, pick_projected,
+    pick_streamline, select, select_ends,
 };
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 use rand::{RngExt, SeedableRng};
 
 fn data(p: &str) -> std::path::PathBuf {
@@ -352,5 +353,114 @@ fn a_click_picks_the_nearest_streamline_within_its_cone() {
         }
         let best = best.expect("brute force finds the target");
         assert!(got.0 == best.0 && (got.1 - best.1).abs() < 0.02, "picked {got:?}, brute force {best:?}");
+    }
+}
+
+/// A lasso picks the streamlines with a point inside it: short streamlines at the cells of a 10 x 10 grid seen
+/// from above, a C-shaped (concave) lasso takes the 41 cells it encloses and none of its notch; hidden
+/// streamlines and points that cannot be picked (outside a slab) are left out; against brute force with random
+/// triangles (a barycentric test) on tracks300 through an oblique projection.
+#[test]
+fn a_lasso_picks_the_streamlines_with_a_point_inside() {
+    let mut points = vec![];
+    let mut offsets = vec![0];
+    for s in 0..100 {
+        let c = Vec3::new((s % 10) as f32, (s / 10) as f32, 0.0);
+        points.extend([c - Vec3::X * 0.1, c + Vec3::X * 0.1]);
+        offsets.push(points.len());
+    }
+    let top = |p: Vec3| Some(p.truncate());
+    let c_shape = [(0.5, 0.5), (7.5, 0.5), (7.5, 2.5), (3.5, 2.5), (3.5, 4.5), (7.5, 4.5), (7.5, 7.5), (0.5, 7.5)]
+        .map(|(x, y)| Vec2::new(x, y));
+    let cell = |s: usize| (s % 10, s / 10);
+    let want: Vec<usize> = (0..100)
+        .filter(|&s| {
+            let (x, y) = cell(s);
+            (1..=7).contains(&x) && (1..=7).contains(&y) && !(x >= 4 && (3..=4).contains(&y))
+        })
+        .collect();
+    assert_eq!(want.len(), 41);
+    assert_eq!(lasso_streamlines(&points, &offsets, |_| true, top, &c_shape), want);
+    let without_11: Vec<usize> = want.iter().copied().filter(|&s| s != 11).collect();
+    assert_eq!(lasso_streamlines(&points, &offsets, |s| s != 11, top, &c_shape), without_11);
+    let slab = |p: Vec3| (p.x < 5.5).then_some(p.truncate());
+    let left: Vec<usize> = want.iter().copied().filter(|&s| cell(s).0 <= 5).collect();
+    assert_eq!(lasso_streamlines(&points, &offsets, |_| true, slab, &c_shape), left);
+    assert!(lasso_streamlines(&points, &offsets, |_| true, top, &c_shape[..2]).is_empty());
+    assert!(in_polygon(&c_shape, Vec2::new(2.0, 3.0)) && !in_polygon(&c_shape, Vec2::new(5.0, 3.5)));
+
+    let t = Tractogram::read(data("data/tracts/tracks300.trk")).unwrap();
+    let oblique = |p: Vec3| Some(Vec2::new(p.x + 0.3 * p.z, p.y - 0.2 * p.z));
+    let (lo, hi) = t.points.iter().fold((Vec2::MAX, Vec2::MIN), |(lo, hi), p| {
+        let q = oblique(*p).unwrap();
+        (lo.min(q), hi.max(q))
+    });
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let mut picked_some = 0;
+    for _ in 0..30 {
+        let tri: Vec<Vec2> =
+            (0..3).map(|_| lo + (hi - lo) * Vec2::new(rng.random::<f32>(), rng.random::<f32>())).collect();
+        let (a, b, c) = (tri[0], tri[1], tri[2]);
+        let cross = |u: Vec2, v: Vec2| u.x * v.y - u.y * v.x;
+        let area = cross(b - a, c - a);
+        let inside = |q: Vec2| {
+            let (w0, w1) = (cross(b - q, c - q) / area, cross(c - q, a - q) / area);
+            w0 >= 0.0 && w1 >= 0.0 && 1.0 - w0 - w1 >= 0.0
+        };
+        let brute: Vec<usize> =
+            (0..t.n_streamlines()).filter(|&s| t.streamline(s).iter().any(|p| inside(oblique(*p).unwrap()))).collect();
+        let got = lasso_streamlines(&t.points, &t.offsets, |_| true, oblique, &tri);
+        assert_eq!(got, brute);
+        picked_some += usize::from(!got.is_empty() && got.len() < t.n_streamlines());
+    }
+    assert!(picked_some > 5, "the triangles picked some but not all in {picked_some} of 30 cases");
+}
+
+/// A click in a 2D view picks the streamline with the step nearest on screen within the radius: three lines
+/// stacked on screen, the nearest wins (the lower index on a tie); past a line's end its last point counts; a
+/// one-point streamline is a point; steps outside the slab are left out; against brute force (dense samples of
+/// each step) on tracks300.
+#[test]
+fn a_click_in_a_2d_view_picks_the_nearest_step_on_screen() {
+    let mut points = vec![];
+    let mut offsets = vec![0];
+    for (k, y) in [0.0, 5.0, 10.0].into_iter().enumerate() {
+        points.extend((0..11).map(|x| Vec3::new(x as f32, y, k as f32)));
+        offsets.push(points.len());
+    }
+    points.push(Vec3::new(20.0, 20.0, 0.0));
+    offsets.push(points.len());
+    let top = |p: Vec3| Some(p.truncate());
+    let pick = |at: (f32, f32), r: f32| pick_projected(&points, &offsets, |_| true, top, Vec2::new(at.0, at.1), r);
+    assert_eq!(pick((3.0, 1.0), 3.0), Some((0, 1.0)));
+    assert_eq!(pick((3.0, 2.6), 3.0), Some((1, 2.4)));
+    assert_eq!(pick((3.0, 2.5), 3.0), Some((0, 2.5)));
+    assert_eq!(pick((3.0, 2.5), 2.0), None);
+    assert_eq!(pick((12.0, 0.0), 3.0), Some((0, 2.0)));
+    assert_eq!(pick((20.0, 21.0), 3.0), Some((3, 1.0)));
+    let slab = |p: Vec3| (p.z > 0.5).then_some(p.truncate());
+    assert_eq!(pick_projected(&points, &offsets, |_| true, slab, Vec2::new(3.0, 1.0), 6.0), Some((1, 4.0)));
+    assert_eq!(pick_projected(&points, &offsets, |s| s != 1, slab, Vec2::new(3.0, 1.0), 6.0), None);
+
+    let t = Tractogram::read(data("data/tracts/tracks300.trk")).unwrap();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+    for _ in 0..20 {
+        let s = rng.random_range(0..t.n_streamlines());
+        let pts = t.streamline(s);
+        let at = pts[rng.random_range(0..pts.len())].truncate() + Vec2::new(rng.random::<f32>(), rng.random::<f32>());
+        let got = pick_projected(&t.points, &t.offsets, |_| true, top, at, 1.5).expect("a point within 1.5");
+        let mut best = (usize::MAX, f32::MAX);
+        for s in 0..t.n_streamlines() {
+            for w in t.streamline(s).windows(2) {
+                let d = (0..=400)
+                    .map(|k| (w[0] + (w[1] - w[0]) * (k as f32 / 400.0)).truncate().distance(at))
+                    .fold(f32::MAX, f32::min);
+                if d < best.1 {
+                    best = (s, d);
+                }
+            }
+        }
+        assert!(got.0 == best.0 || (got.1 - best.1).abs() < 1e-3, "picked {got:?}, brute force {best:?}");
+        assert!((got.1 - best.1).abs() < 0.01, "picked {got:?}, brute force {best:?}");
     }
 }

@@ -615,7 +615,8 @@ pub fn streamline_values(t: &Tractogram, weights: Option<&Path>, name: &str) -> 
 /// The streamlines of `data` that `keep` marks, with their tensors.
 /// The streamlines of `t` that `masks` keep, as `tckedit` keeps them with image regions (every include mask
 /// met, no exclude mask met, by a point in a non-zero voxel; with `ends_only`, by the first or last point); None
-/// when there are no masks. The images are read through the cache.
+/// when there are no masks. The images are read through the cache; a painted mask is its voxels (none painted:
+/// no region).
 fn mask_keeps(
     cache: &DataCache,
     masks: &[MaskRoi],
@@ -630,7 +631,12 @@ fn mask_keeps(
     }
     let mut criteria = Criteria { ends_only, ..Criteria::default() };
     for m in masks {
-        let region = MaskRegion::new(&*image(cache, &m.path, progress)?);
+        let region = match &m.painted {
+            // A painted region with nothing painted yet is no region.
+            Some(p) if p.voxels.is_empty() => continue,
+            Some(p) => MaskRegion::new(&p.volume()),
+            None => MaskRegion::new(&*image(cache, &m.path, progress)?),
+        };
         if region.count() == 0 {
             return Err(format!("{}: the mask image is empty (no non-zero voxel)", m.path.display()));
         }
@@ -2009,7 +2015,7 @@ mod tests {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
-            masks: vec![MaskRoi { path: mask.clone(), mode }],
+            masks: vec![MaskRoi { path: mask.clone(), mode, painted: None }],
             ends_only,
             deleted: vec![],
             colouring,
@@ -2028,6 +2034,28 @@ mod tests {
         assert_eq!(first_points(&inc, &|_| true), first_points(&t, &|s| through[s]));
         let exc = kept(RoiMode::Exclude, TractColouring::Style);
         assert_eq!(first_points(&exc, &|_| true), first_points(&t, &|s| !through[s]));
+        // The same voxels painted in the viewer (no file is read): the same streamlines; nothing painted: all.
+        let with_painted = |p: crate::model::PaintedMask| LayerKind::Tracts {
+            source: TractSource::File { path: path.clone(), tensors: None },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: vec![],
+            masks: vec![MaskRoi { path: "never-written.nii.gz".into(), mode: RoiMode::Include, painted: Some(p) }],
+            ends_only: false,
+            deleted: vec![],
+            colouring: TractColouring::Style,
+        };
+        let mut painted = crate::model::PaintedMask::on_grid([60, 50, 40], affine);
+        painted.paint((0..vol.data.len() as u32).filter(|&i| vol.data[i as usize] > 0.0), false);
+        // Erasing what was never painted changes nothing; painting twice counts once.
+        painted.paint([0, 1, 2], true);
+        painted.paint([29, 29 + 60], false);
+        assert_eq!(painted.voxels.len(), vol.data.iter().filter(|v| **v > 0.0).count());
+        assert_eq!(painted.volume().data, vol.data);
+        let by_painting = built(&with_painted(painted));
+        assert_eq!(first_points(&by_painting, &|_| true), first_points(&inc, &|_| true));
+        let nothing = crate::model::PaintedMask::on_grid([60, 50, 40], affine);
+        assert_eq!(built(&with_painted(nothing)).n_streamlines(), t.n_streamlines());
         // Ends only (tckedit's -ends_only): the streamlines with an end in the slab, fewer than those through it.
         let ends: Vec<bool> = (0..t.n_streamlines())
             .map(|s| {

@@ -287,6 +287,56 @@ pub struct MaskRoi {
     /// Include (kept streamlines meet it) or exclude (streamlines that meet it are dropped). Default include.
     #[serde(default)]
     pub mode: RoiMode,
+    /// Voxels painted in the viewer (a brush in a 2D view): when present, the region is these voxels and `path`
+    /// is where the viewer saves them as NIfTI (after every stroke, undo and redo); default none (the image at
+    /// `path` is the region).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub painted: Option<PaintedMask>,
+}
+
+/// A mask painted voxel by voxel on an image's grid (the image the 2D views showed on top).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PaintedMask {
+    /// The grid's size in voxels.
+    pub dims: [usize; 3],
+    /// Voxel to world (RAS+ mm): the 4x4 affine's columns.
+    pub world_from_voxel: [[f64; 4]; 4],
+    /// The painted voxels, as indices `x + nx * (y + ny * z)`: sorted, each once.
+    pub voxels: Vec<u32>,
+}
+
+impl PaintedMask {
+    /// An empty mask on the grid of `dims` voxels placed by `world_from_voxel`.
+    pub fn on_grid(dims: [usize; 3], world_from_voxel: glam::DMat4) -> Self {
+        Self { dims, world_from_voxel: world_from_voxel.to_cols_array_2d(), voxels: vec![] }
+    }
+
+    /// The mask as an image: 1 in the painted voxels, 0 elsewhere.
+    pub fn volume(&self) -> fascicle_core::Volume<f32> {
+        let affine = glam::DMat4::from_cols_array_2d(&self.world_from_voxel);
+        let mut v = fascicle_core::Volume::<f32>::zeros(&self.dims, affine);
+        for &i in &self.voxels {
+            if let Some(x) = v.data.get_mut(i as usize) {
+                *x = 1.0;
+            }
+        }
+        v
+    }
+
+    /// Paints (or, with `erase`, clears) `voxels` (indices as [`Self::voxels`]; those outside the grid are left
+    /// out).
+    pub fn paint(&mut self, voxels: impl IntoIterator<Item = u32>, erase: bool) {
+        let n = self.dims.iter().product::<usize>();
+        let mut set: std::collections::BTreeSet<u32> = self.voxels.iter().copied().collect();
+        for v in voxels.into_iter().filter(|v| (*v as usize) < n) {
+            if erase {
+                set.remove(&v);
+            } else {
+                set.insert(v);
+            }
+        }
+        self.voxels = set.into_iter().collect();
+    }
 }
 
 /// Where tracts come from.
