@@ -315,6 +315,8 @@ fn pick_streamlines(
 struct Brush {
     /// The tract layer's index in the scene.
     layer: usize,
+    /// The layer's name: the brush turns off when the layer at `layer` is another (a layer removed or moved).
+    name: String,
     /// The brush's radius in the view's plane, mm; default 3.
     radius_mm: f32,
 }
@@ -388,7 +390,8 @@ fn paint_roi(
         ui.stroke = None;
         return;
     };
-    if !matches!(scene.0.layers.get(brush.layer).map(|l| &l.kind), Some(LayerKind::Tracts { .. })) {
+    let same = scene.0.layers.get(brush.layer).filter(|l| l.name == brush.name);
+    if !matches!(same.map(|l| &l.kind), Some(LayerKind::Tracts { .. })) {
         ui.brush = None;
         return;
     }
@@ -465,7 +468,7 @@ fn save_painted_masks(
 /// Draws the painted masks and the stroke being drawn in the 2D views: the outline of each painted voxel of
 /// the slice a view shows (the first 20,000), yellow, the stroke's cyan (red when it erases).
 fn draw_painted(
-    mut gizmos: Gizmos<BrushGizmos>,
+    mut gizmos: Gizmos<ViewGizmos>,
     scene: Res<ActiveScene>,
     ui: Res<UiState>,
     crosshair: Res<Crosshair>,
@@ -526,23 +529,49 @@ fn draw_painted(
     }
 }
 
-/// The gizmos of the painted ROIs: in the 2D views only.
+/// The gizmos of the 2D views (painted ROIs, picked streamlines in a view's slab): on the views' render layers.
 #[derive(Default, Reflect, GizmoConfigGroup)]
-struct BrushGizmos;
+struct ViewGizmos;
 
-/// Outlines the picked streamlines in white (the first 2,000); forgets the picks when their layer no longer
-/// shows the set they index (removed, rebuilt, reordered), so that no edit applies them to other streamlines.
-fn draw_picked(mut gizmos: Gizmos, mut ui: ResMut<UiState>, sets: Query<(&TractSet, &LayerEntity)>) {
+/// Outlines the picked streamlines in white (the first 2,000; in the 2D views their parts in the view's slab);
+/// forgets the picks when their layer no longer shows the set they index (removed, rebuilt, reordered), so that
+/// no edit applies them to other streamlines.
+fn draw_picked(
+    mut gizmos: Gizmos,
+    mut view_gizmos: Gizmos<ViewGizmos>,
+    mut ui: ResMut<UiState>,
+    sets: Query<(Entity, &TractSet, &LayerEntity)>,
+    slabs: Query<&fascicle_tracts::TractSlab>,
+) {
     let Some(picked) = &ui.picked else { return };
-    let Some((set, _)) =
-        sets.iter().find(|(s, le)| le.0 == picked.layer && s.tractogram.n_streamlines() == picked.n_streamlines)
+    let Some((entity, set, _)) =
+        sets.iter().find(|(_, s, le)| le.0 == picked.layer && s.tractogram.n_streamlines() == picked.n_streamlines)
     else {
         ui.picked = None;
         return;
     };
-    for &s in picked.streamlines.iter().take(2000) {
-        if let Some(pts) = set.tractogram.offsets.get(s as usize..s as usize + 2) {
-            gizmos.linestrip(set.tractogram.points[pts[0]..pts[1]].iter().copied(), Color::WHITE);
+    let t = &set.tractogram;
+    let lines = picked.streamlines.iter().take(2000).filter_map(|&s| {
+        let o = t.offsets.get(s as usize..s as usize + 2)?;
+        Some(&t.points[o[0]..o[1]])
+    });
+    for pts in lines.clone() {
+        gizmos.linestrip(pts.iter().copied(), Color::WHITE);
+    }
+    // In each 2D view, the runs of points within the view's slab, on its plane 1 mm towards the eye.
+    for slab in slabs.iter().filter(|s| s.set == entity) {
+        let Some(a) = (0..3).find(|&a| slab.normal == Vec3::AXES[a]) else { continue };
+        let over = slab.offset + fascicle_views::view_axes(a).0[a].signum();
+        let inside = |p: &Vec3| (p[a] - slab.offset).abs() <= slab.half_thickness;
+        for pts in lines.clone() {
+            for run in pts.split(|p| !inside(p)).filter(|r| r.len() > 1) {
+                let flat = run.iter().map(|p| {
+                    let mut q = *p;
+                    q[a] = over;
+                    q
+                });
+                view_gizmos.linestrip(flat, Color::WHITE);
+            }
         }
     }
 }
@@ -631,7 +660,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     .add_plugins(EguiPlugin::default())
     .add_plugins((FascicleRenderPlugin, ScenePlugin, HandlesPlugin, DrawOnDemandPlugin, FrameBudgetPlugin))
     .add_plugins(RetainedPicturePlugin)
-    .init_gizmo_group::<BrushGizmos>()
+    .init_gizmo_group::<ViewGizmos>()
     .add_systems(PostUpdate, egui_images_outside_picture)
     // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
     .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
@@ -667,7 +696,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
          mut egui_settings: ResMut<EguiGlobalSettings>,
          mut gizmo_config: ResMut<GizmoConfigStore>| {
             // The brush's gizmos show in the 2D views, over the images.
-            let (config, _) = gizmo_config.config_mut::<BrushGizmos>();
+            let (config, _) = gizmo_config.config_mut::<ViewGizmos>();
             config.render_layers = RenderLayers::from_layers(&fascicle_views::VIEW_LAYERS);
             config.depth_bias = -1.0;
             // A pointer move that changes nothing puts the last picture back (fascicle_render::retain).
@@ -1291,7 +1320,7 @@ fn panel(
                             let hint = "a left drag in a 2D view paints an include ROI on the top image's slice \
                                         (Shift + drag erases); saved as NIfTI after every stroke";
                             if ui.selectable_label(on, "paint ROI").on_hover_text(hint).clicked() {
-                                ui_state.brush = (!on).then_some(Brush { layer: i, radius_mm: 3.0 });
+                                ui_state.brush = (!on).then(|| Brush { layer: i, name: layer.name.clone(), radius_mm: 3.0 });
                             }
                             if let Some(b) = ui_state.brush.as_mut().filter(|b| b.layer == i) {
                                 ui.add(egui::Slider::new(&mut b.radius_mm, 0.5..=20.0).text("brush radius (mm)"));

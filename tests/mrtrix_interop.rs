@@ -409,7 +409,8 @@ fn fsl_bvecs_are_read_in_mrtrix_frame() {
 
 /// `fascicle select` keeps exactly the streamlines MRtrix3's `tckedit` keeps, on a generated whole-brain-like
 /// tractogram (20,000 streamlines of 40-160 points): include spheres, an exclude sphere, `-ends_only`, and mask
-/// images (an oblique, flipped grid) as include and exclude regions. Same streamlines, same points, same order.
+/// images (an oblique, flipped grid) as include and exclude regions, and `-mask` (a sphere, an image and a sphere:
+/// streamlines cut where they leave them). Same streamlines, same points, same order.
 #[test]
 fn select_keeps_what_tckedit_keeps() {
     if !mrtrix() {
@@ -439,7 +440,7 @@ fn select_keeps_what_tckedit_keeps() {
     let mask_path = scratch("blobs.nii.gz");
     nifti::write(&mask_path, &mask, nifti::WriteType::F32).unwrap();
     let m = mask_path.to_str().unwrap();
-    let cases: [(&[&str], &[&str]); 6] = [
+    let cases: [(&[&str], &[&str]); 8] = [
         (&["--include", "0,0,0,10"], &["-include", "0,0,0,10"]),
         (
             &["--include", "12.5,-20.3,4.1,16.7", "--include", "-20,10,0,15"],
@@ -449,6 +450,12 @@ fn select_keeps_what_tckedit_keeps() {
         (&["--include", "30,-40,10,15", "--ends-only"], &["-include", "30,-40,10,15", "-ends_only"]),
         (&["--include", m], &["-include", m]),
         (&["--include", "0,0,0,30", "--exclude", m], &["-include", "0,0,0,30", "-exclude", m]),
+        // -mask cuts the streamlines where they leave the masks (a sphere; an image with an include sphere).
+        (&["--mask", "5,-10,0,40"], &["-mask", "5,-10,0,40"]),
+        (
+            &["--include", "0,0,0,30", "--mask", m, "--mask", "20,-10,5,12"],
+            &["-include", "0,0,0,30", "-mask", m, "-mask", "20,-10,5,12"],
+        ),
     ];
     for (k, (ours, theirs)) in cases.iter().enumerate() {
         let (a, b) = (scratch(&format!("sel{k}_fascicle.tck")), scratch(&format!("sel{k}_mrtrix.tck")));

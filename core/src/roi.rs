@@ -718,3 +718,15 @@ impl Criteria {
         met & all == all
     }
 }
+
+/// The pieces of the streamline `pts` inside `masks` (`tckedit -mask`: streamlines leaving the mask are cut
+/// there): the runs of consecutive points that lie in any of the regions (a point in a sphere, a box or a
+/// mask's non-zero voxel, as [`Criteria`] tests it; planes contain no point), each of at least two points, in
+/// order. A streamline wholly inside is one piece; no masks: the streamline whole.
+pub fn pieces_inside<'a>(pts: &'a [Vec3], masks: &[Region]) -> Vec<&'a [Vec3]> {
+    if masks.is_empty() {
+        return vec![pts];
+    }
+    let inside = |p: &Vec3| masks.iter().any(|r| !r.is_plane() && r.contains(*p));
+    pts.split(|p| !inside(p)).filter(|run| run.len() >= 2).collect()
+}

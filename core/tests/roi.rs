@@ -5,7 +5,7 @@
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::{
     Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, in_polygon, lasso_streamlines, pick_projected,
-    pick_streamline, select, select_ends,
+    pick_streamline, pieces_inside, select, select_ends,
 };
 use glam::{Vec2, Vec3};
 use rand::{RngExt, SeedableRng};
@@ -463,4 +463,21 @@ fn a_click_in_a_2d_view_picks_the_nearest_step_on_screen() {
         assert!(got.0 == best.0 || (got.1 - best.1).abs() < 1e-3, "picked {got:?}, brute force {best:?}");
         assert!((got.1 - best.1).abs() < 0.01, "picked {got:?}, brute force {best:?}");
     }
+}
+
+/// `tckedit -mask`: a streamline is cut where it leaves the union of the masks; the runs of two or more points
+/// inside are kept in order, a lone point inside is dropped; wholly inside: the streamline; no masks: the
+/// streamline; a plane contains no point.
+#[test]
+fn masks_cut_streamlines_into_the_runs_inside() {
+    let pts: Vec<Vec3> = (0..10).map(|k| Vec3::new(k as f32, 0.0, 0.0)).collect();
+    let sphere = |c: f32, r: f32| Region::Shape(RoiShape::Sphere { centre: [c, 0.0, 0.0], radius: r });
+    let pieces = pieces_inside(&pts, &[sphere(2.0, 1.0), sphere(6.0, 0.5), sphere(8.5, 0.5)]);
+    assert_eq!(pieces, vec![&pts[1..4], &pts[8..10]]);
+    // Two masks touching make one run.
+    assert_eq!(pieces_inside(&pts, &[sphere(2.0, 1.0), sphere(4.5, 0.5)]), vec![&pts[1..6]]);
+    assert_eq!(pieces_inside(&pts, &[sphere(4.5, 10.0)]), vec![&pts[..]]);
+    assert_eq!(pieces_inside(&pts, &[]), vec![&pts[..]]);
+    let plane = Region::Shape(RoiShape::Plane { point: [0.0; 3], normal: [0.0, 1.0, 0.0] });
+    assert!(pieces_inside(&pts, &[plane]).is_empty());
 }

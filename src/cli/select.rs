@@ -1,6 +1,7 @@
 //! `fascicle select`: keep the streamlines of a tractogram that meet every include region and no exclude region,
 //! as MRtrix3's `tckedit` keeps them (`fascicle_core::roi`: a point of the streamline in a sphere, box or mask;
-//! with `--ends-only` its two ends), and write them as `.tck`, `.trk` or `.trx`.
+//! with `--ends-only` its two ends), cut where they leave `--mask` regions (`tckedit -mask`), and write them as
+//! `.tck`, `.trk` or `.trx`.
 //!
 //! The file is streamed: one thread reads chunks of streamlines while the others test them and the kept ones
 //! are written, so memory stays bounded (a few chunks) whatever the file's size.
@@ -49,6 +50,11 @@ pub struct SelectArgs {
     /// Exclude plane (repeatable).
     #[arg(long, value_name = "PX,PY,PZ,NX,NY,NZ", allow_hyphen_values = true)]
     pub exclude_plane: Vec<String>,
+    /// Mask region (repeatable), as tckedit's -mask: a sphere X,Y,Z,R or a mask image; kept streamlines are cut
+    /// where they leave the union of the masks, each run of two or more points inside written as a streamline.
+    /// Values per point or per streamline are not carried through the cut.
+    #[arg(long, value_name = "X,Y,Z,R|IMAGE", allow_hyphen_values = true)]
+    pub mask: Vec<String>,
     /// Streamline weights, one per input streamline (tcksift2's output; as tckedit's -tck_weights_in).
     #[arg(long)]
     pub weights: Option<PathBuf>,
@@ -244,13 +250,15 @@ pub(crate) fn bytes_bar(total: u64, what: &str) -> indicatif::ProgressBar {
     pb
 }
 
-/// Streams `input` through `keep` (per chunk, which streamlines to write) into `writer`: one thread reads while
-/// the caller's threads test and write. The streamlines read and written.
+/// Streams `input` through `keep` (per chunk, which streamlines to write) into `writer`, each kept streamline
+/// cut to its pieces inside `crop` when there are such regions ([`fascicle_core::roi::pieces_inside`], points
+/// only): one thread reads while the caller's threads test and write. The streamlines read and written.
 pub fn pipe(
     reader: TractogramReader,
     writer: &mut TractogramWriter,
     what: &str,
     keep: impl Fn(&Tractogram) -> Result<Option<Vec<bool>>, Error> + Sync,
+    crop: &[Region],
 ) -> Result<(usize, usize), Error> {
     let pb = bytes_bar(reader.header().file_bytes, what);
     let (mut read, mut written) = (0, 0);
@@ -277,6 +285,16 @@ pub fn pipe(
             let (t, bytes) = msg?;
             read += t.n_streamlines();
             match keep(&t)? {
+                Some(mask) if !crop.is_empty() => {
+                    let mut out = Tractogram::new();
+                    for s in (0..t.n_streamlines()).filter(|s| mask[*s]) {
+                        for piece in fascicle_core::roi::pieces_inside(t.streamline(s), crop) {
+                            out.push(piece);
+                        }
+                    }
+                    written += out.n_streamlines();
+                    writer.write_chunk(&out)?;
+                }
                 Some(mask) => {
                     let out = t.subset_with_values(&mask);
                     written += out.n_streamlines();
@@ -304,8 +322,17 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     if let Some(w) = &a.weights_out {
         super::check_output(w)?;
     }
+    let crop = a.mask.iter().map(|spec| region(spec)).collect::<Result<Vec<_>, _>>()?;
+    if !crop.is_empty() && a.weights_out.is_some() {
+        return Err(Error::Param("--mask cuts streamlines into pieces: --weights-out is not supported with it".into()));
+    }
     let reader = TractogramReader::open(&a.input)?;
-    let options = write_options(&a.input, reader.header(), &a.out, false)?;
+    let mut options = write_options(&a.input, reader.header(), &a.out, false)?;
+    if !crop.is_empty() {
+        // The pieces carry points only.
+        options.scalars.clear();
+        options.properties.clear();
+    }
     let mut writer = TractogramWriter::create(&a.out, &options)?;
     // Weights are read in step with the chunks (the consumer takes the chunks in order).
     let weights = match &a.weights {
@@ -333,7 +360,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         }
         Ok(Some(mask))
     };
-    let (read, _) = pipe(reader, &mut writer, "select", keep)?;
+    let (read, _) = pipe(reader, &mut writer, "select", keep, &crop)?;
     let weights_out = match weights {
         Some(w) => {
             let (reader, out) = w.into_inner().unwrap_or_else(|e| e.into_inner());
@@ -349,7 +376,7 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
     if super::globals().quiet {
         return Ok(());
     }
-    let n_regions = criteria.include.len() + criteria.exclude.len();
+    let n_regions = criteria.include.len() + criteria.exclude.len() + crop.len();
     println!(
         "kept {kept} of {read} streamlines ({n_regions} regions, {:.1} s) -> {}",
         t0.elapsed().as_secs_f64(),
