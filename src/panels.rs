@@ -451,8 +451,14 @@ fn mask_rois(ui: &mut egui::Ui, masks: &mut Vec<fascicle_scene::model::MaskRoi>)
                 Some(p) => ui.label(format!("painted {} voxels, saved as {}", p.voxels.len(), m.path.display())),
                 None => ui.label(format!("mask {}", m.path.display())),
             };
-            ui.radio_value(&mut m.mode, RoiMode::Include, "include");
-            ui.radio_value(&mut m.mode, RoiMode::Exclude, "exclude");
+            let mut use_ = if m.crop { None } else { Some(m.mode) };
+            ui.radio_value(&mut use_, Some(RoiMode::Include), "include");
+            ui.radio_value(&mut use_, Some(RoiMode::Exclude), "exclude");
+            ui.radio_value(&mut use_, None, "cut").on_hover_text("tckedit -mask: streamlines cut where they leave it");
+            m.crop = use_.is_none();
+            if let Some(mode) = use_ {
+                m.mode = mode;
+            }
             if ui.small_button("x").clicked() {
                 remove = Some(i);
             }
@@ -469,6 +475,7 @@ fn mask_rois(ui: &mut egui::Ui, masks: &mut Vec<fascicle_scene::model::MaskRoi>)
             masks.push(fascicle_scene::model::MaskRoi {
                 path: path.trim().into(),
                 mode: RoiMode::Include,
+                crop: false,
                 painted: None,
             });
             path.clear();

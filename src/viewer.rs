@@ -433,7 +433,7 @@ fn paint_roi(
     let after = target.voxels.len();
     if !fresh.voxels.is_empty() {
         let path = PathBuf::from(format!("{name}_roi.nii.gz"));
-        masks.push(MaskRoi { path, mode: fascicle_core::roi::RoiMode::Include, painted: Some(fresh) });
+        masks.push(MaskRoi { path, mode: fascicle_core::roi::RoiMode::Include, crop: false, painted: Some(fresh) });
     }
     ui.message = Some(format!("painted ROI: {after} voxels ({:+})", after as i64 - before as i64));
 }

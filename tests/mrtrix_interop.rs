@@ -685,7 +685,8 @@ fn tensor_mif_reads_in_the_tensor_plugin_in_mrtrix_frame() {
 }
 
 /// A tract layer with a mask image as its include region shows exactly the streamlines `tckedit -include MASK`
-/// keeps (and `-exclude` the others): DIPY's small_64D tracts through the voxels where its FA exceeds 0.7.
+/// keeps (and `-exclude` the others), and as a cutting mask the pieces `tckedit -mask` writes: DIPY's small_64D
+/// tracts through the voxels where its FA exceeds 0.7.
 #[test]
 fn mask_layers_show_what_tckedit_keeps() {
     use fascicle_core::roi::RoiMode;
@@ -709,7 +710,7 @@ fn mask_layers_show_what_tckedit_keeps() {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
-            masks: vec![MaskRoi { path: mask.to_path_buf(), mode, painted: None }],
+            masks: vec![MaskRoi { path: mask.to_path_buf(), mode, crop: false, painted: None }],
             ends_only: false,
             deleted: vec![],
             colouring: Default::default(),
@@ -723,4 +724,26 @@ fn mask_layers_show_what_tckedit_keeps() {
         assert_eq!(ours.offsets, theirs.offsets, "{flag}: the same streamlines, of the same lengths");
         assert_eq!(ours.points, theirs.points, "{flag}: the same points");
     }
+    // As a cutting mask: the pieces `tckedit -mask` writes.
+    let theirs = scratch("layer_mask_cut.tck");
+    run("tckedit", &["-quiet", "-force", &s(&tracks), "-mask", &s(&mask), &s(&theirs)]);
+    let theirs = Tractogram::read(&theirs).unwrap();
+    let kind = LayerKind::Tracts {
+        source: TractSource::File { path: tracks.clone(), tensors: None },
+        mode: TractMode::Lines,
+        render: Default::default(),
+        rois: vec![],
+        masks: vec![MaskRoi { path: mask.to_path_buf(), mode: RoiMode::Include, crop: true, painted: None }],
+        ends_only: false,
+        deleted: vec![],
+        colouring: Default::default(),
+    };
+    let Ok(jobs::Content::Tracts(ours)) = jobs::build(&kind, &DataCache::default(), &JobProgress::default()) else {
+        panic!("no tract set")
+    };
+    let ours = ours.tractogram.expect("streamlines");
+    println!("-mask: tckedit wrote {} pieces, the layer {}", theirs.n_streamlines(), ours.n_streamlines());
+    assert!(theirs.n_streamlines() > 50, "-mask: {} pieces", theirs.n_streamlines());
+    assert_eq!(ours.offsets, theirs.offsets, "-mask: the same pieces, of the same lengths");
+    assert_eq!(ours.points, theirs.points, "-mask: the same points");
 }

@@ -205,7 +205,7 @@ fn measure(name: &'static str, scene: Scene, drags: usize) -> Result<Vec<Row>, S
     if let (Some(t), Some(v)) = (tracts, volume)
         && let LayerKind::Volume { source: VolumeSource::Nifti { path, .. }, .. } = &scene.layers[v].kind
     {
-        let mask = MaskRoi { path: path.clone(), mode: RoiMode::Include, painted: None };
+        let mask = MaskRoi { path: path.clone(), mode: RoiMode::Include, crop: false, painted: None };
         time(&mut app, "mask_roi", &|s| {
             if let LayerKind::Tracts { masks, .. } = &mut s.layers[t].kind {
                 masks.push(mask.clone());

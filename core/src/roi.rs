@@ -722,11 +722,29 @@ impl Criteria {
 /// The pieces of the streamline `pts` inside `masks` (`tckedit -mask`: streamlines leaving the mask are cut
 /// there): the runs of consecutive points that lie in any of the regions (a point in a sphere, a box or a
 /// mask's non-zero voxel, as [`Criteria`] tests it; planes contain no point), each of at least two points, in
-/// order. A streamline wholly inside is one piece; no masks: the streamline whole.
-pub fn pieces_inside<'a>(pts: &'a [Vec3], masks: &[Region]) -> Vec<&'a [Vec3]> {
+/// order, as ranges of indices into `pts`. A streamline wholly inside is one piece; no masks: the streamline
+/// whole.
+pub fn pieces_inside(pts: &[Vec3], masks: &[Region]) -> Vec<std::ops::Range<usize>> {
     if masks.is_empty() {
-        return vec![pts];
+        return std::iter::once(0..pts.len()).collect();
     }
     let inside = |p: &Vec3| masks.iter().any(|r| !r.is_plane() && r.contains(*p));
-    pts.split(|p| !inside(p)).filter(|run| run.len() >= 2).collect()
+    let mut out = vec![];
+    let mut start = None;
+    for (i, p) in pts.iter().enumerate() {
+        match (inside(p), start) {
+            (true, None) => start = Some(i),
+            (false, Some(s)) => {
+                if i - s >= 2 {
+                    out.push(s..i);
+                }
+                start = None;
+            }
+            _ => {}
+        }
+    }
+    if let Some(s) = start.filter(|s| pts.len() - s >= 2) {
+        out.push(s..pts.len());
+    }
+    out
 }

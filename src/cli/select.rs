@@ -288,8 +288,9 @@ pub fn pipe(
                 Some(mask) if !crop.is_empty() => {
                     let mut out = Tractogram::new();
                     for s in (0..t.n_streamlines()).filter(|s| mask[*s]) {
-                        for piece in fascicle_core::roi::pieces_inside(t.streamline(s), crop) {
-                            out.push(piece);
+                        let pts = t.streamline(s);
+                        for piece in fascicle_core::roi::pieces_inside(pts, crop) {
+                            out.push(&pts[piece]);
                         }
                     }
                     written += out.n_streamlines();

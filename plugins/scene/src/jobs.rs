@@ -335,6 +335,13 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             };
             // Mask regions and values need the whole tractogram: it is not shown in parts as it comes.
             let whole = by_value || !masks.is_empty();
+            if by_value && masks.iter().any(|m| m.crop) {
+                return Err(
+                    "a cutting mask (tckedit -mask) cuts the streamlines: colouring by their values needs them \
+                            whole; colour by direction, ends, length or an image"
+                        .into(),
+                );
+            }
             let mut data = tract_data_in_parts(cache, source, progress, (!whole).then_some(&on_part as OnPart))?;
             // The streamlines the mask regions keep (tckedit's test of each point), before any value threshold.
             let mut keep = mask_keeps(cache, masks, *ends_only, &data.tractogram, progress)?;
@@ -373,6 +380,8 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             if let Some(k) = &keep {
                 data = subset_of(&data, k);
             }
+            // Cutting masks (tckedit -mask) cut what the other regions kept.
+            data = cut_by_masks(cache, masks, data, progress)?;
             // The whole (kept) tractogram's offsets locate each streamline's values in every part.
             let whole_tracts = data.tractogram.clone();
             let values = match (&per_streamline, &per_point) {
@@ -615,7 +624,7 @@ pub fn streamline_values(t: &Tractogram, weights: Option<&Path>, name: &str) -> 
 /// The streamlines of `data` that `keep` marks, with their tensors.
 /// The streamlines of `t` that `masks` keep, as `tckedit` keeps them with image regions (every include mask
 /// met, no exclude mask met, by a point in a non-zero voxel; with `ends_only`, by the first or last point); None
-/// when there are no masks. The images are read through the cache; a painted mask is its voxels (none painted:
+/// when no mask includes or excludes (cutting masks are applied after: `cut_by_masks`). The images are read through the cache; a painted mask is its voxels (none painted:
 /// no region).
 fn mask_keeps(
     cache: &DataCache,
@@ -624,24 +633,16 @@ fn mask_keeps(
     t: &Tractogram,
     progress: &JobProgress,
 ) -> Result<Option<Vec<bool>>, String> {
-    use fascicle_core::roi::{Criteria, MaskRegion, Region, RoiMode};
+    use fascicle_core::roi::{Criteria, RoiMode};
     use rayon::prelude::*;
-    if masks.is_empty() {
-        return Ok(None);
-    }
     let mut criteria = Criteria { ends_only, ..Criteria::default() };
-    for m in masks {
-        let region = match &m.painted {
-            // A painted region with nothing painted yet is no region.
-            Some(p) if p.voxels.is_empty() => continue,
-            Some(p) => MaskRegion::new(&p.volume()),
-            None => MaskRegion::new(&*image(cache, &m.path, progress)?),
-        };
-        if region.count() == 0 {
-            return Err(format!("{}: the mask image is empty (no non-zero voxel)", m.path.display()));
-        }
+    for m in masks.iter().filter(|m| !m.crop) {
+        let Some(region) = mask_region(cache, m, progress)? else { continue };
         let to = if m.mode == RoiMode::Include { &mut criteria.include } else { &mut criteria.exclude };
-        to.push(Region::Mask(Arc::new(region)));
+        to.push(region);
+    }
+    if criteria.is_empty() {
+        return Ok(None);
     }
     progress.stage("testing the streamlines against the masks", t.n_streamlines())?;
     let keep = (0..t.n_streamlines())
@@ -652,6 +653,55 @@ fn mask_keeps(
         })
         .collect();
     Ok(Some(keep))
+}
+
+/// A tract layer's mask as a region: its painted voxels (none painted: no region) or its image, read through the
+/// cache; an image without a non-zero voxel is an error naming it.
+fn mask_region(
+    cache: &DataCache,
+    m: &MaskRoi,
+    progress: &JobProgress,
+) -> Result<Option<fascicle_core::roi::Region>, String> {
+    use fascicle_core::roi::{MaskRegion, Region};
+    let region = match &m.painted {
+        Some(p) if p.voxels.is_empty() => return Ok(None),
+        Some(p) => MaskRegion::new(&p.volume()),
+        None => MaskRegion::new(&*image(cache, &m.path, progress)?),
+    };
+    if region.count() == 0 {
+        return Err(format!("{}: the mask image is empty (no non-zero voxel)", m.path.display()));
+    }
+    Ok(Some(Region::Mask(Arc::new(region))))
+}
+
+/// `data` cut where its streamlines leave the layer's cutting masks (`tckedit -mask`: each run of two or more
+/// points inside one of them becomes a streamline, with its tensors); unchanged without cutting masks.
+fn cut_by_masks(
+    cache: &DataCache,
+    masks: &[MaskRoi],
+    data: TractData,
+    progress: &JobProgress,
+) -> Result<TractData, String> {
+    let mut regions = vec![];
+    for m in masks.iter().filter(|m| m.crop) {
+        regions.extend(mask_region(cache, m, progress)?);
+    }
+    if regions.is_empty() {
+        return Ok(data);
+    }
+    progress.stage("cutting the streamlines at the masks", 0)?;
+    let t = &data.tractogram;
+    let mut out = (Tractogram::new(), vec![]);
+    for s in 0..t.n_streamlines() {
+        let first = t.offsets[s];
+        for piece in fascicle_core::roi::pieces_inside(t.streamline(s), &regions) {
+            out.0.push(&t.points[first + piece.start..first + piece.end]);
+            if let Some(tensors) = &data.tensors {
+                out.1.extend_from_slice(&tensors[first + piece.start..first + piece.end]);
+            }
+        }
+    }
+    Ok(TractData { tractogram: Arc::new(out.0), tensors: data.tensors.as_ref().map(|_| Arc::new(out.1)) })
 }
 
 fn subset_of(data: &TractData, keep: &[bool]) -> TractData {
@@ -2015,7 +2065,7 @@ mod tests {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
-            masks: vec![MaskRoi { path: mask.clone(), mode, painted: None }],
+            masks: vec![MaskRoi { path: mask.clone(), mode, crop: false, painted: None }],
             ends_only,
             deleted: vec![],
             colouring,
@@ -2040,7 +2090,12 @@ mod tests {
             mode: TractMode::Lines,
             render: Default::default(),
             rois: vec![],
-            masks: vec![MaskRoi { path: "never-written.nii.gz".into(), mode: RoiMode::Include, painted: Some(p) }],
+            masks: vec![MaskRoi {
+                path: "never-written.nii.gz".into(),
+                mode: RoiMode::Include,
+                crop: false,
+                painted: Some(p),
+            }],
             ends_only: false,
             deleted: vec![],
             colouring: TractColouring::Style,
@@ -2056,6 +2111,36 @@ mod tests {
         assert_eq!(first_points(&by_painting, &|_| true), first_points(&inc, &|_| true));
         let nothing = crate::model::PaintedMask::on_grid([60, 50, 40], affine);
         assert_eq!(built(&with_painted(nothing)).n_streamlines(), t.n_streamlines());
+        // A cutting mask (tckedit -mask): every streamline's runs of two or more points in the slab.
+        let cut = built(&LayerKind::Tracts {
+            source: TractSource::File { path: path.clone(), tensors: None },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: vec![],
+            masks: vec![MaskRoi { path: mask.clone(), mode: RoiMode::Include, crop: true, painted: None }],
+            ends_only: false,
+            deleted: vec![],
+            colouring: TractColouring::Style,
+        });
+        // A point is in the slab when the streamline of that one point meets the region.
+        let in_slab = |p: &glam::Vec3| Criteria { include: vec![region.clone()], ..Default::default() }.keeps(&[*p]);
+        let mut want = Tractogram::new();
+        for s in 0..t.n_streamlines() {
+            let pts = t.streamline(s);
+            let mut run: Vec<glam::Vec3> = vec![];
+            for p in pts.iter().chain([&glam::Vec3::NAN]) {
+                if in_slab(p) {
+                    run.push(*p);
+                } else {
+                    if run.len() >= 2 {
+                        want.push(&run);
+                    }
+                    run.clear();
+                }
+            }
+        }
+        assert!(want.n_streamlines() > 20, "{} pieces", want.n_streamlines());
+        assert_eq!((cut.offsets.clone(), cut.points.clone()), (want.offsets, want.points));
         // Ends only (tckedit's -ends_only): the streamlines with an end in the slab, fewer than those through it.
         let ends: Vec<bool> = (0..t.n_streamlines())
             .map(|s| {

@@ -287,6 +287,11 @@ pub struct MaskRoi {
     /// Include (kept streamlines meet it) or exclude (streamlines that meet it are dropped). Default include.
     #[serde(default)]
     pub mode: RoiMode,
+    /// The region cuts the streamlines instead (`tckedit -mask`; `mode` is not used): each kept streamline is
+    /// cut where it leaves the layer's cutting masks, its runs of two or more points inside shown as
+    /// streamlines. Default false.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub crop: bool,
     /// Voxels painted in the viewer (a brush in a 2D view): when present, the region is these voxels and `path`
     /// is where the viewer saves them as NIfTI (after every stroke, undo and redo); default none (the image at
     /// `path` is the region).
