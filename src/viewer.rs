@@ -363,11 +363,14 @@ fn brush_voxels(grid: &VoxelGrid, a: usize, at: Vec3, radius: f32) -> Vec<u32> {
     out
 }
 
-/// The grid of the top visible slice layer (the image the 2D views show on top).
-fn top_grid(scene: &Scene, sources: &Query<(&LayerEntity, &VoxelGrid, &SliceSource)>) -> Option<VoxelGrid> {
+/// The top visible slice layer (the image the 2D views show on top): its index in the scene, grid and source.
+fn top_slice<'a>(
+    scene: &Scene,
+    sources: &'a Query<(&LayerEntity, &VoxelGrid, &SliceSource)>,
+) -> Option<(usize, &'a VoxelGrid, &'a SliceSource)> {
     scene.layers.iter().enumerate().rev().find_map(|(i, l)| {
-        let grid = sources.iter().find(|(le, ..)| le.0 == i).map(|(_, g, _)| *g)?;
-        (l.visible && matches!(l.kind, LayerKind::Slice { .. })).then_some(grid)
+        let (_, grid, source) = sources.iter().find(|(le, ..)| le.0 == i)?;
+        (l.visible && matches!(l.kind, LayerKind::Slice { .. })).then_some((i, grid, source))
     })
 }
 
@@ -401,7 +404,7 @@ fn paint_roi(
         && let Some(at) = pick_in_view(cam, tf, *view, c, crosshair.world)
     {
         if ui.stroke.is_none() {
-            let Some(grid) = top_grid(&scene.0, &sources) else {
+            let Some((_, &grid, _)) = top_slice(&scene.0, &sources) else {
                 ui.message = Some("the brush paints on an image: add a slice layer first".into());
                 return;
             };
@@ -477,27 +480,27 @@ fn draw_painted(
     if !views.ortho {
         return;
     }
-    let stroke = ui.stroke.iter().map(|s| {
-        let m = PaintedMask {
-            dims: s.grid.dims,
-            world_from_voxel: s.grid.world_from_voxel.to_cols_array_2d(),
-            voxels: s.voxels.iter().copied().collect(),
-        };
-        (m, if s.erase { Color::srgb(1.0, 0.2, 0.2) } else { Color::srgb(0.2, 0.9, 1.0) })
+    // Each mask's grid, voxels and colour: the painted masks as the scene holds them, then the stroke.
+    let stroke: Option<(VoxelGrid, Vec<u32>, Color)> = ui.stroke.as_ref().map(|s| {
+        let colour = if s.erase { Color::srgb(1.0, 0.2, 0.2) } else { Color::srgb(0.2, 0.9, 1.0) };
+        (s.grid, s.voxels.iter().copied().collect(), colour)
     });
     let painted = scene.0.layers.iter().filter(|l| l.visible).flat_map(|l| match &l.kind {
-        LayerKind::Tracts { masks, .. } => masks.iter().filter_map(|m| m.painted.clone()).collect(),
+        LayerKind::Tracts { masks, .. } => masks.iter().filter_map(|m| m.painted.as_ref()).collect(),
         _ => vec![],
     });
-    let all: Vec<(PaintedMask, Color)> = painted.map(|p| (p, Color::srgb(1.0, 0.85, 0.1))).chain(stroke).collect();
+    let all: Vec<(VoxelGrid, &[u32], Color)> = painted
+        .map(|p| {
+            let grid =
+                VoxelGrid { dims: p.dims, world_from_voxel: glam::DMat4::from_cols_array_2d(&p.world_from_voxel) };
+            (grid, &p.voxels[..], Color::srgb(1.0, 0.85, 0.1))
+        })
+        .chain(stroke.iter().map(|(g, v, c)| (*g, &v[..], *c)))
+        .collect();
     for a in 0..3 {
         let (from, _) = fascicle_views::view_axes(a);
         let mut drawn = 0;
-        for (mask, colour) in &all {
-            let grid = VoxelGrid {
-                dims: mask.dims,
-                world_from_voxel: glam::DMat4::from_cols_array_2d(&mask.world_from_voxel),
-            };
+        for &(grid, voxels, colour) in &all {
             let k = grid.axis_along(a);
             let Some(slice) = grid.index_at(crosshair.world, k) else { continue };
             let (i, j) = ((k + 1) % 3, (k + 2) % 3);
@@ -505,8 +508,8 @@ fn draw_painted(
                 grid.world_from_voxel.col(i).truncate().as_vec3() * 0.5,
                 grid.world_from_voxel.col(j).truncate().as_vec3() * 0.5,
             );
-            let [nx, ny, _] = mask.dims;
-            for &v in &mask.voxels {
+            let [nx, ny, _] = grid.dims;
+            for &v in voxels {
                 let v = v as usize;
                 let xyz = [v % nx, (v / nx) % ny, v / (nx * ny)];
                 if xyz[k] != slice || drawn >= 20_000 {
@@ -523,7 +526,7 @@ fn draw_painted(
                     p[a] = c[a];
                     p
                 });
-                gizmos.linestrip(corners.into_iter().chain([corners[0]]), *colour);
+                gizmos.linestrip(corners.into_iter().chain([corners[0]]), colour);
             }
         }
     }
@@ -850,11 +853,7 @@ fn view_input(
             }
         }
         Some((_, MouseButton::Right)) if motion.delta != Vec2::ZERO => {
-            let top = scene.0.layers.iter().enumerate().rev().find_map(|(i, l)| {
-                let source = sources.iter().find(|(le, ..)| le.0 == i).map(|(.., s)| s)?;
-                (l.visible && matches!(l.kind, LayerKind::Slice { .. })).then_some((i, source))
-            });
-            if let Some((i, source)) = top
+            if let Some((i, _, source)) = top_slice(&scene.0, &sources)
                 && let LayerKind::Slice { window, .. } = &mut scene.0.layers[i].kind
             {
                 *window = Some(fascicle_views::window_level(source.window(*window), motion.delta));
