@@ -32,6 +32,10 @@ pub struct InteractOptions<'a> {
     pub csv: Option<&'a Path>,
     /// How long a scene may take to load and settle.
     pub settle_timeout: Duration,
+    /// The time between two pointer moves of a drag or a hover (33 ms: a mouse at 30 Hz). Frames faster than
+    /// this are paced by the input, not by their cost: on a hardware GPU give a few ms, so that the frame times
+    /// measured are what the frames cost.
+    pub move_interval: Duration,
 }
 
 /// One measured action.
@@ -202,15 +206,15 @@ fn xdotool(display: &str, script: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// A drag from where the pointer is: `steps` moves of (dx, dy) pixels, one every 33 ms (a mouse at 30 Hz),
-/// with Shift held when `shift`.
-fn drag_script((dx, dy): (i32, i32), steps: usize, shift: bool) -> String {
+/// A drag from where the pointer is: `steps` moves of (dx, dy) pixels, one every `every`, with Shift held when
+/// `shift`.
+fn drag_script((dx, dy): (i32, i32), steps: usize, every: Duration, shift: bool) -> String {
     let mut s = String::new();
     if shift {
         s += "keydown shift\n";
     }
     s += "mousedown 1\n";
-    s += &hover_script((dx, dy), steps);
+    s += &hover_script((dx, dy), steps, every);
     s += "mouseup 1\n";
     if shift {
         s += "keyup shift\n";
@@ -232,9 +236,10 @@ fn focus_viewer(display: &str, pid: u32) -> Result<(), String> {
     }
 }
 
-/// Pointer moves with no button held: `steps` moves of (dx, dy) pixels, one every 33 ms.
-fn hover_script((dx, dy): (i32, i32), steps: usize) -> String {
-    (0..steps).map(|_| format!("mousemove_relative -- {dx} {dy}\nsleep 0.033\n")).collect()
+/// Pointer moves with no button held: `steps` moves of (dx, dy) pixels, one every `every`.
+fn hover_script((dx, dy): (i32, i32), steps: usize, every: Duration) -> String {
+    let pause = every.as_secs_f64();
+    (0..steps).map(|_| format!("mousemove_relative -- {dx} {dy}\nsleep {pause:.4}\n")).collect()
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -355,11 +360,11 @@ pub fn run(o: InteractOptions) -> Result<(), String> {
         focus_viewer(&display, viewer.child.id())?;
         // The 3D view is the window right of the panel (about 300 px): orbit from its middle.
         let (cx, cy) = (0.6 * o.size.0 as f64, 0.5 * o.size.1 as f64);
-        let orbit = drag_script((6, 0), 60, false);
+        let orbit = drag_script((6, 0), 60, o.move_interval, false);
         rows.push(measure_drag(&name, "orbit", &mut viewer, &display, (cx, cy), &orbit, o.settle_timeout)?);
         wait_settled(&mut viewer, o.settle_timeout)?;
         // The pointer crossing the still view: every move is a frame (egui's hover), the scene unchanged.
-        let hover = hover_script((4, 2), 60);
+        let hover = hover_script((4, 2), 60, o.move_interval);
         rows.push(measure_drag(
             &name,
             "hover",
@@ -372,7 +377,7 @@ pub fn run(o: InteractOptions) -> Result<(), String> {
         wait_settled(&mut viewer, o.settle_timeout)?;
         match read_log(&viewer.log).last().and_then(|f| f.roi) {
             Some(at) => {
-                let drag = drag_script((0, 2), 60, true);
+                let drag = drag_script((0, 2), 60, o.move_interval, true);
                 rows.push(measure_drag(&name, "roi_drag", &mut viewer, &display, at, &drag, o.settle_timeout)?);
                 wait_settled(&mut viewer, o.settle_timeout)?;
             }

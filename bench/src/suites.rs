@@ -152,6 +152,10 @@ pub enum BenchCommand {
         /// Seconds a scene may take to load and settle.
         #[arg(long, default_value_t = 600)]
         settle_timeout: u64,
+        /// Milliseconds between two pointer moves of a drag (33: a mouse at 30 Hz). On a hardware GPU give a
+        /// few, so that frames are paced by their cost rather than by the input.
+        #[arg(long, default_value_t = 33.0)]
+        move_ms: f64,
     },
     /// Whole-brain-sized tractograms (1M and 10M streamlines as .tck, .trk, .trx, made once in --dir): `info`,
     /// `select`, `convert` as whole processes with peak memory, beside tckinfo, tckedit, nibabel and trx-python
@@ -217,7 +221,7 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
         BenchCommand::Soak { frames, size, csv, max_growth } => {
             crate::soak::run(frames, &size, csv.as_deref(), max_growth).map_err(Error::Param)
         }
-        BenchCommand::Interact { scenes, data, size, csv, settle_timeout } => {
+        BenchCommand::Interact { scenes, data, size, csv, settle_timeout, move_ms } => {
             let size = fascicle_scene::headless::parse_size(&size).map_err(Error::Param)?;
             let data = data.unwrap_or_else(|| std::env::temp_dir().join("fascicle-bench-edits"));
             crate::bench_interact::run(crate::bench_interact::InteractOptions {
@@ -226,6 +230,7 @@ pub fn run(cmd: BenchCommand) -> Result<(), Error> {
                 size,
                 csv: csv.as_deref(),
                 settle_timeout: std::time::Duration::from_secs(settle_timeout),
+                move_interval: std::time::Duration::from_secs_f64(move_ms.max(0.0) / 1e3),
             })
             .map_err(Error::Param)
         }
