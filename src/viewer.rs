@@ -768,6 +768,9 @@ fn orbit_input(
     // affords) to its release, frames without motion included.
     if buttons.any_pressed([MouseButton::Left, MouseButton::Right]) {
         interacting.mark();
+    } else if buttons.any_just_released([MouseButton::Left, MouseButton::Right]) {
+        // The drag ended: the view refines now, not after the budget's still time.
+        interacting.release();
     }
     let d = motion.delta;
     if buttons.pressed(MouseButton::Left) && d != Vec2::ZERO {

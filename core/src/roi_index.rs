@@ -363,21 +363,23 @@ mod tests {
         assert!((1..t.n_streamlines()).contains(&kept(&cases[5])), "{}", kept(&cases[5]));
     }
 
+    /// A generated whole brain of `n` streamlines (read back from the .tck written) and its index.
+    fn indexed_brain(n: usize, seed: u64) -> (crate::io::Tractogram, StreamlineCells) {
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-roi-drag-").tempdir().unwrap();
+        let path = tmp_dir.path().join("brain.tck");
+        crate::phantom::write_whole_brain(&path, n, seed).unwrap();
+        let t = crate::io::Tractogram::read(&path).unwrap();
+        let bounds = (Vec3::splat(-70.0), Vec3::splat(70.0));
+        let index = StreamlineCells::build(t.n_streamlines(), |s| t.streamline(s), bounds, 4.0);
+        (t, index)
+    }
+
     /// A drag keeps at every step what a fresh selection keeps: spheres and boxes moved and resized along a
     /// walk (steps of 0 to 3 mm, through the brain and out of it), with a second include, an exclude and a
     /// plane beside them, and a change of kind or mode that starts the slot afresh.
     #[test]
     fn a_drag_keeps_what_a_fresh_selection_keeps() {
-        let tmp_dir = tempfile::Builder::new().prefix("fascicle-roi-drag-").tempdir().unwrap();
-        let path = tmp_dir.path().join("brain.tck");
-        crate::phantom::write_whole_brain(&path, 3000, 11).unwrap();
-        let t = crate::io::Tractogram::read(&path).unwrap();
-        let index = StreamlineCells::build(
-            t.n_streamlines(),
-            |s| t.streamline(s),
-            (Vec3::splat(-70.0), Vec3::splat(70.0)),
-            4.0,
-        );
+        let (t, index) = indexed_brain(3000, 11);
         let mut drag = DragMargins::default();
         let mut rng = 12345u64;
         let mut next = || {
@@ -418,16 +420,7 @@ mod tests {
     /// margins answer for more than two thirds of the candidates.
     #[test]
     fn a_small_step_tests_few_streamlines() {
-        let tmp_dir = tempfile::Builder::new().prefix("fascicle-roi-drag-").tempdir().unwrap();
-        let path = tmp_dir.path().join("brain.tck");
-        crate::phantom::write_whole_brain(&path, 20000, 5).unwrap();
-        let t = crate::io::Tractogram::read(&path).unwrap();
-        let index = StreamlineCells::build(
-            t.n_streamlines(),
-            |s| t.streamline(s),
-            (Vec3::splat(-70.0), Vec3::splat(70.0)),
-            4.0,
-        );
+        let (t, index) = indexed_brain(20000, 5);
         let tested = std::sync::atomic::AtomicUsize::new(0);
         let counted = |s: usize| {
             tested.fetch_add(1, Ordering::Relaxed);

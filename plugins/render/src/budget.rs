@@ -94,12 +94,22 @@ impl Default for RenderScale {
 /// [`FrameBudget::refine_after`] must not end it). Frames while it is marked count as moving. Cleared every
 /// frame.
 #[derive(Resource, Default, Debug)]
-pub struct Interacting(bool);
+pub struct Interacting {
+    marked: bool,
+    released: bool,
+}
 
 impl Interacting {
     /// The user is interacting this frame.
     pub fn mark(&mut self) {
-        self.0 = true;
+        self.marked = true;
+    }
+
+    /// The interaction ended this frame (the button that dragged was released): the view is still at once,
+    /// so this frame draws at full quality with no wait for [`FrameBudget::refine_after`] and no coarse settle
+    /// frames before it.
+    pub fn release(&mut self) {
+        self.released = true;
     }
 }
 
@@ -203,13 +213,18 @@ fn hold_budget(
         let drawn = if pipelined.is_some() { chosen.0[1] } else { chosen.0[0] };
         state.last_frame = Some((time.delta(), drawn));
     }
-    if std::mem::take(&mut interacting.0) || !moved.is_empty() {
+    let released = std::mem::take(&mut interacting.released);
+    if std::mem::take(&mut interacting.marked) || !moved.is_empty() {
         state.last_moved = Some(now);
     }
+    if released {
+        state.last_moved = None;
+    }
     let was_moving = state.moving;
-    // Still, but a window drawn on demand still has settle frames to draw (after the release, say): they stay
-    // coarse, and the full-quality frame is the last one, drawn once.
-    let coarse_still = state.scale < 1.0 && settling;
+    // Still, but a window drawn on demand still has settle frames to draw (after a wheel turn, say): they stay
+    // coarse, and the full-quality frame is the last one, drawn once. A release refines at once: the settle
+    // frames after it put the refined picture back (the retained picture).
+    let coarse_still = state.scale < 1.0 && settling && !released;
     state.moving =
         state.last_moved.is_some_and(|t| now.saturating_duration_since(t) < budget.refine_after) || coarse_still;
     state.budget = budget.for_adapter(adapter.is_some_and(|a| a.is_software()));

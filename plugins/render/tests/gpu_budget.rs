@@ -84,7 +84,18 @@ fn a_scene_over_budget_draws_at_a_lower_scale_and_refines_to_the_full_image() {
         "coverage {coarse_covered} against {covered}"
     );
 
-    // Still for longer than refine_after: the next frame is the full-scale image, exactly.
+    // Released: the next frame is the full-scale image, exactly, though refine_after has not passed.
+    app.world_mut().resource_mut::<Interacting>().release();
+    let released = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(app.world().resource::<BudgetState>().scale, 1.0, "a release refines at once");
+    assert_eq!(differing(&full, &released), 0, "the frame after the release differs from the full-scale one");
+
+    // Moving again, then still for longer than refine_after: the next frame is the full-scale image, exactly.
+    for _ in 0..4 {
+        app.world_mut().resource_mut::<Interacting>().mark();
+        app.update();
+    }
+    assert!(app.world().resource::<BudgetState>().scale < 1.0, "moving again draws coarse");
     app.world_mut().resource_mut::<FrameBudget>().refine_after = Duration::ZERO;
     let refined = headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(app.world().resource::<BudgetState>().scale, 1.0);

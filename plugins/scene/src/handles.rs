@@ -214,7 +214,12 @@ pub fn drag_roi(
     interacting: Option<ResMut<fascicle_render::budget::Interacting>>,
 ) {
     if !buttons.pressed(MouseButton::Left) {
-        drag.0 = None;
+        // A drag that ends refines the view at once (the frame budget's still time is for wheel turns).
+        if drag.0.take().is_some()
+            && let Some(mut interacting) = interacting
+        {
+            interacting.release();
+        }
         return;
     }
     let Some(ray) = window.cursor_position().and_then(|at| fascicle_views::cursor_ray(camera.0, camera.1, at)) else {
