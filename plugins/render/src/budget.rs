@@ -11,8 +11,8 @@
 //!   after an idle wait measures the wait). The main pass's cost is taken as proportional to its pixels, so a
 //!   frame `t` over budget `b` scales the side by `sqrt(b / t)` (at most 4x less a frame), and a frame under
 //!   60 % of the budget raises it (at most 1.25x), in steps of 1/16. An interaction starts at the scale the
-//!   last measured frame affords (a still scene's settling frames are measured too), so its first frame is
-//!   not the slow one.
+//!   last measured frame affords (a still scene's settling frames are measured too), and not above the scale
+//!   the last interaction ended at, so its first frame is not the slow one.
 //! - **Drawn**: the main pass renders into the top-left `scale` part of the camera's viewport (Bevy's
 //!   `MainPassResolutionOverride`; shaders that need the viewport read `view.main_pass_viewport`), and a
 //!   copy-and-blit pass, after the main pass and before post-processing, stretches it over the viewport with
@@ -221,6 +221,7 @@ fn hold_budget(
         state.last_moved = None;
     }
     let was_moving = state.moving;
+    let ended_at = state.scale;
     // Still, but a window drawn on demand still has settle frames to draw (after a wheel turn, say): they stay
     // coarse, and the full-quality frame is the last one, drawn once. A release refines at once: the settle
     // frames after it put the refined picture back (the retained picture).
@@ -233,11 +234,18 @@ fn hold_budget(
         (true, true, Some((frame, drawn))) if was_moving && back_to_back => {
             next_scale(state.scale.min(drawn), frame, state.budget, min)
         }
-        // An interaction starts at the scale the last measured frame affords, with no limit on the step.
-        (true, true, Some((frame, drawn))) if !was_moving => start_scale(drawn, frame, state.budget, min),
+        // An interaction starts at the scale the last measured frame affords, with no limit on the step, but
+        // not above the scale the last interaction ended at (frames between interactions may put a retained
+        // picture back, or draw while pipelines compile: cheap frames that say little of the scene's cost).
+        (true, true, Some((frame, drawn))) if !was_moving => {
+            start_scale(drawn, frame, state.budget, min).min(chosen.1.unwrap_or(1.0))
+        }
         (true, true, _) => state.scale,
         _ => 1.0,
     };
+    if was_moving && !state.moving {
+        chosen.1 = Some(ended_at);
+    }
     if state.moving && state.scale < 1.0 {
         // Frames until the view is still: the one that finds it still draws at full scale.
         unsettled.request();
@@ -250,12 +258,13 @@ fn hold_budget(
     }
 }
 
-/// The scales the last two updates chose, newest first (full scale before any).
-struct Chosen([f32; 2]);
+/// The scales the last two updates chose, newest first (full scale before any), and the scale the last
+/// interaction ended at (none before the first).
+struct Chosen([f32; 2], Option<f32>);
 
 impl Default for Chosen {
     fn default() -> Self {
-        Chosen([1.0; 2])
+        Chosen([1.0; 2], None)
     }
 }
 

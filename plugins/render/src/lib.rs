@@ -130,3 +130,21 @@ impl RecentlyRetained {
         self.1.fetch_add(u64::from(retained), Ordering::Relaxed);
     }
 }
+
+/// Changes the asset `id` with `f` and sends its [`AssetEvent::Modified`] at once, so that a system running
+/// after Bevy's `AssetEventSystems` (in `PostUpdate`: where the layer plugins react to loaded assets and
+/// propagated transforms) has its change drawn in this frame. `Assets::get_mut` queues the event until the
+/// next frame's flush: the render world would extract the change a frame late, and a window drawn on demand
+/// would draw one more full frame for it. Returns false (and sends nothing) when there is no such asset.
+pub fn modify_now<A: Asset>(
+    assets: &mut Assets<A>,
+    events: &mut MessageWriter<AssetEvent<A>>,
+    id: impl Into<AssetId<A>>,
+    f: impl FnOnce(&mut A),
+) -> bool {
+    let id = id.into();
+    let Some(asset) = assets.get_mut_untracked(id) else { return false };
+    f(asset);
+    events.write(AssetEvent::Modified { id });
+    true
+}

@@ -314,6 +314,7 @@ pub fn sort_splats(
     mut sets: Query<(&mut SplatSet, &GlobalTransform, Option<&RenderLayers>)>,
     materials: Res<Assets<SplatMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<SplatSortStats>,
     mode: Res<SplatSortMode>,
     gpu: Res<GpuSortStats>,
@@ -348,10 +349,9 @@ pub fn sort_splats(
         order.extend(order.len() as u32..padded_len(order.len()) as u32);
         let bytes: Vec<u8> = order.iter().flat_map(|i| i.to_le_bytes()).collect();
         stats.last_upload_bytes = bytes.len();
-        if let Some(mat) = materials.get(&set.material)
-            && let Some(mut b) = buffers.get_mut(&mat.order)
-        {
-            b.data = Some(bytes);
+        // Drawn in this frame: the sort runs after the asset events' flush.
+        if let Some(mat) = materials.get(&set.material) {
+            fascicle_render::modify_now(&mut buffers, &mut buffer_events, &mat.order, |b| b.data = Some(bytes));
         }
         set.sorted_for = Some(dir);
         stats.cpu_sorts += 1;

@@ -594,6 +594,7 @@ fn sync_slabs(
     mut slabs: Query<SlabItem>,
     sets: Query<(&Mesh3d, &MeshSet, &InheritedVisibility)>,
     mut materials: ResMut<Assets<TractMeshMaterial>>,
+    mut material_events: MessageWriter<AssetEvent<TractMeshMaterial>>,
 ) {
     for (e, slab, mesh, material, mut visibility) in &mut slabs {
         let Ok((set_mesh, set, shown)) = sets.get(slab.set) else {
@@ -608,11 +609,12 @@ fn sync_slabs(
         };
         match material.and_then(|m| materials.get(&m.0).map(|mat| (m.0.clone(), mat))) {
             Some((handle, mat)) => {
-                if (mat.params != params || mat.selected != source.selected)
-                    && let Some(mut mat) = materials.get_mut(&handle)
-                {
-                    mat.params = params;
-                    mat.selected = source.selected.clone();
+                // Drawn in this frame (a crosshair move): this runs after the asset events' flush.
+                if mat.params != params || mat.selected != source.selected {
+                    fascicle_render::modify_now(&mut materials, &mut material_events, &handle, |mat| {
+                        mat.params = params;
+                        mat.selected = source.selected.clone();
+                    });
                 }
             }
             None => {
@@ -1218,6 +1220,7 @@ pub fn apply_rois(
     deleted: Query<&DeletedStreamlines>,
     mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection, Option<&ChildOf>)>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
 ) {
     let removed_any = removed.read().count() + removed_rules.read().count() + removed_deletions.read().count() > 0;
@@ -1253,10 +1256,9 @@ pub fn apply_rois(
         selected += sel.iter().filter(|s| **s).count();
         let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();
         selection.0 = sel;
-        if !bytes.is_empty()
-            && let Some(mut b) = buffers.get_mut(&set.selected)
-        {
-            b.data = Some(bytes);
+        // Drawn in this frame: the selection runs after the asset events' flush.
+        if !bytes.is_empty() {
+            fascicle_render::modify_now(&mut buffers, &mut buffer_events, &set.selected, |b| b.data = Some(bytes));
         }
     }
     stats.evaluations += 1;

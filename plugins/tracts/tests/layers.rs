@@ -8,7 +8,9 @@
 #[path = "../examples/tracts.rs"]
 mod example;
 
+use bevy::ecs::message::Messages;
 use bevy::prelude::*;
+use bevy::render::storage::ShaderBuffer;
 use fascicle_core::io::Tractogram;
 use fascicle_core::roi::RoiShape;
 use fascicle_render::example::ExampleApp;
@@ -113,6 +115,17 @@ fn the_example_shows_the_streamlines_through_the_roi_as_it_moves() {
     let roi = world.query_filtered::<Entity, With<TractRoi>>().single(world).unwrap();
     world.get_mut::<TractRoi>(roi).unwrap().0.shape =
         RoiShape::Sphere { centre: moved.to_array(), radius: example::ROI_RADIUS };
+    // The new selection reaches the render world in the frame of the move: the selection buffer's Modified
+    // event is sent in that update (the selection runs after Bevy's flush of asset events, which would send it
+    // in the next one: a frame drawn with the old selection, and a window drawn on demand one more full frame).
+    ex.app.update();
+    let world = ex.app.world_mut();
+    let selected = world.get::<TractSet>(set).unwrap().selected.id();
+    let sent = world
+        .resource::<Messages<AssetEvent<ShaderBuffer>>>()
+        .iter_current_update_messages()
+        .any(|e| matches!(e, AssetEvent::Modified { id } if *id == selected));
+    assert!(sent, "the moved ROI's selection is sent to the render world in the frame of the move");
     let frame = ex.render().expect("offscreen render");
     let world = ex.app.world_mut();
     let want = through_sphere(&t, moved, example::ROI_RADIUS);
