@@ -441,7 +441,7 @@ fn tracts_panel(ui: &mut egui::Ui, kind: &mut LayerKind, data: &LayerData) {
 }
 
 /// A tract layer's mask images: each with include or exclude and a remove button; a path typed in the field is
-/// added by the button (not at every keystroke: a mask change rebuilds the layer).
+/// added by the button (not at every keystroke: each change reads the masks again, and a cutting mask rebuilds the layer).
 fn mask_rois(ui: &mut egui::Ui, masks: &mut Vec<fascicle_scene::model::MaskRoi>) {
     use fascicle_core::roi::RoiMode;
     let mut remove = None;

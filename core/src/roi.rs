@@ -675,6 +675,17 @@ impl Criteria {
         self.include.is_empty() && self.exclude.is_empty()
     }
 
+    /// Narrows a selection of the streamlines (`points` cut at `offsets`): each still selected stays so when
+    /// [`Criteria::keeps`] it (in parallel; the streamlines already out are not tested).
+    pub fn narrow(&self, points: &[Vec3], offsets: &[usize], selected: &mut [bool]) {
+        if self.is_empty() {
+            return;
+        }
+        selected.par_iter_mut().enumerate().filter(|(_, k)| **k).for_each(|(s, k)| {
+            *k = self.keeps(&points[offsets[s]..offsets[s + 1]]);
+        });
+    }
+
     /// Whether the streamline `pts` is kept.
     pub fn keeps(&self, pts: &[Vec3]) -> bool {
         if self.is_empty() {

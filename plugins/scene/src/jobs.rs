@@ -296,7 +296,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
-        LayerKind::Tracts { source, mode, render, colouring, rois, masks, ends_only, .. } => {
+        LayerKind::Tracts { source, mode, render, colouring, rois, masks, .. } => {
             // A scalar image to colour by is read (through the cache) before any part is made.
             let scalar = match colouring {
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
@@ -333,8 +333,9 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 streamed.store(true, Ordering::Relaxed);
                 progress.parts.push(prepare(part, 0, None));
             };
-            // Mask regions and values need the whole tractogram: it is not shown in parts as it comes.
-            let whole = by_value || !masks.is_empty();
+            // Cutting masks and values need the whole tractogram: it is not shown in parts as it comes.
+            // (Include and exclude masks select among the streamlines built: `mask_regions`.)
+            let whole = by_value || masks.iter().any(|m| m.crop);
             if by_value && masks.iter().any(|m| m.crop) {
                 return Err(
                     "a cutting mask (tckedit -mask) cuts the streamlines: colouring by their values needs them \
@@ -343,8 +344,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 );
             }
             let mut data = tract_data_in_parts(cache, source, progress, (!whole).then_some(&on_part as OnPart))?;
-            // The streamlines the mask regions keep (tckedit's test of each point), before any value threshold.
-            let mut keep = mask_keeps(cache, masks, *ends_only, &data.tractogram, progress)?;
+            let mut keep: Option<Vec<bool>> = None;
             // Values to colour by, aligned with the streamlines (those below a minimum hidden) or their points.
             let (mut per_streamline, mut per_point) = (None, None);
             match colouring {
@@ -622,37 +622,19 @@ pub fn streamline_values(t: &Tractogram, weights: Option<&Path>, name: &str) -> 
 }
 
 /// The streamlines of `data` that `keep` marks, with their tensors.
-/// The streamlines of `t` that `masks` keep, as `tckedit` keeps them with image regions (every include mask
-/// met, no exclude mask met, by a point in a non-zero voxel; with `ends_only`, by the first or last point); None
-/// when no mask includes or excludes (cutting masks are applied after: `cut_by_masks`). The images are read through the cache; a painted mask is its voxels (none painted:
-/// no region).
-fn mask_keeps(
-    cache: &DataCache,
-    masks: &[MaskRoi],
-    ends_only: bool,
-    t: &Tractogram,
-    progress: &JobProgress,
-) -> Result<Option<Vec<bool>>, String> {
-    use fascicle_core::roi::{Criteria, RoiMode};
-    use rayon::prelude::*;
-    let mut criteria = Criteria { ends_only, ..Criteria::default() };
+/// A tract layer's include and exclude masks as regions (`tckedit`'s image regions), for
+/// [`fascicle_tracts::TractMasks`]: the images read through the cache, a painted mask its voxels (none
+/// painted: no region); cutting masks are left out (`cut_by_masks` applies them when the layer is built). An
+/// image without a non-zero voxel is an error naming it.
+pub fn mask_regions(cache: &DataCache, masks: &[MaskRoi]) -> Result<fascicle_tracts::TractMasks, String> {
+    use fascicle_core::roi::{Region, RoiMode};
+    let mut out = fascicle_tracts::TractMasks::default();
     for m in masks.iter().filter(|m| !m.crop) {
-        let Some(region) = mask_region(cache, m, progress)? else { continue };
-        let to = if m.mode == RoiMode::Include { &mut criteria.include } else { &mut criteria.exclude };
+        let Some(Region::Mask(region)) = mask_region(cache, m, &JobProgress::default())? else { continue };
+        let to = if m.mode == RoiMode::Include { &mut out.include } else { &mut out.exclude };
         to.push(region);
     }
-    if criteria.is_empty() {
-        return Ok(None);
-    }
-    progress.stage("testing the streamlines against the masks", t.n_streamlines())?;
-    let keep = (0..t.n_streamlines())
-        .into_par_iter()
-        .map(|s| {
-            progress.advance(1);
-            criteria.keeps(t.streamline(s))
-        })
-        .collect();
-    Ok(Some(keep))
+    Ok(out)
 }
 
 /// A tract layer's mask as a region: its painted voxels (none painted: no region) or its image, read through the
@@ -2038,7 +2020,8 @@ mod tests {
     /// Mask images as a tract layer's regions keep what tckedit's image regions keep (the core's `Criteria`,
     /// itself tested against `tckedit`): an include mask the streamlines through a slab of voxels, an exclude
     /// mask the others, with ends only those with an end in it; with a value threshold, both apply. An empty
-    /// mask is an error naming the file.
+    /// mask is an error naming the file. Include and exclude masks select among the streamlines built (the
+    /// build keeps them all), cutting masks cut them in the build.
     #[test]
     fn mask_regions_keep_what_tckedit_keeps() {
         use crate::model::{MaskRoi, TractColouring};
@@ -2071,10 +2054,19 @@ mod tests {
             colouring,
         };
         let layer = |mode, colouring| layer_ends(mode, colouring, false);
-        let built = |kind: &LayerKind| match build(kind, &DataCache::default(), &JobProgress::default()) {
-            Ok(Content::Tracts(p)) => p.tractogram.expect("streamlines kept"),
-            Ok(_) => panic!("not one set"),
-            Err(e) => panic!("{e}"),
+        // What the layer shows: the streamlines built, narrowed by its include and exclude masks as the tract
+        // plugin narrows them (`TractMasks`, read by `mask_regions`).
+        let built = |kind: &LayerKind| {
+            let cache = DataCache::default();
+            let t = match build(kind, &cache, &JobProgress::default()) {
+                Ok(Content::Tracts(p)) => p.tractogram.expect("streamlines kept"),
+                Ok(_) => panic!("not one set"),
+                Err(e) => panic!("{e}"),
+            };
+            let LayerKind::Tracts { masks, ends_only, .. } = kind else { unreachable!() };
+            let mut shown = vec![true; t.n_streamlines()];
+            mask_regions(&cache, masks).unwrap_or_else(|e| panic!("{e}")).narrow(&t, *ends_only, &mut shown);
+            t.subset(&shown)
         };
         let kept = |mode, colouring| built(&layer(mode, colouring));
         let first_points = |t: &Tractogram, keep: &dyn Fn(usize) -> bool| -> Vec<[f32; 3]> {
@@ -2167,8 +2159,10 @@ mod tests {
         // An empty mask: an error naming it.
         vol.data.iter_mut().for_each(|v| *v = 0.0);
         fascicle_core::io::nifti::write(&mask, &vol, fascicle_core::io::nifti::WriteType::F32).unwrap();
-        let empty = layer(RoiMode::Include, TractColouring::Style);
-        let e = build(&empty, &DataCache::default(), &JobProgress::default()).err().unwrap();
+        let LayerKind::Tracts { masks: empty, .. } = layer(RoiMode::Include, TractColouring::Style) else {
+            unreachable!()
+        };
+        let e = mask_regions(&DataCache::default(), &empty).err().unwrap();
         assert!(e.contains(&mask.display().to_string()) && e.contains("empty"), "{e}");
         std::fs::remove_file(&mask).ok();
         std::fs::remove_file(&weights).ok();

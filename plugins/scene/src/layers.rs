@@ -31,7 +31,7 @@ use fascicle_volume::{ScalarVolume, VolumeLayer, VolumePlugin, VolumeSet, Volume
 
 use crate::cache::DataCache;
 use crate::jobs::{CANCELLED, Content, JobProgress, ValueHistogram, build, spawn_job, spawn_light_job};
-use crate::model::{LayerKind, LayerSpec, Scene, TractColouring};
+use crate::model::{LayerKind, LayerSpec, MaskRoi, Scene, TractColouring};
 
 /// What a spawned layer reports to the viewer's layer panel.
 #[derive(Clone, Debug, Default)]
@@ -188,7 +188,15 @@ impl Plugin for ScenePlugin {
                     (follow_crosshair, sync_layers.run_if(scene_or_retries_changed), restyle_layers, sync_views)
                         .chain()
                         .in_set(SceneSystems::Sync),
-                    (stream_parts, finish_jobs, mark_layers, report_errors, report_layer_data)
+                    (
+                        stream_parts,
+                        finish_jobs,
+                        request_masks,
+                        finish_mask_jobs,
+                        mark_layers,
+                        report_errors,
+                        report_layer_data,
+                    )
                         .chain()
                         .in_set(SceneSystems::Finish),
                 ),
@@ -205,6 +213,70 @@ fn scene_or_retries_changed(scene: Option<Res<ActiveScene>>, retries: Res<RetryL
 pub fn settle(app: &mut App) -> Result<(), String> {
     use fascicle_render::headless;
     headless::initialise(app).and_then(|()| headless::wait_for_layers(app)).map_err(|e| e.to_string())
+}
+
+/// A tract layer's include and exclude masks being read ([`crate::jobs::mask_regions`]), on an entity of its
+/// own, `Loading` while it runs (a headless capture waits for it); the layer keeps the masks it had until
+/// these are read.
+#[derive(Component)]
+struct MaskJob {
+    layer: Entity,
+    task: Task<Result<fascicle_tracts::TractMasks, String>>,
+}
+
+/// The include and exclude masks last asked for, on a tract layer's entity.
+#[derive(Component)]
+struct MasksAsked(Vec<MaskRoi>);
+
+/// Reads a tract layer's include and exclude masks in the background when they change (the layer is not
+/// rebuilt: the tract plugin re-selects when [`fascicle_tracts::TractMasks`] arrive). Until a layer's first
+/// masks are read it shows nothing; after an edit it shows the masks it had until the new ones are read.
+fn request_masks(
+    mut commands: Commands,
+    cache: Res<DataCache>,
+    layers: Query<(Entity, &SceneLayer, Option<&MasksAsked>, Has<fascicle_tracts::TractMasks>)>,
+    jobs: Query<(Entity, &MaskJob)>,
+) {
+    for (e, layer, asked, has_masks) in &layers {
+        let want: Vec<&MaskRoi> = match &layer.spec.kind {
+            LayerKind::Tracts { masks, .. } => masks.iter().filter(|m| !m.crop).collect(),
+            _ => vec![],
+        };
+        if asked.map_or(want.is_empty(), |a| a.0.iter().eq(want.iter().copied())) {
+            continue;
+        }
+        // A read of older masks is dropped.
+        for (j, _) in jobs.iter().filter(|(_, job)| job.layer == e) {
+            commands.entity(j).despawn();
+        }
+        if want.is_empty() {
+            commands.entity(e).remove::<(MasksAsked, fascicle_tracts::TractMasks)>();
+            continue;
+        }
+        if !has_masks {
+            commands.entity(e).insert(fascicle_tracts::TractMasks { waiting: true, ..default() });
+        }
+        let want: Vec<MaskRoi> = want.into_iter().cloned().collect();
+        let (cache, masks) = (cache.clone(), want.clone());
+        let task = spawn_light_job(move || crate::jobs::mask_regions(&cache, &masks));
+        commands.spawn((MaskJob { layer: e, task }, LayerStatus::Loading));
+        commands.entity(e).insert(MasksAsked(want));
+    }
+}
+
+/// Gives each tract layer the masks its finished read found; a read that failed (an image missing, unreadable
+/// or empty) leaves the layer showing nothing, failed with the message.
+fn finish_mask_jobs(mut commands: Commands, mut jobs: Query<(Entity, &mut MaskJob)>) {
+    for (j, mut job) in &mut jobs {
+        let Some(result) = check_ready(&mut job.task) else { continue };
+        commands.entity(j).despawn();
+        let Ok(mut layer) = commands.get_entity(job.layer) else { continue };
+        match result {
+            Ok(masks) => layer.try_insert(masks),
+            Err(message) => layer
+                .try_insert((fascicle_tracts::TractMasks { waiting: true, ..default() }, LayerStatus::Failed(message))),
+        };
+    }
 }
 
 /// A rule matching scene layer `i` to an entity at index `j` showing structure `s`.

@@ -150,15 +150,17 @@ pub enum LayerKind {
         #[serde(default)]
         rois: Vec<Roi>,
         /// Include/exclude mask images (as `tckedit` takes an image as a region: a point in a non-zero voxel,
-        /// the nearest voxel), with the regions above; a change rebuilds the layer. Default none.
+        /// the nearest voxel), with the regions above: a change re-selects once the images are read (nothing
+        /// is rebuilt); cutting masks (`crop`) cut the streamlines, and a change of them rebuilds. Default
+        /// none.
         #[serde(default)]
         masks: Vec<MaskRoi>,
         /// The regions (ROIs and masks) test only each streamline's first and last points (`tckedit
-        /// -ends_only`); default false. A change re-selects; with masks, it rebuilds.
+        /// -ends_only`); default false. A change re-selects.
         #[serde(default)]
         ends_only: bool,
-        /// Streamlines deleted by hand (indices into the layer's streamlines as built: after its masks and
-        /// value threshold), sorted; hidden whatever the regions select, left out of a saved selection. A change
+        /// Streamlines deleted by hand (indices into the layer's streamlines as built: after its value
+        /// threshold and cutting masks), sorted; hidden whatever the regions select, left out of a saved selection. A change
         /// re-selects. Default none.
         #[serde(default, skip_serializing_if = "Vec::is_empty")]
         deleted: Vec<u32>,
@@ -252,14 +254,15 @@ impl LayerKind {
                 },
             },
             // The ROIs and the per-pixel knobs are updated in place; sources, mode, scale and colour rebuild.
-            LayerKind::Tracts { source, mode, render, colouring, masks, ends_only, .. } => LayerKind::Tracts {
+            LayerKind::Tracts { source, mode, render, colouring, masks, .. } => LayerKind::Tracts {
                 source: source.clone(),
                 mode: *mode,
                 render: TubeSettings { scale: render.scale, colour: render.colour, ..TubeSettings::default() },
                 rois: vec![],
-                masks: masks.clone(),
-                // The masks are applied when the layer is built; without them the rule is a re-selection.
-                ends_only: *ends_only && !masks.is_empty(),
+                // Cutting masks cut the streamlines when the layer is built; include and exclude masks, and
+                // the rule, re-select (`fascicle_tracts::TractMasks`).
+                masks: masks.iter().filter(|m| m.crop).cloned().collect(),
+                ends_only: false,
                 deleted: vec![],
                 colouring: colouring.clone(),
             },

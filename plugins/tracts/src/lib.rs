@@ -26,7 +26,7 @@ use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, Shade
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::compress::{Compression, kept_points};
 use fascicle_core::io::Tractogram;
-use fascicle_core::roi::{Roi, SegmentGrid, select};
+use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, SegmentGrid, select};
 pub use fascicle_core::tubelet::TubeMethod;
 use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
 
@@ -185,7 +185,10 @@ pub struct MeshSet {
 /// streamed in parts), and the visible line sets hold more segments than the adapter's limit, every line set
 /// draws its preview ([`preview_mesh`]: one streamline in [`PREVIEW_STRIDE`], compressed to
 /// [`PREVIEW_TOLERANCE_MM`]); the whole sets return once the view has been still, and no set arrived, for
-/// `still_after`. Switching is a change of the entity's [`Mesh3d`] handle: nothing is rebuilt or uploaded.
+/// `still_after`. With the frame budget ([`fascicle_render::budget::FrameBudgetPlugin`]), the view moves while
+/// its [`BudgetState`](fascicle_render::budget::BudgetState) says so: a drag's release draws the whole sets in
+/// the frame it refines. Switching is a change of the entity's [`Mesh3d`] handle: nothing is rebuilt or
+/// uploaded.
 ///
 /// Off by default (every frame draws every streamline: headless renders, tests); the viewer turns it on.
 #[derive(Resource, Clone, Debug, PartialEq)]
@@ -237,23 +240,44 @@ fn tract_detail(
     moved: Query<(), (With<Camera3d>, Changed<GlobalTransform>)>,
     added: Query<(), Added<MeshSet>>,
     mut sets: Query<(&MeshSet, &LineSegments, &InheritedVisibility, &mut Mesh3d)>,
-    (mut last_activity, mut settling): (Local<Option<std::time::Duration>>, Local<bool>),
+    (mut last_activity, mut last_arrival, mut settling): (
+        Local<Option<std::time::Duration>>,
+        Local<Option<std::time::Duration>>,
+        Local<bool>,
+    ),
     unsettled: Option<ResMut<fascicle_render::Unsettled>>,
+    budget: Option<Res<fascicle_render::budget::BudgetState>>,
 ) {
     let now = time.elapsed();
     if !moved.is_empty() || !added.is_empty() {
         *last_activity = Some(now);
     }
+    if !added.is_empty() {
+        *last_arrival = Some(now);
+    }
     let software = adapter.is_some_and(|a| a.is_software());
     let limit = if software { detail.software_max_segments } else { detail.hardware_max_segments };
     let segments: usize =
         sets.iter().filter(|(set, _, shown, _)| set.preview.is_some() && shown.get()).map(|(_, s, _, _)| s.0).sum();
-    let since = last_activity.map(|t| now.saturating_sub(t));
-    let moving = detail.enabled && use_previews(since, detail.still_after, segments, limit);
-    // The first still frame keeps the previews and asks for nothing: a window drawn on demand then draws one
-    // more frame as it goes idle (its update mode changes), and that one, the last, draws the whole sets.
     let shown = sets.iter().any(|(set, _, _, mesh)| set.preview.as_ref() == Some(&mesh.0));
-    let coarse = moving || (shown && !*settling);
+    let (moving, coarse) = match &budget {
+        // With a frame budget, its view of the interaction decides (a drag's release refines at once, in the
+        // frame the budget draws at full scale), and sets arriving keep the previews for `still_after`.
+        Some(b) => {
+            let arriving =
+                use_previews(last_arrival.map(|t| now.saturating_sub(t)), detail.still_after, segments, limit);
+            let moving = detail.enabled && (arriving || (b.moving && segments > limit));
+            (moving, moving)
+        }
+        None => {
+            let since = last_activity.map(|t| now.saturating_sub(t));
+            let moving = detail.enabled && use_previews(since, detail.still_after, segments, limit);
+            // The first still frame keeps the previews and asks for nothing: a window drawn on demand then draws
+            // one more frame as it goes idle (its update mode changes), and that one, the last, draws the whole
+            // sets.
+            (moving, moving || (shown && !*settling))
+        }
+    };
     *settling = shown && !moving;
     trace!("tract detail: moving {moving}, previews shown {shown}, coarse {coarse}, {segments} segments");
     for (set, _, _, mut mesh) in &mut sets {
@@ -503,6 +527,39 @@ pub struct RoiRules {
 #[derive(Component, Clone, Debug, Default, PartialEq, Eq)]
 pub struct DeletedStreamlines(pub Arc<Vec<u32>>);
 
+/// Mask images as regions of a tract layer's streamlines, beside its ROIs ([`TractRoi`]), on the layer's
+/// entity (the parent of its tract sets) or on a tract set: a shown streamline meets every include mask and
+/// no exclude mask (a point in a non-zero voxel, the nearest; with [`RoiRules::ends_only`], its first or last
+/// point), as `tckedit` takes images as regions. A change re-selects; nothing is rebuilt. While `waiting` (an
+/// app still reading the masks), the sets show nothing. Default: no masks, not waiting.
+#[derive(Component, Clone, Debug, Default)]
+pub struct TractMasks {
+    /// Masks a shown streamline meets, every one.
+    pub include: Vec<Arc<MaskRegion>>,
+    /// Masks a shown streamline meets none of.
+    pub exclude: Vec<Arc<MaskRegion>>,
+    /// The masks are not known yet: nothing is shown (default false).
+    pub waiting: bool,
+}
+
+impl TractMasks {
+    /// Narrows a selection of `t`'s streamlines to those the masks keep (with `ends_only`, tested at their end
+    /// points); while waiting, to none.
+    pub fn narrow(&self, t: &Tractogram, ends_only: bool, selected: &mut [bool]) {
+        if self.waiting {
+            selected.iter_mut().for_each(|s| *s = false);
+            return;
+        }
+        let region = |m: &Arc<MaskRegion>| Region::Mask(m.clone());
+        let criteria = Criteria {
+            include: self.include.iter().map(region).collect(),
+            exclude: self.exclude.iter().map(region).collect(),
+            ends_only,
+        };
+        criteria.narrow(&t.points, &t.offsets, selected);
+    }
+}
+
 /// The cost of the last ROI re-selection.
 #[derive(Resource, Clone, Copy, Debug, Default)]
 pub struct RoiStats {
@@ -536,9 +593,18 @@ impl Plugin for TractPlugin {
                 (
                     apply_rois.in_set(TractSystems::Select),
                     line_msaa,
-                    tract_detail.after(bevy::transform::TransformSystems::Propagate).before(sync_slabs),
-                    tube_detail.after(fascicle_render::budget::BudgetSystems),
-                    sync_slabs,
+                    // The preview switches (a `Mesh3d` change) come before Bevy computes the meshes' bounds:
+                    // a bound changed a frame later would keep the retained picture from being put back, and a
+                    // window drawn on demand would draw one more full frame.
+                    tract_detail
+                        .after(bevy::transform::TransformSystems::Propagate)
+                        .after(fascicle_render::budget::BudgetSystems)
+                        .before(bevy::camera::visibility::VisibilitySystems::CalculateBounds)
+                        .before(sync_slabs),
+                    tube_detail
+                        .after(fascicle_render::budget::BudgetSystems)
+                        .before(bevy::camera::visibility::VisibilitySystems::CalculateBounds),
+                    sync_slabs.before(bevy::camera::visibility::VisibilitySystems::CalculateBounds),
                     warm_up,
                 ),
             );
@@ -1211,19 +1277,28 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
 /// the sets' flag buffers.
 #[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's change filters")]
 pub fn apply_rois(
-    changed_rois: Query<(), Or<(Added<TractRoi>, Changed<TractRoi>, Changed<RoiRules>, Changed<DeletedStreamlines>)>>,
+    changed_rois: Query<
+        (),
+        Or<(Added<TractRoi>, Changed<TractRoi>, Changed<RoiRules>, Changed<DeletedStreamlines>, Changed<TractMasks>)>,
+    >,
     mut removed: RemovedComponents<TractRoi>,
     mut removed_rules: RemovedComponents<RoiRules>,
     mut removed_deletions: RemovedComponents<DeletedStreamlines>,
+    mut removed_masks: RemovedComponents<TractMasks>,
     rois: Query<(&TractRoi, Option<&ChildOf>)>,
     rules: Query<&RoiRules>,
     deleted: Query<&DeletedStreamlines>,
+    masks: Query<&TractMasks>,
     mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection, Option<&ChildOf>)>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
 ) {
-    let removed_any = removed.read().count() + removed_rules.read().count() + removed_deletions.read().count() > 0;
+    let removed_any = removed.read().count()
+        + removed_rules.read().count()
+        + removed_deletions.read().count()
+        + removed_masks.read().count()
+        > 0;
     // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
     let rois_changed = !changed_rois.is_empty() || removed_any;
     if !rois_changed && !sets.iter().any(|(_, s, _, _)| s.is_added()) {
@@ -1248,6 +1323,9 @@ pub fn apply_rois(
         } else {
             select(&t.points, &t.offsets, set.grid.get(t), &list)
         };
+        if let Some(m) = on_set_or_layer(&masks, entity, layer) {
+            m.narrow(t, ends_only, &mut sel);
+        }
         for &s in on_set_or_layer(&deleted, entity, layer).iter().flat_map(|d| d.0.iter()) {
             if let Some(k) = sel.get_mut(s as usize) {
                 *k = false;

@@ -206,7 +206,64 @@ fn line_previews_draw_while_the_view_moves_and_the_whole_set_returns_when_still(
     assert_eq!(shown(&mut app), (false, true), "the preview is drawn while the camera moves");
 }
 
-/// Runs of lit columns on row 60: one per line seen.
+/// With the frame budget, line previews follow its interaction: while a drag is marked the preview is drawn,
+/// and the frame of the release (which the budget draws at full scale) draws the whole set, with no still time.
+#[test]
+fn with_a_frame_budget_the_release_draws_the_whole_set_at_once() {
+    use bevy::time::TimeUpdateStrategy;
+    use fascicle_render::budget::{FrameBudgetPlugin, Interacting};
+    use fascicle_tracts::{MeshSet, TractDetail};
+    let Some((mut app, _target)) = headless::gpu_test_app(W, H) else { return };
+    app.add_plugins((TractPlugin, FrameBudgetPlugin));
+    let detail = TractDetail {
+        enabled: true,
+        software_max_segments: 0,
+        hardware_max_segments: 0,
+        still_after: std::time::Duration::from_millis(300),
+    };
+    // Time runs 400 ms a frame: the set's arrival is soon past.
+    let frame = std::time::Duration::from_millis(400);
+    app.insert_resource(detail).insert_resource(TimeUpdateStrategy::ManualDuration(frame));
+    app.add_systems(
+        Startup,
+        |mut commands: Commands,
+         mut meshes: ResMut<Assets<Mesh>>,
+         mut materials: ResMut<Assets<TractMeshMaterial>>,
+         mut buffers: ResMut<Assets<ShaderBuffer>>| {
+            spawn_lines(&mut commands, &mut meshes, &mut materials, &mut buffers, Arc::new(fan()), 1.0);
+        },
+    );
+    let shown = |app: &mut App| {
+        let mut q = app.world_mut().query::<(&MeshSet, &Mesh3d)>();
+        let (set, mesh) = q.single(app.world()).expect("one line set");
+        (mesh.0 == set.full, set.preview.as_ref() == Some(&mesh.0))
+    };
+    headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
+    for _ in 0..4 {
+        app.update();
+    }
+    assert_eq!(shown(&mut app), (true, false), "still, after the arrival: the whole set");
+    for _ in 0..3 {
+        app.world_mut().resource_mut::<Interacting>().mark();
+        app.update();
+        assert_eq!(shown(&mut app), (false, true), "the preview while the drag is marked");
+    }
+    app.world_mut().resource_mut::<Interacting>().release();
+    app.update();
+    assert_eq!(shown(&mut app), (true, false), "the whole set in the frame of the release");
+    // Its bounds follow in that frame too, not in the next (a change then would keep a retained picture from
+    // being put back: one more full frame).
+    let bounds_changed = |app: &mut App| {
+        let world = app.world_mut();
+        let mut q = world.query_filtered::<Ref<bevy::camera::primitives::Aabb>, With<MeshSet>>();
+        q.single(world).expect("the set's bounds").last_changed()
+    };
+    let at_release = bounds_changed(&mut app);
+    app.update();
+    assert_eq!(bounds_changed(&mut app), at_release, "the bounds changed in the frame after the release");
+}
+
+/// Runs of lit columns on row 60: one per line seen./// Runs of lit columns on row 60: one per line seen.
 fn lit_runs(c: &headless::Capture) -> usize {
     let cols = lit_columns(c);
     cols.iter().zip(cols.iter().skip(1)).filter(|(a, b)| **b > **a + 1).count() + usize::from(!cols.is_empty())

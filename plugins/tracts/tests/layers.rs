@@ -12,13 +12,13 @@ use bevy::ecs::message::Messages;
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::io::Tractogram;
-use fascicle_core::roi::RoiShape;
+use fascicle_core::roi::{Criteria, MaskRegion, Region, RoiShape};
 use fascicle_render::example::ExampleApp;
 use fascicle_render::headless;
 use fascicle_render::headless::Capture;
 use fascicle_tracts::{
-    DeletedStreamlines, LayerStatus, RoiRules, RoiStats, TractCounts, TractPlugin, TractRoi, TractSelection, TractSet,
-    TractStyle, Tracts,
+    DeletedStreamlines, LayerStatus, RoiRules, RoiStats, TractCounts, TractMasks, TractPlugin, TractRoi,
+    TractSelection, TractSet, TractStyle, Tracts,
 };
 
 fn gpu_skipped() -> bool {
@@ -178,6 +178,33 @@ fn the_example_shows_the_streamlines_through_the_roi_as_it_moves() {
         RoiShape::Sphere { centre: moved.to_array(), radius: example::ROI_RADIUS };
     ex.render().expect("offscreen render");
     let world = ex.app.world_mut();
+
+    // A mask image as a further region (TractMasks on the layer): those the ROI selects that also pass through
+    // a slab of voxels (6 mm thick), by the core's image-region test (checked against tckedit); re-selected,
+    // not rebuilt. Waiting for its masks, the layer shows nothing; without them, what the ROI selects.
+    let affine = glam::DMat4::from_translation(glam::DVec3::new(60.0, 75.0, 58.0));
+    let mut slab = fascicle_core::Volume::<f32>::zeros(&[60, 50, 40], affine);
+    for (i, v) in slab.data.iter_mut().enumerate() {
+        *v = f32::from(u8::from((28..34).contains(&(i % 60))));
+    }
+    let region = std::sync::Arc::new(MaskRegion::new(&slab));
+    let criteria = Criteria { include: vec![Region::Mask(region.clone())], ..Default::default() };
+    let both: Vec<bool> = want.iter().enumerate().map(|(s, w)| *w && criteria.keeps(t.streamline(s))).collect();
+    let n_both = both.iter().filter(|k| **k).count();
+    assert!(n_both > 0 && n_both < m, "{n_both} of the {m} through the ROI pass through the slab");
+    world.entity_mut(layer).insert(TractMasks { include: vec![region], ..Default::default() });
+    ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
+    assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, both);
+    assert_eq!(*world.resource::<TractCounts>(), counts, "a mask re-selects, nothing is rebuilt");
+    world.entity_mut(layer).insert(TractMasks { waiting: true, ..Default::default() });
+    ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
+    assert!(world.query::<&TractSelection>().single(world).unwrap().0.iter().all(|s| !s));
+    world.entity_mut(layer).remove::<TractMasks>();
+    ex.render().expect("offscreen render");
+    let world = ex.app.world_mut();
+    assert_eq!(world.query::<&TractSelection>().single(world).unwrap().0, want);
 
     // A style change rebuilds the set; the ROI (a child of the layer) survives and still selects.
     *world.get_mut::<TractStyle>(layer).unwrap() = TractStyle::Lines { opacity: 1.0 };
