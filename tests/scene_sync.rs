@@ -413,6 +413,78 @@ fn roi_edits_reselect_without_rebuilding() {
     assert_ne!(state(&mut app).0, e0);
 }
 
+/// Mask images as a tract layer's include region re-select its streamlines without a rebuild: those the ROI
+/// selects that also pass through the mask (the core's image-region test, checked against tckedit). A mask
+/// that cannot be read fails the layer with a message naming the file and shows nothing; the good mask again
+/// puts the layer and its selection back.
+#[test]
+fn mask_edits_reselect_and_a_bad_mask_fails_then_recovers() {
+    use fascicle_core::roi::{Criteria, MaskRegion, Region, RoiMode};
+    use fascicle_render::layer::LayerStatus;
+    use fascicle_scene::model::MaskRoi;
+    use fascicle_tracts::{TractSelection, TractSet};
+    let Some(mut app) = scene_app(Scene::default_scene()) else { return };
+    let i =
+        app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Tracts { .. }));
+    let i = i.expect("the default scene has tracts");
+    let state = |app: &mut App| {
+        let mut q = app.world_mut().query::<(Entity, &TractSet, &TractSelection)>();
+        let (e, set, sel) = q.single(app.world()).expect("one tract set");
+        (e, set.tractogram.clone(), sel.0.clone())
+    };
+    let status = |app: &mut App| {
+        let mut q = app
+            .world_mut()
+            .query_filtered::<(&fascicle_scene::layers::LayerEntity, &LayerStatus), With<fascicle_scene::layers::SceneLayer>>();
+        q.iter(app.world()).find(|(le, _)| le.0 == i).map(|(_, s)| s.clone()).expect("the layer's status")
+    };
+    let (e0, t, by_roi) = state(&mut app);
+    // Voxels of 2 mm over the phantom, set where x is below the median of the selected streamlines' lowest x
+    // (about half of them reach it).
+    let mut lowest: Vec<f32> = (0..t.n_streamlines())
+        .filter(|s| by_roi[*s])
+        .map(|s| t.streamline(s).iter().map(|p| p.x).fold(f32::INFINITY, f32::min))
+        .collect();
+    lowest.sort_by(f32::total_cmp);
+    let cx = f64::from(lowest[lowest.len() / 2]);
+    let affine =
+        glam::DMat4::from_scale(glam::DVec3::splat(2.0)) * glam::DMat4::from_translation(glam::DVec3::splat(-50.0));
+    let mut half = fascicle_core::Volume::<f32>::zeros(&[100, 100, 100], affine);
+    for (v, x) in half.data.iter_mut().enumerate() {
+        *x = f32::from(u8::from(2.0 * ((v % 100) as f64 - 50.0) < cx));
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (good, bad) = (dir.path().join("half.nii"), dir.path().join("missing.nii"));
+    fascicle_core::io::nifti::write(&good, &half, fascicle_core::io::nifti::WriteType::F32).unwrap();
+    let criteria =
+        Criteria { include: vec![Region::Mask(std::sync::Arc::new(MaskRegion::new(&half)))], ..Default::default() };
+    let want: Vec<bool> = by_roi.iter().enumerate().map(|(s, k)| *k && criteria.keeps(t.streamline(s))).collect();
+    let n = want.iter().filter(|k| **k).count();
+    let n_roi = by_roi.iter().filter(|k| **k).count();
+    assert!(n > 0 && n < n_roi, "{n} of the {n_roi} the ROI selects pass through the half space below x = {cx}");
+    let set_mask = |app: &mut App, path: &std::path::Path| {
+        if let LayerKind::Tracts { masks, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[i].kind {
+            *masks = vec![MaskRoi { path: path.to_path_buf(), mode: RoiMode::Include, crop: false, painted: None }];
+        }
+        settle(app);
+        settle(app);
+    };
+    set_mask(&mut app, &good);
+    let (e1, _, sel) = state(&mut app);
+    assert_eq!(e1, e0, "a mask re-selects: the set is not rebuilt");
+    assert_eq!(sel, want);
+    set_mask(&mut app, &bad);
+    match status(&mut app) {
+        LayerStatus::Failed(m) => assert!(m.contains("missing.nii"), "{m}"),
+        s => panic!("a missing mask: {s:?}"),
+    }
+    assert!(state(&mut app).2.iter().all(|k| !k), "a layer whose mask failed shows nothing");
+    set_mask(&mut app, &good);
+    assert!(matches!(status(&mut app), LayerStatus::Ready { .. }), "{:?}", status(&mut app));
+    assert_eq!(state(&mut app).2, want);
+    assert_eq!(state(&mut app).0, e0, "nothing rebuilt");
+}
+
 /// ROIs belong to their layer: with three tract layers of the same file (hyperstreamlines, lines, polygon
 /// tubes), an include sphere on the first selects there only; moved to the other two, it selects there only.
 #[test]

@@ -410,6 +410,44 @@ pub fn drag_mapped(file: &Path) -> Result<(), Error> {
     Ok(())
 }
 
+/// `fascicle-bench scale --pick FILE`: the viewer's picking on a tractogram read into memory, brute force in
+/// parallel over its streamlines as the viewer picks: a click (every step against the cone of 4 pixels at a
+/// 1,000-pixel focal length around a ray along -z through the centre of the bounds) and a lasso (every point's
+/// position in a 20 mm square around that centre, seen along z). Prints the median of 5 of each.
+pub fn pick(file: &Path) -> Result<(), Error> {
+    use glam::{Vec2, Vec3};
+    let t = fascicle_core::io::Tractogram::read(file)?;
+    let (lo, hi) = t.points.iter().fold((Vec3::MAX, Vec3::MIN), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let centre = (lo + hi) / 2.0;
+    let median = |f: &dyn Fn() -> usize| {
+        let mut ms: Vec<f64> = (0..5)
+            .map(|_| {
+                let t0 = Instant::now();
+                std::hint::black_box(f());
+                t0.elapsed().as_secs_f64() * 1e3
+            })
+            .collect();
+        ms.sort_by(f64::total_cmp);
+        ms[2]
+    };
+    let eye = centre + Vec3::Z * (hi.z - lo.z + 100.0);
+    let (points, offsets) = (&t.points, &t.offsets);
+    let click = median(&|| {
+        fascicle_core::roi::pick_streamline(points, offsets, |_| true, eye, -Vec3::Z, 0.004).map_or(0, |p| p.0)
+    });
+    // Seen along z: a point's screen position is its x and y in mm.
+    let square =
+        [(-10.0, -10.0), (10.0, -10.0), (10.0, 10.0), (-10.0, 10.0)].map(|(x, y)| centre.truncate() + Vec2::new(x, y));
+    let lasso = || fascicle_core::roi::lasso_streamlines(points, offsets, |_| true, |p| Some(p.truncate()), &square);
+    let picked = lasso().len();
+    let lasso_ms = median(&|| lasso().len());
+    println!(
+        "picking {} streamlines: a click {click:.1} ms, a lasso (20 mm square, {picked} picked) {lasso_ms:.1} ms (medians of 5)",
+        t.n_streamlines()
+    );
+    Ok(())
+}
+
 /// The ROI drag the bench times: an include sphere of 10 mm radius moved 1 mm at a time along x, from -20 mm,
 /// 40 steps, each step `select` (the streamlines kept). The median and worst step in ms, and the last step's
 /// kept count.

@@ -183,6 +183,9 @@ pub enum BenchCommand {
         /// bench runs itself so to measure that process's memory alone).
         #[arg(long, hide = true)]
         drag_mapped: Option<PathBuf>,
+        /// Only time the viewer's picking (a click, a lasso) on this tractogram, read into memory, then exit.
+        #[arg(long)]
+        pick: Option<PathBuf>,
     },
     /// Draw the default scene headless for many frames, toggling layers and moving the ROI; print memory and
     /// asset counts (the soak test). Fails when a layer reports an error or the second half of the run grows:
@@ -208,7 +211,8 @@ pub enum BenchCommand {
 pub fn run(cmd: BenchCommand) -> Result<(), Error> {
     match cmd {
         BenchCommand::Scale { drag_mapped: Some(file), .. } => crate::bench_scale::drag_mapped(&file),
-        BenchCommand::Scale { sizes, dir, python, csv, drag_max, write_only, drag_mapped: None } => {
+        BenchCommand::Scale { pick: Some(file), .. } => crate::bench_scale::pick(&file),
+        BenchCommand::Scale { sizes, dir, python, csv, drag_max, write_only, drag_mapped: None, pick: None } => {
             crate::bench_scale::run(crate::bench_scale::ScaleOptions {
                 sizes: &sizes,
                 dir: &dir,

@@ -470,22 +470,44 @@ pub fn pick_streamline(
     tolerance: f32,
 ) -> Option<(usize, f32)> {
     let n = offsets.len().saturating_sub(1);
+    // Coordinates along the ray and across it: a step whose two points lie beyond the cone's widest radius on
+    // the step (its larger distance along the ray times the tolerance, with a margin for rounding) on the same
+    // side of an axis across the ray cannot come within the cone, and is not tested (the others are, exactly).
+    let (e1, e2) = (d.any_orthonormal_vector(), d.cross(d.any_orthonormal_vector()));
+    let local = |p: Vec3| {
+        let w = p - o;
+        Vec3::new(w.dot(d), w.dot(e1), w.dot(e2))
+    };
+    let may_meet = |a: Vec3, b: Vec3| {
+        let far = a.x.max(b.x);
+        let r = tolerance * far * 1.001 + 1e-4;
+        let beyond = |x: f32, y: f32| (x > r && y > r) || (x < -r && y < -r);
+        far > 0.0 && !beyond(a.y, b.y) && !beyond(a.z, b.z)
+    };
     (0..n)
         .into_par_iter()
         .filter(|&s| shown(s))
         .filter_map(|s| {
             let pts = &points[offsets[s]..offsets[s + 1]];
-            let steps: Box<dyn Iterator<Item = (Vec3, Vec3)>> = match pts {
-                [p] => Box::new(std::iter::once((*p, *p))),
-                _ => Box::new(pts.windows(2).map(|w| (w[0], w[1]))),
+            let hit = |a: Vec3, b: Vec3| {
+                let (t, dist) = ray_step_approach(o, d, a, b);
+                (t > 0.0 && dist <= tolerance * t).then_some(t)
             };
-            steps
-                .filter_map(|(a, b)| {
-                    let (t, dist) = ray_step_approach(o, d, a, b);
-                    (t > 0.0 && dist <= tolerance * t).then_some(t)
-                })
-                .min_by(f32::total_cmp)
-                .map(|t| (s, t))
+            let mut best: Option<f32> = None;
+            if let [p] = pts {
+                best = hit(*p, *p);
+            }
+            let mut prev = pts.first().map(|p| local(*p));
+            for k in 1..pts.len() {
+                let cur = local(pts[k]);
+                if prev.is_some_and(|a| may_meet(a, cur))
+                    && let Some(t) = hit(pts[k - 1], pts[k])
+                {
+                    best = Some(best.map_or(t, |b: f32| b.min(t)));
+                }
+                prev = Some(cur);
+            }
+            best.map(|t| (s, t))
         })
         .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
 }

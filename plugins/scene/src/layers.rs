@@ -264,18 +264,41 @@ fn request_masks(
     }
 }
 
+/// On a tract layer whose masks could not be read: its status before (put back once they are read, if it
+/// was drawn).
+#[derive(Component)]
+struct MaskFailure(Option<LayerStatus>);
+
 /// Gives each tract layer the masks its finished read found; a read that failed (an image missing, unreadable
-/// or empty) leaves the layer showing nothing, failed with the message.
-fn finish_mask_jobs(mut commands: Commands, mut jobs: Query<(Entity, &mut MaskJob)>) {
+/// or empty) leaves the layer showing nothing, failed with the message, until masks are read again.
+fn finish_mask_jobs(
+    mut commands: Commands,
+    mut jobs: Query<(Entity, &mut MaskJob)>,
+    layers: Query<(Option<&LayerStatus>, Option<&MaskFailure>)>,
+) {
     for (j, mut job) in &mut jobs {
         let Some(result) = check_ready(&mut job.task) else { continue };
         commands.entity(j).despawn();
-        let Ok(mut layer) = commands.get_entity(job.layer) else { continue };
-        match result {
-            Ok(masks) => layer.try_insert(masks),
-            Err(message) => layer
-                .try_insert((fascicle_tracts::TractMasks { waiting: true, ..default() }, LayerStatus::Failed(message))),
+        let (Ok((status, failure)), Ok(mut layer)) = (layers.get(job.layer), commands.get_entity(job.layer)) else {
+            continue;
         };
+        match (result, failure) {
+            (Ok(masks), Some(MaskFailure(before))) => {
+                layer.try_insert(masks).try_remove::<MaskFailure>();
+                // Still failed by its masks (a rebuild since has a status of its own): drawn as before.
+                if let (Some(LayerStatus::Failed(_)), Some(before @ LayerStatus::Ready { .. })) = (status, before) {
+                    layer.try_insert(before.clone());
+                }
+            }
+            (Ok(masks), None) => {
+                layer.try_insert(masks);
+            }
+            (Err(message), _) => {
+                let before = failure.map_or_else(|| status.cloned(), |f| f.0.clone());
+                let waiting = fascicle_tracts::TractMasks { waiting: true, ..default() };
+                layer.try_insert((waiting, LayerStatus::Failed(message), MaskFailure(before)));
+            }
+        }
     }
 }
 

@@ -147,21 +147,16 @@ fn lit_columns(c: &headless::Capture) -> Vec<u32> {
     (0..W).filter(|&x| c.pixel(x, 60)[..3].iter().any(|&v| v > 40)).collect()
 }
 
-#[test]
-fn line_previews_draw_while_the_view_moves_and_the_whole_set_returns_when_still() {
+/// The fan of lines spawned at startup, every line set over the preview limit, time advancing `frame` an update.
+fn fan_with_previews(app: &mut App, frame: std::time::Duration) {
     use bevy::time::TimeUpdateStrategy;
-    use fascicle_tracts::{MeshSet, PREVIEW_STRIDE, TractDetail};
-    assert_eq!(PREVIEW_STRIDE, 16);
-    let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
-    app.add_plugins(TractPlugin);
-    // Every line set is over the limit; time stands still, so the set's arrival stays recent.
-    let detail = TractDetail {
+    let detail = fascicle_tracts::TractDetail {
         enabled: true,
         software_max_segments: 0,
         hardware_max_segments: 0,
         still_after: std::time::Duration::from_millis(300),
     };
-    app.insert_resource(detail).insert_resource(TimeUpdateStrategy::ManualDuration(std::time::Duration::ZERO));
+    app.insert_resource(detail).insert_resource(TimeUpdateStrategy::ManualDuration(frame));
     app.add_systems(
         Startup,
         |mut commands: Commands,
@@ -171,14 +166,27 @@ fn line_previews_draw_while_the_view_moves_and_the_whole_set_returns_when_still(
             spawn_lines(&mut commands, &mut meshes, &mut materials, &mut buffers, Arc::new(fan()), 1.0);
         },
     );
+}
+
+/// Whether the one line set draws its whole mesh, and whether its preview.
+fn preview_shown(app: &mut App) -> (bool, bool) {
+    let mut q = app.world_mut().query::<(&fascicle_tracts::MeshSet, &Mesh3d)>();
+    let (set, mesh) = q.single(app.world()).expect("one line set");
+    (mesh.0 == set.full, set.preview.as_ref() == Some(&mesh.0))
+}
+
+#[test]
+fn line_previews_draw_while_the_view_moves_and_the_whole_set_returns_when_still() {
+    use bevy::time::TimeUpdateStrategy;
+    use fascicle_tracts::PREVIEW_STRIDE;
+    assert_eq!(PREVIEW_STRIDE, 16);
+    let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
+    app.add_plugins(TractPlugin);
+    // Time stands still, so the set's arrival stays recent.
+    fan_with_previews(&mut app, std::time::Duration::ZERO);
     headless::spawn_test_camera(&mut app, target.clone(), Vec3::new(0.0, 0.0, EYE_Z), Vec3::ZERO);
     let moving = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
-    let shown = |app: &mut App| {
-        let mut q = app.world_mut().query::<(&MeshSet, &Mesh3d)>();
-        let (set, mesh) = q.single(app.world()).expect("one line set");
-        (mesh.0 == set.full, set.preview.as_ref() == Some(&mesh.0))
-    };
-    assert_eq!(shown(&mut app), (false, true), "the preview is drawn while the set has just arrived");
+    assert_eq!(preview_shown(&mut app), (false, true), "the preview is drawn while the set has just arrived");
     let cols = lit_columns(&moving);
     // Lines at x = -8 and x = 8 only: two runs of columns near their projections.
     let near = |x: f32, c: u32| (c as f32 - column(x)).abs() <= 2.0;
@@ -190,7 +198,7 @@ fn line_previews_draw_while_the_view_moves_and_the_whole_set_returns_when_still(
     app.update();
     app.insert_resource(TimeUpdateStrategy::ManualDuration(std::time::Duration::ZERO));
     let still = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(shown(&mut app), (true, false), "the whole set is drawn once the view is still");
+    assert_eq!(preview_shown(&mut app), (true, false), "the whole set is drawn once the view is still");
     let cols = lit_columns(&still);
     for i in 0..17 {
         let x = i as f32 - 8.0;
@@ -203,54 +211,32 @@ fn line_previews_draw_while_the_view_moves_and_the_whole_set_returns_when_still(
         t.translation.x += 0.001;
     }
     app.update();
-    assert_eq!(shown(&mut app), (false, true), "the preview is drawn while the camera moves");
+    assert_eq!(preview_shown(&mut app), (false, true), "the preview is drawn while the camera moves");
 }
 
 /// With the frame budget, line previews follow its interaction: while a drag is marked the preview is drawn,
 /// and the frame of the release (which the budget draws at full scale) draws the whole set, with no still time.
 #[test]
 fn with_a_frame_budget_the_release_draws_the_whole_set_at_once() {
-    use bevy::time::TimeUpdateStrategy;
     use fascicle_render::budget::{FrameBudgetPlugin, Interacting};
-    use fascicle_tracts::{MeshSet, TractDetail};
+    use fascicle_tracts::MeshSet;
     let Some((mut app, _target)) = headless::gpu_test_app(W, H) else { return };
     app.add_plugins((TractPlugin, FrameBudgetPlugin));
-    let detail = TractDetail {
-        enabled: true,
-        software_max_segments: 0,
-        hardware_max_segments: 0,
-        still_after: std::time::Duration::from_millis(300),
-    };
     // Time runs 400 ms a frame: the set's arrival is soon past.
-    let frame = std::time::Duration::from_millis(400);
-    app.insert_resource(detail).insert_resource(TimeUpdateStrategy::ManualDuration(frame));
-    app.add_systems(
-        Startup,
-        |mut commands: Commands,
-         mut meshes: ResMut<Assets<Mesh>>,
-         mut materials: ResMut<Assets<TractMeshMaterial>>,
-         mut buffers: ResMut<Assets<ShaderBuffer>>| {
-            spawn_lines(&mut commands, &mut meshes, &mut materials, &mut buffers, Arc::new(fan()), 1.0);
-        },
-    );
-    let shown = |app: &mut App| {
-        let mut q = app.world_mut().query::<(&MeshSet, &Mesh3d)>();
-        let (set, mesh) = q.single(app.world()).expect("one line set");
-        (mesh.0 == set.full, set.preview.as_ref() == Some(&mesh.0))
-    };
+    fan_with_previews(&mut app, std::time::Duration::from_millis(400));
     headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
     for _ in 0..4 {
         app.update();
     }
-    assert_eq!(shown(&mut app), (true, false), "still, after the arrival: the whole set");
+    assert_eq!(preview_shown(&mut app), (true, false), "still, after the arrival: the whole set");
     for _ in 0..3 {
         app.world_mut().resource_mut::<Interacting>().mark();
         app.update();
-        assert_eq!(shown(&mut app), (false, true), "the preview while the drag is marked");
+        assert_eq!(preview_shown(&mut app), (false, true), "the preview while the drag is marked");
     }
     app.world_mut().resource_mut::<Interacting>().release();
     app.update();
-    assert_eq!(shown(&mut app), (true, false), "the whole set in the frame of the release");
+    assert_eq!(preview_shown(&mut app), (true, false), "the whole set in the frame of the release");
     // Its bounds follow in that frame too, not in the next (a change then would keep a retained picture from
     // being put back: one more full frame).
     let bounds_changed = |app: &mut App| {
