@@ -25,8 +25,13 @@ fn glyph_layer(scene: &mut Scene) -> &mut LayerKind {
 
 /// The index of the scene's SH glyph layer.
 fn glyph_index(app: &App) -> usize {
+    layer_index(app, |k| matches!(k, LayerKind::ShGlyphs { .. }))
+}
+
+/// The index of the scene's first layer of a kind.
+fn layer_index(app: &App, kind: impl Fn(&LayerKind) -> bool) -> usize {
     let layers = &app.world().resource::<ActiveScene>().0.layers;
-    layers.iter().position(|l| matches!(l.kind, LayerKind::ShGlyphs { .. })).expect("a glyph layer")
+    layers.iter().position(|l| kind(&l.kind)).expect("a layer of that kind")
 }
 
 /// Runs the app until every layer's job is done and swapped in.
@@ -323,9 +328,7 @@ fn splat_recolouring_rewrites_only_the_styles() {
 fn volume_transfer_function_updates_in_place() {
     use fascicle_volume::{VolumeMaterial, VolumeMethod, VolumeSet};
     let Some(mut app) = scene_app(Scene::default_scene()) else { return };
-    let i =
-        app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Volume { .. }));
-    let i = i.expect("the default scene has a volume layer");
+    let i = layer_index(&app, |k| matches!(k, LayerKind::Volume { .. }));
     let snapshot = |app: &mut App| {
         let mut q = app.world_mut().query::<(Entity, &VolumeSet)>();
         let (e, s) = q.single(app.world()).expect("one volume");
@@ -378,9 +381,7 @@ fn roi_edits_reselect_without_rebuilding() {
     use fascicle_tracts::{RoiStats, TractSelection, TractSet};
     let Some(mut app) = scene_app(Scene::default_scene()) else { return };
     settle(&mut app);
-    let i =
-        app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Tracts { .. }));
-    let i = i.expect("the default scene has tracts");
+    let i = layer_index(&app, |k| matches!(k, LayerKind::Tracts { .. }));
     let state = |app: &mut App| {
         let mut q = app.world_mut().query::<(Entity, &TractSet, &TractSelection)>();
         let (e, set, sel) = q.single(app.world()).expect("one tract set");
@@ -424,9 +425,7 @@ fn mask_edits_reselect_and_a_bad_mask_fails_then_recovers() {
     use fascicle_scene::model::MaskRoi;
     use fascicle_tracts::{TractSelection, TractSet};
     let Some(mut app) = scene_app(Scene::default_scene()) else { return };
-    let i =
-        app.world().resource::<ActiveScene>().0.layers.iter().position(|l| matches!(l.kind, LayerKind::Tracts { .. }));
-    let i = i.expect("the default scene has tracts");
+    let i = layer_index(&app, |k| matches!(k, LayerKind::Tracts { .. }));
     let state = |app: &mut App| {
         let mut q = app.world_mut().query::<(Entity, &TractSet, &TractSelection)>();
         let (e, set, sel) = q.single(app.world()).expect("one tract set");
