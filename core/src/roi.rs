@@ -473,7 +473,7 @@ pub fn pick_streamline(
     // Coordinates along the ray and across it: a step whose two points lie beyond the cone's widest radius on
     // the step (its larger distance along the ray times the tolerance, with a margin for rounding) on the same
     // side of an axis across the ray cannot come within the cone, and is not tested (the others are, exactly).
-    let (e1, e2) = (d.any_orthonormal_vector(), d.cross(d.any_orthonormal_vector()));
+    let (e1, e2) = d.any_orthonormal_pair();
     let local = |p: Vec3| {
         let w = p - o;
         Vec3::new(w.dot(d), w.dot(e1), w.dot(e2))

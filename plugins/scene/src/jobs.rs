@@ -627,10 +627,10 @@ pub fn streamline_values(t: &Tractogram, weights: Option<&Path>, name: &str) -> 
 /// painted: no region); cutting masks are left out (`cut_by_masks` applies them when the layer is built). An
 /// image without a non-zero voxel is an error naming it.
 pub fn mask_regions(cache: &DataCache, masks: &[MaskRoi]) -> Result<fascicle_tracts::TractMasks, String> {
-    use fascicle_core::roi::{Region, RoiMode};
+    use fascicle_core::roi::RoiMode;
     let mut out = fascicle_tracts::TractMasks::default();
     for m in masks.iter().filter(|m| !m.crop) {
-        let Some(Region::Mask(region)) = mask_region(cache, m, &JobProgress::default())? else { continue };
+        let Some(region) = mask_region(cache, m, &JobProgress::default())? else { continue };
         let to = if m.mode == RoiMode::Include { &mut out.include } else { &mut out.exclude };
         to.push(region);
     }
@@ -643,8 +643,8 @@ fn mask_region(
     cache: &DataCache,
     m: &MaskRoi,
     progress: &JobProgress,
-) -> Result<Option<fascicle_core::roi::Region>, String> {
-    use fascicle_core::roi::{MaskRegion, Region};
+) -> Result<Option<Arc<fascicle_core::roi::MaskRegion>>, String> {
+    use fascicle_core::roi::MaskRegion;
     let region = match &m.painted {
         Some(p) if p.voxels.is_empty() => return Ok(None),
         Some(p) => MaskRegion::new(&p.volume()),
@@ -653,7 +653,7 @@ fn mask_region(
     if region.count() == 0 {
         return Err(format!("{}: the mask image is empty (no non-zero voxel)", m.path.display()));
     }
-    Ok(Some(Region::Mask(Arc::new(region))))
+    Ok(Some(Arc::new(region)))
 }
 
 /// `data` cut where its streamlines leave the layer's cutting masks (`tckedit -mask`: each run of two or more
@@ -666,7 +666,7 @@ fn cut_by_masks(
 ) -> Result<TractData, String> {
     let mut regions = vec![];
     for m in masks.iter().filter(|m| m.crop) {
-        regions.extend(mask_region(cache, m, progress)?);
+        regions.extend(mask_region(cache, m, progress)?.map(fascicle_core::roi::Region::Mask));
     }
     if regions.is_empty() {
         return Ok(data);

@@ -230,11 +230,13 @@ struct MasksAsked(Vec<MaskRoi>);
 
 /// Reads a tract layer's include and exclude masks in the background when they change (the layer is not
 /// rebuilt: the tract plugin re-selects when [`fascicle_tracts::TractMasks`] arrive). Until a layer's first
-/// masks are read it shows nothing; after an edit it shows the masks it had until the new ones are read.
+/// masks are read it shows nothing; after an edit it shows the masks it had until the new ones are read. Only
+/// layers whose spec changed are looked at.
+#[allow(clippy::type_complexity, reason = "a Bevy system's query")]
 fn request_masks(
     mut commands: Commands,
     cache: Res<DataCache>,
-    layers: Query<(Entity, &SceneLayer, Option<&MasksAsked>, Has<fascicle_tracts::TractMasks>)>,
+    layers: Query<(Entity, &SceneLayer, Option<&MasksAsked>, Has<fascicle_tracts::TractMasks>), Changed<SceneLayer>>,
     jobs: Query<(Entity, &MaskJob)>,
 ) {
     for (e, layer, asked, has_masks) in &layers {
