@@ -29,7 +29,6 @@ use fascicle_render::retain::{RetainPicture, RetainedPicturePlugin};
 
 use crate::history::{RecentFiles, SceneHistory};
 use crate::panels::LayerPanels;
-use fascicle_core::roi::{SegmentGrid, select};
 use fascicle_render::layer::LayerStatus;
 use fascicle_scene::handles::{HandleSystems, HandlesPlugin, RoiDrag};
 use fascicle_scene::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin, view_camera};
@@ -103,12 +102,12 @@ struct UiState {
     stroke: Option<Stroke>,
 }
 
-/// Streamlines picked in one tract layer (of one tract set): indices into its streamlines.
+/// Streamlines picked in one tract layer: indices into its streamlines (across its parts).
 #[derive(Clone, Debug, Default, PartialEq)]
 struct Picked {
     /// The layer's index in the scene.
     layer: usize,
-    /// How many streamlines the layer's set holds.
+    /// How many streamlines the layer's sets hold together.
     n_streamlines: usize,
     /// The picked streamlines.
     streamlines: std::collections::BTreeSet<u32>,
@@ -145,7 +144,7 @@ fn screen_projection(cam: &Camera, tf: &GlobalTransform) -> Option<impl Fn(Vec3)
     })
 }
 
-/// Picks streamlines of a visible tract layer shown as one set, in the 3D view or a 2D view; the picked are
+/// Picks streamlines of a visible tract layer (across its parts), in the 3D view or a 2D view; the picked are
 /// outlined in white, and the layer's panel deletes them or keeps only them.
 /// - Ctrl + click (press and release without dragging) picks the streamline under the cursor, or unpicks it: in
 ///   the 3D view within 4 pixels, the nearest along the ray (`fascicle_core::roi::pick_streamline`); in a 2D
@@ -208,11 +207,12 @@ fn pick_streamlines(
         },
     };
     let Some(project) = screen_projection(cam, tf) else { return };
-    let mut counts = std::collections::HashMap::new();
-    for (.., le, _) in &sets {
-        *counts.entry(le.0).or_insert(0) += 1;
+    // A layer in parts picks across them: indices are the layer's (each part's from its `first` on).
+    let mut totals = std::collections::HashMap::new();
+    for (_, set, _, le, _) in &sets {
+        *totals.entry(le.0).or_insert(0) += set.tractogram.n_streamlines();
     }
-    let eligible = sets.iter().filter(|(.., le, v)| v.get() && counts.get(&le.0) == Some(&1));
+    let eligible = sets.iter().filter(|(.., v)| v.get());
     // In a 2D view only the points of its slab around the set (as drawn) are picked.
     let slab_of = |set: Entity| {
         let a = slab_axis?;
@@ -230,15 +230,16 @@ fn pick_streamlines(
     }
     let name = |layer: usize| scene.0.layers.get(layer).map_or("?", |l| l.name.as_str()).to_string();
     if gesture.dragged > 3.0 && lasso.len() >= 3 {
-        let best = eligible
-            .map(|(e, set, sel, le, _)| {
-                let t = &set.tractogram;
-                let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
-                let inside =
-                    fascicle_core::roi::lasso_streamlines(&t.points, &t.offsets, shown, in_view(slab_of(e)), &lasso);
-                (le.0, t.n_streamlines(), inside)
-            })
-            .max_by_key(|(.., inside)| inside.len());
+        let mut per_layer: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+        for (e, set, sel, le, _) in eligible {
+            let t = &set.tractogram;
+            let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
+            let inside =
+                fascicle_core::roi::lasso_streamlines(&t.points, &t.offsets, shown, in_view(slab_of(e)), &lasso);
+            per_layer.entry(le.0).or_default().extend(inside.into_iter().map(|s| set.first + s));
+        }
+        let best = per_layer.into_iter().max_by_key(|(_, inside)| inside.len());
+        let best = best.map(|(layer, inside)| (layer, totals.get(&layer).copied().unwrap_or(0), inside));
         let Some((layer, n_streamlines, inside)) = best.filter(|b| !b.2.is_empty()) else {
             ui.message = Some("no streamline inside the lasso".into());
             return;
@@ -274,20 +275,20 @@ fn pick_streamlines(
                 .filter_map(|(_, set, sel, le, _)| {
                     let t = &set.tractogram;
                     let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
-                    fascicle_core::roi::pick_streamline(&t.points, &t.offsets, shown, o, d, tolerance)
-                        .map(|(s, dist)| (le.0, t.n_streamlines(), s as u32, dist))
+                    set.index.pick(t, shown, o, d, tolerance).map(|(s, dist)| (le.0, set.first + s, dist))
                 })
-                .min_by(|a, b| a.3.total_cmp(&b.3))
+                .min_by(|a, b| a.2.total_cmp(&b.2))
         }
         Some(_) => eligible
             .filter_map(|(e, set, sel, le, _)| {
                 let t = &set.tractogram;
                 let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
                 fascicle_core::roi::pick_projected(&t.points, &t.offsets, shown, in_view(slab_of(e)), at, 4.0)
-                    .map(|(s, dist)| (le.0, t.n_streamlines(), s as u32, dist))
+                    .map(|(s, dist)| (le.0, set.first + s, dist))
             })
-            .min_by(|a, b| a.3.total_cmp(&b.3)),
+            .min_by(|a, b| a.2.total_cmp(&b.2)),
     };
+    let best = best.map(|(layer, s, dist)| (layer, totals.get(&layer).copied().unwrap_or(0), s as u32, dist));
     let Some((layer, n_streamlines, s, _)) = best else {
         ui.message = Some("no streamline under the cursor (Ctrl + click picks one, Ctrl + drag a lasso)".into());
         return;
@@ -536,7 +537,8 @@ fn draw_painted(
 #[derive(Default, Reflect, GizmoConfigGroup)]
 struct ViewGizmos;
 
-/// Outlines the picked streamlines in white (the first 2,000; in the 2D views their parts in the view's slab);
+/// Outlines the picked streamlines in white (the first 2,000 of each part of the layer; in the 2D views their
+/// runs in the view's slab);
 /// forgets the picks when their layer no longer shows the set they index (removed, rebuilt, reordered), so that
 /// no edit applies them to other streamlines.
 fn draw_picked(
@@ -547,26 +549,25 @@ fn draw_picked(
     slabs: Query<&fascicle_tracts::TractSlab>,
 ) {
     let Some(picked) = &ui.picked else { return };
-    let Some((entity, set, _)) =
-        sets.iter().find(|(_, s, le)| le.0 == picked.layer && s.tractogram.n_streamlines() == picked.n_streamlines)
-    else {
+    let mut parts: Vec<(Entity, &TractSet)> =
+        sets.iter().filter(|(_, _, le)| le.0 == picked.layer).map(|(e, s, _)| (e, s)).collect();
+    parts.sort_by_key(|(_, s)| s.first);
+    if parts.iter().map(|(_, s)| s.tractogram.n_streamlines()).sum::<usize>() != picked.n_streamlines {
         ui.picked = None;
         return;
-    };
-    let t = &set.tractogram;
-    let lines = picked.streamlines.iter().take(2000).filter_map(|&s| {
-        let o = t.offsets.get(s as usize..s as usize + 2)?;
-        Some(&t.points[o[0]..o[1]])
-    });
-    for pts in lines.clone() {
-        gizmos.linestrip(pts.iter().copied(), Color::WHITE);
+    }
+    let of_part = |set| picked_of_part(picked, set);
+    for (_, set) in &parts {
+        for pts in of_part(set) {
+            gizmos.linestrip(pts.iter().copied(), Color::WHITE);
+        }
     }
     // In each 2D view, the runs of points within the view's slab, on its plane 1 mm towards the eye.
-    for slab in slabs.iter().filter(|s| s.set == entity) {
+    for (slab, set) in slabs.iter().filter_map(|s| parts.iter().find(|(e, _)| *e == s.set).map(|(_, set)| (s, set))) {
         let Some(a) = (0..3).find(|&a| slab.normal == Vec3::AXES[a]) else { continue };
         let over = slab.offset + fascicle_views::view_axes(a).0[a].signum();
         let inside = |p: &Vec3| (p[a] - slab.offset).abs() <= slab.half_thickness;
-        for pts in lines.clone() {
+        for pts in of_part(set) {
             for run in pts.split(|p| !inside(p)).filter(|r| r.len() > 1) {
                 let flat = run.iter().map(|p| {
                     let mut q = *p;
@@ -577,6 +578,16 @@ fn draw_picked(
             }
         }
     }
+}
+
+/// The points of the picked streamlines that lie in the part `set` of their layer (the first 2,000).
+fn picked_of_part<'a>(picked: &'a Picked, set: &'a TractSet) -> impl Iterator<Item = &'a [Vec3]> + 'a {
+    let (a, n) = (set.first as u32, set.tractogram.n_streamlines() as u32);
+    picked
+        .streamlines
+        .range(a..a.saturating_add(n))
+        .take(2000)
+        .map(move |&s| set.tractogram.streamline((s - a) as usize))
 }
 
 /// Builds the starting scene from command-line files: scene files replace the scene, data files add layers.
@@ -1162,8 +1173,8 @@ fn file_dialog(
 const OPENABLE: &[&str] = &["nii", "gz", "mif", "trk", "tck", "trx", "ron"];
 
 /// Writes the streamlines that a tract layer's ROIs select to `UiState::selection_path`, when the panel
-/// asked: from the layer's tract set, or, when it has none (its data failed to load) or several (parts), selected
-/// again from the layer's source (cached), in the source's order.
+/// asked: from the layer's tract sets (a layer in parts: its parts in the layer's order), or, when it has none
+/// (its data failed to load), selected again from the layer's source (cached), in the source's order.
 fn save_selection(
     mut ui: ResMut<UiState>,
     scene: Res<ActiveScene>,
@@ -1172,24 +1183,30 @@ fn save_selection(
 ) {
     let Some(layer) = ui.save_selection.take() else { return };
     let path = PathBuf::from(ui.selection_path.trim());
-    let layer_sets: Vec<_> = sets.iter().filter(|(_, _, le)| le.0 == layer).collect();
-    let selected = match layer_sets[..] {
-        [(set, selection, _)] => Ok((selected_tractogram(set, selection), set.tractogram.n_streamlines())),
-        // None, or the streamlines in parts (as they were tracked): from the source, in its order.
-        _ => match scene.0.layers.get(layer).map(|l| &l.kind) {
+    let mut layer_sets: Vec<_> = sets.iter().filter(|(_, _, le)| le.0 == layer).collect();
+    layer_sets.sort_by_key(|(set, ..)| set.first);
+    let selected = match &layer_sets[..] {
+        [] => match scene.0.layers.get(layer).map(|l| &l.kind) {
             Some(LayerKind::Tracts { source, rois, ends_only, .. }) => {
                 fascicle_scene::jobs::tract_data(&cache, source, &Default::default()).map(|d| {
                     let t = &d.tractogram;
-                    let keep = if *ends_only {
-                        fascicle_core::roi::select_ends(&t.points, &t.offsets, rois)
-                    } else {
-                        select(&t.points, &t.offsets, &SegmentGrid::new(&t.points, &t.offsets, 4.0), rois)
-                    };
+                    let mut keep = vec![true; t.n_streamlines()];
+                    fascicle_core::roi::Criteria::from_rois(rois, *ends_only).narrow(&t.points, &t.offsets, &mut keep);
                     (t.subset(&keep), t.n_streamlines())
                 })
             }
             _ => Err(format!("layer {layer} is not a tract layer")),
         },
+        [(set, selection, _)] => Ok((selected_tractogram(set, selection), set.tractogram.n_streamlines())),
+        parts => {
+            let mut all = fascicle_core::io::Tractogram::new();
+            for (set, selection, _) in parts {
+                for s in (0..set.tractogram.n_streamlines()).filter(|s| selection.0.get(*s) == Some(&true)) {
+                    all.push(set.tractogram.streamline(s));
+                }
+            }
+            Ok((all, parts.iter().map(|(set, ..)| set.tractogram.n_streamlines()).sum()))
+        }
     };
     ui.message = Some(match selected {
         Ok((t, total)) => match crate::cli::select::write(&path, &t, None) {
@@ -1709,13 +1726,13 @@ mod tests {
         );
     }
 
-    /// "Save selection" writes what the ROIs select: from a tract set's own selection flags, or, for a layer
-    /// without a set (here none is spawned), by selecting again from the source. A bad path is a message, not
-    /// a panic.
+    /// "Save selection" writes what the ROIs select: from a tract set's own selection flags (a layer in parts:
+    /// the parts' flags, in the layer's order), or, for a layer without a set (here none is spawned), by
+    /// selecting again from the source. A bad path is a message, not a panic.
     #[test]
     fn save_selection_writes_the_selected_streamlines() {
         use fascicle_core::io::Tractogram;
-        use fascicle_core::roi::{Roi, RoiMode, RoiShape};
+        use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
         use std::sync::Arc;
         let trk = crate::repo_path("data/tracts/tracks300.trk");
         let t = Tractogram::read(&trk).unwrap();
@@ -1776,14 +1793,40 @@ mod tests {
         let flags: Vec<bool> = (0..t.n_streamlines()).map(|s| s % 3 == 0).collect();
         let set = TractSet {
             tractogram: Arc::new(t.clone()),
-            grid: fascicle_tracts::LazyGrid::default(),
+            index: fascicle_tracts::LazyIndex::default(),
             selected: Handle::default(),
+            first: 0,
         };
         app.world_mut().spawn((set, TractSelection(flags.clone()), LayerEntity(0)));
         let out = dir.join("set.trk");
         let msg = save(&mut app, 0, &out);
         let back = Tractogram::read(&out).unwrap();
         assert_eq!(back.n_streamlines(), t.n_streamlines().div_ceil(3), "{msg}");
+        for (k, s) in (0..t.n_streamlines()).step_by(3).enumerate() {
+            for (a, b) in back.streamline(k).iter().zip(t.streamline(s)) {
+                assert!((*a - *b).abs().max_element() < 1e-3, "streamline {s}: {a} vs {b}");
+            }
+        }
+
+        // A layer in parts (spawned out of order): each part's flags, the parts in the layer's order.
+        let half = t.n_streamlines() / 2;
+        let part = |range: std::ops::Range<usize>| {
+            Arc::new(t.subset(&(0..t.n_streamlines()).map(|i| range.contains(&i)).collect::<Vec<_>>()))
+        };
+        for (range, first) in [(half..t.n_streamlines(), half), (0..half, 0)] {
+            let set = TractSet {
+                tractogram: part(range.clone()),
+                index: fascicle_tracts::LazyIndex::default(),
+                selected: Handle::default(),
+                first,
+            };
+            let flags = range.map(|s| s % 3 == 0).collect();
+            app.world_mut().spawn((set, TractSelection(flags), LayerEntity(1)));
+        }
+        let msg = save(&mut app, 1, &dir.join("parts.tck"));
+        let back = Tractogram::read(dir.join("parts.tck")).unwrap();
+        assert!(msg.starts_with(&format!("saved {} of {}", back.n_streamlines(), t.n_streamlines())), "{msg}");
+        assert_eq!(back.n_streamlines(), t.n_streamlines().div_ceil(3));
         for (k, s) in (0..t.n_streamlines()).step_by(3).enumerate() {
             for (a, b) in back.streamline(k).iter().zip(t.streamline(s)) {
                 assert!((*a - *b).abs().max_element() < 1e-3, "streamline {s}: {a} vs {b}");

@@ -413,7 +413,8 @@ pub fn drag_mapped(file: &Path) -> Result<(), Error> {
 /// `fascicle-bench scale --pick FILE`: the viewer's picking on a tractogram read into memory, brute force in
 /// parallel over its streamlines as the viewer picks: a click (every step against the cone of 4 pixels at a
 /// 1,000-pixel focal length around a ray along -z through the centre of the bounds) and a lasso (every point's
-/// position in a 20 mm square around that centre, seen along z). Prints the median of 5 of each.
+/// position in a 20 mm square around that centre, seen along z). Prints the median of 5 of each; then the same
+/// click through the tract set's index (`StreamlineCells::pick`), its build, and 49 rays over the bounds.
 pub fn pick(file: &Path) -> Result<(), Error> {
     use glam::{Vec2, Vec3};
     let t = fascicle_core::io::Tractogram::read(file)?;
@@ -444,6 +445,35 @@ pub fn pick(file: &Path) -> Result<(), Error> {
     println!(
         "picking {} streamlines: a click {click:.1} ms, a lasso (20 mm square, {picked} picked) {lasso_ms:.1} ms (medians of 5)",
         t.n_streamlines()
+    );
+    // Through the tract set's index (what the viewer picks with once the index is built): the same click, and
+    // 49 rays on a 7 x 7 grid over the bounds (misses included: a miss walks the whole ray).
+    let t0 = Instant::now();
+    let index = fascicle_core::roi_index::StreamlineCells::build(t.n_streamlines(), |s| t.streamline(s), (lo, hi), 4.0);
+    let built = t0.elapsed().as_secs_f64();
+    let through = |o: Vec3| index.pick(|s| t.streamline(s), |_| true, o, -Vec3::Z, 0.004);
+    let indexed = median(&|| through(eye).map_or(0, |p| p.0));
+    assert_eq!(
+        through(eye),
+        fascicle_core::roi::pick_streamline(points, offsets, |_| true, eye, -Vec3::Z, 0.004),
+        "the index picks as brute force"
+    );
+    let mut rays: Vec<(f64, bool)> = (0..49)
+        .map(|k| {
+            let f = Vec3::new((k % 7) as f32 / 6.0, (k / 7) as f32 / 6.0, 0.0);
+            let o = Vec3::new(lo.x + (hi.x - lo.x) * f.x, lo.y + (hi.y - lo.y) * f.y, eye.z);
+            let t0 = Instant::now();
+            let hit = through(o).is_some();
+            (t0.elapsed().as_secs_f64() * 1e3, hit)
+        })
+        .collect();
+    rays.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let hits = rays.iter().filter(|r| r.1).count();
+    println!(
+        "through the index (built in {built:.1} s, {:.0} MiB): the click {indexed:.2} ms; 49 rays over the bounds ({hits} hit): median {:.2} ms, worst {:.2} ms",
+        index.heap_bytes() as f64 / 1048576.0,
+        rays[24].0,
+        rays[48].0
     );
     Ok(())
 }

@@ -245,6 +245,11 @@ impl Cells {
         Self { lo, cell, dims }
     }
 
+    /// A cell's side (mm).
+    pub(crate) fn cell(&self) -> f32 {
+        self.cell
+    }
+
     /// How many cells there are.
     pub(crate) fn count(&self) -> usize {
         self.dims[0] * self.dims[1] * self.dims[2]
@@ -460,7 +465,8 @@ pub fn select_ends(points: &[Vec3], offsets: &[usize], rois: &[Roi]) -> Vec<bool
 /// The streamline a ray picks (a click in a view): of the streamlines `shown`, the one with a step that comes
 /// within the cone of half-angle `atan(tolerance)` around the ray (origin `o`, unit direction `d`; a click's
 /// tolerance in pixels over the focal length in pixels), nearest along the ray; with its distance along the
-/// ray. A one-point streamline is a point. Brute force over every step, in parallel.
+/// ray. A one-point streamline is a point. Brute force over every step, in parallel; an indexed set picks the
+/// same streamline by [`crate::roi_index::StreamlineCells::pick`], testing only those near the ray.
 pub fn pick_streamline(
     points: &[Vec3],
     offsets: &[usize],
@@ -470,45 +476,11 @@ pub fn pick_streamline(
     tolerance: f32,
 ) -> Option<(usize, f32)> {
     let n = offsets.len().saturating_sub(1);
-    // Coordinates along the ray and across it: a step whose two points lie beyond the cone's widest radius on
-    // the step (its larger distance along the ray times the tolerance, with a margin for rounding) on the same
-    // side of an axis across the ray cannot come within the cone, and is not tested (the others are, exactly).
-    let (e1, e2) = d.any_orthonormal_pair();
-    let local = |p: Vec3| {
-        let w = p - o;
-        Vec3::new(w.dot(d), w.dot(e1), w.dot(e2))
-    };
-    let may_meet = |a: Vec3, b: Vec3| {
-        let far = a.x.max(b.x);
-        let r = tolerance * far * 1.001 + 1e-4;
-        let beyond = |x: f32, y: f32| (x > r && y > r) || (x < -r && y < -r);
-        far > 0.0 && !beyond(a.y, b.y) && !beyond(a.z, b.z)
-    };
+    let ray = Ray::new(o, d, tolerance);
     (0..n)
         .into_par_iter()
         .filter(|&s| shown(s))
-        .filter_map(|s| {
-            let pts = &points[offsets[s]..offsets[s + 1]];
-            let hit = |a: Vec3, b: Vec3| {
-                let (t, dist) = ray_step_approach(o, d, a, b);
-                (t > 0.0 && dist <= tolerance * t).then_some(t)
-            };
-            let mut best: Option<f32> = None;
-            if let [p] = pts {
-                best = hit(*p, *p);
-            }
-            let mut prev = pts.first().map(|p| local(*p));
-            for k in 1..pts.len() {
-                let cur = local(pts[k]);
-                if prev.is_some_and(|a| may_meet(a, cur))
-                    && let Some(t) = hit(pts[k - 1], pts[k])
-                {
-                    best = Some(best.map_or(t, |b: f32| b.min(t)));
-                }
-                prev = Some(cur);
-            }
-            best.map(|t| (s, t))
-        })
+        .filter_map(|s| ray.hit(&points[offsets[s]..offsets[s + 1]]).map(|t| (s, t)))
         .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
 }
 
@@ -586,6 +558,61 @@ pub fn pick_projected(
                 .map(|d| (s, d))
         })
         .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+}
+
+/// A picking ray: origin `o`, unit direction `d`, and the cone of half-angle `atan(tolerance)` around it that a
+/// step must come within (see [`pick_streamline`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Ray {
+    pub(crate) o: Vec3,
+    pub(crate) d: Vec3,
+    pub(crate) tolerance: f32,
+    e1: Vec3,
+    e2: Vec3,
+}
+
+impl Ray {
+    pub(crate) fn new(o: Vec3, d: Vec3, tolerance: f32) -> Self {
+        let (e1, e2) = d.any_orthonormal_pair();
+        Self { o, d, tolerance, e1, e2 }
+    }
+
+    /// How far along the ray a streamline's nearest step within the cone comes (a one-point streamline is a
+    /// point), if one does. A step whose two points lie beyond the cone's widest radius on the step (its
+    /// larger distance along the ray times the tolerance, with a margin for rounding) on the same side of an
+    /// axis across the ray cannot come within the cone, and is not tested (the others are, exactly).
+    pub(crate) fn hit(&self, pts: &[Vec3]) -> Option<f32> {
+        let Self { o, d, tolerance, e1, e2 } = *self;
+        let local = |p: Vec3| {
+            let w = p - o;
+            Vec3::new(w.dot(d), w.dot(e1), w.dot(e2))
+        };
+        let may_meet = |a: Vec3, b: Vec3| {
+            let far = a.x.max(b.x);
+            let r = tolerance * far * 1.001 + 1e-4;
+            let beyond = |x: f32, y: f32| (x > r && y > r) || (x < -r && y < -r);
+            far > 0.0 && !beyond(a.y, b.y) && !beyond(a.z, b.z)
+        };
+        let hit = |a: Vec3, b: Vec3| {
+            let (t, dist) = ray_step_approach(o, d, a, b);
+            (t > 0.0 && dist <= tolerance * t).then_some(t)
+        };
+        let mut best: Option<f32> = None;
+        if let [p] = pts {
+            best = hit(*p, *p);
+        }
+        let mut prev = pts.first().map(|p| local(*p));
+        for k in 1..pts.len() {
+            let cur = local(pts[k]);
+            if prev.is_some_and(|a| may_meet(a, cur))
+                && let Some(t) = hit(pts[k - 1], pts[k])
+            {
+                best = Some(best.map_or(t, |b: f32| b.min(t)));
+            }
+            prev = Some(cur);
+        }
+        best
+    }
 }
 
 /// The closest approach of a ray (origin `o`, unit direction `d`) and the step `a`-`b`: the distance along the
@@ -692,6 +719,12 @@ pub struct Criteria {
 }
 
 impl Criteria {
+    /// The ROIs' shapes as regions, includes and excludes by their modes.
+    pub fn from_rois(rois: &[Roi], ends_only: bool) -> Self {
+        let regions = |mode| rois.iter().filter(|r| r.mode == mode).map(|r| Region::Shape(r.shape)).collect();
+        Criteria { include: regions(RoiMode::Include), exclude: regions(RoiMode::Exclude), ends_only }
+    }
+
     /// Whether there is anything to test.
     pub fn is_empty(&self) -> bool {
         self.include.is_empty() && self.exclude.is_empty()

@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::roi::{Cells, Roi, RoiMode, RoiShape};
+use crate::roi::{Cells, Ray, Roi, RoiMode, RoiShape};
 
 /// Per grid cell, the streamlines with a point in it or a segment whose bounding box meets it.
 pub struct StreamlineCells {
@@ -21,6 +21,8 @@ pub struct StreamlineCells {
     ids: Vec<u32>,
     /// Streamlines indexed.
     n: usize,
+    /// The bounds of their finite points (none without any).
+    extent: Option<(Vec3, Vec3)>,
 }
 
 impl StreamlineCells {
@@ -36,12 +38,25 @@ impl StreamlineCells {
         let cells = Cells::over(bounds.0, bounds.1, cell);
         let n_cells = cells.count();
         let counts: Vec<AtomicU64> = (0..n_cells).map(|_| AtomicU64::new(0)).collect();
-        (0..n).into_par_iter().for_each_init(Vec::new, |buf, s| {
-            cells_of(&cells, streamline(s), buf);
-            for &c in buf.iter() {
-                counts[c as usize].fetch_add(1, Ordering::Relaxed);
-            }
-        });
+        let none = || (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let (lo, hi) = (0..n)
+            .into_par_iter()
+            .fold(
+                || (Vec::new(), none()),
+                |(mut buf, (lo, hi)), s| {
+                    let pts = streamline(s);
+                    cells_of(&cells, pts, &mut buf);
+                    for &c in buf.iter() {
+                        counts[c as usize].fetch_add(1, Ordering::Relaxed);
+                    }
+                    let (lo, hi) =
+                        pts.iter().filter(|p| p.is_finite()).fold((lo, hi), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+                    (buf, (lo, hi))
+                },
+            )
+            .map(|(_, b)| b)
+            .reduce(none, |a, b| (a.0.min(b.0), a.1.max(b.1)));
+        let extent = lo.cmple(hi).all().then_some((lo, hi));
         let mut starts = Vec::with_capacity(n_cells + 1);
         starts.push(0u64);
         for c in &counts {
@@ -58,7 +73,7 @@ impl StreamlineCells {
             }
         });
         let ids = ids.into_iter().map(AtomicU32::into_inner).collect();
-        Self { cells, starts, ids, n }
+        Self { cells, starts, ids, n, extent }
     }
 
     /// Bytes the index holds.
@@ -81,6 +96,70 @@ impl StreamlineCells {
             .filter(|(_, w)| **w != 0)
             .flat_map(|(i, &w)| (0..64).filter(move |k| w >> k & 1 == 1).map(move |k| (i * 64 + k) as u32))
             .collect()
+    }
+
+    /// The streamline a ray picks, as [`crate::roi::pick_streamline`] picks it (of those `shown`, the one
+    /// with a step within the cone of half-angle `atan(tolerance)` around the ray from `o` along the unit `d`,
+    /// nearest along the ray; ties to the lower index), with its distance along the ray; testing only the
+    /// streamlines near the ray, front to back. The ray is cut into pieces of one cell's length; each piece's
+    /// box, widened by the cone's radius at its far end, gathers the streamlines of the cells it meets (a
+    /// step's point nearest the ray lies in its bounding box, which its cells cover), which are tested whole;
+    /// once the nearest hit lies within the pieces gathered, no untested streamline can come nearer.
+    pub fn pick<'a>(
+        &self,
+        streamline: impl Fn(usize) -> &'a [Vec3] + Sync,
+        shown: impl Fn(usize) -> bool + Sync,
+        o: Vec3,
+        d: Vec3,
+        tolerance: f32,
+    ) -> Option<(usize, f32)> {
+        let (lo, hi) = self.extent?;
+        let ray = Ray::new(o, d, tolerance);
+        // No hit lies farther along the ray than the farthest corner of the points' bounds, nor where the
+        // ray is farther from those bounds than the cone's radius there.
+        let far = (lo - o).abs().max((hi - o).abs()).length();
+        let slack = |t: f32| tolerance.abs() * t + 1e-3 + 1e-5 * t.abs();
+        let grow = Vec3::splat(slack(far));
+        let (a, b) = slab_span(o, d, lo - grow, hi + grow);
+        let (start, end) = (a.max(0.0), b.min(far));
+        if start.partial_cmp(&end).is_none_or(|o| o.is_gt()) {
+            return None;
+        }
+        let step = self.cells.cell();
+        let mut seen = vec![0u64; self.n.div_ceil(64)];
+        let mut best: Option<(usize, f32)> = None;
+        let mut t0 = start;
+        while t0 <= end {
+            // (A step lost to rounding far from the origin ends the walk at once.)
+            let t1 = if t0 + step > t0 { (t0 + step).min(end) } else { end };
+            let (p0, p1) = (o + d * t0, o + d * t1);
+            let r = Vec3::splat(slack(t1));
+            let piece = RoiShape::Box { min: (p0.min(p1) - r).to_array(), max: (p0.max(p1) + r).to_array() };
+            let mut fresh = Vec::new();
+            for c in self.cells.meeting(&piece).flatten() {
+                for &s in &self.ids[self.starts[c] as usize..self.starts[c + 1] as usize] {
+                    let (w, bit) = (s as usize / 64, 1u64 << (s % 64));
+                    if seen[w] & bit == 0 {
+                        seen[w] |= bit;
+                        fresh.push(s);
+                    }
+                }
+            }
+            let nearest = fresh
+                .par_iter()
+                .filter(|&&s| shown(s as usize))
+                .filter_map(|&s| ray.hit(streamline(s as usize)).map(|t| (s as usize, t)))
+                .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            best = match (best, nearest) {
+                (Some(a), Some(b)) => Some(if b.1.total_cmp(&a.1).then(b.0.cmp(&a.0)).is_lt() { b } else { a }),
+                (a, b) => a.or(b),
+            };
+            if best.is_some_and(|(_, t)| t <= t1) || t1 >= end {
+                break;
+            }
+            t0 = t1;
+        }
+        best
     }
 
     /// Which of the indexed streamlines the ROIs select, as [`crate::roi::select`] decides (every include
@@ -306,6 +385,24 @@ fn hausdorff(a: &RoiShape, b: &RoiShape) -> f32 {
     }
 }
 
+/// The span of the ray from `o` along `d` inside the box `lo`..`hi` (the slab method; empty when the first
+/// exceeds the second).
+fn slab_span(o: Vec3, d: Vec3, lo: Vec3, hi: Vec3) -> (f32, f32) {
+    let (mut a, mut b) = (f32::NEG_INFINITY, f32::INFINITY);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return (1.0, 0.0);
+            }
+        } else {
+            let (u, v) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
+            a = a.max(u.min(v));
+            b = b.min(u.max(v));
+        }
+    }
+    (a, b)
+}
+
 /// The distinct cells of a streamline's points and of its segments' bounding boxes, into `out`.
 fn cells_of(cells: &Cells, pts: &[Vec3], out: &mut Vec<u32>) {
     out.clear();
@@ -361,6 +458,59 @@ mod tests {
         let kept = |rois: &[Roi]| select(&t.points, &t.offsets, &grid, rois).iter().filter(|k| **k).count();
         assert!((1..t.n_streamlines()).contains(&kept(&cases[0])), "{}", kept(&cases[0]));
         assert!((1..t.n_streamlines()).contains(&kept(&cases[5])), "{}", kept(&cases[5]));
+    }
+
+    /// A pick through the index picks what the brute-force pick picks, streamline and distance, for rays from
+    /// every side through the brain (aimed at points of its streamlines, and at random), from inside it and
+    /// from far away, with hidden streamlines, on an index whose bounds are tighter than the points; and it
+    /// tests few streamlines when the nearest hit is near the ray's start.
+    #[test]
+    fn a_pick_through_the_index_picks_as_brute_force() {
+        let (t, _) = indexed_brain(3000, 3);
+        let tight = StreamlineCells::build(
+            t.n_streamlines(),
+            |s| t.streamline(s),
+            (Vec3::splat(-30.0), Vec3::splat(30.0)),
+            4.0,
+        );
+        let mut rng = 99u64;
+        let mut next = || {
+            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (rng >> 33) as f32 / (1u64 << 31) as f32
+        };
+        let (mut hits, mut tested_all) = (0, 0usize);
+        for k in 0..200 {
+            let s = (next() * t.n_streamlines() as f32) as usize % t.n_streamlines();
+            let pts = t.streamline(s);
+            let target = if k % 4 == 3 {
+                Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5) * 160.0
+            } else {
+                pts[(next() * pts.len() as f32) as usize % pts.len()]
+            };
+            let dir = Vec3::new(next() - 0.5, next() - 0.5, next() - 0.5).normalize();
+            let dist = [5.0, 80.0, 400.0][k % 3];
+            let o = target - dir * dist;
+            let tol = [0.002, 0.01, 0.05][k % 3];
+            let shown = |s: usize| !k.is_multiple_of(5) || !s.is_multiple_of(3);
+            let want = crate::roi::pick_streamline(&t.points, &t.offsets, shown, o, dir, tol);
+            let tested = AtomicU64::new(0);
+            let counted = |s: usize| {
+                tested.fetch_add(1, Ordering::Relaxed);
+                t.streamline(s)
+            };
+            let got = tight.pick(counted, shown, o, dir, tol);
+            assert_eq!(got, want, "ray {k} from {o} along {dir}, tolerance {tol}");
+            hits += usize::from(want.is_some());
+            tested_all += tested.load(Ordering::Relaxed) as usize;
+        }
+        assert!(hits > 150, "{hits} of 200 rays hit");
+        // Far fewer streamlines tested than the brute force's 200 x 3000.
+        assert!(tested_all * 5 < 200 * t.n_streamlines(), "{tested_all} streamlines tested");
+        // Nothing indexed, or a ray that misses the points' bounds: nothing picked.
+        let empty = StreamlineCells::build(0, |_| &[][..], (Vec3::ZERO, Vec3::ONE), 4.0);
+        assert_eq!(empty.pick(|s| t.streamline(s), |_| true, Vec3::ZERO, Vec3::X, 0.01), None);
+        let away = Vec3::new(0.0, 500.0, 0.0);
+        assert_eq!(tight.pick(|s| t.streamline(s), |_| true, away, Vec3::Y, 0.01), None);
     }
 
     /// A generated whole brain of `n` streamlines (read back from the .tck written) and its index.

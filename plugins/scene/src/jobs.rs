@@ -318,8 +318,9 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                     TractMode::Polygon => PreparedTracts::polygon_tubes(t, tensors, render.scale),
                     TractMode::Lines => PreparedTracts::lines_coloured(t, colour),
                 };
-                // The ROIs' segment grid is built here, off the main thread, when the layer has ROIs.
-                Content::Tracts(if rois.is_empty() { prepared } else { prepared.with_grid() })
+                let prepared = prepared.starting_at(first);
+                // The ROIs' index is built here, off the main thread, when the layer has ROIs.
+                Content::Tracts(if rois.is_empty() { prepared } else { prepared.with_index() })
             };
             // Tracking delivers its streamlines as they are computed.
             let streamed = AtomicBool::new(false);
@@ -329,9 +330,12 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                     "colouring by values per streamline or per point needs a file's streamlines, not tracking".into()
                 );
             }
+            // Parts delivered as they come are numbered in order (the layer's index of their first streamline).
+            let delivered = std::sync::atomic::AtomicUsize::new(0);
             let on_part = |part: TractData| {
                 streamed.store(true, Ordering::Relaxed);
-                progress.parts.push(prepare(part, 0, None));
+                let first = delivered.fetch_add(part.tractogram.n_streamlines(), Ordering::Relaxed);
+                progress.parts.push(prepare(part, first, None));
             };
             // Cutting masks and values need the whole tractogram: it is not shown in parts as it comes.
             // (Include and exclude masks select among the streamlines built: `mask_regions`.)
@@ -1749,7 +1753,7 @@ mod tests {
 
     /// A large tractogram goes to the layer in parts of whole streamlines of at most the limit (one
     /// streamline longer than the limit is a part of its own), in order and complete; the parts of a tract
-    /// layer from a file are built by the job and the content says so.
+    /// layer from a file are built by the job and the content says so, each knowing its first streamline.
     #[test]
     fn large_tractograms_are_split_into_parts() {
         let mut t = Tractogram::new();
@@ -1798,6 +1802,9 @@ mod tests {
             let Content::Tracts(p) = part else { panic!("a part that is not tracts") };
             let t = p.tractogram.expect("a tract layer's part keeps its streamlines");
             assert!(t.points.len() <= PART_POINTS);
+            // Each part knows where it starts among the layer's streamlines (picks and deletions index those).
+            assert_eq!(p.first, streamlines);
+            assert_eq!(t.streamline(0), big.streamline(p.first));
             streamlines += t.n_streamlines();
         }
         assert_eq!(streamlines, big.n_streamlines());

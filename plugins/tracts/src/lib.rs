@@ -26,7 +26,8 @@ use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, Shade
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::compress::{Compression, kept_points};
 use fascicle_core::io::Tractogram;
-use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi, SegmentGrid, select};
+use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi};
+use fascicle_core::roi_index::{DragMargins, StreamlineCells};
 pub use fascicle_core::tubelet::TubeMethod;
 use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
 
@@ -133,23 +134,101 @@ fascicle_render::proxy_glyph_material!(TubeletMaterial, shaders::tubelet());
 pub struct TractSet {
     /// The streamlines (world RAS+ mm), shared with the layer's asset.
     pub tractogram: Arc<Tractogram>,
-    /// The segment grid ROIs are tested on, built when an ROI first acts on the set.
-    pub grid: LazyGrid,
+    /// The spatial index ROIs and picks are tested through, built when first needed.
+    pub index: LazyIndex,
     /// One `u32` per streamline, 1 when selected; the vertex shaders hide the others.
     pub selected: Handle<ShaderBuffer>,
+    /// The layer's index of the set's first streamline, for a layer shown in parts (default 0: a set alone).
+    /// [`DeletedStreamlines`] on the layer index the layer's streamlines; this set hides those from `first` on.
+    pub first: usize,
 }
 
-/// A tract set's segment grid ([`SegmentGrid`], 4 mm cells), built once on first use and shared by clones: a
-/// layer without ROIs never builds it (1M streamlines: 13 s and several GB), one with ROIs builds it ahead in
-/// its background job ([`PreparedTracts::with_grid`]).
+/// A tract set's spatial index ([`StreamlineCells`], 4 mm cells: about 160 MiB for 1M whole-brain streamlines)
+/// and the margins of the ROI drag in progress ([`DragMargins`], 20 bytes per streamline and ROI), shared by
+/// clones. A layer with ROIs builds the index in its background job ([`PreparedTracts::with_index`]); one
+/// without builds it in a thread of its own when an ROI or a pick first needs it
+/// ([`LazyIndex::ready_or_build`]), and until then ROIs are tested on every streamline (the same selection:
+/// [`Criteria`]) and picks by brute force.
 #[derive(Clone, Default)]
-pub struct LazyGrid(Arc<OnceLock<SegmentGrid>>);
+pub struct LazyIndex(Arc<IndexInner>);
 
-impl LazyGrid {
-    /// The grid of `t` (the set's tractogram), built now if it was not.
-    pub fn get(&self, t: &Tractogram) -> &SegmentGrid {
-        self.0.get_or_init(|| SegmentGrid::new(&t.points, &t.offsets, 4.0))
+#[derive(Default)]
+struct IndexInner {
+    cells: OnceLock<StreamlineCells>,
+    building: std::sync::atomic::AtomicBool,
+    drag: std::sync::Mutex<DragMargins>,
+}
+
+/// The side of an index cell (mm).
+const INDEX_CELL_MM: f32 = 4.0;
+
+impl LazyIndex {
+    /// The index of `t` (the set's tractogram), built now if it was not.
+    pub fn get(&self, t: &Tractogram) -> &StreamlineCells {
+        self.0.cells.get_or_init(|| build_index(t))
     }
+
+    /// The index when it is built; otherwise `None`, and it is built in a thread of its own (once).
+    pub fn ready_or_build(&self, t: &Arc<Tractogram>) -> Option<&StreamlineCells> {
+        use std::sync::atomic::Ordering;
+        if let Some(cells) = self.0.cells.get() {
+            return Some(cells);
+        }
+        if !self.0.building.swap(true, Ordering::AcqRel) {
+            let (inner, t) = (self.0.clone(), t.clone());
+            let spawned = std::thread::Builder::new().name("tract index".into()).spawn(move || {
+                inner.cells.get_or_init(|| build_index(&t));
+            });
+            if let Err(e) = spawned {
+                warn!("the tract set's index is built when next needed: no thread for it ({e})");
+                self.0.building.store(false, Ordering::Release);
+            }
+        }
+        None
+    }
+
+    /// Which streamlines of `t` the ROIs select (as [`fascicle_core::roi::select`]), through the index,
+    /// remembering the drag's margins so that a moved ROI reads only the streamlines near its boundary; with
+    /// no index yet, testing every streamline (and the index is started).
+    pub fn select(&self, t: &Arc<Tractogram>, rois: &[Roi]) -> Vec<bool> {
+        match self.ready_or_build(t) {
+            Some(cells) => {
+                let mut drag = self.0.drag.lock().unwrap_or_else(|e| e.into_inner());
+                cells.select_dragging(|s| t.streamline(s), rois, &mut drag)
+            }
+            None => {
+                let mut keep = vec![true; t.n_streamlines()];
+                Criteria::from_rois(rois, false).narrow(&t.points, &t.offsets, &mut keep);
+                keep
+            }
+        }
+    }
+
+    /// The shown streamline of `t` a ray picks (see [`fascicle_core::roi::pick_streamline`]): through the
+    /// index when it is built, otherwise by brute force (and the index is started).
+    pub fn pick(
+        &self,
+        t: &Arc<Tractogram>,
+        shown: impl Fn(usize) -> bool + Sync,
+        o: Vec3,
+        d: Vec3,
+        tolerance: f32,
+    ) -> Option<(usize, f32)> {
+        match self.ready_or_build(t) {
+            Some(cells) => cells.pick(|s| t.streamline(s), shown, o, d, tolerance),
+            None => fascicle_core::roi::pick_streamline(&t.points, &t.offsets, shown, o, d, tolerance),
+        }
+    }
+}
+
+fn build_index(t: &Tractogram) -> StreamlineCells {
+    let bounds = t
+        .points
+        .iter()
+        .filter(|p| p.is_finite())
+        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+    let bounds = if bounds.0.cmple(bounds.1).all() { bounds } else { (Vec3::ZERO, Vec3::ZERO) };
+    StreamlineCells::build(t.n_streamlines(), |s| t.streamline(s), bounds, INDEX_CELL_MM)
 }
 
 /// A tract set drawn as hyperstreamlines (tubelets): one entity, one draw.
@@ -522,8 +601,9 @@ pub struct RoiRules {
 }
 
 /// Streamlines deleted by hand (picked in a view, then deleted or all others deleted), on a tract layer's
-/// entity or on a tract set: indices into the set's streamlines (a layer of one set: its streamlines), sorted;
-/// they stay hidden whatever the ROIs select, and "save selection" leaves them out. Default none.
+/// entity or on a tract set: indices into the layer's streamlines (each set hides those from its
+/// [`TractSet::first`] on; a set alone: its own streamlines), sorted; they stay hidden whatever the ROIs select,
+/// and "save selection" leaves them out. Default none.
 #[derive(Component, Clone, Debug, Default, PartialEq, Eq)]
 pub struct DeletedStreamlines(pub Arc<Vec<u32>>);
 
@@ -793,18 +873,21 @@ pub fn tract_tubelets(t: &Tractogram, tensors: Option<&[[f32; 6]]>, settings: &T
 }
 
 /// A tract set's CPU work, done before it is spawned (on any thread: the app builds it in a background job):
-/// for the chosen style, the packed tubelets or the mesh, and (with [`PreparedTracts::with_grid`]) the segment
-/// grid of the selection.
+/// for the chosen style, the packed tubelets or the mesh, and (with [`PreparedTracts::with_index`]) the spatial
+/// index of the selection.
 pub struct PreparedTracts {
     /// The streamlines, kept for ROI selection ([`TractSet`]); None once [`PreparedTracts::drawn_only`] let them
     /// go.
     pub tractogram: Option<Arc<Tractogram>>,
     /// How many streamlines the set draws.
     pub n_streamlines: usize,
-    /// The segment grid ROIs are tested on: built by [`PreparedTracts::with_grid`], otherwise on first use.
-    pub grid: LazyGrid,
+    /// The spatial index ROIs are tested through: built by [`PreparedTracts::with_index`], otherwise when first
+    /// needed.
+    pub index: LazyIndex,
     /// What is drawn: the packed tubelets or the mesh.
     pub geometry: PreparedGeometry,
+    /// The layer's index of the first streamline ([`TractSet::first`]; default 0).
+    pub first: usize,
 }
 
 /// The drawable part of [`PreparedTracts`].
@@ -837,13 +920,18 @@ pub enum PreparedGeometry {
 impl PreparedTracts {
     fn with(tractogram: Arc<Tractogram>, geometry: PreparedGeometry) -> Self {
         let n_streamlines = tractogram.n_streamlines();
-        PreparedTracts { grid: LazyGrid::default(), tractogram: Some(tractogram), n_streamlines, geometry }
+        PreparedTracts { index: LazyIndex::default(), tractogram: Some(tractogram), n_streamlines, geometry, first: 0 }
     }
 
-    /// With the segment grid built now (for a layer with ROIs: not on the main thread at the first selection).
-    pub fn with_grid(self) -> Self {
+    /// As the part of a layer whose first streamline is the layer's `first` ([`TractSet::first`]).
+    pub fn starting_at(self, first: usize) -> Self {
+        PreparedTracts { first, ..self }
+    }
+
+    /// With the spatial index built now (for a layer with ROIs: ready at the first selection).
+    pub fn with_index(self) -> Self {
         if let Some(t) = &self.tractogram {
-            self.grid.get(t);
+            self.index.get(t);
         }
         self
     }
@@ -853,7 +941,7 @@ impl PreparedTracts {
     /// geometry is made (a whole-brain tractogram's 1.2 GB per million streamlines, which a layer that only
     /// shows a file does not need).
     pub fn drawn_only(self) -> Self {
-        PreparedTracts { tractogram: None, grid: LazyGrid::default(), ..self }
+        PreparedTracts { tractogram: None, index: LazyIndex::default(), ..self }
     }
 
     /// Hyperstreamlines (optional per-point world tensors give the sections).
@@ -921,11 +1009,17 @@ struct Selection {
     target: Option<(TractSet, TractSelection)>,
 }
 
-/// The selection of a tractogram: every streamline selected, its segment grid `grid`.
-fn tract_set(buffers: &mut Assets<ShaderBuffer>, tractogram: Arc<Tractogram>, grid: LazyGrid) -> Selection {
+/// The selection of a tractogram: every streamline selected, its spatial index `index`, its first streamline
+/// the layer's `first`.
+fn tract_set(
+    buffers: &mut Assets<ShaderBuffer>,
+    tractogram: Arc<Tractogram>,
+    index: LazyIndex,
+    first: usize,
+) -> Selection {
     let n_streamlines = tractogram.n_streamlines();
     let flags = all_selected(buffers, n_streamlines);
-    let set = TractSet { tractogram, grid, selected: flags.clone() };
+    let set = TractSet { tractogram, index, selected: flags.clone(), first };
     Selection { flags, target: Some((set, TractSelection(vec![true; n_streamlines]))) }
 }
 
@@ -939,9 +1033,9 @@ pub(crate) fn insert_prepared(
     prepared: PreparedTracts,
     opacity: f32,
 ) {
-    let PreparedTracts { tractogram, n_streamlines, grid, geometry } = prepared;
+    let PreparedTracts { tractogram, n_streamlines, index, geometry, first } = prepared;
     let target = match tractogram {
-        Some(t) => tract_set(buffers, t, grid),
+        Some(t) => tract_set(buffers, t, index, first),
         None => Selection { flags: all_selected(buffers, n_streamlines), target: None },
     };
     match geometry {
@@ -1055,7 +1149,7 @@ pub fn spawn_tubes(
     settings: &TubeSettings,
 ) -> Entity {
     let tubes = tract_tubelets(&tractogram, tensors, settings);
-    let target = tract_set(buffers, tractogram, LazyGrid::default());
+    let target = tract_set(buffers, tractogram, LazyIndex::default(), 0);
     let preview = tube_preview(&tubes).map(|slots| boxes_of(&slots));
     let proxies = (&pack(&tubes)[..], tubes.len(), boxes(tubes.len()), preview);
     spawn_tube_set(commands, meshes, materials, buffers, target, proxies, *settings)
@@ -1072,7 +1166,7 @@ pub fn spawn_lines(
     opacity: f32,
 ) -> Entity {
     let (mesh, preview) = (line_mesh(&tractogram), meshes.add(preview_mesh(&tractogram, None)));
-    let target = tract_set(buffers, tractogram, LazyGrid::default());
+    let target = tract_set(buffers, tractogram, LazyIndex::default(), 0);
     spawn_mesh_set(commands, meshes, materials, target, (mesh, Some(preview)), opacity)
 }
 
@@ -1090,7 +1184,7 @@ pub fn spawn_polygon_tubes(
     opacity: f32,
 ) -> Entity {
     let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
-    let target = tract_set(buffers, tractogram, LazyGrid::default());
+    let target = tract_set(buffers, tractogram, LazyIndex::default(), 0);
     spawn_mesh_set(commands, meshes, materials, target, (mesh, None), opacity)
 }
 
@@ -1321,13 +1415,13 @@ pub fn apply_rois(
         } else if ends_only {
             fascicle_core::roi::select_ends(&t.points, &t.offsets, &list)
         } else {
-            select(&t.points, &t.offsets, set.grid.get(t), &list)
+            set.index.select(t, &list)
         };
         if let Some(m) = on_set_or_layer(&masks, entity, layer) {
             m.narrow(t, ends_only, &mut sel);
         }
         for &s in on_set_or_layer(&deleted, entity, layer).iter().flat_map(|d| d.0.iter()) {
-            if let Some(k) = sel.get_mut(s as usize) {
+            if let Some(k) = (s as usize).checked_sub(set.first).and_then(|s| sel.get_mut(s)) {
                 *k = false;
             }
         }

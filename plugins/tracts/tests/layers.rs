@@ -275,7 +275,7 @@ fn placed_tract_parts_are_tract_sets_under_their_layer() {
     let (a, b) = (part(0..150), part(150..t.n_streamlines()));
     let layer = app.world_mut().spawn((Transform::default(), Visibility::default())).id();
     let lines = PlacedTracts(Some(PreparedTracts::lines(a.clone())));
-    let tubes = PlacedTracts(Some(PreparedTracts::tubes(b.clone(), None, &TubeSettings::default())));
+    let tubes = PlacedTracts(Some(PreparedTracts::tubes(b.clone(), None, &TubeSettings::default()).starting_at(150)));
     let pa = app.world_mut().spawn((lines, ChildOf(layer))).id();
     let pb = app.world_mut().spawn((tubes, ChildOf(layer))).id();
     let (c, r) = (example::ROI_START, example::ROI_RADIUS);
@@ -290,6 +290,27 @@ fn placed_tract_parts_are_tract_sets_under_their_layer() {
         assert_eq!(selected, &through_sphere(part, c, r));
     }
     assert!(app.world().get::<MeshSet>(pa).is_some() && app.world().get::<TubeSet>(pb).is_some());
+    assert_eq!(
+        (app.world().get::<TractSet>(pa).unwrap().first, app.world().get::<TractSet>(pb).unwrap().first),
+        (0, 150)
+    );
+
+    // Streamlines deleted on the layer are the layer's: each part hides its own, from its first on.
+    let selected = |app: &App, e| app.world().get::<TractSelection>(e).unwrap().0.clone();
+    let kept = |part: &Tractogram| through_sphere(part, c, r);
+    let (in_a, in_b) = (kept(&a).iter().position(|k| *k).unwrap(), kept(&b).iter().position(|k| *k).unwrap());
+    let deleted = vec![in_a as u32, (150 + in_b) as u32, 10_000];
+    app.world_mut().entity_mut(layer).insert(DeletedStreamlines(Arc::new(deleted)));
+    app.update();
+    let (sa, sb) = (selected(&app, pa), selected(&app, pb));
+    for (k, (got, want)) in sa.iter().zip(kept(&a)).enumerate() {
+        assert_eq!(*got, want && k != in_a, "part a, streamline {k}");
+    }
+    for (k, (got, want)) in sb.iter().zip(kept(&b)).enumerate() {
+        assert_eq!(*got, want && k != in_b, "part b, streamline {k} (the layer's {})", 150 + k);
+    }
+    app.world_mut().entity_mut(layer).remove::<DeletedStreamlines>();
+    app.update();
 
     // The style: the tubes' knobs and the lines' opacity, in place.
     let style = PlacedTractStyle { tubes: TubeSettings { iterations: 7, ..default() }, opacity: 0.4 };
@@ -303,4 +324,55 @@ fn placed_tract_parts_are_tract_sets_under_their_layer() {
     assert_eq!(tube.settings.iterations, 7);
     let params = app.world().resource::<Assets<TubeletMaterial>>().get(&tube.material).unwrap().params;
     assert_eq!(params.iterations, 7);
+}
+
+/// A set's index answers as the brute force does, before and after it is built: the first selection of a set
+/// with no index tests every streamline (and starts the index in a thread of its own), the later ones (a drag:
+/// 30 steps of a sphere and a box, with margins kept) go through the index, and every one equals the core's
+/// segment-grid selection; a pick through the index equals the brute-force pick.
+#[test]
+fn a_set_selects_and_picks_the_same_before_and_after_its_index() {
+    use fascicle_core::roi::{Roi, RoiMode, SegmentGrid, pick_streamline, select};
+    use std::sync::Arc;
+    let t = Arc::new(Tractogram::read(format!("{}/tracts/tracks300.trk", example::data())).unwrap());
+    let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
+    let index = fascicle_tracts::LazyIndex::default();
+    let mid = t.streamline(150)[t.streamline(150).len() / 2];
+    let rois = |k: usize| {
+        let c = mid + Vec3::new(k as f32 * 0.5 - 7.5, 0.0, 0.0);
+        vec![
+            Roi { shape: RoiShape::Sphere { centre: c.to_array(), radius: 3.0 }, mode: RoiMode::Include },
+            Roi {
+                shape: RoiShape::Box { min: (c + Vec3::Y).to_array(), max: (c + Vec3::splat(6.0)).to_array() },
+                mode: RoiMode::Exclude,
+            },
+        ]
+    };
+    // Before the index: every streamline tested.
+    assert!(index.ready_or_build(&t).is_none(), "an index before any was asked for");
+    let first = index.select(&t, &rois(15));
+    assert_eq!(first, select(&t.points, &t.offsets, &grid, &rois(15)));
+    assert!(first.iter().any(|k| *k) && !first.iter().all(|k| *k));
+    let start = std::time::Instant::now();
+    while index.ready_or_build(&t).is_none() {
+        assert!(start.elapsed().as_secs() < 60, "the index was not built in 60 s");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let mut kept_some = 0;
+    for k in 0..30 {
+        let want = select(&t.points, &t.offsets, &grid, &rois(k));
+        let n = want.iter().filter(|w| **w).count();
+        kept_some += usize::from(n > 0 && n < t.n_streamlines());
+        assert_eq!(index.select(&t, &rois(k)), want, "step {k}: {n} kept");
+    }
+    assert!(kept_some > 15, "{kept_some} of 30 steps keep a part");
+    // Picks down the z axis over the bundle, every other streamline hidden in half of them.
+    for k in 0..40 {
+        let s = k * 7 % t.n_streamlines();
+        let p = t.streamline(s)[t.streamline(s).len() / 2];
+        let o = p + Vec3::new(0.3, -0.2, 150.0);
+        let shown = |i: usize| k.is_multiple_of(2) || i.is_multiple_of(2);
+        let want = pick_streamline(&t.points, &t.offsets, shown, o, -Vec3::Z, 0.004);
+        assert_eq!(index.pick(&t, shown, o, -Vec3::Z, 0.004), want, "ray {k}");
+    }
 }
