@@ -479,8 +479,8 @@ fn select_keeps_what_tckedit_keeps() {
 }
 
 /// Streamline weights as `tckedit -tck_weights_in/-minweight/-tck_weights_out` use them (a weight equal to the
-/// minimum is kept), alone and with an include sphere, over a file read in several chunks: the same streamlines
-/// and the same weights written for them.
+/// minimum is kept), alone, with an include sphere and with a cutting mask (a weight per piece), over a file read
+/// in several chunks: the same streamlines and the same weights written for them.
 #[test]
 fn select_weights_as_tckedit() {
     if !mrtrix() {
@@ -493,9 +493,11 @@ fn select_weights_as_tckedit() {
     let w = scratch("brain20k_w.txt");
     std::fs::write(&w, format!("# weights made by the test\n{}\n", weights.join(" "))).unwrap();
     let (input, w) = (input.to_str().unwrap(), w.to_str().unwrap());
-    let cases: [(&[&str], &[&str]); 2] = [
+    let cases: [(&[&str], &[&str]); 3] = [
         (&["--min-weight", "0.5"], &["-minweight", "0.5"]),
         (&["--min", "0.25", "--include", "0,0,0,25"], &["-minweight", "0.25", "-include", "0,0,0,25"]),
+        // Cut by a mask: each piece carries its streamline's weight.
+        (&["--min", "0.25", "--mask", "5,-10,0,40"], &["-minweight", "0.25", "-mask", "5,-10,0,40"]),
     ];
     for (k, (ours, theirs)) in cases.iter().enumerate() {
         let (a, b) = (scratch(&format!("selw{k}_fascicle.tck")), scratch(&format!("selw{k}_mrtrix.tck")));

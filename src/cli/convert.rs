@@ -85,7 +85,7 @@ pub fn run(input: &Path, output: &Path, sh_basis: Option<ShBasis>) -> Result<(),
         let reader = TractogramReader::open(input)?;
         let options = super::select::write_options(input, reader.header(), output, true)?;
         let mut writer = TractogramWriter::create(output, &options)?;
-        super::select::pipe(reader, &mut writer, "convert", |_| Ok(None), &[])?;
+        super::select::pipe(reader, &mut writer, "convert", |_| Ok(None), &[], |_| Ok(()))?;
         writer.finish()?;
     } else {
         return Err(Error::Param(format!(

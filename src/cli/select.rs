@@ -61,7 +61,8 @@ pub struct SelectArgs {
     /// Keep only streamlines whose weight is at least this (tckedit's -minweight; needs --weights).
     #[arg(long = "min-weight", visible_alias = "min", requires = "weights")]
     pub min_weight: Option<f32>,
-    /// Write the kept streamlines' weights here, in their order (tckedit's -tck_weights_out; needs --weights).
+    /// Write the kept streamlines' weights here, in their order (tckedit's -tck_weights_out; needs --weights);
+    /// with --mask, one per piece written, its streamline's weight.
     #[arg(long, requires = "weights")]
     pub weights_out: Option<PathBuf>,
     /// Output (.tck, .trk, gzipped, or .trx).
@@ -252,13 +253,16 @@ pub(crate) fn bytes_bar(total: u64, what: &str) -> indicatif::ProgressBar {
 
 /// Streams `input` through `keep` (per chunk, which streamlines to write) into `writer`, each kept streamline
 /// cut to its pieces inside `crop` when there are such regions ([`fascicle_core::roi::pieces_inside`], points
-/// only): one thread reads while the caller's threads test and write. The streamlines read and written.
+/// only): one thread reads while the caller's threads test and write. After each chunk written, `pieces` gets,
+/// per kept streamline of the chunk in order, how many streamlines it was written as (1 uncut; 0 or more cut).
+/// The streamlines read and written.
 pub fn pipe(
     reader: TractogramReader,
     writer: &mut TractogramWriter,
     what: &str,
     keep: impl Fn(&Tractogram) -> Result<Option<Vec<bool>>, Error> + Sync,
     crop: &[Region],
+    mut pieces: impl FnMut(&[usize]) -> Result<(), Error>,
 ) -> Result<(usize, usize), Error> {
     let pb = bytes_bar(reader.header().file_bytes, what);
     let (mut read, mut written) = (0, 0);
@@ -287,23 +291,29 @@ pub fn pipe(
             match keep(&t)? {
                 Some(mask) if !crop.is_empty() => {
                     let mut out = Tractogram::new();
+                    let mut counts = vec![];
                     for s in (0..t.n_streamlines()).filter(|s| mask[*s]) {
                         let pts = t.streamline(s);
-                        for piece in fascicle_core::roi::pieces_inside(pts, crop) {
+                        let cut = fascicle_core::roi::pieces_inside(pts, crop);
+                        counts.push(cut.len());
+                        for piece in cut {
                             out.push(&pts[piece]);
                         }
                     }
                     written += out.n_streamlines();
                     writer.write_chunk(&out)?;
+                    pieces(&counts)?;
                 }
                 Some(mask) => {
                     let out = t.subset_with_values(&mask);
                     written += out.n_streamlines();
                     writer.write_chunk(&out)?;
+                    pieces(&vec![1; out.n_streamlines()])?;
                 }
                 None => {
                     written += t.n_streamlines();
                     writer.write_chunk(&t)?;
+                    pieces(&vec![1; t.n_streamlines()])?;
                 }
             }
             pb.set_position(bytes);
@@ -324,9 +334,6 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         super::check_output(w)?;
     }
     let crop = a.mask.iter().map(|spec| region(spec)).collect::<Result<Vec<_>, _>>()?;
-    if !crop.is_empty() && a.weights_out.is_some() {
-        return Err(Error::Param("--mask cuts streamlines into pieces: --weights-out is not supported with it".into()));
-    }
     let reader = TractogramReader::open(&a.input)?;
     let mut options = write_options(&a.input, reader.header(), &a.out, false)?;
     if !crop.is_empty() {
@@ -335,11 +342,13 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
         options.properties.clear();
     }
     let mut writer = TractogramWriter::create(&a.out, &options)?;
-    // Weights are read in step with the chunks (the consumer takes the chunks in order).
+    // Weights are read in step with the chunks (the consumer takes the chunks in order); the kept ones wait for
+    // the chunk's pieces, each of which carries its streamline's weight (as tckedit writes them).
     let weights = match &a.weights {
         Some(p) => Some(std::sync::Mutex::new((
             weights::WeightReader::open(p)?,
             a.weights_out.as_ref().map(weights::WeightWriter::create).transpose()?,
+            Vec::<f32>::new(),
         ))),
         None => None,
     };
@@ -349,22 +358,31 @@ pub fn run(a: SelectArgs) -> Result<(), Error> {
             (0..t.n_streamlines()).into_par_iter().with_min_len(256).map(|s| criteria.keeps(t.streamline(s))).collect();
         if let Some(w) = &weights {
             let mut guard = w.lock().unwrap_or_else(|e| e.into_inner());
-            let (reader, out) = &mut *guard;
+            let (reader, out, pending) = &mut *guard;
             let ws = reader.take(t.n_streamlines())?;
             for (k, w) in mask.iter_mut().zip(&ws) {
                 *k &= *w >= min_weight;
             }
-            if let Some(out) = out {
-                let kept: Vec<f32> = ws.iter().zip(&mask).filter(|(_, k)| **k).map(|(w, _)| *w).collect();
-                out.write(&kept)?;
+            if out.is_some() {
+                *pending = ws.iter().zip(&mask).filter(|(_, k)| **k).map(|(w, _)| *w).collect();
             }
         }
         Ok(Some(mask))
     };
-    let (read, _) = pipe(reader, &mut writer, "select", keep, &crop)?;
+    let write_weights = |counts: &[usize]| -> Result<(), Error> {
+        let Some(w) = &weights else { return Ok(()) };
+        let mut guard = w.lock().unwrap_or_else(|e| e.into_inner());
+        let (_, out, pending) = &mut *guard;
+        if let Some(out) = out {
+            let each: Vec<f32> = pending.iter().zip(counts).flat_map(|(w, n)| std::iter::repeat_n(*w, *n)).collect();
+            out.write(&each)?;
+        }
+        Ok(())
+    };
+    let (read, _) = pipe(reader, &mut writer, "select", keep, &crop, write_weights)?;
     let weights_out = match weights {
         Some(w) => {
-            let (reader, out) = w.into_inner().unwrap_or_else(|e| e.into_inner());
+            let (reader, out, _) = w.into_inner().unwrap_or_else(|e| e.into_inner());
             reader.finish(read as u64)?;
             out
         }

@@ -340,13 +340,6 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             // Cutting masks and values need the whole tractogram: it is not shown in parts as it comes.
             // (Include and exclude masks select among the streamlines built: `mask_regions`.)
             let whole = by_value || masks.iter().any(|m| m.crop);
-            if by_value && masks.iter().any(|m| m.crop) {
-                return Err(
-                    "a cutting mask (tckedit -mask) cuts the streamlines: colouring by their values needs them \
-                            whole; colour by direction, ends, length or an image"
-                        .into(),
-                );
-            }
             let mut data = tract_data_in_parts(cache, source, progress, (!whole).then_some(&on_part as OnPart))?;
             let mut keep: Option<Vec<bool>> = None;
             // Values to colour by, aligned with the streamlines (those below a minimum hidden) or their points.
@@ -384,8 +377,22 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             if let Some(k) = &keep {
                 data = subset_of(&data, k);
             }
-            // Cutting masks (tckedit -mask) cut what the other regions kept.
-            data = cut_by_masks(cache, masks, data, progress)?;
+            // Cutting masks (tckedit -mask) cut what the other regions kept; a piece takes its streamline's
+            // value (as tckedit's pieces keep their streamline's weight) or its own points' values.
+            let uncut = data.tractogram.clone();
+            let pieces;
+            (data, pieces) = cut_by_masks(cache, masks, data, progress)?;
+            if let Some(pieces) = &pieces {
+                if let Some(v) = &mut per_streamline {
+                    *v = pieces.iter().map(|(s, _)| v[*s]).collect();
+                }
+                if let Some(v) = &mut per_point {
+                    let of = |(s, r): &(usize, std::ops::Range<usize>)| {
+                        &v[uncut.offsets[*s] + r.start..uncut.offsets[*s] + r.end]
+                    };
+                    *v = pieces.iter().flat_map(of).copied().collect();
+                }
+            }
             // The whole (kept) tractogram's offsets locate each streamline's values in every part.
             let whole_tracts = data.tractogram.clone();
             let values = match (&per_streamline, &per_point) {
@@ -662,22 +669,27 @@ fn mask_region(
 
 /// `data` cut where its streamlines leave the layer's cutting masks (`tckedit -mask`: each run of two or more
 /// points inside one of them becomes a streamline, with its tensors); unchanged without cutting masks.
+/// The pieces of a tractogram cut by its layer's cutting masks: the streamline each piece was cut from and the
+/// piece's points in it, in order.
+type Pieces = Vec<(usize, std::ops::Range<usize>)>;
+
 fn cut_by_masks(
     cache: &DataCache,
     masks: &[MaskRoi],
     data: TractData,
     progress: &JobProgress,
-) -> Result<TractData, String> {
+) -> Result<(TractData, Option<Pieces>), String> {
     let mut regions = vec![];
     for m in masks.iter().filter(|m| m.crop) {
         regions.extend(mask_region(cache, m, progress)?.map(fascicle_core::roi::Region::Mask));
     }
     if regions.is_empty() {
-        return Ok(data);
+        return Ok((data, None));
     }
     progress.stage("cutting the streamlines at the masks", 0)?;
     let t = &data.tractogram;
     let mut out = (Tractogram::new(), vec![]);
+    let mut pieces = vec![];
     for s in 0..t.n_streamlines() {
         let first = t.offsets[s];
         for piece in fascicle_core::roi::pieces_inside(t.streamline(s), &regions) {
@@ -685,9 +697,11 @@ fn cut_by_masks(
             if let Some(tensors) = &data.tensors {
                 out.1.extend_from_slice(&tensors[first + piece.start..first + piece.end]);
             }
+            pieces.push((s, piece));
         }
     }
-    Ok(TractData { tractogram: Arc::new(out.0), tensors: data.tensors.as_ref().map(|_| Arc::new(out.1)) })
+    let cut = TractData { tractogram: Arc::new(out.0), tensors: data.tensors.as_ref().map(|_| Arc::new(out.1)) };
+    Ok((cut, Some(pieces)))
 }
 
 fn subset_of(data: &TractData, keep: &[bool]) -> TractData {
@@ -2139,7 +2153,54 @@ mod tests {
             }
         }
         assert!(want.n_streamlines() > 20, "{} pieces", want.n_streamlines());
-        assert_eq!((cut.offsets.clone(), cut.points.clone()), (want.offsets, want.points));
+        assert_eq!((&cut.offsets, &cut.points), (&want.offsets, &want.points));
+        // Cut and coloured by a value per streamline (weights s / n): each piece in viridis of its streamline's
+        // weight, as tckedit's pieces keep their streamline's weight.
+        {
+            use bevy::mesh::VertexAttributeValues;
+            let tmp_w = tempfile::tempdir().unwrap();
+            let wfile = tmp_w.path().join("fascicle-cut-weights.txt");
+            let n = t.n_streamlines();
+            let w: Vec<f32> = (0..n).map(|s| s as f32 / n as f32).collect();
+            fascicle_core::io::weights::write(&wfile, &w).unwrap();
+            let colouring =
+                TractColouring::Value { weights: Some(wfile), name: String::new(), window: (0.0, 1.0), min: None };
+            let kind = LayerKind::Tracts {
+                source: TractSource::File { path: path.clone(), tensors: None },
+                mode: TractMode::Lines,
+                render: Default::default(),
+                rois: vec![],
+                masks: vec![MaskRoi { path: mask.clone(), mode: RoiMode::Include, crop: true, painted: None }],
+                ends_only: false,
+                deleted: vec![],
+                colouring,
+            };
+            let Ok(Content::Tracts(p)) = build(&kind, &DataCache::default(), &JobProgress::default()) else {
+                panic!("a cut layer coloured by values")
+            };
+            let source_of: Vec<usize> = (0..n)
+                .flat_map(|s| {
+                    let pieces = fascicle_core::roi::pieces_inside(t.streamline(s), std::slice::from_ref(&region));
+                    std::iter::repeat_n(s, pieces.len())
+                })
+                .collect();
+            assert_eq!(source_of.len(), want.n_streamlines());
+            let fascicle_tracts::PreparedGeometry::Mesh { mesh, .. } = p.geometry else { panic!("not a mesh") };
+            let (Some(VertexAttributeValues::Unorm8x4(col)), Some(VertexAttributeValues::Uint32(owners))) = (
+                mesh.attribute(fascicle_tracts::ATTRIBUTE_RGBA8),
+                mesh.attribute(fascicle_tracts::ATTRIBUTE_STREAMLINE),
+            ) else {
+                panic!("colours and streamlines")
+            };
+            let drawn: std::collections::BTreeSet<u32> = owners.iter().copied().collect();
+            assert_eq!(drawn.len(), want.n_streamlines(), "every piece drawn");
+            for (c, &k) in col.iter().zip(owners) {
+                let s = source_of[k as usize];
+                let want = fascicle_core::dti::splat::viridis(f64::from(w[s])).as_vec3();
+                let got = glam::Vec3::from(c.map(|x| f32::from(x) / 255.0)[..3].try_into().unwrap_or([0.0; 3]));
+                assert!((got - want).abs().max_element() < 0.5 / 255.0 + 1e-5, "piece {k} of streamline {s}: {c:?}");
+            }
+        }
         // Ends only (tckedit's -ends_only): the streamlines with an end in the slab, fewer than those through it.
         let ends: Vec<bool> = (0..t.n_streamlines())
             .map(|s| {
