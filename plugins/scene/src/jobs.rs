@@ -2125,7 +2125,7 @@ mod tests {
         let nothing = crate::model::PaintedMask::on_grid([60, 50, 40], affine);
         assert_eq!(built(&with_painted(nothing)).n_streamlines(), t.n_streamlines());
         // A cutting mask (tckedit -mask): every streamline's runs of two or more points in the slab.
-        let cut = built(&LayerKind::Tracts {
+        let cutting = |colouring| LayerKind::Tracts {
             source: TractSource::File { path: path.clone(), tensors: None },
             mode: TractMode::Lines,
             render: Default::default(),
@@ -2133,8 +2133,9 @@ mod tests {
             masks: vec![MaskRoi { path: mask.clone(), mode: RoiMode::Include, crop: true, painted: None }],
             ends_only: false,
             deleted: vec![],
-            colouring: TractColouring::Style,
-        });
+            colouring,
+        };
+        let cut = built(&cutting(TractColouring::Style));
         // A point is in the slab when the streamline of that one point meets the region.
         let in_slab = |p: &glam::Vec3| Criteria { include: vec![region.clone()], ..Default::default() }.keeps(&[*p]);
         let mut want = Tractogram::new();
@@ -2165,17 +2166,8 @@ mod tests {
             fascicle_core::io::weights::write(&wfile, &w).unwrap();
             let colouring =
                 TractColouring::Value { weights: Some(wfile), name: String::new(), window: (0.0, 1.0), min: None };
-            let kind = LayerKind::Tracts {
-                source: TractSource::File { path: path.clone(), tensors: None },
-                mode: TractMode::Lines,
-                render: Default::default(),
-                rois: vec![],
-                masks: vec![MaskRoi { path: mask.clone(), mode: RoiMode::Include, crop: true, painted: None }],
-                ends_only: false,
-                deleted: vec![],
-                colouring,
-            };
-            let Ok(Content::Tracts(p)) = build(&kind, &DataCache::default(), &JobProgress::default()) else {
+            let Ok(Content::Tracts(p)) = build(&cutting(colouring), &DataCache::default(), &JobProgress::default())
+            else {
                 panic!("a cut layer coloured by values")
             };
             let source_of: Vec<usize> = (0..n)

@@ -204,6 +204,12 @@ impl LazyIndex {
         }
     }
 
+    /// The streamlines of `t` in the index's cells that meet `shape` (a superset of those with a point or a step
+    /// there), when the index is built; otherwise `None` (and it is started).
+    pub fn candidates(&self, t: &Arc<Tractogram>, shape: &fascicle_core::roi::RoiShape) -> Option<Vec<u32>> {
+        self.ready_or_build(t).map(|cells| cells.candidates(shape))
+    }
+
     /// The shown streamline of `t` a ray picks (see [`fascicle_core::roi::pick_streamline`]): through the
     /// index when it is built, otherwise by brute force (and the index is started).
     pub fn pick(
