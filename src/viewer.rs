@@ -279,23 +279,15 @@ fn pick_streamlines(
                 })
                 .min_by(|a, b| a.2.total_cmp(&b.2))
         }
-        Some(a) => {
-            // 4 pixels in mm (the 2D views are orthographic, their pixels square), and the click's point.
-            let ray = |d: Vec2| fascicle_views::cursor_ray(cam, tf, at + d).map(|r| r.origin);
-            let (Some(c), Some(dx), Some(dy)) = (ray(Vec2::ZERO), ray(Vec2::X * 4.0), ray(Vec2::Y * 4.0)) else {
-                return;
-            };
-            let radius_mm = c.distance(dx).max(c.distance(dy));
-            eligible
-                .filter_map(|(e, set, sel, le, _)| {
-                    let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
-                    let slab = slab_of(e);
-                    let near = slab.map(|s| click_box(c, radius_mm, &s, a));
-                    pick_in_slab(set, shown, in_view(slab), at, 4.0, near.as_ref())
-                        .map(|(s, dist)| (le.0, set.first + s, dist))
-                })
-                .min_by(|a, b| a.2.total_cmp(&b.2))
-        }
+        Some(a) => eligible
+            .filter_map(|(e, set, sel, le, _)| {
+                let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
+                let slab = slab_of(e);
+                let near = slab.and_then(|s| click_box(project, at, 4.0, &s, a));
+                pick_in_slab(set, shown, in_view(slab), at, 4.0, near.as_ref())
+                    .map(|(s, dist)| (le.0, set.first + s, dist))
+            })
+            .min_by(|a, b| a.2.total_cmp(&b.2)),
     };
     let best = best.map(|(layer, s, dist)| (layer, totals.get(&layer).copied().unwrap_or(0), s as u32, dist));
     let Some((layer, n_streamlines, s, _)) = best else {
@@ -542,14 +534,35 @@ fn draw_painted(
     }
 }
 
-/// The world box a click in a 2D view can pick from: the points within `radius_mm` of the clicked point `c` in
-/// the view's plane (axis `axis` across it), through the set's slab (with a margin for rounding).
-fn click_box(c: Vec3, radius_mm: f32, slab: &fascicle_tracts::TractSlab, axis: usize) -> fascicle_core::roi::RoiShape {
-    let r = radius_mm * 1.01 + 1e-3;
+/// The world box a click at `at` in a 2D view can pick from: through the set's slab (axis `axis` across it), the
+/// points of the slab's plane whose image under `project` (the view's orthographic projection, affine) lies
+/// within `radius` pixels of the click, widened across the plane by the same distance (with a margin for
+/// rounding). `None` when the projection flattens the plane.
+fn click_box(
+    project: impl Fn(Vec3) -> Option<Vec2>,
+    at: Vec2,
+    radius: f32,
+    slab: &fascicle_tracts::TractSlab,
+    axis: usize,
+) -> Option<fascicle_core::roi::RoiShape> {
+    let (u, v) = (Vec3::AXES[(axis + 1) % 3], Vec3::AXES[(axis + 2) % 3]);
+    let o = Vec3::AXES[axis] * slab.offset;
+    let p0 = project(o)?;
+    let (pu, pv) = (project(o + u)? - p0, project(o + v)? - p0);
+    let det = pu.perp_dot(pv);
+    if det.abs() < 1e-9 {
+        return None;
+    }
+    // The plane's point under the click, and the radius in mm: over the smallest stretch of the projection.
+    let d = at - p0;
+    let c = o + u * (d.perp_dot(pv) / det) + v * (pu.perp_dot(d) / det);
+    let (uu, uv, vv) = (pu.dot(pu), pu.dot(pv), pv.dot(pv));
+    let least = ((uu + vv - ((uu - vv).powi(2) + 4.0 * uv * uv).sqrt()) / 2.0).max(1e-12).sqrt();
+    let r = radius / least * 1.01 + 1e-3;
     let (mut lo, mut hi) = (c - Vec3::splat(r), c + Vec3::splat(r));
     lo[axis] = slab.offset - slab.half_thickness - 1e-3;
     hi[axis] = slab.offset + slab.half_thickness + 1e-3;
-    fascicle_core::roi::RoiShape::Box { min: lo.to_array(), max: hi.to_array() }
+    Some(fascicle_core::roi::RoiShape::Box { min: lo.to_array(), max: hi.to_array() })
 }
 
 /// A click's pick in a 2D view among one set's streamlines (`fascicle_core::roi::pick_projected`), testing
@@ -1786,14 +1799,10 @@ mod tests {
             fascicle_tracts::TractSlab { set: Entity::PLACEHOLDER, normal: Vec3::Z, offset: z0, half_thickness: 2.0 };
         let (k, origin) = (3.0, Vec2::new(-100.0, 500.0));
         let project = |p: Vec3| ((p.z - z0).abs() <= 2.0).then(|| origin + Vec2::new(p.x, -p.y) * k);
-        let world = |at: Vec2| {
-            let q = (at - origin) / k;
-            Vec3::new(q.x, -q.y, 0.0)
-        };
         let brute = |shown: &(dyn Fn(usize) -> bool + Sync), at| {
             fascicle_core::roi::pick_projected(&t.points, &t.offsets, shown, project, at, 4.0)
         };
-        let near = |at| click_box(world(at), 4.0 / k, &slab, 2);
+        let near = |at| click_box(project, at, 4.0, &slab, 2).expect("the slab's plane is seen");
         // Not built yet: every streamline tested.
         let at = project(t.streamline(0)[t.streamline(0).len() / 2]).unwrap();
         assert_eq!(pick_in_slab(&set, |_| true, project, at, 4.0, Some(&near(at))), brute(&|_| true, at));
