@@ -603,9 +603,8 @@ fn draw_picked(
     slabs: Query<&fascicle_tracts::TractSlab>,
 ) {
     let Some(picked) = &ui.picked else { return };
-    let mut parts: Vec<(Entity, &TractSet)> =
+    let parts: Vec<(Entity, &TractSet)> =
         sets.iter().filter(|(_, _, le)| le.0 == picked.layer).map(|(e, s, _)| (e, s)).collect();
-    parts.sort_by_key(|(_, s)| s.first);
     if parts.iter().map(|(_, s)| s.tractogram.n_streamlines()).sum::<usize>() != picked.n_streamlines {
         ui.picked = None;
         return;

@@ -49,9 +49,7 @@ impl StreamlineCells {
                     for &c in buf.iter() {
                         counts[c as usize].fetch_add(1, Ordering::Relaxed);
                     }
-                    let (lo, hi) =
-                        pts.iter().filter(|p| p.is_finite()).fold((lo, hi), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
-                    (buf, (lo, hi))
+                    (buf, finite_bounds(pts, (lo, hi)))
                 },
             )
             .map(|(_, b)| b)
@@ -74,6 +72,18 @@ impl StreamlineCells {
         });
         let ids = ids.into_iter().map(AtomicU32::into_inner).collect();
         Self { cells, starts, ids, n, extent }
+    }
+
+    /// [`StreamlineCells::build`] over the bounds of the streamlines' own finite points (found in one parallel
+    /// pass first; a zero box without any).
+    pub fn build_fitted<'a>(n: usize, streamline: impl Fn(usize) -> &'a [Vec3] + Sync, cell: f32) -> Self {
+        let none = || (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let (lo, hi) = (0..n)
+            .into_par_iter()
+            .map(|s| finite_bounds(streamline(s), none()))
+            .reduce(none, |a, b| (a.0.min(b.0), a.1.max(b.1)));
+        let bounds = if lo.cmple(hi).all() { (lo, hi) } else { (Vec3::ZERO, Vec3::ZERO) };
+        Self::build(n, streamline, bounds, cell)
     }
 
     /// Bytes the index holds.
@@ -145,15 +155,13 @@ impl StreamlineCells {
                     }
                 }
             }
+            let nearer = |a: &(usize, f32), b: &(usize, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
             let nearest = fresh
                 .par_iter()
                 .filter(|&&s| shown(s as usize))
                 .filter_map(|&s| ray.hit(streamline(s as usize)).map(|t| (s as usize, t)))
-                .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-            best = match (best, nearest) {
-                (Some(a), Some(b)) => Some(if b.1.total_cmp(&a.1).then(b.0.cmp(&a.0)).is_lt() { b } else { a }),
-                (a, b) => a.or(b),
-            };
+                .min_by(nearer);
+            best = best.into_iter().chain(nearest).min_by(nearer);
             if best.is_some_and(|(_, t)| t <= t1) || t1 >= end {
                 break;
             }
@@ -383,6 +391,11 @@ fn hausdorff(a: &RoiShape, b: &RoiShape) -> f32 {
         }
         _ => f32::INFINITY,
     }
+}
+
+/// `(lo, hi)` grown to the finite points of `pts`.
+fn finite_bounds(pts: &[Vec3], (lo, hi): (Vec3, Vec3)) -> (Vec3, Vec3) {
+    pts.iter().filter(|p| p.is_finite()).fold((lo, hi), |(lo, hi), p| (lo.min(*p), hi.max(*p)))
 }
 
 /// The span of the ray from `o` along `d` inside the box `lo`..`hi` (the slab method; empty when the first

@@ -228,13 +228,7 @@ impl LazyIndex {
 }
 
 fn build_index(t: &Tractogram) -> StreamlineCells {
-    let bounds = t
-        .points
-        .iter()
-        .filter(|p| p.is_finite())
-        .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
-    let bounds = if bounds.0.cmple(bounds.1).all() { bounds } else { (Vec3::ZERO, Vec3::ZERO) };
-    StreamlineCells::build(t.n_streamlines(), |s| t.streamline(s), bounds, INDEX_CELL_MM)
+    StreamlineCells::build_fitted(t.n_streamlines(), |s| t.streamline(s), INDEX_CELL_MM)
 }
 
 /// A tract set drawn as hyperstreamlines (tubelets): one entity, one draw.
