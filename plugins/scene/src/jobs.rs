@@ -1251,7 +1251,8 @@ fn seeds_per_part(n: usize) -> usize {
 }
 
 /// Tracks `seeds` (voxel coordinates) through `field`: the same streamlines, in seed order, as one
-/// [`fascicle_core::tracking::Tracker::run`] over them, but in parts given to `on_part` as they are done, and,
+/// [`fascicle_core::tracking::Tracker::run`] over them, but in parts given to `on_part` as they are done (in
+/// seed order too, so that a layer numbers them as the result does), and,
 /// with `reuse` (a cache key and the field's files), taking the streamlines of seeds that the last tracking
 /// under that key also had from it: only new seeds are tracked ([`JobProgress`] counts those).
 #[allow(clippy::too_many_arguments, reason = "the tracker's inputs, the cache and the job's channels")]
@@ -1277,53 +1278,71 @@ fn track<F: fascicle_core::tracking::DirectionField + Sync>(
         tractogram: Arc::new(t),
         tensors: Some(Arc::new(tensors)),
     };
-    if let (Some(last), Some(on_part)) = (&last, on_part)
-        && missing.len() < seeds.len()
-    {
-        let mut kept = (Tractogram::new(), vec![]);
-        for j in old.iter().flatten() {
-            copy(&mut kept, &last.data, last.first[*j]..last.first[*j + 1]);
-        }
-        for part in split(&finish(kept), PART_POINTS) {
-            on_part(part);
-        }
-    }
     progress.stage("tracking", missing.len())?;
-    // New seeds in parts: (the part's streamlines, the first streamline of each of its seeds).
-    let mut parts: Vec<(TractData, Vec<usize>)> = vec![];
-    for block in missing.chunks(seeds_per_part(missing.len())) {
-        if progress.is_cancelled() {
-            return Err(CANCELLED.into());
-        }
-        let points: Vec<glam::DVec3> = block.iter().map(|&i| seeds[i]).collect();
-        let t = tracker.run_with_progress(&points, &|n| progress.advance(n));
-        let mut first = vec![0; block.len() + 1];
-        for &s in &t.seed_index {
-            first[s as usize + 1] += 1;
-        }
-        for k in 0..block.len() {
-            first[k + 1] += first[k];
-        }
-        let data = TractData { tractogram: Arc::new(t.tractogram), tensors: Some(Arc::new(t.tensors)) };
-        if let Some(on_part) = on_part {
-            on_part(data.clone());
-        }
-        parts.push((data, first));
-    }
-    // In seed order: each seed's streamlines from the last tracking or from its part.
+    // The new seeds in blocks, each tracked (in parallel inside) when the walk in seed order below first
+    // needs it: (the block's streamlines, the first streamline of each of its seeds).
+    let mut blocks = missing.chunks(seeds_per_part(missing.len()));
+    let mut block: Option<(TractData, Vec<usize>)> = None;
+    // The next of the block's seeds.
+    let mut next = 0;
+    // In seed order: each seed's streamlines from the last tracking or from its block; the streamlines from
+    // `shown` on are given to `on_part` once they fill a part or before a block is tracked, so the layer
+    // numbers its streamlines as the result does, reused or not.
     let mut out = (Tractogram::new(), vec![]);
     let mut first = Vec::with_capacity(seeds.len() + 1);
-    let mut new_seeds = parts.iter().flat_map(|(d, f)| (0..f.len() - 1).map(move |k| (d, f[k]..f[k + 1])));
+    let mut shown = 0;
+    let deliver = |out: &(Tractogram, Vec<[f32; 6]>), shown: &mut usize| {
+        let n = out.0.n_streamlines();
+        if let Some(on_part) = on_part
+            && n > *shown
+        {
+            let (t, tensors) = out;
+            let (a, b) = (t.offsets[*shown], t.offsets[n]);
+            let mut part = Tractogram::new();
+            part.points.extend_from_slice(&t.points[a..b]);
+            part.offsets.extend(t.offsets[*shown + 1..=n].iter().map(|o| o - a));
+            on_part(finish((part, tensors[a..b].to_vec())));
+            *shown = n;
+        }
+    };
     for o in &old {
         first.push(out.0.n_streamlines());
         match (o, &last) {
             (Some(j), Some(last)) => copy(&mut out, &last.data, last.first[*j]..last.first[*j + 1]),
             _ => {
-                let (d, range) = new_seeds.next().ok_or("internal error: a seed without its tracking")?;
-                copy(&mut out, d, range);
+                if block.as_ref().is_none_or(|(_, f)| next + 1 == f.len()) {
+                    if progress.is_cancelled() {
+                        return Err(CANCELLED.into());
+                    }
+                    deliver(&out, &mut shown);
+                    let points: Vec<glam::DVec3> = blocks
+                        .next()
+                        .ok_or("internal error: a seed without its tracking")?
+                        .iter()
+                        .map(|&i| seeds[i])
+                        .collect();
+                    let t = tracker.run_with_progress(&points, &|n| progress.advance(n));
+                    let mut f = vec![0; points.len() + 1];
+                    for &s in &t.seed_index {
+                        f[s as usize + 1] += 1;
+                    }
+                    for k in 0..points.len() {
+                        f[k + 1] += f[k];
+                    }
+                    let data = TractData { tractogram: Arc::new(t.tractogram), tensors: Some(Arc::new(t.tensors)) };
+                    (block, next) = (Some((data, f)), 0);
+                }
+                let (d, f) = block.as_ref().ok_or("internal error: a seed without its tracking")?;
+                copy(&mut out, d, f[next]..f[next + 1]);
+                next += 1;
             }
         }
+        let from = out.0.offsets.get(shown).copied().unwrap_or(0);
+        if out.0.points.len() - from >= PART_POINTS {
+            deliver(&out, &mut shown);
+        }
     }
+    deliver(&out, &mut shown);
     first.push(out.0.n_streamlines());
     let data = finish(out);
     if let Some((key, files)) = reuse {
@@ -1711,7 +1730,9 @@ mod tests {
         let first = tract_data(&cache, &source(a, TrackParams::default()), &JobProgress::default()).unwrap();
         assert!(first.tractogram.n_streamlines() > 100, "{} streamlines", first.tractogram.n_streamlines());
         let moved = JobProgress::default();
-        let reused = tract_data(&cache, &source(b, TrackParams::default()), &moved).unwrap();
+        let delivered = Mutex::new(vec![]);
+        let on_part = |part: TractData| delivered.lock().unwrap().push(part);
+        let reused = tract_data_in_parts(&cache, &source(b, TrackParams::default()), &moved, Some(&on_part)).unwrap();
 
         // The seeds of each sphere, as the job computes them.
         let f = tensor_field(&cache, &TensorSource::Phantom, &JobProgress::default()).unwrap().tensors;
@@ -1723,6 +1744,8 @@ mod tests {
         let (old, new) = (seeds(a), seeds(b));
         let fresh: usize = new.iter().filter(|s| !old.contains(s)).count();
         assert!(fresh > 0 && fresh < new.len() / 2, "{fresh} of {} seeds are new", new.len());
+        let first_new = new.iter().position(|s| !old.contains(s)).unwrap();
+        assert!(new[first_new..].iter().any(|s| old.contains(s)), "new and reused seeds interleave");
         assert_eq!(moved.total.load(Ordering::Relaxed), fresh, "only the new seeds are tracked");
 
         let scratch = tract_data(&DataCache::default(), &source(b, TrackParams::default()), &JobProgress::default());
@@ -1730,6 +1753,17 @@ mod tests {
         assert_eq!(reused.tractogram.offsets, scratch.tractogram.offsets);
         assert_eq!(reused.tractogram.points, scratch.tractogram.points);
         assert_eq!(reused.tensors, scratch.tensors);
+        // The parts come in seed order, reused streamlines among the new ones: a layer numbers its
+        // streamlines as a fresh tracking does (the indices of deleted streamlines point at the same ones).
+        let mut joined = Tractogram::new();
+        let mut tensors = vec![];
+        for p in delivered.into_inner().unwrap() {
+            p.tractogram.iter().for_each(|s| joined.push(s));
+            tensors.extend_from_slice(p.tensors.as_deref().unwrap());
+        }
+        assert_eq!(joined.offsets, scratch.tractogram.offsets);
+        assert_eq!(joined.points, scratch.tractogram.points);
+        assert_eq!(Some(&tensors), scratch.tensors.as_deref());
 
         // Another step length: nothing of the last tracking applies.
         let other = JobProgress::default();
