@@ -302,7 +302,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
                 _ => None,
             };
-            let prepare = |part: TractData, first: usize, values: Option<TractValues>| {
+            let prepare = |part: TractData, first: usize, values: Option<TractValues>, detail: LineDetail| {
                 let n = part.tractogram.n_streamlines();
                 let part_values = values.map(|v| match v {
                     TractValues::Streamlines(v) => TractValues::Streamlines(&v[first..first + n]),
@@ -316,7 +316,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                 let prepared = match mode {
                     TractMode::Tubes => PreparedTracts::tubes_coloured(t, tensors, render, colour),
                     TractMode::Polygon => PreparedTracts::polygon_tubes(t, tensors, render.scale),
-                    TractMode::Lines => PreparedTracts::lines_coloured(t, colour),
+                    TractMode::Lines => PreparedTracts::lines_in_detail(t, colour, detail),
                 };
                 let prepared = prepared.starting_at(first);
                 // The ROIs' index is built here, off the main thread, when the layer has ROIs.
@@ -335,11 +335,15 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             let on_part = |part: TractData| {
                 streamed.store(true, Ordering::Relaxed);
                 let first = delivered.fetch_add(part.tractogram.n_streamlines(), Ordering::Relaxed);
-                progress.parts.push(prepare(part, first, None));
+                progress.parts.push(prepare(part, first, None, LineDetail::default()));
             };
             // Cutting masks and values need the whole tractogram: it is not shown in parts as it comes.
             // (Include and exclude masks select among the streamlines built: `mask_regions`.)
             let whole = by_value || masks.iter().any(|m| m.crop);
+            // A file without tensors is read in parts, never whole (nor cached whole).
+            if let (TractSource::File { path, tensors: None }, false) = (source, whole) {
+                return stream_tract_file(path, progress, &|part, first, detail| prepare(part, first, None, detail));
+            }
             let mut data = tract_data_in_parts(cache, source, progress, (!whole).then_some(&on_part as OnPart))?;
             let mut keep: Option<Vec<bool>> = None;
             // Values to colour by, aligned with the streamlines (those below a minimum hidden) or their points.
@@ -405,14 +409,15 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
             if streamed.load(Ordering::Relaxed) {
                 return Ok(Content::Streamed { items });
             }
+            let detail = LineDetail::for_points(data.tractogram.points.len() as u64);
             if data.tractogram.points.len() <= PART_POINTS {
-                return Ok(prepare(data, 0, values));
+                return Ok(prepare(data, 0, values, detail));
             }
             let mut first = 0;
             for part in split(&data, PART_POINTS) {
                 progress.stage("building the geometry", 0)?;
                 let n = part.tractogram.n_streamlines();
-                progress.parts.push(prepare(part, first, values));
+                progress.parts.push(prepare(part, first, values, detail));
                 first += n;
             }
             Ok(Content::Streamed { items })
@@ -492,6 +497,59 @@ fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> 
     }
     if items == 0 {
         return Err(format!("{}: the tractogram holds no streamlines", path.display()));
+    }
+    Ok(Content::Streamed { items })
+}
+
+/// A tract layer's file (without tensors to sample) read in parts of whole streamlines of at most
+/// [`PART_POINTS`] points, never whole: a batch of parts (one per job thread) is read, then made by `prepare`
+/// (the part, the layer's index of its first streamline, the lines' detail for the file's size) in parallel
+/// and delivered while the next batch is read. Each part keeps its points (ROIs, picks); the whole
+/// tractogram is not held, nor kept in the cache (1.25 GB for a 1M whole brain), so a rebuild reads the file
+/// again. One part is returned as it is; more go through [`JobProgress::parts`].
+fn stream_tract_file(
+    path: &Path,
+    progress: &JobProgress,
+    prepare: &(dyn Fn(TractData, usize, LineDetail) -> Content + Sync),
+) -> Result<Content, String> {
+    use fascicle_core::io::stream::TractogramReader;
+    use rayon::prelude::*;
+    let mut reader = TractogramReader::open(path).map_err(|e| e.to_string())?;
+    progress.stage("reading the streamlines", reader.header().file_bytes as usize)?;
+    let header = reader.header();
+    let detail = LineDetail::for_points(header.points.map_or(header.file_bytes / 12, |p| p as u64));
+    let batch = rayon::current_num_threads().max(1);
+    let (mut items, mut done, mut parts_sent) = (0, 0, 0);
+    loop {
+        let mut chunks = Vec::with_capacity(batch);
+        while chunks.len() < batch
+            && let Some(t) = reader.next_chunk(PART_POINTS).map_err(|e| e.to_string())?
+        {
+            let first = items;
+            items += t.n_streamlines();
+            chunks.push((TractData { tractogram: Arc::new(t), tensors: None }, first));
+        }
+        progress.advance((reader.bytes_read() as usize).saturating_sub(done));
+        done = reader.bytes_read() as usize;
+        if progress.is_cancelled() {
+            return Err(CANCELLED.into());
+        }
+        let ended = chunks.len() < batch;
+        let mut parts: Vec<Content> = chunks.into_par_iter().map(|(t, first)| prepare(t, first, detail)).collect();
+        if ended && parts_sent == 0 && parts.len() == 1 {
+            return Ok(parts.remove(0));
+        }
+        for part in parts {
+            parts_sent += 1;
+            progress.parts.push(part);
+        }
+        if ended {
+            break;
+        }
+    }
+    if items == 0 {
+        // An empty file is an empty layer, as when it was read whole.
+        return Ok(prepare(TractData { tractogram: Arc::new(Tractogram::new()), tensors: None }, 0, detail));
     }
     Ok(Content::Streamed { items })
 }
@@ -1824,7 +1882,7 @@ mod tests {
         assert_eq!(joined_tensors, tensors);
         assert!(split(&TractData { tractogram: Arc::new(Tractogram::new()), tensors: None }, 20).is_empty());
 
-        // Through a layer: a file of more than PART_POINTS points arrives in parts.
+        // Through a layer: a file of more than PART_POINTS points arrives in parts, read part by part.
         let mut big = Tractogram::new();
         for k in 0..(PART_POINTS / 100 + 10) {
             big.push(&(0..100).map(|i| Vec3::new(k as f32 * 0.01, i as f32 * 0.5, 0.0)).collect::<Vec<_>>());
@@ -1842,9 +1900,11 @@ mod tests {
             deleted: vec![],
             colouring: Default::default(),
         };
-        let progress = JobProgress::default();
-        let content = build(&kind, &DataCache::default(), &progress).unwrap();
+        let (cache, progress) = (DataCache::default(), JobProgress::default());
+        let content = build(&kind, &cache, &progress).unwrap();
         assert!(matches!(content, Content::Streamed { items } if items == big.n_streamlines()));
+        // Read in parts, never whole: the cache holds no copy of the file's streamlines.
+        assert!(cache.is_empty(), "the cache holds {} values", cache.len());
         let mut streamlines = 0;
         while let Some(part) = progress.parts.pop() {
             let Content::Tracts(p) = part else { panic!("a part that is not tracts") };
