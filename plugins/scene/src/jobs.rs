@@ -319,7 +319,9 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                     TractMode::Lines => PreparedTracts::lines_in_detail(t, colour, detail),
                 };
                 let prepared = prepared.starting_at(first);
-                // The ROIs' index is built here, off the main thread, when the layer has ROIs.
+                // The ROIs' index is built here, off the main thread, when the kind given has ROIs (a layer's
+                // job is given none: they re-select in place, `LayerKind::structure`; its sets queue their
+                // indexes for the tract plugin's background builder when an ROI or a pick first needs one).
                 Content::Tracts(if rois.is_empty() { prepared } else { prepared.with_index() })
             };
             // Tracking delivers its streamlines as they are computed.

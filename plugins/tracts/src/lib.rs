@@ -145,10 +145,9 @@ pub struct TractSet {
 
 /// A tract set's spatial index ([`StreamlineCells`], 4 mm cells: about 160 MiB for 1M whole-brain streamlines)
 /// and the margins of the ROI drag in progress ([`DragMargins`], 20 bytes per streamline and ROI), shared by
-/// clones. A layer with ROIs builds the index in its background job ([`PreparedTracts::with_index`]); one
-/// without builds it in a thread of its own when an ROI or a pick first needs it
-/// ([`LazyIndex::ready_or_build`]), and until then ROIs are tested on every streamline (the same selection:
-/// [`Criteria`]) and picks by brute force.
+/// clones. Built where it is made ([`PreparedTracts::with_index`]), or in the background when an ROI or a
+/// pick first needs it ([`LazyIndex::ready_or_build`]: a builder at the lowest priority), and until then ROIs
+/// are tested on every streamline (the same selection: [`Criteria`]) and picks by brute force.
 #[derive(Clone, Default)]
 pub struct LazyIndex(Arc<IndexInner>);
 
@@ -168,21 +167,21 @@ impl LazyIndex {
         self.0.cells.get_or_init(|| build_index(t))
     }
 
-    /// The index when it is built; otherwise `None`, and it is built in a thread of its own (once).
+    /// The index when it is built; otherwise `None`, and it is queued (once) for the background builder: one
+    /// thread at the lowest scheduling priority, with a rayon pool of its own at that priority, building the
+    /// queued indexes one after another and skipping sets that are gone. The CPU that frames leave idle builds
+    /// them: a whole-brain layer in 416 parts asks for 416 indexes at its first ROI (they were as many threads
+    /// at normal priority, which took the cores from the frames and from the layer's other jobs).
     pub fn ready_or_build(&self, t: &Arc<Tractogram>) -> Option<&StreamlineCells> {
         use std::sync::atomic::Ordering;
         if let Some(cells) = self.0.cells.get() {
             return Some(cells);
         }
-        if !self.0.building.swap(true, Ordering::AcqRel) {
-            let (inner, t) = (self.0.clone(), t.clone());
-            let spawned = std::thread::Builder::new().name("tract index".into()).spawn(move || {
-                inner.cells.get_or_init(|| build_index(&t));
-            });
-            if let Err(e) = spawned {
-                warn!("the tract set's index is built when next needed: no thread for it ({e})");
-                self.0.building.store(false, Ordering::Release);
-            }
+        if !self.0.building.swap(true, Ordering::AcqRel)
+            && let Err(e) = index_builder().and_then(|b| b.send((self.0.clone(), t.clone())).map_err(|e| e.to_string()))
+        {
+            warn!("the tract set's index is built when next needed: no thread for it ({e})");
+            self.0.building.store(false, Ordering::Release);
         }
         None
     }
@@ -224,6 +223,54 @@ impl LazyIndex {
             Some(cells) => cells.pick(|s| t.streamline(s), shown, o, d, tolerance),
             None => fascicle_core::roi::pick_streamline(&t.points, &t.offsets, shown, o, d, tolerance),
         }
+    }
+}
+
+/// A set's index and streamlines, queued for the background builder.
+type IndexJob = (Arc<IndexInner>, Arc<Tractogram>);
+
+/// The queue of [`LazyIndex::ready_or_build`]'s background builder, its thread started with the first index.
+fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String> {
+    static BUILDER: OnceLock<Result<std::sync::mpsc::Sender<IndexJob>, String>> = OnceLock::new();
+    BUILDER
+        .get_or_init(|| {
+            let (send, receive) = std::sync::mpsc::channel::<IndexJob>();
+            std::thread::Builder::new()
+                .name("tract index".into())
+                .spawn(move || {
+                    lowest_priority();
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .thread_name(|i| format!("tract-index-{i}"))
+                        .start_handler(|_| lowest_priority())
+                        .build()
+                        .ok();
+                    for (inner, t) in receive {
+                        // Only the queue holds a set that went: nothing to build.
+                        if Arc::strong_count(&inner) == 1 {
+                            continue;
+                        }
+                        let build = || {
+                            inner.cells.get_or_init(|| build_index(&t));
+                        };
+                        match &pool {
+                            Some(pool) => pool.install(build),
+                            None => build(),
+                        }
+                    }
+                })
+                .map(|_| send)
+                .map_err(|e| e.to_string())
+        })
+        .as_ref()
+        .map_err(Clone::clone)
+}
+
+/// Lowers the calling thread to the lowest scheduling priority (nice 19), where the platform allows.
+fn lowest_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: setpriority on the calling thread's own id changes nothing but that thread's scheduling.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 19);
     }
 }
 
