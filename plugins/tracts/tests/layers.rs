@@ -327,7 +327,7 @@ fn placed_tract_parts_are_tract_sets_under_their_layer() {
 }
 
 /// A set's index answers as the brute force does, before and after it is built: the first selection of a set
-/// with no index tests every streamline (and starts the index in a thread of its own), the later ones (a drag:
+/// with no index tests every streamline (and queues the index for the background builder), the later ones (a drag:
 /// 30 steps of a sphere and a box, with margins kept) go through the index, and every one equals the core's
 /// segment-grid selection; a pick through the index equals the brute-force pick.
 #[test]
@@ -374,5 +374,48 @@ fn a_set_selects_and_picks_the_same_before_and_after_its_index() {
         let shown = |i: usize| k.is_multiple_of(2) || i.is_multiple_of(2);
         let want = pick_streamline(&t.points, &t.offsets, shown, o, -Vec3::Z, 0.004);
         assert_eq!(index.pick(&t, shown, o, -Vec3::Z, 0.004), want, "ray {k}");
+    }
+}
+
+/// Many sets asking for their indexes at once (a whole-brain layer in 416 parts at its first ROI) are served by
+/// one builder thread at the lowest priority, one set after another, not a thread each at normal priority
+/// (which took the cores from the frames): the indexes all come, and no more than one builder thread is
+/// alive, at nice 19, while they are built.
+#[test]
+fn many_sets_share_one_background_index_builder_at_the_lowest_priority() {
+    use std::sync::Arc;
+    let t = Arc::new(Tractogram::read(format!("{}/tracts/tracks300.trk", example::data())).unwrap());
+    let sets: Vec<(fascicle_tracts::LazyIndex, Arc<Tractogram>)> =
+        (0..64).map(|_| (fascicle_tracts::LazyIndex::default(), Arc::new((*t).clone()))).collect();
+    for (index, t) in &sets {
+        assert!(index.ready_or_build(t).is_none(), "an index before it was built");
+    }
+    // The threads of this process named as the builder, with their nice values.
+    let builders = || -> Vec<i64> {
+        let Ok(tasks) = std::fs::read_dir("/proc/self/task") else { return vec![] };
+        tasks
+            .flatten()
+            .filter(|task| std::fs::read_to_string(task.path().join("comm")).is_ok_and(|c| c.trim() == "tract index"))
+            .filter_map(|task| {
+                let stat = std::fs::read_to_string(task.path().join("stat")).ok()?;
+                // Field 19 (nice), counted after the command's closing parenthesis.
+                stat.rsplit_once(')')?.1.split_whitespace().nth(16)?.parse().ok()
+            })
+            .collect()
+    };
+    let start = std::time::Instant::now();
+    let mut seen = 0;
+    while sets.iter().any(|(index, t)| index.ready_or_build(t).is_none()) {
+        let nice = builders();
+        assert!(nice.len() <= 1, "{} builder threads", nice.len());
+        if cfg!(target_os = "linux") {
+            assert!(nice.iter().all(|n| *n == 19), "the builder runs at nice {nice:?}");
+        }
+        seen = seen.max(nice.len());
+        assert!(start.elapsed().as_secs() < 120, "the indexes were not built in 120 s");
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    if cfg!(target_os = "linux") {
+        assert_eq!(seen, 1, "the builder thread was never seen");
     }
 }
