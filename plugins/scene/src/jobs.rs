@@ -296,7 +296,7 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
         LayerKind::TensorSplats { source, axis, index, thickness, size, min_fa, .. } => {
             Ok(Content::Splats(slab_splats(cache, source, *axis, *index, *thickness, *size, *min_fa, progress)?))
         }
-        LayerKind::Tracts { source, mode, render, colouring, rois, masks, .. } => {
+        LayerKind::Tracts { source, mode, render, colouring, masks, .. } => {
             // A scalar image to colour by is read (through the cache) before any part is made.
             let scalar = match colouring {
                 TractColouring::Scalar { source, .. } => Some(scalar_volume(cache, source, progress)?),
@@ -318,11 +318,10 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
                     TractMode::Polygon => PreparedTracts::polygon_tubes(t, tensors, render.scale),
                     TractMode::Lines => PreparedTracts::lines_in_detail(t, colour, detail),
                 };
-                let prepared = prepared.starting_at(first);
-                // The ROIs' index is built here, off the main thread, when the kind given has ROIs (a layer's
-                // job is given none: they re-select in place, `LayerKind::structure`; its sets queue their
-                // indexes for the tract plugin's background builder when an ROI or a pick first needs one).
-                Content::Tracts(if rois.is_empty() { prepared } else { prepared.with_index() })
+                // No index is built here: a layer's job is given no ROIs (they re-select in place,
+                // `LayerKind::structure`); its sets queue their indexes for the tract plugin's background
+                // builder when an ROI or a pick first needs one.
+                Content::Tracts(prepared.starting_at(first))
             };
             // Tracking delivers its streamlines as they are computed.
             let streamed = AtomicBool::new(false);
@@ -455,11 +454,44 @@ pub const LINE_PART_POINTS: usize = 1_000_000;
 
 /// A tractogram file as lines, read and drawn part by part: the file is streamed in parts of whole
 /// streamlines (at most [`LINE_PART_POINTS`] points), a batch of parts (one per job thread) is read and then
-/// built in parallel, and each part is delivered to be drawn while the rest is read. The whole tractogram is
-/// never held (nor the file's bytes): a part's points are let go once its lines are made
+/// built in parallel, and each part is delivered to be drawn while the rest is read ([`stream_parts`]). The
+/// whole tractogram is never held (nor the file's bytes): a part's points are let go once its lines are made
 /// ([`PreparedTracts::drawn_only`]; a tractogram layer only shows the file, ROIs act on tract layers, which
-/// keep theirs). One part is returned as it is; more go through [`JobProgress::parts`].
+/// keep theirs).
 fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> {
+    let lines = |t: Tractogram, _, detail| {
+        Content::Tracts(PreparedTracts::lines_in_detail(Arc::new(t), None, detail).drawn_only())
+    };
+    stream_parts(path, progress, LINE_PART_POINTS, &lines)?
+        .ok_or_else(|| format!("{}: the tractogram holds no streamlines", path.display()))
+}
+
+/// A tract layer's file (without tensors to sample) read in parts of at most [`PART_POINTS`] points, never
+/// whole ([`stream_parts`]), each made by `prepare` (the part, the layer's index of its first streamline, the
+/// lines' detail for the file's size). Each part keeps its points (ROIs, picks); the whole tractogram is not
+/// held, nor kept in the cache (1.25 GB for a 1M whole brain), so a rebuild reads the file again. An empty
+/// file is an empty layer.
+fn stream_tract_file(
+    path: &Path,
+    progress: &JobProgress,
+    prepare: &(dyn Fn(TractData, usize, LineDetail) -> Content + Sync),
+) -> Result<Content, String> {
+    let part =
+        |t: Tractogram, first, detail| prepare(TractData { tractogram: Arc::new(t), tensors: None }, first, detail);
+    Ok(stream_parts(path, progress, PART_POINTS, &part)?
+        .unwrap_or_else(|| part(Tractogram::new(), 0, LineDetail::default())))
+}
+
+/// Streams a tractogram file in parts of whole streamlines of at most `max_points` points: a batch of parts
+/// (one per job thread) is read, then made by `make` (the part, the file's index of its first streamline,
+/// the lines' detail for the file's size) in parallel, and delivered through [`JobProgress::parts`] while the
+/// next batch is read; a file of one part returns it as it is. `None` for a file without streamlines.
+fn stream_parts(
+    path: &Path,
+    progress: &JobProgress,
+    max_points: usize,
+    make: &(dyn Fn(Tractogram, usize, LineDetail) -> Content + Sync),
+) -> Result<Option<Content>, String> {
     use fascicle_core::io::stream::TractogramReader;
     use rayon::prelude::*;
     let mut reader = TractogramReader::open(path).map_err(|e| e.to_string())?;
@@ -468,13 +500,14 @@ fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> 
     let header = reader.header();
     let detail = LineDetail::for_points(header.points.map_or(header.file_bytes / 12, |p| p as u64));
     let batch = rayon::current_num_threads().max(1);
-    let (mut items, mut done) = (0, 0);
+    let (mut items, mut done, mut sent) = (0, 0, 0);
     loop {
         let mut chunks = Vec::with_capacity(batch);
         while chunks.len() < batch
-            && let Some(t) = reader.next_chunk(LINE_PART_POINTS).map_err(|e| e.to_string())?
+            && let Some(t) = reader.next_chunk(max_points).map_err(|e| e.to_string())?
         {
-            chunks.push(Arc::new(t));
+            chunks.push((t, items));
+            items += chunks.last().map_or(0, |(t, _)| t.n_streamlines());
         }
         progress.advance((reader.bytes_read() as usize).saturating_sub(done));
         done = reader.bytes_read() as usize;
@@ -482,78 +515,17 @@ fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> 
             return Err(CANCELLED.into());
         }
         let ended = chunks.len() < batch;
-        let mut parts: Vec<Content> = chunks
-            .into_par_iter()
-            .map(|t| Content::Tracts(PreparedTracts::lines_in_detail(t, None, detail).drawn_only()))
-            .collect();
-        if ended && items == 0 && parts.len() == 1 {
-            return Ok(parts.remove(0));
+        let mut parts: Vec<Content> = chunks.into_par_iter().map(|(t, first)| make(t, first, detail)).collect();
+        if ended && sent == 0 && parts.len() == 1 {
+            return Ok(Some(parts.remove(0)));
         }
-        for part in parts {
-            items += part.items();
-            progress.parts.push(part);
-        }
+        sent += parts.len();
+        parts.into_iter().for_each(|part| progress.parts.push(part));
         if ended {
             break;
         }
     }
-    if items == 0 {
-        return Err(format!("{}: the tractogram holds no streamlines", path.display()));
-    }
-    Ok(Content::Streamed { items })
-}
-
-/// A tract layer's file (without tensors to sample) read in parts of whole streamlines of at most
-/// [`PART_POINTS`] points, never whole: a batch of parts (one per job thread) is read, then made by `prepare`
-/// (the part, the layer's index of its first streamline, the lines' detail for the file's size) in parallel
-/// and delivered while the next batch is read. Each part keeps its points (ROIs, picks); the whole
-/// tractogram is not held, nor kept in the cache (1.25 GB for a 1M whole brain), so a rebuild reads the file
-/// again. One part is returned as it is; more go through [`JobProgress::parts`].
-fn stream_tract_file(
-    path: &Path,
-    progress: &JobProgress,
-    prepare: &(dyn Fn(TractData, usize, LineDetail) -> Content + Sync),
-) -> Result<Content, String> {
-    use fascicle_core::io::stream::TractogramReader;
-    use rayon::prelude::*;
-    let mut reader = TractogramReader::open(path).map_err(|e| e.to_string())?;
-    progress.stage("reading the streamlines", reader.header().file_bytes as usize)?;
-    let header = reader.header();
-    let detail = LineDetail::for_points(header.points.map_or(header.file_bytes / 12, |p| p as u64));
-    let batch = rayon::current_num_threads().max(1);
-    let (mut items, mut done, mut parts_sent) = (0, 0, 0);
-    loop {
-        let mut chunks = Vec::with_capacity(batch);
-        while chunks.len() < batch
-            && let Some(t) = reader.next_chunk(PART_POINTS).map_err(|e| e.to_string())?
-        {
-            let first = items;
-            items += t.n_streamlines();
-            chunks.push((TractData { tractogram: Arc::new(t), tensors: None }, first));
-        }
-        progress.advance((reader.bytes_read() as usize).saturating_sub(done));
-        done = reader.bytes_read() as usize;
-        if progress.is_cancelled() {
-            return Err(CANCELLED.into());
-        }
-        let ended = chunks.len() < batch;
-        let mut parts: Vec<Content> = chunks.into_par_iter().map(|(t, first)| prepare(t, first, detail)).collect();
-        if ended && parts_sent == 0 && parts.len() == 1 {
-            return Ok(parts.remove(0));
-        }
-        for part in parts {
-            parts_sent += 1;
-            progress.parts.push(part);
-        }
-        if ended {
-            break;
-        }
-    }
-    if items == 0 {
-        // An empty file is an empty layer, as when it was read whole.
-        return Ok(prepare(TractData { tractogram: Arc::new(Tractogram::new()), tensors: None }, 0, detail));
-    }
-    Ok(Content::Streamed { items })
+    Ok((items > 0).then_some(Content::Streamed { items }))
 }
 
 /// A streamline point's colour: (streamline, the point's index in it, world point) to linear RGB.
@@ -1281,12 +1253,21 @@ fn streamlines_of(data: &TractData, range: std::ops::Range<usize>) -> TractData 
 
 /// Appends streamlines `range` of `d` (and their tensors, when it has them) to `out`.
 fn append_streamlines(out: &mut (Tractogram, Vec<[f32; 6]>), d: &TractData, range: std::ops::Range<usize>) {
-    let t = &d.tractogram;
+    append_range(out, &d.tractogram, d.tensors.as_deref().map(|t| t.as_slice()), range);
+}
+
+/// Appends streamlines `range` of `t` (and their tensors, when given) to `out`.
+fn append_range(
+    out: &mut (Tractogram, Vec<[f32; 6]>),
+    t: &Tractogram,
+    tensors: Option<&[[f32; 6]]>,
+    range: std::ops::Range<usize>,
+) {
     let (a, b) = (t.offsets[range.start], t.offsets[range.end]);
     let base = out.0.points.len();
     out.0.points.extend_from_slice(&t.points[a..b]);
     out.0.offsets.extend(t.offsets[range.start + 1..=range.end].iter().map(|o| o - a + base));
-    if let Some(tensors) = &d.tensors {
+    if let Some(tensors) = tensors {
         out.1.extend_from_slice(&tensors[a..b]);
     }
 }
@@ -1356,12 +1337,9 @@ fn track<F: fascicle_core::tracking::DirectionField + Sync>(
         if let Some(on_part) = on_part
             && n > *shown
         {
-            let (t, tensors) = out;
-            let (a, b) = (t.offsets[*shown], t.offsets[n]);
-            let mut part = Tractogram::new();
-            part.points.extend_from_slice(&t.points[a..b]);
-            part.offsets.extend(t.offsets[*shown + 1..=n].iter().map(|o| o - a));
-            on_part(finish((part, tensors[a..b].to_vec())));
+            let mut part = (Tractogram::new(), vec![]);
+            append_range(&mut part, &out.0, Some(&out.1), *shown..n);
+            on_part(finish(part));
             *shown = n;
         }
     };
