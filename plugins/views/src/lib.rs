@@ -183,6 +183,8 @@ pub struct ViewSystems;
 /// fill the views.
 pub struct ViewsPlugin;
 
+use fascicle_render::headless::PipelineWarmup;
+
 impl Plugin for ViewsPlugin {
     fn build(&self, app: &mut App) {
         fascicle_volume::layer::init_scalar_volumes(app);
@@ -196,7 +198,9 @@ impl Plugin for ViewsPlugin {
                 (
                     slice::sync_slices,
                     spawn_view_cameras,
-                    layout_views,
+                    // Not while a headless render warms its pipelines up: the cameras then draw into one
+                    // pixel (`PipelineWarmup`), and the layout would give them their whole viewports back.
+                    layout_views.run_if(not(resource_exists::<PipelineWarmup>)),
                     resolve_crosshair,
                     spawn_view_marks,
                     place_ortho_cameras,

@@ -185,3 +185,45 @@ fn slice_edits_cost_what_they_change_and_a_bad_slice_fails_visibly() {
     assert_eq!(world.query::<&ViewSlice>().iter(world).count(), 0);
     assert!(world.get::<ColourBar>(e).is_none() && world.get::<fascicle_views::SliceSource>(e).is_none());
 }
+
+/// The viewports the active cameras had in frames drawn while a headless render warmed its pipelines up.
+#[derive(Resource, Default)]
+struct WarmupViewports(Vec<Option<UVec2>>);
+
+fn record_warmup_viewports(
+    warmup: Option<Res<headless::PipelineWarmup>>,
+    cameras: Query<&Camera>,
+    mut seen: ResMut<WarmupViewports>,
+) {
+    if warmup.is_some() {
+        seen.0.extend(cameras.iter().filter(|c| c.is_active).map(|c| c.viewport.as_ref().map(|v| v.physical_size)));
+    }
+}
+
+/// A headless render's warm-up frames draw into one pixel of each view (each costs what its pipelines cost,
+/// not a whole frame): the views' layout leaves the cameras' shrunk viewports alone meanwhile. It gave them
+/// their cells back every frame, so the warm-up drew whole frames (four of the default scene's volume, 4 s each
+/// on lavapipe at 1280x720). The image is the layout's all the same.
+#[test]
+fn warm_up_frames_draw_into_one_pixel_with_the_views_laid_out() {
+    if gpu_skipped() {
+        return;
+    }
+    let mut ex = example::app(ExampleApp::offscreen(&example::data(), None));
+    ex.app.init_resource::<WarmupViewports>().add_systems(PostUpdate, record_warmup_viewports);
+    ex.render().unwrap_or_else(|e| panic!("{e}"));
+    let seen = &ex.app.world().resource::<WarmupViewports>().0;
+    assert!(seen.len() >= 4, "warm-up frames recorded: {seen:?}");
+    assert!(seen.iter().all(|v| *v == Some(UVec2::ONE)), "viewports while warming up: {seen:?}");
+    // After the warm-up the four views have their cells again.
+    let world = ex.app.world_mut();
+    let cells: Vec<URect> = world
+        .query::<&Camera>()
+        .iter(world)
+        .filter(|c| c.is_active)
+        .filter_map(|c| {
+            c.viewport.as_ref().map(|v| URect::from_corners(v.physical_position, v.physical_position + v.physical_size))
+        })
+        .collect();
+    assert!(cells.len() >= 4 && cells.iter().all(|r| r.size().x > 1 && r.size().y > 1), "{cells:?}");
+}
