@@ -1645,7 +1645,6 @@ fn layer_status(ui: &mut egui::Ui, status: &LayerStatus, job: Option<&LayerJob>,
                 job.progress.cancel();
             }
         });
-        ui.ctx().request_repaint();
     } else if let LayerStatus::Failed(message) = status {
         ui.horizontal_wrapped(|ui| {
             ui.colored_label(egui::Color32::LIGHT_RED, message);
