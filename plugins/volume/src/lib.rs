@@ -32,6 +32,7 @@ use bevy::shader::ShaderRef;
 use fascicle_core::Volume;
 use fascicle_core::dvr::{ClipBox, MarchParams, TransferFunction, preintegrate};
 
+pub mod empty_space;
 pub mod layer;
 pub mod shaders;
 pub mod shear_warp;
@@ -191,6 +192,8 @@ pub struct VolumeUniform {
     pub clip_hi: Vec4,
     /// Cell projection: cells per voxel axis (xyz; w unused).
     pub cells: UVec4,
+    /// Empty-space skipping: cells per voxel axis (xyz) of [`empty_space::CELL`] voxels (w).
+    pub grid: UVec4,
     /// The transfer function's value range `[lo, hi]`, in the volume's units, mapped to the LUT's [0, 1].
     pub range: Vec2,
     /// Ray-casting step or slice spacing target, mm.
@@ -241,6 +244,10 @@ pub struct VolumeMaterial {
     /// Where the warp finds that image: axis, base plane, placement (written by the same pass).
     #[storage(6, read_only)]
     pub warp: Handle<ShaderBuffer>,
+    /// Empty-space skipping: a `u32` per cell of `params.grid` (x fastest), 0 where no ray can gather
+    /// anything with the current transfer function ([`empty_space::occupancy`]).
+    #[storage(7, read_only)]
+    pub occupancy: Handle<ShaderBuffer>,
 }
 
 impl Material for VolumeMaterial {
@@ -294,6 +301,9 @@ pub struct VolumeSet {
     pub settings: VolumeSettings,
     /// Counts of the volume's values in [`HISTOGRAM_BINS`] bins over the transfer function's range.
     pub histogram: std::sync::Arc<Vec<u32>>,
+    /// Per empty-space cell, the values sampling can find there ([`empty_space::cell_value_ranges`]): the
+    /// occupancy is made from them whenever the transfer function's tables are written.
+    pub cell_ranges: std::sync::Arc<Vec<[f32; 2]>>,
 }
 
 impl VolumeSet {
@@ -309,8 +319,8 @@ impl VolumeSet {
     ) -> bool {
         let Some(mut m) = materials.get_mut(&self.material) else { return false };
         if tables {
-            let (lut, table) = tf_buffers(settings);
-            for (h, bytes) in [(m.lut.clone(), lut), (m.table.clone(), table)] {
+            let (lut, table, occupancy) = tf_buffers(settings, &self.cell_ranges);
+            for (h, bytes) in [(m.lut.clone(), lut), (m.table.clone(), table), (m.occupancy.clone(), occupancy)] {
                 if let Some(mut b) = buffers.get_mut(&h) {
                     b.data = Some(bytes);
                 }
@@ -597,6 +607,7 @@ impl VolumeUniform {
             clip_lo: lo.as_vec3().extend(0.0),
             clip_hi: hi.as_vec3().extend(0.0),
             cells: UVec4::new(cells[0], cells[1], cells[2], 0),
+            grid: UVec4::from((UVec3::from(empty_space::grid(dims)), empty_space::CELL as u32)),
             range: Vec2::new(s.tf.range[0] as f32, s.tf.range[1] as f32),
             step: s.step as f32,
             termination: s.termination as f32,
@@ -617,12 +628,14 @@ pub fn slices(r: f64, step: f64) -> u32 {
     ((2.0 * r / step.max(1e-3)).ceil() as u32).clamp(1, 4096)
 }
 
-/// The transfer function's LUT and pre-integrated table as buffer bytes.
-pub fn tf_buffers(s: &VolumeSettings) -> (Vec<u8>, Vec<u8>) {
+/// The transfer function's LUT, pre-integrated table and the empty-space occupancy of cells with values in
+/// `cell_ranges` ([`empty_space::cell_value_ranges`]), as buffer bytes.
+pub fn tf_buffers(s: &VolumeSettings, cell_ranges: &[[f32; 2]]) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
     let lut = s.tf.lut();
     let table = preintegrate(&lut, TABLE_N, s.step.max(1e-3), 64);
+    let occupancy = empty_space::occupancy(cell_ranges, &lut, &table, TABLE_N);
     let tb = table.iter().flat_map(|v| v.to_array()).flat_map(|v| (v as f32).to_le_bytes()).collect();
-    (lut.to_bytes(), tb)
+    (lut.to_bytes(), tb, occupancy.iter().flat_map(|o| o.to_le_bytes()).collect())
 }
 
 /// The proxy geometry of a method: the volume's box (ray casting, shear-warp's warp), the view-aligned slices (slicing), the
@@ -705,7 +718,8 @@ pub(crate) fn spawn_volume_texture(
 ) -> Entity {
     let d = vol.dims3();
     let n = d[0] * d[1] * d[2];
-    let (lut, table) = tf_buffers(settings);
+    let cell_ranges = std::sync::Arc::new(empty_space::cell_value_ranges(vol));
+    let (lut, table, occupancy) = tf_buffers(settings, &cell_ranges);
     let params = VolumeUniform::new(d, vol.world_from_voxel, settings);
     let material = materials.add(VolumeMaterial {
         params,
@@ -715,6 +729,7 @@ pub(crate) fn spawn_volume_texture(
         opaque_depth: depth.0.clone(),
         intermediate: images.add(intermediate_image(shear_warp::image_edge(d, settings.intermediate, settings.method))),
         warp: buffers.add(ShaderBuffer::new(&[0u8; 32], RenderAssetUsages::default())),
+        occupancy: buffers.add(ShaderBuffer::new(&occupancy, RenderAssetUsages::default())),
     });
     let mesh = proxy_mesh(d, vol.world_from_voxel, settings);
     commands
@@ -725,6 +740,7 @@ pub(crate) fn spawn_volume_texture(
                 world_from_voxel: vol.world_from_voxel,
                 settings: settings.clone(),
                 histogram: std::sync::Arc::new(histogram(&vol.data[..n], settings.tf.range, HISTOGRAM_BINS)),
+                cell_ranges,
             },
             Mesh3d(meshes.add(mesh)),
             MeshMaterial3d(material),
