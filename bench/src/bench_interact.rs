@@ -1,7 +1,7 @@
 //! `fascicle-bench interact`: the real viewer window (winit, on Xvfb when there is no display), driven through
-//! the window system's event path by `xdotool`: per scene, an orbit (a left drag over the 3D view), a hover
-//! (the pointer crossing the still 3D view, no button), an ROI drag (Shift + left drag from the first ROI
-//! sphere), then the idle window.
+//! the window system's event path by `xdotool`: per scene, its opening, an orbit (a left drag over the 3D
+//! view), a hover (the pointer crossing the still 3D view, no button), an ROI drag (Shift + left drag from the
+//! first ROI sphere), then the idle window.
 //!
 //! The viewer writes a line per frame to the file named by `FASCICLE_FRAME_LOG` (wall clock, the frame's time
 //! as the panel's readout shows it, the render scale, the ROI's window position). Per action: the frames drawn
@@ -9,7 +9,13 @@
 //! readout's time comes from the render world, a frame late under pipelined rendering), their median and
 //! 95th percentile; `refine_ms`, from the release until the process stops using the CPU (the
 //! full-quality frame drawn, read from `/proc/PID/stat` every 10 ms until 600 ms pass without a tick); and for
-//! the idle row, the CPU the process uses over 10 s once settled, in % of one core.
+//! the idle row, the CPU the process uses over 10 s once settled, in % of one core. The `open` row: the frames
+//! from the first to the one that settles the opened scene, and in `refine_ms` the time from the launch until
+//! the process last used the CPU before it went idle: the complete picture drawn and the background work done
+//! (a tract layer's ROI indexes are built at the lowest priority after its picture, so there it is later than
+//! the picture). Not the frame log's last line: on a software adapter the drawing runs seconds behind the
+//! frame's update (a 1M-streamline file's last frame is logged about 6 s before lavapipe has drawn it; the
+//! screen, grabbed every 250 ms, settles when the process goes quiet).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -250,8 +256,9 @@ fn percentile(sorted: &[f64], p: f64) -> f64 {
     sorted[i]
 }
 
-/// Waits until the viewer has loaded and gone idle (its last frame says `Idle`, and it stays so for a second).
-fn wait_settled(viewer: &mut Viewer, timeout: Duration) -> Result<(), String> {
+/// Waits until the viewer has loaded and gone idle (its last frame says `Idle`, and it stays so for a second);
+/// returns when the process last used the CPU.
+fn wait_settled(viewer: &mut Viewer, timeout: Duration) -> Result<Instant, String> {
     let start = Instant::now();
     loop {
         if let Ok(Some(status)) = viewer.child.try_wait() {
@@ -259,15 +266,35 @@ fn wait_settled(viewer: &mut Viewer, timeout: Duration) -> Result<(), String> {
         }
         let frames = read_log(&viewer.log);
         if frames.last().is_some_and(|f| f.next == "Idle")
-            && wait_quiet(viewer.child.id(), Duration::from_secs(1), Duration::from_secs(30)).is_some()
+            && let Some(quiet) = wait_quiet(viewer.child.id(), Duration::from_secs(1), Duration::from_secs(30))
             && read_log(&viewer.log).len() == frames.len()
         {
-            return Ok(());
+            return Ok(quiet);
         }
         if start.elapsed() > timeout {
             return Err(format!("the scene did not settle within {} s", timeout.as_secs()));
         }
         std::thread::sleep(Duration::from_millis(500));
+    }
+}
+
+/// The opening of a scene: its frames (each timed from the one before) and, in `refine_ms`, the time from the
+/// launch to `drawn`, the process's last use of the CPU before it went idle (the complete picture drawn, and
+/// any background work done).
+fn open_row(scene: &str, frames: &[Frame], drawn: Duration) -> Row {
+    let mut ms: Vec<f64> = frames.windows(2).map(|w| (w[1].at_ms - w[0].at_ms) as f64).collect();
+    ms.sort_by(f64::total_cmp);
+    let mut scales: Vec<f64> = frames.iter().map(|f| f.scale).collect();
+    scales.sort_by(f64::total_cmp);
+    Row {
+        scene: scene.to_string(),
+        action: "open",
+        frames: frames.len(),
+        median_ms: percentile(&ms, 0.5),
+        p95_ms: percentile(&ms, 0.95),
+        refine_ms: Some(drawn.as_secs_f64() * 1e3),
+        idle_cpu_pct: None,
+        scale: percentile(&scales, 0.5),
     }
 }
 
@@ -353,8 +380,9 @@ pub fn run(o: InteractOptions) -> Result<(), String> {
             .spawn()
             .map_err(|e| format!("{}: {e}", exe.display()))?;
         let mut viewer = Viewer { child, log };
-        wait_settled(&mut viewer, o.settle_timeout)?;
+        let drawn = wait_settled(&mut viewer, o.settle_timeout)?;
         eprintln!("  settled after {:.1} s", opened.elapsed().as_secs_f64());
+        rows.push(open_row(&name, &read_log(&viewer.log), drawn.saturating_duration_since(opened)));
         // Keys go to the focused window: an Xvfb without a window manager focuses none, and the ROI drag's
         // Shift would never reach the viewer (the drag would orbit instead).
         focus_viewer(&display, viewer.child.id())?;
@@ -456,5 +484,9 @@ mod tests {
         assert_eq!(row.fields(false).join(","), "default,idle,0,,,,0.250");
         assert_eq!(row.fields(false).len(), CSV_HEADER.split(',').count());
         assert_eq!(row.fields(true).len(), 8);
+        // The opening: its frames' intervals, and the time to the complete picture in refine_ms.
+        let at = |ms: u128| Frame { at_ms: 1_700_000_000_000 + ms, scale: 1.0, next: "Poll".into(), roi: None };
+        let open = open_row("f.tck", &[at(0), at(100), at(400)], Duration::from_millis(5200));
+        assert_eq!(open.fields(false).join(","), "f.tck,open,3,300.00,300.00,5200.0,");
     }
 }
