@@ -404,8 +404,21 @@ fn start_job(
     let job = move || build(&kind, &c, &p);
     // The axes are made at once, not after the jobs holding the jobs' threads (a whole-brain read).
     let task = if matches!(structure, LayerKind::Axes { .. }) { spawn_light_job(job) } else { spawn_job(job) };
+    if let Some(segments) = expected_line_segments(&structure) {
+        commands.entity(layer).insert(fascicle_tracts::ExpectedLineSegments(segments));
+    }
     commands.entity(layer).insert((LayerJob { progress, structure, task, parts_shown: 0 }, LayerStatus::Loading));
     counts.jobs += 1;
+}
+
+/// The line segments a tractogram layer will draw, estimated from its file's size before it is read (about 12
+/// bytes a point; at whole-brain detail about one segment is kept per eight points: 13M of 104M), so that the
+/// cameras drop MSAA for it before its first part ([`fascicle_tracts::ExpectedLineSegments`]). None for other
+/// layers and unreadable files (the job reports those).
+fn expected_line_segments(kind: &LayerKind) -> Option<usize> {
+    let LayerKind::Tractogram { path } = kind else { return None };
+    let bytes = std::fs::metadata(path).ok()?.len();
+    Some((bytes / 12 / 8) as usize)
 }
 
 /// Shows the parts that running jobs delivered ([`crate::jobs::Parts`]: streamlines as they are tracked, a
@@ -482,7 +495,7 @@ fn finish_jobs(
                 None => continue,
             }
         };
-        commands.entity(e).remove::<LayerJob>();
+        commands.entity(e).remove::<(LayerJob, fascicle_tracts::ExpectedLineSegments)>();
         // The grid of the new content, or none (a rebuilt layer of another kind keeps no stale grid).
         match job.progress.grid() {
             Some(grid) => commands.entity(e).insert(grid),
@@ -909,4 +922,21 @@ pub fn camera_from_spec(spec: &crate::model::CameraSpec) -> (Transform, Projecti
     let proj =
         Projection::Perspective(PerspectiveProjection { fov: spec.fov_y_deg.to_radians(), near: NEAR, ..default() });
     (tf, proj)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tractogram layer expects the segments its file's size suggests (12 bytes a point, one segment kept
+    /// per eight points); other layers and missing files expect none.
+    #[test]
+    fn a_tractogram_layer_expects_segments_from_its_file_size() {
+        let path = crate::repo_path("data/tracts/small_64D_dti.tck");
+        let bytes = std::fs::metadata(&path).unwrap().len() as usize;
+        assert_eq!(expected_line_segments(&LayerKind::Tractogram { path }), Some(bytes / 96));
+        let missing = LayerKind::Tractogram { path: "/nonexistent/t.tck".into() };
+        assert_eq!(expected_line_segments(&missing), None);
+        assert_eq!(expected_line_segments(&LayerKind::Axes { length_mm: 30.0 }), None);
+    }
 }

@@ -451,6 +451,14 @@ fn tube_detail(
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LineSegments(pub usize);
 
+/// The line segments a layer will draw once it has loaded, estimated before its first part arrives (an app
+/// puts it on a layer whose file is being read, from the file's size, and removes it when the layer is in):
+/// [`LineMsaa`] weighs it with the segments drawn, so a camera that will drop MSAA for a whole-brain file drops
+/// it before the first line is drawn, and the render world specialises its pipelines once, not twice (on a
+/// software adapter, compiling some forty pipelines again delayed the first streamlines).
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ExpectedLineSegments(pub usize);
+
 /// When cameras drop MSAA for lines: a 3D camera that sees more line segments than the limit renders without
 /// MSAA (logged once). On a software rasteriser multisampled lines cost about ten times single-sampled ones
 /// (20,000 streamlines at 1280x720 on lavapipe: 77 s against 7.4 s for a headless render), so a dense
@@ -476,6 +484,7 @@ fn line_msaa(
     policy: Res<LineMsaa>,
     adapter: Option<Res<fascicle_render::AdapterKind>>,
     sets: Query<(&LineSegments, Option<&RenderLayers>, &InheritedVisibility)>,
+    expected: Query<(&ExpectedLineSegments, Option<&RenderLayers>, &InheritedVisibility)>,
     cameras: Query<(Entity, Option<&Msaa>, Option<&RenderLayers>), With<Camera3d>>,
     mut commands: Commands,
 ) {
@@ -487,11 +496,12 @@ fn line_msaa(
             continue;
         }
         let layers = layers.unwrap_or(&default_layers);
-        let segments: usize = sets
-            .iter()
-            .filter(|(_, l, v)| v.get() && l.unwrap_or(&default_layers).intersects(layers))
-            .map(|(s, _, _)| s.0)
-            .sum();
+        let seen = |l: Option<&RenderLayers>, v: &InheritedVisibility| {
+            v.get() && l.unwrap_or(&default_layers).intersects(layers)
+        };
+        let drawn: usize = sets.iter().filter(|(_, l, v)| seen(*l, v)).map(|(s, _, _)| s.0).sum();
+        let coming: usize = expected.iter().filter(|(_, l, v)| seen(*l, v)).map(|(s, _, _)| s.0).sum();
+        let segments = drawn.saturating_add(coming);
         if segments > limit {
             info!(
                 "fascicle-tracts: camera {e} sees {segments} line segments (over {limit} on a {} adapter); its MSAA is turned off",
@@ -1700,5 +1710,12 @@ mod line_msaa_tests {
         let cam = app.world_mut().spawn((Camera3d::default(), Msaa::Sample4)).id();
         app.update();
         assert_eq!(*app.world().get::<Msaa>(cam).unwrap(), Msaa::Sample4);
+        // A layer still loading that expects more than the limit: MSAA goes before any line is drawn.
+        let layer = app.world_mut().spawn((ExpectedLineSegments(50_000), InheritedVisibility::VISIBLE)).id();
+        app.update();
+        assert_eq!(*app.world().get::<Msaa>(cam).unwrap(), Msaa::Sample4, "0.95M drawn and expected");
+        app.world_mut().entity_mut(layer).insert(ExpectedLineSegments(5_000_000));
+        app.update();
+        assert_eq!(*app.world().get::<Msaa>(cam).unwrap(), Msaa::Off, "5.9M drawn and expected");
     }
 }
