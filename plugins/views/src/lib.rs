@@ -25,7 +25,7 @@
 #![warn(missing_docs)]
 
 use bevy::camera::visibility::RenderLayers;
-use bevy::camera::{RenderTarget, ScalingMode, Viewport};
+use bevy::camera::{CameraOutputMode, RenderTarget, ScalingMode, Viewport};
 use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
 use bevy::math::{DMat4, DVec3};
 use bevy::prelude::*;
@@ -207,6 +207,7 @@ impl Plugin for ViewsPlugin {
                     view_slices,
                     view_tract_slabs,
                     bars,
+                    skip_covered_output,
                 )
                     .chain()
                     .in_set(ViewSystems),
@@ -744,6 +745,47 @@ fn bars(
         ));
     }
     *shown = ShownBars { bars, size };
+}
+
+/// The output a main camera writes when the colour-bar overlay does not draw over it, kept while the overlay
+/// does ([`skip_covered_output`]).
+#[derive(Component, Clone, Copy, Debug)]
+struct CoveredOutput(CameraOutputMode);
+
+/// While the colour-bar overlay draws over a main camera's view, the main camera skips writing its picture to
+/// the target: the overlay shares its intermediate textures (the same MSAA and HDR, kept so by the layout) and
+/// its viewport, so the overlay's write after it puts the view and the bars on the target at once. The main
+/// camera's own write was the same pixels written twice: on a software adapter a blit of the whole view per
+/// frame (lavapipe, 1280x720 window: about 10 ms of CPU a frame). Without the overlay the main camera writes
+/// its output again (as it was before).
+#[allow(clippy::type_complexity, reason = "a Bevy system's queries")]
+fn skip_covered_output(
+    mut commands: Commands,
+    overlay: Query<(&Camera, Option<&Msaa>, Has<bevy::camera::Hdr>), (With<BarView>, Without<MainView>)>,
+    mut mains: Query<
+        (Entity, &mut Camera, Option<&Msaa>, Has<bevy::camera::Hdr>, Option<&CoveredOutput>),
+        (With<MainView>, Without<BarView>),
+    >,
+) {
+    for (e, mut cam, msaa, hdr, kept) in &mut mains {
+        let shares = |(o, m, h): (&Camera, Option<&Msaa>, bool)| {
+            o.is_active && h == hdr && m.copied().unwrap_or_default() == msaa.copied().unwrap_or_default()
+        };
+        let covered = cam.is_active && overlay.iter().any(shares);
+        match (covered, kept) {
+            (true, None) => {
+                if matches!(cam.output_mode, CameraOutputMode::Write { .. }) {
+                    commands.entity(e).insert(CoveredOutput(cam.output_mode));
+                    cam.output_mode = CameraOutputMode::Skip;
+                }
+            }
+            (false, Some(kept)) => {
+                cam.output_mode = kept.0;
+                commands.entity(e).remove::<CoveredOutput>();
+            }
+            _ => {}
+        }
+    }
 }
 
 /// A window after a right drag of `delta` pixels: right widens it (less contrast), up lowers its centre

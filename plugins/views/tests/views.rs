@@ -1,20 +1,22 @@
 //! The views plugin from a plain Bevy app (the `four_views` example), rendered headless on the GPU (lavapipe in
 //! CI): the axial 2D view shows the FA image read by the core reader through the crosshair, display grey linear
 //! in the window (a closed form, pixel for pixel); the colour bars show the slice's window and the glyphs'
-//! scale; each edit of a slice layer costs what it changes; a bad slice fails visibly; a layer that stops
-//! being a slice loses what the plugin gave it.
+//! scale, over the 3D view (whose write the bar overlay's replaces); each edit of a slice layer costs what it
+//! changes; a bad slice fails visibly; a layer that stops being a slice loses what the plugin gave it.
 
 #[allow(dead_code)]
 #[path = "../examples/four_views.rs"]
 mod example;
 
+use bevy::camera::CameraOutputMode;
 use bevy::prelude::*;
 use fascicle_render::example::ExampleApp;
 use fascicle_render::headless::{self, Capture};
 use fascicle_render::reference::srgb8;
 use fascicle_views::colourbar::{BAR_W, GRADIENT_ROWS, bar_rect};
 use fascicle_views::{
-    ColourBar, ColourMap, LayerStatus, OrthoView, SliceCounts, SliceLayer, SliceSettings, ViewSlice, cells,
+    BarView, ColourBar, ColourMap, LayerStatus, MainView, OrthoView, SliceCounts, SliceLayer, SliceSettings, ViewSlice,
+    cells,
 };
 use glam::DVec3;
 
@@ -26,8 +28,21 @@ fn gpu_skipped() -> bool {
     skipped
 }
 
+/// Per frame: whether the 3D view and its bar overlay were both drawn, and whether the 3D camera skipped its
+/// write to the target.
+#[derive(Resource, Default)]
+struct Outputs(Vec<(bool, bool)>);
+
+fn record_outputs(mut outputs: ResMut<Outputs>, cameras: Query<(&Camera, Has<MainView>, Has<BarView>)>) {
+    let active =
+        |want_main: bool| cameras.iter().any(|(c, main, bar)| c.is_active && main == want_main && bar != want_main);
+    let skipped = cameras.iter().any(|(c, main, _)| main && matches!(c.output_mode, CameraOutputMode::Skip));
+    outputs.0.push((active(true) && active(false), skipped));
+}
+
 fn rendered() -> (ExampleApp, Capture) {
     let mut ex = example::app(ExampleApp::offscreen(&example::data(), None));
+    ex.app.init_resource::<Outputs>().add_systems(Last, record_outputs);
     let capture = ex.render().unwrap_or_else(|e| panic!("{e}"));
     (ex, capture)
 }
@@ -110,6 +125,11 @@ fn the_axial_view_shows_the_image_through_the_crosshair_in_its_window() {
         })
         .count();
     assert!(coloured > 2_000, "{coloured} coloured pixels in the 3D view");
+    // The bar overlay writes the 3D view's picture with its own: in every frame both drew, the main camera's
+    // write was skipped (the picture above is the overlay's write of both).
+    let frames = &ex.app.world().resource::<Outputs>().0;
+    assert!(frames.iter().any(|f| f.0), "no frame drew the 3D view with its bars");
+    assert!(frames.iter().all(|&(both, skipped)| !both || skipped), "{frames:?}");
     assert!(worst <= 1.0, "largest difference {worst} levels over {checked} pixels");
 }
 
