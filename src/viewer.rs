@@ -849,13 +849,14 @@ fn orbit_input(
     }
     // A drag is an interaction from its press (whose frame already draws at the scale the frame budget
     // affords) to its release, frames without motion included.
+    let d = motion.delta;
     if buttons.any_pressed([MouseButton::Left, MouseButton::Right]) {
-        interacting.mark();
+        // Held still, the drag draws nothing new: no frame until the pointer moves or the button is released.
+        if d != Vec2::ZERO || scroll.delta.y != 0.0 { interacting.mark() } else { interacting.hold() }
     } else if buttons.any_just_released([MouseButton::Left, MouseButton::Right]) {
         // The drag ended: the view refines now, not after the budget's still time.
         interacting.release();
     }
-    let d = motion.delta;
     if buttons.pressed(MouseButton::Left) && d != Vec2::ZERO {
         orbit.yaw -= d.x * 0.01;
         orbit.pitch = (orbit.pitch + d.y * 0.01).clamp(-1.55, 1.55);

@@ -5,7 +5,8 @@
 //!
 //! - **Budget**: [`FrameBudget`], a resource: 100 ms a frame on a software adapter, 16 ms on a hardware GPU.
 //! - **Moving**: a camera marked [`RenderScale`] whose transform changed, or an app's [`Interacting::mark`]
-//!   (a drag of an ROI changes the scene, not the camera).
+//!   (a drag of an ROI changes the scene, not the camera); a button held still on the view
+//!   ([`Interacting::hold`]) keeps the view moving but asks for no frame.
 //! - **Measured**: a frame's time is the real time since the frame before, counted only when that one asked
 //!   for the next at once (in a window drawn on demand, [`crate::on_demand::NextFrame::Now`]; the first frame
 //!   after an idle wait measures the wait). The main pass's cost is taken as proportional to its pixels, so a
@@ -20,7 +21,8 @@
 //! - **Read**: [`BudgetState`] holds the current scale and the last moving frame's time, for readouts.
 //!
 //! A window drawn on demand ([`crate::on_demand`]) reaches the refining frame through [`crate::Unsettled`]:
-//! while the scale is under 1 and the view is still, the plugin asks for frames at the busy rate.
+//! while the scale is under 1 and the view is still, the plugin asks for frames at the busy rate; not while a
+//! button is held still (its release or the next move is input, which draws a frame anyway).
 
 use std::time::Duration;
 
@@ -96,13 +98,22 @@ impl Default for RenderScale {
 #[derive(Resource, Default, Debug)]
 pub struct Interacting {
     marked: bool,
+    held: bool,
     released: bool,
 }
 
 impl Interacting {
-    /// The user is interacting this frame.
+    /// The user is interacting this frame: something moved (the pointer of a drag, an ROI, the view).
     pub fn mark(&mut self) {
         self.marked = true;
+    }
+
+    /// A button is held down on the view this frame, but nothing moved: the view counts as moving (the scale
+    /// holds, and a slow frame cannot end the drag), but no frame is asked for, so a window drawn on demand
+    /// waits for the next input instead of drawing the same coarse picture back to back. A frame that both
+    /// marks and holds is marked.
+    pub fn hold(&mut self) {
+        self.held = true;
     }
 
     /// The interaction ended this frame (the button that dragged was released): the view is still at once,
@@ -214,7 +225,9 @@ fn hold_budget(
         state.last_frame = Some((time.delta(), drawn));
     }
     let released = std::mem::take(&mut interacting.released);
-    if std::mem::take(&mut interacting.marked) || !moved.is_empty() {
+    let marked = std::mem::take(&mut interacting.marked) || !moved.is_empty();
+    let held = std::mem::take(&mut interacting.held) && !marked && !released;
+    if marked {
         state.last_moved = Some(now);
     }
     if released {
@@ -226,8 +239,9 @@ fn hold_budget(
     // coarse, and the full-quality frame is the last one, drawn once. A release refines at once: the settle
     // frames after it put the refined picture back (the retained picture).
     let coarse_still = state.scale < 1.0 && settling && !released;
-    state.moving =
-        state.last_moved.is_some_and(|t| now.saturating_duration_since(t) < budget.refine_after) || coarse_still;
+    state.moving = state.last_moved.is_some_and(|t| now.saturating_duration_since(t) < budget.refine_after)
+        || coarse_still
+        || held;
     state.budget = budget.for_adapter(adapter.is_some_and(|a| a.is_software()));
     let min = budget.min_scale;
     state.scale = match (budget.enabled, state.moving, state.last_frame) {
@@ -246,8 +260,9 @@ fn hold_budget(
     if was_moving && !state.moving {
         chosen.1 = Some(ended_at);
     }
-    if state.moving && state.scale < 1.0 {
-        // Frames until the view is still: the one that finds it still draws at full scale.
+    if state.moving && state.scale < 1.0 && !held {
+        // Frames until the view is still: the one that finds it still draws at full scale. A held button
+        // draws nothing new until the next input.
         unsettled.request();
     }
     chosen.0 = [state.scale, chosen.0[0]];

@@ -5,6 +5,7 @@
 use std::time::Duration;
 
 use bevy::prelude::*;
+use fascicle_render::Unsettled;
 use fascicle_render::budget::{BudgetState, FrameBudget, FrameBudgetPlugin, Interacting, RenderScale};
 use fascicle_render::headless::{self, Capture};
 use fascicle_render::impostor::SphereImpostorMaterial;
@@ -61,6 +62,18 @@ fn a_scene_over_budget_draws_at_a_lower_scale_and_refines_to_the_full_image() {
     let state = *app.world().resource::<BudgetState>();
     assert_eq!(state.scale, 0.25, "{state:?}");
     assert_eq!(app.world().get::<RenderScale>(camera), Some(&RenderScale(0.25)));
+    // A button held still on the view: still moving and coarse, and no frame asked for (a window drawn on
+    // demand waits for the next input); a marked frame asks for the next.
+    app.world_mut().resource_mut::<Interacting>().mark();
+    app.update();
+    assert!(app.world_mut().resource_mut::<Unsettled>().take(), "a moving frame asks for the next");
+    for _ in 0..3 {
+        app.world_mut().resource_mut::<Interacting>().hold();
+        app.update();
+        assert!(!app.world_mut().resource_mut::<Unsettled>().take(), "a held button asked for a frame");
+        let state = *app.world().resource::<BudgetState>();
+        assert!(state.moving && state.scale == 0.25, "{state:?}");
+    }
     let coarse = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(app.world().resource::<BudgetState>().scale, 0.25, "still, but not yet refined");
     if let Ok(dir) = std::env::var("FASCICLE_TEST_OUT") {

@@ -233,14 +233,17 @@ pub fn drag_roi(
         });
     }
     let Some(g) = drag.0 else { return };
-    // A drag is an interaction for the frame budget (it moves no camera).
-    if let Some(mut interacting) = interacting {
-        interacting.mark();
-    }
-    let Some(shape) = dragged_shape(&g, o, d) else { return };
     let current = scene.0.layers.get(g.layer).and_then(|l| grips(&l.kind).into_iter().find(|(k, _)| *k == g.grip));
-    if current.is_some_and(|(_, c)| c != shape) {
-        set_grip(&mut scene.0.layers[g.layer].kind, g.grip, shape);
+    let moved = match (dragged_shape(&g, o, d), current) {
+        (Some(shape), Some((_, c))) if c != shape => {
+            set_grip(&mut scene.0.layers[g.layer].kind, g.grip, shape);
+            true
+        }
+        _ => false,
+    };
+    // A drag is an interaction for the frame budget (it moves no camera); held still, it asks for no frame.
+    if let Some(mut interacting) = interacting {
+        if moved { interacting.mark() } else { interacting.hold() }
     }
 }
 
