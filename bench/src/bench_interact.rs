@@ -58,6 +58,24 @@ struct Row {
 }
 
 impl Row {
+    /// A row of `frames` (each its time in ms and the render scale it drew at): their count, median and 95th
+    /// percentile time and median scale.
+    fn of_frames(scene: &str, action: &'static str, frames: Vec<(f64, f64)>, refine_ms: Option<f64>) -> Row {
+        let (mut ms, mut scales): (Vec<f64>, Vec<f64>) = frames.into_iter().unzip();
+        ms.sort_by(f64::total_cmp);
+        scales.sort_by(f64::total_cmp);
+        Row {
+            scene: scene.into(),
+            action,
+            frames: ms.len(),
+            median_ms: percentile(&ms, 0.5),
+            p95_ms: percentile(&ms, 0.95),
+            refine_ms,
+            idle_cpu_pct: None,
+            scale: percentile(&scales, 0.5),
+        }
+    }
+
     /// The row's fields: for the printed table (with the render scale, fewer digits), or for the CSV
     /// ([`CSV_HEADER`]); a figure the row does not have is empty.
     fn fields(&self, table: bool) -> Vec<String> {
@@ -282,20 +300,14 @@ fn wait_settled(viewer: &mut Viewer, timeout: Duration) -> Result<Instant, Strin
 /// launch to `drawn`, the process's last use of the CPU before it went idle (the complete picture drawn, and
 /// any background work done).
 fn open_row(scene: &str, frames: &[Frame], drawn: Duration) -> Row {
-    let mut ms: Vec<f64> = frames.windows(2).map(|w| (w[1].at_ms - w[0].at_ms) as f64).collect();
-    ms.sort_by(f64::total_cmp);
+    let timed = frames.windows(2).map(|w| ((w[1].at_ms - w[0].at_ms) as f64, w[1].scale));
+    let mut row = Row::of_frames(scene, "open", timed.collect(), Some(drawn.as_secs_f64() * 1e3));
+    // Every frame counts (the first has no interval): its scale too.
+    row.frames = frames.len();
     let mut scales: Vec<f64> = frames.iter().map(|f| f.scale).collect();
     scales.sort_by(f64::total_cmp);
-    Row {
-        scene: scene.to_string(),
-        action: "open",
-        frames: frames.len(),
-        median_ms: percentile(&ms, 0.5),
-        p95_ms: percentile(&ms, 0.95),
-        refine_ms: Some(drawn.as_secs_f64() * 1e3),
-        idle_cpu_pct: None,
-        scale: percentile(&scales, 0.5),
-    }
+    row.scale = percentile(&scales, 0.5);
+    row
 }
 
 /// Moves the pointer to (x, y), waits for the frames that draws to pass (a pointer move redraws the window),
@@ -325,20 +337,7 @@ fn measure_drag(
         .filter(|w| w[1].at_ms >= press && w[1].at_ms <= release + 20 && w[0].at_ms >= press)
         .map(|w| ((w[1].at_ms - w[0].at_ms) as f64, w[1].scale))
         .collect();
-    let mut ms: Vec<f64> = during.iter().map(|f| f.0).collect();
-    ms.sort_by(f64::total_cmp);
-    let mut scales: Vec<f64> = during.iter().map(|f| f.1).collect();
-    scales.sort_by(f64::total_cmp);
-    Ok(Row {
-        scene: scene.into(),
-        action,
-        frames: ms.len(),
-        median_ms: percentile(&ms, 0.5),
-        p95_ms: percentile(&ms, 0.95),
-        refine_ms,
-        idle_cpu_pct: None,
-        scale: percentile(&scales, 0.5),
-    })
+    Ok(Row::of_frames(scene, action, during, refine_ms))
 }
 
 /// The bench (see the module docs).
