@@ -221,6 +221,7 @@ pub struct VolumeUniform {
 /// The material of one volume layer, drawn by `shaders/volume.wgsl` in the transparent phase with
 /// premultiplied alpha; rays stop at the opaque layers' depth ([`OpaqueDepth`]).
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
+#[bind_group_data(VolumeKey)]
 pub struct VolumeMaterial {
     /// The drawing parameters (binding 0), from the layer's [`VolumeSettings`] and the volume's grid.
     #[uniform(0)]
@@ -250,6 +251,26 @@ pub struct VolumeMaterial {
     pub occupancy: Handle<ShaderBuffer>,
 }
 
+/// Steps (mm) whose opacity correction the ray caster makes by products instead of `pow`: the default step, 1 mm,
+/// and the steps of a moving view (twice the step, `fascicle_render::budget`) from it and from a 2 mm step. On
+/// lavapipe the `pow` of every sample was about a tenth of the default scene's full-scale frame (0.3 of 2.5 s).
+pub const WHOLE_MM_STEPS: [f32; 3] = [1.0, 2.0, 4.0];
+
+/// The pipeline key of [`VolumeMaterial`]: whether the step is one of [`WHOLE_MM_STEPS`] (the `WHOLE_MM_STEPS`
+/// shader def). The step of a moving view (twice the step) keeps the key of the still one for 1 and 2 mm steps,
+/// so that an interaction compiles no pipeline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct VolumeKey {
+    /// `params.step` is one of [`WHOLE_MM_STEPS`].
+    pub whole_mm_steps: bool,
+}
+
+impl From<&VolumeMaterial> for VolumeKey {
+    fn from(material: &VolumeMaterial) -> Self {
+        Self { whole_mm_steps: WHOLE_MM_STEPS.contains(&material.params.step) }
+    }
+}
+
 impl Material for VolumeMaterial {
     fn vertex_shader() -> ShaderRef {
         shaders::volume()
@@ -270,8 +291,13 @@ impl Material for VolumeMaterial {
         _pipeline: &MaterialPipeline,
         descriptor: &mut RenderPipelineDescriptor,
         _layout: &MeshVertexBufferLayoutRef,
-        _key: MaterialPipelineKey<Self>,
+        key: MaterialPipelineKey<Self>,
     ) -> Result<(), SpecializedMeshPipelineError> {
+        if key.bind_group_data.whole_mm_steps
+            && let Some(fragment) = descriptor.fragment.as_mut()
+        {
+            fragment.shader_defs.push("WHOLE_MM_STEPS".into());
+        }
         // Back-face culling: the box is wound inwards, so only its far faces are drawn (one ray per pixel,
         // also with the camera inside); slices are wound to face the camera. The shader tests against the
         // opaque depth itself (the ray stops there), so no depth test or write.

@@ -236,6 +236,20 @@ fn raycast_matches_the_f64_marcher() {
     assert!(p99 <= 3.0, "99th percentile {p99} levels");
 }
 
+/// Whole-millimetre steps (1 mm, the default, and 2 mm, the default while the view moves) correct each sample's
+/// opacity by a product instead of `pow` (`power` in the shader): the picture still matches the f64 marcher, and
+/// a 2 mm step is not drawn as a 1 mm one (a wrong product would halve every sample's opacity).
+#[test]
+fn raycast_at_whole_millimetre_steps_matches_the_f64_marcher() {
+    for step in [1.0, 2.0] {
+        let s = VolumeSettings { step, ..settings(VolumeMethod::Raycast) };
+        let Some(img) = render(s.clone(), false) else { return };
+        let (p99, lit) = compare(&img, &reference(&s, false), &format!("raycast_step_{step}"));
+        assert!(lit > 1000, "step {step}: {lit} coloured pixels");
+        assert!(p99 <= 3.0, "step {step}: 99th percentile {p99} levels");
+    }
+}
+
 /// Empty-space skipping changes no pixel: with a transfer function transparent between the phantom's core and
 /// its shell (and outside the shell), a quarter of the cells are empty; the picture drawn with them skipped equals the
 /// one drawn with every cell marked occupied, byte for byte, and matches the f64 marcher (which skips
