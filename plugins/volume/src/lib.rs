@@ -256,18 +256,31 @@ pub struct VolumeMaterial {
 /// lavapipe the `pow` of every sample was about a tenth of the default scene's full-scale frame (0.3 of 2.5 s).
 pub const WHOLE_MM_STEPS: [f32; 3] = [1.0, 2.0, 4.0];
 
-/// The pipeline key of [`VolumeMaterial`]: whether the step is one of [`WHOLE_MM_STEPS`] (the `WHOLE_MM_STEPS`
-/// shader def). The step of a moving view (twice the step) keeps the key of the still one for 1 and 2 mm steps,
-/// so that an interaction compiles no pipeline.
+/// The pipeline key of [`VolumeMaterial`]: the shader is compiled for its settings, since lavapipe runs the code
+/// of every branch for every pixel whichever way the pixels go (a branch on a setting saves nothing there). The
+/// step of a moving view (twice the step) keeps the key of the still one for 1 and 2 mm steps, so that an
+/// interaction compiles no pipeline; a change of method, shading or classification compiles one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct VolumeKey {
-    /// `params.step` is one of [`WHOLE_MM_STEPS`].
+    /// `params.step` is one of [`WHOLE_MM_STEPS`]: the `WHOLE_MM_STEPS` shader def.
     pub whole_mm_steps: bool,
+    /// The material ray casts (`params.dims.w` 0): the `RAY_CAST` def, without the other methods' code.
+    pub ray_cast: bool,
+    /// Gradient shading (`params.shading` 1): the `SHADING` def.
+    pub shading: bool,
+    /// Pre-integrated classification (`params.preintegrated` 1): the `PREINTEGRATED` def.
+    pub preintegrated: bool,
 }
 
 impl From<&VolumeMaterial> for VolumeKey {
     fn from(material: &VolumeMaterial) -> Self {
-        Self { whole_mm_steps: WHOLE_MM_STEPS.contains(&material.params.step) }
+        let p = &material.params;
+        Self {
+            whole_mm_steps: WHOLE_MM_STEPS.contains(&p.step),
+            ray_cast: p.dims.w == 0.0,
+            shading: p.shading == 1,
+            preintegrated: p.preintegrated == 1,
+        }
     }
 }
 
@@ -293,10 +306,15 @@ impl Material for VolumeMaterial {
         _layout: &MeshVertexBufferLayoutRef,
         key: MaterialPipelineKey<Self>,
     ) -> Result<(), SpecializedMeshPipelineError> {
-        if key.bind_group_data.whole_mm_steps
-            && let Some(fragment) = descriptor.fragment.as_mut()
-        {
-            fragment.shader_defs.push("WHOLE_MM_STEPS".into());
+        let k = key.bind_group_data;
+        if let Some(fragment) = descriptor.fragment.as_mut() {
+            let defs = [
+                (k.whole_mm_steps, "WHOLE_MM_STEPS"),
+                (k.ray_cast, "RAY_CAST"),
+                (k.shading, "SHADING"),
+                (k.preintegrated, "PREINTEGRATED"),
+            ];
+            fragment.shader_defs.extend(defs.into_iter().filter(|(on, _)| *on).map(|(_, def)| def.into()));
         }
         // Back-face culling: the box is wound inwards, so only its far faces are drawn (one ray per pixel,
         // also with the camera inside); slices are wound to face the camera. The shader tests against the

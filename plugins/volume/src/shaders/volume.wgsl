@@ -363,7 +363,12 @@ fn empty_steps(o: vec3<f32>, d: vec3<f32>, t: f32, t_end: f32, step: f32) -> u32
 }
 
 // Lambert with a headlight on the value gradient (voxel frame), when shading is on.
+// Without the `SHADING` def (`VolumeKey`) it returns `c` as the shading flag 0 does, and its six extra samples
+// are not compiled: lavapipe runs a branch's code for every lane whichever way the lanes go.
 fn shade(c: vec4<f32>, q: vec3<f32>, d: vec3<f32>, shading: u32) -> vec4<f32> {
+#ifndef SHADING
+    return c;
+#else
     if shading == 0u {
         return c;
     }
@@ -375,6 +380,7 @@ fn shade(c: vec4<f32>, q: vec3<f32>, d: vec3<f32>, shading: u32) -> vec4<f32> {
     let len = length(g);
     let lambert = select(1.0, abs(dot(g / len, normalize(d))), len > 1e-6);
     return vec4<f32>(c.rgb * (params.ambient + (1.0 - params.ambient) * lambert), c.a);
+#endif
 }
 
 // Distance along the ray to the opaque surface under this pixel (infinity when none).
@@ -530,6 +536,8 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     let tmax = max(a, b);
     let t0 = max(max(tmin.x, tmin.y), max(tmin.z, 0.0));
     let t1 = min(min(min(tmax.x, tmax.y), tmax.z), t_stop);
+    // With the `RAY_CAST` def (`VolumeKey`: the material ray casts) the other methods' code is not compiled.
+#ifndef RAY_CAST
     if in.modes.x == 1u {
         // One slice: the sample where the plane meets this ray (dithered: moved along the ray by up to half the
         // spacing, a per-pixel fraction: interleaved sampling).
@@ -569,6 +577,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     if in.modes.x == 9u && t_stop >= min(min(tmax.x, tmax.y), tmax.z) {
         return warped(o, d);
     }
+#endif
     if t0 >= t1 {
         discard;
     }
@@ -578,6 +587,8 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
         t += jitter(in.clip_position.xy) * step;
     }
     var acc = vec4<f32>(0.0);
+    // Pre-integrated (the `PREINTEGRATED` def, `VolumeKey`: as `modes.w`) or post-classified, chosen when the
+    // pipeline is compiled.
     var prev = sample_volume(o + d * t);
     // Whole steps in the loop; the last, shorter one after it, the only one whose opacity needs `pow`.
     var k = 0u;
@@ -590,19 +601,18 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
                 t += step;
             }
             k += skip - 1u;
-            if in.modes.w == 1u {
-                prev = sample_volume(o + d * t);
-            }
+#ifdef PREINTEGRATED
+            prev = sample_volume(o + d * t);
+#endif
             continue;
         }
-        var c: vec4<f32>;
-        if in.modes.w == 1u {
-            let next = sample_volume(o + d * (t + step));
-            c = preintegrated(prev, next);
-            prev = next;
-        } else {
-            c = segment_step(sample_volume(o + d * t), step);
-        }
+#ifdef PREINTEGRATED
+        let next = sample_volume(o + d * (t + step));
+        let c = preintegrated(prev, next);
+        prev = next;
+#else
+        let c = segment_step(sample_volume(o + d * t), step);
+#endif
         acc += (1.0 - acc.a) * shade(c, o + d * t, d, in.modes.z);
         if acc.a >= params.termination {
             break;
@@ -612,14 +622,13 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
     // The last step, shorter than the others (the loop ended neither by termination nor by its step count).
     if k < MAX_STEPS && t < t1 && acc.a < params.termination {
         let dt = t1 - t;
-        var c: vec4<f32>;
-        if in.modes.w == 1u {
-            var seg = preintegrated(prev, sample_volume(o + d * (t + dt)));
-            let a2 = 1.0 - pow(1.0 - min(seg.a, 0.999999), dt / step);
-            c = select(vec4<f32>(0.0), vec4<f32>(seg.rgb * (a2 / seg.a), a2), seg.a > 0.0);
-        } else {
-            c = segment(sample_volume(o + d * t), dt);
-        }
+#ifdef PREINTEGRATED
+        let seg = preintegrated(prev, sample_volume(o + d * (t + dt)));
+        let a2 = 1.0 - pow(1.0 - min(seg.a, 0.999999), dt / step);
+        let c = select(vec4<f32>(0.0), vec4<f32>(seg.rgb * (a2 / seg.a), a2), seg.a > 0.0);
+#else
+        let c = segment(sample_volume(o + d * t), dt);
+#endif
         acc += (1.0 - acc.a) * shade(c, o + d * t, d, in.modes.z);
     }
     return acc;
