@@ -251,19 +251,20 @@ pub struct VolumeMaterial {
     pub occupancy: Handle<ShaderBuffer>,
 }
 
-/// Steps (mm) whose opacity correction the ray caster makes by products instead of `pow`: the default step, 1 mm,
-/// and the steps of a moving view (twice the step, `fascicle_render::budget`) from it and from a 2 mm step. On
+/// Steps (mm) whose opacity correction the ray caster makes by products and square roots instead of `pow`: the
+/// powers of two from a quarter of a millimetre to 16 mm, among them the default step (1 mm). A step and its
+/// doubling while the view moves (`fascicle_render::budget`) both belong, up to 8 mm: they share a pipeline. On
 /// lavapipe the `pow` of every sample was about a tenth of the default scene's full-scale frame (0.3 of 2.5 s).
-pub const WHOLE_MM_STEPS: [f32; 3] = [1.0, 2.0, 4.0];
+pub const PRODUCT_STEPS: [f32; 7] = [0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
 
 /// The pipeline key of [`VolumeMaterial`]: the shader is compiled for its settings, since lavapipe runs the code
 /// of every branch for every pixel whichever way the pixels go (a branch on a setting saves nothing there). The
-/// step of a moving view (twice the step) keeps the key of the still one for 1 and 2 mm steps, so that an
-/// interaction compiles no pipeline; a change of method, shading or classification compiles one.
+/// step of a moving view (twice the step) keeps the key of the still one for steps of [`PRODUCT_STEPS`] up to 8
+/// mm, so that an interaction compiles no pipeline; a change of method, shading or classification compiles one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct VolumeKey {
-    /// `params.step` is one of [`WHOLE_MM_STEPS`]: the `WHOLE_MM_STEPS` shader def.
-    pub whole_mm_steps: bool,
+    /// `params.step` is one of [`PRODUCT_STEPS`]: the `PRODUCT_STEPS` shader def.
+    pub product_steps: bool,
     /// The material ray casts (`params.dims.w` 0): the `RAY_CAST` def, without the other methods' code.
     pub ray_cast: bool,
     /// Gradient shading (`params.shading` 1): the `SHADING` def.
@@ -276,7 +277,7 @@ impl From<&VolumeMaterial> for VolumeKey {
     fn from(material: &VolumeMaterial) -> Self {
         let p = &material.params;
         Self {
-            whole_mm_steps: WHOLE_MM_STEPS.contains(&p.step),
+            product_steps: PRODUCT_STEPS.contains(&p.step),
             ray_cast: p.dims.w == 0.0,
             shading: p.shading == 1,
             preintegrated: p.preintegrated == 1,
@@ -309,7 +310,7 @@ impl Material for VolumeMaterial {
         let k = key.bind_group_data;
         if let Some(fragment) = descriptor.fragment.as_mut() {
             let defs = [
-                (k.whole_mm_steps, "WHOLE_MM_STEPS"),
+                (k.product_steps, "PRODUCT_STEPS"),
                 (k.ray_cast, "RAY_CAST"),
                 (k.shading, "SHADING"),
                 (k.preintegrated, "PREINTEGRATED"),
@@ -473,9 +474,14 @@ fn coarse_step_while_moving(
     *coarse = want;
     for set in sets.iter().filter(|s| s.settings.method == VolumeMethod::Raycast && !s.settings.preintegrated) {
         if let Some(mut m) = materials.get_mut(&set.material) {
-            m.params.step = set.settings.step as f32 * if want { 2.0 } else { 1.0 };
+            m.params.step = marched_step(&set.settings, want);
         }
     }
+}
+
+/// The step a post-classified ray-cast volume marches at, mm: its own, or twice it while the view moves.
+fn marched_step(settings: &VolumeSettings, moving: bool) -> f32 {
+    settings.step as f32 * if moving { 2.0 } else { 1.0 }
 }
 
 fn depth_image(width: u32, height: u32) -> Image {
@@ -793,4 +799,50 @@ pub(crate) fn spawn_volume_texture(
             NoFrustumCulling,
         ))
         .id()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The pipeline key of a volume drawn with `s`, the view still or moving.
+    fn key(s: &VolumeSettings, moving: bool) -> VolumeKey {
+        let mut params = VolumeUniform::new([8, 8, 8], glam::DMat4::IDENTITY, s);
+        params.step = marched_step(s, moving);
+        let material = VolumeMaterial {
+            params,
+            volume: Handle::default(),
+            lut: Handle::default(),
+            table: Handle::default(),
+            opaque_depth: Handle::default(),
+            intermediate: Handle::default(),
+            warp: Handle::default(),
+            occupancy: Handle::default(),
+        };
+        VolumeKey::from(&material)
+    }
+
+    /// The shader is compiled per setting, but a moving view (twice the step) keeps the still view's pipeline for
+    /// the steps of [`PRODUCT_STEPS`] up to 8 mm and for the others: an interaction compiles none. The method,
+    /// shading and pre-integration each change it.
+    #[test]
+    fn keys_follow_the_settings_not_the_motion() {
+        for step in [0.25, 0.5, 1.0, 2.0, 4.0, 8.0] {
+            let s = VolumeSettings { step, ..default() };
+            let still = key(&s, false);
+            assert_eq!(still, key(&s, true), "step {step}");
+            assert!(still.product_steps && still.ray_cast && !still.shading && !still.preintegrated, "{still:?}");
+        }
+        for step in [0.3, 0.7, 1.5, 3.0] {
+            let s = VolumeSettings { step, ..default() };
+            assert!(!key(&s, false).product_steps && key(&s, false) == key(&s, true), "step {step}");
+        }
+        let base = key(&VolumeSettings::default(), false);
+        assert!(key(&VolumeSettings { shading: true, ..default() }, false).shading);
+        assert!(key(&VolumeSettings { preintegrated: true, ..default() }, false).preintegrated);
+        for method in [VolumeMethod::Slicing, VolumeMethod::Slicing2d, VolumeMethod::Splatting] {
+            assert_ne!(base, key(&VolumeSettings { method, ..default() }, false), "{method:?}");
+            assert!(!key(&VolumeSettings { method, ..default() }, false).ray_cast);
+        }
+    }
 }

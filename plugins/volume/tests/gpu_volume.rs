@@ -236,12 +236,13 @@ fn raycast_matches_the_f64_marcher() {
     assert!(p99 <= 3.0, "99th percentile {p99} levels");
 }
 
-/// Whole-millimetre steps (1 mm, the default, and 2 mm, the default while the view moves) correct each sample's
-/// opacity by a product instead of `pow` (`power` in the shader): the picture still matches the f64 marcher, and
-/// a 2 mm step is not drawn as a 1 mm one (a wrong product would halve every sample's opacity).
+/// Steps that are powers of two (1 mm, the default, and 2 mm, the default while the view moves; 0.5 mm in
+/// `raycast_matches_the_f64_marcher`) correct each sample's opacity by products and square roots instead of `pow`
+/// (`segment_step` in the shader): the picture still matches the f64 marcher, and a 2 mm step is not drawn as a
+/// 1 mm one (a wrong product would halve every sample's opacity).
 #[test]
-fn raycast_at_whole_millimetre_steps_matches_the_f64_marcher() {
-    for step in [1.0, 2.0] {
+fn raycast_at_power_of_two_steps_matches_the_f64_marcher() {
+    for step in [1.0, 2.0, 4.0] {
         let s = VolumeSettings { step, ..settings(VolumeMethod::Raycast) };
         let Some(img) = render(s.clone(), false) else { return };
         let (p99, lit) = compare(&img, &reference(&s, false), &format!("raycast_step_{step}"));

@@ -311,15 +311,21 @@ fn segment(v: f32, length: f32) -> vec4<f32> {
     return vec4<f32>(c.rgb * a, a);
 }
 
-// `segment(v, step)` for a whole step of the ray caster. With the `WHOLE_MM_STEPS` def (`VolumeKey`: the step is
-// 1, 2 or 4 mm) the opacity correction is a product: on lavapipe `pow` (exp2 and log2) cost about a tenth of the
-// default scene's full-scale frame, and a branch around it would not save it (lanes run both sides under a mask).
+// `segment(v, step)` for a whole step of the ray caster. With the `PRODUCT_STEPS` def (`VolumeKey`: the step is a
+// power of two from 0.25 to 16 mm) the opacity correction is made of products and square roots: on lavapipe `pow`
+// (exp2 and log2) cost about a tenth of the default scene's full-scale frame, and a branch around it would not
+// save it (lanes run both sides under a mask).
 fn segment_step(v: f32, step: f32) -> vec4<f32> {
-#ifdef WHOLE_MM_STEPS
+#ifdef PRODUCT_STEPS
     let c = classify(v);
     let b = 1.0 - clamp(c.a, 0.0, 1.0);
+    let e = step / UNIT_MM;
+    let h = sqrt(b);
     let b2 = b * b;
-    let a = 1.0 - select(select(b, b2, step == 2.0 * UNIT_MM), b2 * b2, step == 4.0 * UNIT_MM);
+    let b4 = b2 * b2;
+    let b8 = b4 * b4;
+    let up = select(select(select(select(b, b2, e == 2.0), b4, e == 4.0), b8, e == 8.0), b8 * b8, e == 16.0);
+    let a = 1.0 - select(select(up, h, e == 0.5), sqrt(h), e == 0.25);
     return vec4<f32>(c.rgb * a, a);
 #else
     return segment(v, step);
