@@ -58,16 +58,22 @@ struct Row {
 }
 
 impl Row {
-    /// A row of `frames` (each its time in ms and the render scale it drew at): their count, median and 95th
-    /// percentile time and median scale.
-    fn of_frames(scene: &str, action: &'static str, frames: Vec<(f64, f64)>, refine_ms: Option<f64>) -> Row {
-        let (mut ms, mut scales): (Vec<f64>, Vec<f64>) = frames.into_iter().unzip();
+    /// A row of frames: `ms`, the times between them (ms), and `scales`, the render scale of each frame counted
+    /// (one more than `ms` when the first frame has no interval): their count, the median and 95th percentile
+    /// time and the median scale.
+    fn of_frames(
+        scene: &str,
+        action: &'static str,
+        mut ms: Vec<f64>,
+        mut scales: Vec<f64>,
+        refine_ms: Option<f64>,
+    ) -> Row {
         ms.sort_by(f64::total_cmp);
         scales.sort_by(f64::total_cmp);
         Row {
             scene: scene.into(),
             action,
-            frames: ms.len(),
+            frames: scales.len(),
             median_ms: percentile(&ms, 0.5),
             p95_ms: percentile(&ms, 0.95),
             refine_ms,
@@ -300,14 +306,10 @@ fn wait_settled(viewer: &mut Viewer, timeout: Duration) -> Result<Instant, Strin
 /// launch to `drawn`, the process's last use of the CPU before it went idle (the complete picture drawn, and
 /// any background work done).
 fn open_row(scene: &str, frames: &[Frame], drawn: Duration) -> Row {
-    let timed = frames.windows(2).map(|w| ((w[1].at_ms - w[0].at_ms) as f64, w[1].scale));
-    let mut row = Row::of_frames(scene, "open", timed.collect(), Some(drawn.as_secs_f64() * 1e3));
-    // Every frame counts (the first has no interval): its scale too.
-    row.frames = frames.len();
-    let mut scales: Vec<f64> = frames.iter().map(|f| f.scale).collect();
-    scales.sort_by(f64::total_cmp);
-    row.scale = percentile(&scales, 0.5);
-    row
+    // Every frame counts, the first (which has no interval) included.
+    let ms = frames.windows(2).map(|w| (w[1].at_ms - w[0].at_ms) as f64).collect();
+    let scales = frames.iter().map(|f| f.scale).collect();
+    Row::of_frames(scene, "open", ms, scales, Some(drawn.as_secs_f64() * 1e3))
 }
 
 /// Moves the pointer to (x, y), waits for the frames that draws to pass (a pointer move redraws the window),
@@ -337,7 +339,8 @@ fn measure_drag(
         .filter(|w| w[1].at_ms >= press && w[1].at_ms <= release + 20 && w[0].at_ms >= press)
         .map(|w| ((w[1].at_ms - w[0].at_ms) as f64, w[1].scale))
         .collect();
-    Ok(Row::of_frames(scene, action, during, refine_ms))
+    let (ms, scales) = during.into_iter().unzip();
+    Ok(Row::of_frames(scene, action, ms, scales, refine_ms))
 }
 
 /// The bench (see the module docs).

@@ -255,6 +255,7 @@ pub struct VolumeMaterial {
 /// powers of two from a quarter of a millimetre to 16 mm, among them the default step (1 mm). A step and its
 /// doubling while the view moves (`fascicle_render::budget`) both belong, up to 8 mm: they share a pipeline. On
 /// lavapipe the `pow` of every sample was about a tenth of the default scene's full-scale frame (0.3 of 2.5 s).
+/// Keep in sync with `segment_step` in `shaders/volume.wgsl`, which makes the products for these steps.
 pub const PRODUCT_STEPS: [f32; 7] = [0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0];
 
 /// The pipeline key of [`VolumeMaterial`]: the shader is compiled for its settings, since lavapipe runs the code

@@ -74,8 +74,8 @@ struct VolumeVertexOutput {
     @builtin(position) clip_position: vec4<f32>,
     @location(0) world_position: vec3<f32>,
     // (0 ray casting, 1 view-aligned slices, 2 + k voxel planes of axis k, 5 + k splatting's sheets of axis k,
-    // 8 tetrahedra; jitter, shading, pre-integrated), flat: the fragment stage branches on these, never on the
-    // uniform (the rule in `fascicle::ray`).
+    // 8 tetrahedra; jitter; z and w unused: shading and pre-integration are shader defs, `VolumeKey`), flat: the
+    // fragment stage branches on these, never on the uniform (the rule in `fascicle::ray`).
     @location(1) @interpolate(flat) modes: vec4<u32>,
     // Tetrahedra: the cell's low corner and size (voxels); the tetrahedron's axes (x_a >= x_b >= x_c inside
     // the cell) and splatting's kernel radius (voxels); the field at its four corners.
@@ -265,7 +265,7 @@ fn vertex(v: VolumeVertex) -> VolumeVertexOutput {
     // crosses obliquely, at most 3 (a 7 x 7 neighbourhood).
     let radius = u32(clamp(ceil(3.0 * 1.8 * params.kernel), 1.0, 3.0));
     let modes = select(select(mode, 8u, tets), 9u, params.dims.w == 5.0);
-    out.modes = vec4<u32>(modes, params.jitter, params.shading, params.preintegrated);
+    out.modes = vec4<u32>(modes, params.jitter, 0u, 0u);
     out.world_position = select(p, tq.world, tets);
     let clip = select(view.clip_from_world * vec4<f32>(p, 1.0), vec4<f32>(2.0, 2.0, 2.0, 1.0), folded);
     out.clip_position = select(clip, tq.clip, tets);
@@ -368,16 +368,13 @@ fn empty_steps(o: vec3<f32>, d: vec3<f32>, t: f32, t_end: f32, step: f32) -> u32
     return u32(max(floor((min(t_exit, t_end) - t) / step), 0.0));
 }
 
-// Lambert with a headlight on the value gradient (voxel frame), when shading is on.
-// Without the `SHADING` def (`VolumeKey`) it returns `c` as the shading flag 0 does, and its six extra samples
-// are not compiled: lavapipe runs a branch's code for every lane whichever way the lanes go.
-fn shade(c: vec4<f32>, q: vec3<f32>, d: vec3<f32>, shading: u32) -> vec4<f32> {
+// Lambert with a headlight on the value gradient (voxel frame), with the `SHADING` def (`VolumeKey`: shading on).
+// Without it `c` as it is, and its six extra samples are not compiled: lavapipe runs a branch's code for every
+// lane whichever way the lanes go.
+fn shade(c: vec4<f32>, q: vec3<f32>, d: vec3<f32>) -> vec4<f32> {
 #ifndef SHADING
     return c;
 #else
-    if shading == 0u {
-        return c;
-    }
     let g = vec3<f32>(
         sample_volume(q + vec3<f32>(1.0, 0.0, 0.0)) - sample_volume(q - vec3<f32>(1.0, 0.0, 0.0)),
         sample_volume(q + vec3<f32>(0.0, 1.0, 0.0)) - sample_volume(q - vec3<f32>(0.0, 1.0, 0.0)),
@@ -456,7 +453,7 @@ fn splat_sheet(in: VolumeVertexOutput, r: Ray, o: vec3<f32>, d: vec3<f32>, t_sto
         discard;
     }
     let alpha = 1.0 - exp(-(tau / weight) / max(abs(d[k]), 1e-6));
-    return shade(vec4<f32>(rgb / tau * alpha, alpha), q, d, in.modes.z);
+    return shade(vec4<f32>(rgb / tau * alpha, alpha), q, d);
 }
 
 // One tetrahedron of cell projection: the ray's exact entry and exit (the four faces x_a = 1, x_a = x_b,
@@ -500,7 +497,7 @@ fn tetrahedron(in: VolumeVertexOutput, o: vec3<f32>, d: vec3<f32>, t_lo: f32, t_
         var seg = preintegrated(s0 + slope * (ta - t0), s0 + slope * (ta + dt - t0));
         let a2 = 1.0 - pow(1.0 - min(seg.a, 0.999999), dt / step);
         seg = select(vec4<f32>(0.0), vec4<f32>(seg.rgb * (a2 / seg.a), a2), seg.a > 0.0);
-        acc += (1.0 - acc.a) * shade(seg, o + d * (ta + 0.5 * dt), d, in.modes.z);
+        acc += (1.0 - acc.a) * shade(seg, o + d * (ta + 0.5 * dt), d);
     }
     return acc;
 }
@@ -555,7 +552,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
         if t >= t_stop || any(q < lo) || any(q > hi) {
             discard;
         }
-        return shade(segment(sample_volume(q), along), q, d, in.modes.z);
+        return shade(segment(sample_volume(q), along), q, d);
     }
     if in.modes.x >= 2u && in.modes.x < 5u {
         // One voxel plane of axis k, sampled where this fragment lies on it; the planes are 1 / |d_k| apart
@@ -569,7 +566,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
         if t >= t_stop || any(q < lo) || any(q > hi) {
             discard;
         }
-        return shade(segment(sample_volume(q), along), q, d, in.modes.z);
+        return shade(segment(sample_volume(q), along), q, d);
     }
     if in.modes.x >= 5u && in.modes.x < 8u {
         return splat_sheet(in, r, o, d, t_stop);
@@ -593,9 +590,11 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
         t += jitter(in.clip_position.xy) * step;
     }
     var acc = vec4<f32>(0.0);
-    // Pre-integrated (the `PREINTEGRATED` def, `VolumeKey`: as `modes.w`) or post-classified, chosen when the
-    // pipeline is compiled.
+    // Pre-integrated (the `PREINTEGRATED` def, `VolumeKey`) or post-classified, chosen when the pipeline is
+    // compiled.
+#ifdef PREINTEGRATED
     var prev = sample_volume(o + d * t);
+#endif
     // Whole steps in the loop; the last, shorter one after it, the only one whose opacity needs `pow`.
     var k = 0u;
     for (; k < MAX_STEPS && t < t1 && t1 - t >= step; k++) {
@@ -619,7 +618,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
 #else
         let c = segment_step(sample_volume(o + d * t), step);
 #endif
-        acc += (1.0 - acc.a) * shade(c, o + d * t, d, in.modes.z);
+        acc += (1.0 - acc.a) * shade(c, o + d * t, d);
         if acc.a >= params.termination {
             break;
         }
@@ -635,7 +634,7 @@ fn fragment(in: VolumeVertexOutput) -> @location(0) vec4<f32> {
 #else
         let c = segment(sample_volume(o + d * t), dt);
 #endif
-        acc += (1.0 - acc.a) * shade(c, o + d * t, d, in.modes.z);
+        acc += (1.0 - acc.a) * shade(c, o + d * t, d);
     }
     return acc;
 }
