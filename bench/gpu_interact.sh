@@ -1,18 +1,27 @@
 #!/bin/bash
 # On a lent GPU machine without Rust or X (issue #35): `fascicle-bench interact` at 1920x1080 through a real
-# window, then the short suites of bench/gpu_smoke.sh, everything in one call.
+# window, then the suites of bench/gpu_smoke.sh while time is left, everything in one call.
 # Carried from here (ignored folders): .bin/fascicle.xz and .bin/fascicle-bench.xz (release, stripped, xz);
 # .gl/*.deb (the Vulkan and GL loaders); .xr/xroot.tar.xz (Debian's Xvfb, xdotool, xkb data and the window's X
 # libraries, unpacked into one folder: `dpkg -x` of each package). Outputs go to $OUT/gpu_interact.tgz, refreshed
 # every 10 s so that a run cut off still reports.
-# Tried on an H200 (2026-11-27): Xvfb starts and the viewer opens its window, but NVIDIA's Vulkan driver presents
-# through the X server's GLX extension, which an Xvfb has only with Mesa's GLX and software driver beside it
-# (libglx-mesa0, libgl1-mesa-dri and LLVM, 37 MB): without them the viewer dies after its first frame. Carry
-# them in a first call (unpacked into /tmp there) and the rest in a second while the machine is warm: one call
-# carries at most 64 MiB.
-# Usage there: bench/gpu_interact.sh [INTERACT_TIMEOUT_S] [SMOKE_SUITES]   (defaults 300, edits,splats,tracts,volume)
+# NVIDIA's Vulkan driver presents to an X server through its GLX extension, which an Xvfb has only with Mesa's
+# software driver beside it (swrast_dri.so and its libraries, LLVM among them: 46 MB xz'd, .mesa/mesa.tar.xz,
+# with xdpyinfo to check). That and the binaries exceed the 64 MiB one call carries, so a first call carries
+# .mesa and runs `bench/gpu_interact.sh mesa` (unpacked into /tmp/mesa there), a second one, while the machine
+# is still warm, the rest.
+# Usage there: bench/gpu_interact.sh [INTERACT_TIMEOUT_S] [SMOKE_SUITES] [DEADLINE_S]
+#   (defaults 300; volume,splats,tracts,edits,glyphs; 480: no suite starts after it, each is cut at it)
 set -u
 cd "$(dirname "$0")/.."
+t_start=$(date +%s)
+if [ "${1:-}" = mesa ]; then
+  mkdir -p /tmp/mesa && tar -C /tmp/mesa -xJf .mesa/mesa.tar.xz && cp .mesa/xbin/* /tmp/mesa/ || exit 1
+  LD_LIBRARY_PATH=/tmp/mesa/usr/lib/x86_64-linux-gnu ldd /tmp/mesa/usr/lib/x86_64-linux-gnu/dri/swrast_dri.so |
+    grep -i "not found"
+  echo "mesa unpacked in $(($(date +%s) - t_start)) s"; grep PRETTY /etc/os-release; nvidia-smi -L
+  exit 0
+fi
 o=/tmp/gpu_interact
 mkdir -p $o /tmp/b /tmp/xroot /tmp/xdg && chmod 700 /tmp/xdg
 ( while sleep 10; do tar -C $o -czf "$OUT/gpu_interact.tgz" . 2>/dev/null; done ) >/dev/null 2>&1 &
@@ -35,13 +44,25 @@ if [ -e /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ] &&
   export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
 fi
 { nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader; nproc; uname -r; } >$o/machine.txt 2>&1
-LD_LIBRARY_PATH=$LD_LIBRARY_PATH:/tmp/xroot/base Xvfb :90 -screen 0 1920x1080x24 -noreset -nolisten tcp -xkbdir /tmp/xroot/usr/share/X11/xkb >$o/xvfb.log 2>&1 &
+mesa=/tmp/mesa/usr/lib/x86_64-linux-gnu
+LIBGL_DRIVERS_PATH=$mesa/dri LD_LIBRARY_PATH=$LD_LIBRARY_PATH:$mesa:/tmp/xroot/base Xvfb :90 -screen 0 1920x1080x24 -noreset -nolisten tcp -xkbdir /tmp/xroot/usr/share/X11/xkb >$o/xvfb.log 2>&1 &
 sleep 2
 export DISPLAY=:90
-# The viewer alone for 25 s: does a window on this X server get frames from the GPU?
-[ -z "${SKIP_PROBE:-}" ] && FASCICLE_FRAME_LOG=$o/probe.frames RUST_LOG=info,wgpu_hal=warn timeout 25 fascicle view >$o/probe.log 2>&1
-echo "probe: exit $?, $(wc -l <$o/probe.frames 2>/dev/null || echo 0) frames" | tee -a $o/machine.txt
-[ -n "${SKIP_PROBE:-}" ] && echo skipped >$o/probe.frames
+echo "GLX on the display: $(LD_LIBRARY_PATH=$LD_LIBRARY_PATH:$mesa:/tmp/mesa /tmp/mesa/xdpyinfo 2>&1 | grep -c GLX)" |
+  tee -a $o/machine.txt
+# The viewer alone for 20 s: does a window on this X server get frames from the GPU? First with libglvnd told
+# to take NVIDIA's GLX (as GLX windows need here), then without.
+if [ -z "${SKIP_PROBE:-}" ]; then
+  for vendor in nvidia ""; do
+    export __GLX_VENDOR_LIBRARY_NAME=$vendor
+    FASCICLE_FRAME_LOG=$o/probe.frames RUST_LOG=info,wgpu_hal=warn timeout 20 fascicle view >$o/probe_$vendor.log 2>&1
+    echo "probe (GLX vendor '$vendor'): exit $?, $(wc -l <$o/probe.frames 2>/dev/null || echo 0) frames" |
+      tee -a $o/machine.txt
+    [ -s $o/probe.frames ] && break
+  done
+else
+  echo skipped >$o/probe.frames
+fi
 if [ -s $o/probe.frames ]; then
   nvidia-smi --query-gpu=memory.used --format=csv,noheader,nounits -l 5 >$o/interact.gpu_mem.csv 2>/dev/null &
   mem=$!
@@ -52,8 +73,16 @@ if [ -s $o/probe.frames ]; then
   cp /tmp/fascicle-interact-*/*.frames /tmp/fascicle-interact-*/*.log $o/ 2>/dev/null
 fi
 pkill Xvfb
-[ "${2:-}" = none ] || SMOKE_BENCH=/tmp/b/fascicle-bench SMOKE_ONLY="${2:-edits,splats,tracts,volume}" SMOKE_RUN_TIMEOUT=100 \
-  bench/gpu_smoke.sh $o/smoke >$o/smoke.out 2>&1
-echo "smoke: exit $?" | tee -a $o/machine.txt
+deadline=$((t_start + ${3:-480}))
+IFS=, read -r -a suites <<<"${2:-volume,splats,tracts,edits,glyphs}"
+for suite in "${suites[@]}"; do
+  [ "$suite" = none ] && break
+  left=$((deadline - $(date +%s)))
+  [ $left -lt 15 ] && echo "smoke $suite: not started, $left s left" | tee -a $o/machine.txt && continue
+  SMOKE_BENCH=/tmp/b/fascicle-bench SMOKE_ONLY=$suite SMOKE_RUN_TIMEOUT=$left \
+    bench/gpu_smoke.sh $o/smoke_$suite >$o/smoke_$suite.out 2>&1
+  echo "smoke $suite: exit $? (cut at $left s)" | tee -a $o/machine.txt
+  tail -n 1 $o/smoke_$suite/smoke.md >>$o/smoke.md
+done
 tar -C $o -czf "$OUT/gpu_interact.tgz" .
-cat $o/machine.txt $o/smoke/smoke.md
+cat $o/machine.txt $o/smoke.md $o/interact.csv 2>/dev/null

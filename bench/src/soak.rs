@@ -5,7 +5,12 @@
 //!
 //! Diagnostics (environment): `SOAK_NO_TOGGLE`, `SOAK_NO_ROI` switch the edits off; `SOAK_HIDE=k` hides layer
 //! k at frame 50; `SOAK_DROP=k[,k…]` removes layers from the scene;
-//! `SOAK_SCENE=F.ron` soaks another scene; `SOAK_NO_CAPTURE` skips the first screenshot.
+//! `SOAK_SCENE=F.ron` soaks another scene (`large`: `bench edits`' large scene, written once into the temporary
+//! directory); `SOAK_NO_CAPTURE` skips the first screenshot; `SOAK_ORBIT=deg` turns the camera about the scene's
+//! vertical axis through its target by that many degrees every frame (an orbit drawn without a window: the
+//! GPU rows of issue #35 where no display can present); `SOAK_ROI_EVERY=n` moves the ROI every n frames
+//! (default 10). The run ends with the frames' wall times (median, 95th percentile), each frame drawn and
+//! waited for at full quality.
 
 use std::io::Write;
 use std::path::Path;
@@ -106,6 +111,7 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
     let roi = std::env::var("SOAK_NO_ROI").is_err();
     let (w, h) = fascicle_scene::headless::parse_size(size)?;
     let mut scene = match std::env::var("SOAK_SCENE") {
+        Ok(p) if p == "large" => crate::bench_edits::large_scene(&std::env::temp_dir().join("fascicle-bench-edits"))?,
         Ok(p) => Scene::load(std::path::Path::new(&p))?,
         Err(_) => Scene::default_scene(),
     };
@@ -119,7 +125,9 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
             scene.layers.remove(k);
         }
     }
-    let (mut app, target, _) = fascicle_scene::headless::scene_app(&scene, w, h);
+    let orbit_deg: Option<f32> = std::env::var("SOAK_ORBIT").ok().and_then(|d| d.parse().ok());
+    let roi_every: u32 = std::env::var("SOAK_ROI_EVERY").ok().and_then(|n| n.parse().ok()).unwrap_or(10).max(1);
+    let (mut app, target, cam) = fascicle_scene::headless::scene_app(&scene, w, h);
     if std::env::var("SOAK_NO_CAPTURE").is_ok() {
         let _ = target;
         headless::run_until_ready(&mut app, 600).map_err(|e| e.to_string())?;
@@ -131,7 +139,15 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
     let mut samples = Vec::new();
     let t0 = Instant::now();
     let mut errors = 0usize;
+    let mut frame_ms = Vec::with_capacity(frames as usize);
+    let (eye, look_at, up) =
+        (Vec3::from(scene.camera.eye), Vec3::from(scene.camera.target), Vec3::from(scene.camera.up));
     for f in 1..=frames {
+        if let Some(deg) = orbit_deg {
+            let turn = Quat::from_axis_angle(up.normalize(), (deg * f as f32).to_radians());
+            let tf = Transform::from_translation(look_at + turn * (eye - look_at)).looking_at(look_at, up);
+            app.world_mut().entity_mut(cam).insert(tf);
+        }
         {
             let mut s = app.world_mut().resource_mut::<ActiveScene>();
             // Toggle one layer every 50 frames (cycling), move the ROI every 10.
@@ -146,7 +162,7 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
                 s.0.layers[k].visible = !s.0.layers[k].visible;
             }
             if roi
-                && f % 10 == 0
+                && f % roi_every == 0
                 && let Some(i) = tract
                 && let LayerKind::Tracts { rois, .. } = &mut s.0.layers[i].kind
                 && let Some(RoiShape::Sphere { centre, .. }) = rois.first_mut().map(|r| &mut r.shape)
@@ -155,7 +171,9 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
                 *centre = [28.0 * a.sin(), 28.0 * a.cos(), 1.0];
             }
         }
+        let t = Instant::now();
         app.update();
+        frame_ms.push(t.elapsed().as_secs_f64() * 1e3);
         errors += app.world().resource::<LayerErrors>().0.len();
         if f % 100 == 0 || f == frames {
             let pipelines = headless::pipeline_count(&app);
@@ -182,6 +200,18 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
         writeln!(file, "{CSV_HEADER}\n{}", rows.join("\n")).map_err(|e| e.to_string())?;
     }
     println!("{frames} frames in {:.0} s; layer errors: {errors}", t0.elapsed().as_secs_f64());
+    frame_ms.sort_by(f64::total_cmp);
+    if let (Some(median), Some(p95)) = (
+        frame_ms.get(frame_ms.len() / 2),
+        frame_ms.get((frame_ms.len() * 95 / 100).min(frame_ms.len().saturating_sub(1))),
+    ) {
+        println!(
+            "frame time {w}x{h}: median {median:.1} ms, p95 {p95:.1} ms over {} frames (orbit {:?} deg a frame, ROI \
+             every {roi_every})",
+            frame_ms.len(),
+            orbit_deg
+        );
+    }
     if errors > 0 {
         return Err(format!("{errors} layer errors during the soak"));
     }
