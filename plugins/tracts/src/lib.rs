@@ -285,12 +285,16 @@ pub struct TubeSet {
     pub material: Handle<TubeletMaterial>,
     /// How many tubelets the set draws (0: the entity has no mesh and draws nothing).
     pub n_tubelets: usize,
-    /// The proxy boxes of every tubelet ([`boxes`]); the entity's [`Mesh3d`] holds it unless it draws the preview.
+    /// The proxy boxes of every selected tubelet ([`boxes_of`]; all of them until a selection hides some); the
+    /// entity's [`Mesh3d`] holds it unless it draws the preview.
     pub full: Handle<Mesh>,
-    /// The proxy boxes of every [`TUBE_PREVIEW_STRIDE`]-th streamline's tubelets (sets of more than
+    /// The proxy boxes of every [`TUBE_PREVIEW_STRIDE`]-th streamline's selected tubelets (sets of more than
     /// [`TUBE_PREVIEW_MAX`] tubelets), drawn while the view moves and the frame budget cannot be held by render
     /// scale alone (the plugin's `tube_detail` system).
     pub preview: Option<Handle<Mesh>>,
+    /// Per tubelet, its streamline's index in the set: which proxies a selection keeps
+    /// ([`select_tube_boxes`]).
+    pub streamline_of: Arc<[u32]>,
     /// The settings the tubelets were made and are drawn with.
     pub settings: TubeSettings,
 }
@@ -729,6 +733,7 @@ impl Plugin for TractPlugin {
                 PostUpdate,
                 (
                     apply_rois.in_set(TractSystems::Select),
+                    select_tube_boxes.in_set(TractSystems::Select).after(apply_rois),
                     line_msaa,
                     // The preview switches (a `Mesh3d` change) come before Bevy computes the meshes' bounds:
                     // a bound changed a frame later would keep the retained picture from being put back, and a
@@ -1141,8 +1146,12 @@ fn insert_tube_set(
     });
     let full = meshes.add(proxies);
     let preview = preview.map(|p| meshes.add(p));
+    // The streamline bits of each tubelet's fifth vec4 ([`pack`]).
+    let streamline_of = (0..n_tubelets)
+        .map(|k| packed.get(112 * k + 76..112 * k + 80).map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])))
+        .collect();
     e.insert((
-        TubeSet { material: material.clone(), n_tubelets, full: full.clone(), preview, settings },
+        TubeSet { material: material.clone(), n_tubelets, full: full.clone(), preview, settings, streamline_of },
         Transform::default(),
         Visibility::default(),
     ));
@@ -1500,6 +1509,46 @@ fn on_set_or_layer<'a, T: Component>(q: &'a Query<&T>, set: Entity, layer: Optio
     q.get(set).ok().or_else(|| layer.and_then(|l| q.get(l.parent()).ok()))
 }
 
+/// Hyperstreamline sets draw the proxies of their selected tubelets only: when a set's selection changes, its
+/// proxy meshes (the whole set's and the preview's) are rebuilt from the selected tubelets, in the frame the
+/// selection changed (as the flag buffer). A tubelet's proxy costs its vertices and triangles whether its
+/// streamline is hidden or not (the vertex shader moves a hidden one off screen), so a set whose ROI keeps a
+/// few streamlines draws that few; a selection of none keeps one hidden proxy. A new set whose selection keeps
+/// every streamline keeps the proxies it was spawned with; one whose selection hides some is rebuilt in its
+/// second frame.
+pub fn select_tube_boxes(
+    sets: Query<(Entity, Ref<TubeSet>, Ref<TractSelection>)>,
+    mut meshes: ResMut<Assets<Mesh>>,
+    mut mesh_events: MessageWriter<AssetEvent<Mesh>>,
+    mut deferred: Local<bevy::ecs::entity::EntityHashSet>,
+) {
+    let due = std::mem::take(&mut *deferred);
+    for (entity, set, selection) in &sets {
+        if !(selection.is_changed() || due.contains(&entity)) || set.n_tubelets == 0 {
+            continue;
+        }
+        let sel = &selection.0;
+        let kept = |k: &usize| sel.get(set.streamline_of[*k] as usize).copied().unwrap_or(true);
+        let slots: Vec<u32> = (0..set.n_tubelets).filter(kept).map(|k| k as u32).collect();
+        if selection.is_added() && slots.len() == set.n_tubelets {
+            continue;
+        }
+        if set.is_added() {
+            // Spawned this frame: its meshes' first upload may come after this frame's (a mesh replaced
+            // before it would be extracted twice, the second time with no data), so the rebuild waits a frame;
+            // meanwhile the flags hide the unselected proxies.
+            deferred.insert(entity);
+            continue;
+        }
+        let or_one = |s: &[u32]| if s.is_empty() { boxes_of(&[0]) } else { boxes_of(s) };
+        let of = |k: &u32| (set.streamline_of[*k as usize] as usize).is_multiple_of(TUBE_PREVIEW_STRIDE);
+        let preview = set.preview.as_ref().map(|p| (p, or_one(&slots.iter().copied().filter(of).collect::<Vec<_>>())));
+        for (handle, mesh) in [(&set.full, or_one(&slots))].into_iter().chain(preview) {
+            fascicle_render::modify_now(&mut meshes, &mut mesh_events, handle, |m| *m = mesh);
+        }
+    }
+}
+
 /// Outlines every ROI in the 3D view (where gizmos are available: the viewer): includes green, excludes red.
 pub fn draw_rois(mut gizmos: Gizmos, rois: Query<&TractRoi>) {
     use fascicle_core::roi::{RoiMode, RoiShape};
@@ -1630,6 +1679,7 @@ mod tests {
             (meshes.add(boxes(tubes.len())), meshes.add(boxes_of(&slots)))
         };
         let set = TubeSet {
+            streamline_of: tubes.iter().map(|t| t.streamline).collect(),
             material: Handle::default(),
             n_tubelets: tubes.len(),
             full: full.clone(),
@@ -1649,6 +1699,48 @@ mod tests {
         assert_eq!(step(true, 0.125, 300), preview, "over budget at the smallest scale");
         assert_eq!(step(true, 0.25, 40), preview, "kept for the interaction");
         assert_eq!(step(false, 1.0, 40), full, "still: the whole set");
+    }
+
+    /// A selection rebuilds the set's proxies from the selected streamlines' tubelets (and the preview's from
+    /// the selected ones among its streamlines); a selection of none keeps one (hidden) proxy; selecting all
+    /// again restores every proxy.
+    #[test]
+    fn tube_proxies_follow_the_selection() {
+        let mut t = Tractogram::new();
+        for s in 0..500 {
+            t.push(&(0..11).map(|k| Vec3::new(s as f32, k as f32, 0.0)).collect::<Vec<_>>());
+        }
+        let tubes = tract_tubelets(&t, None, &TubeSettings::default());
+        let slots = tube_preview(&tubes).expect("over the limit");
+        let mut app = App::new();
+        app.add_plugins((MinimalPlugins, bevy::asset::AssetPlugin::default()))
+            .init_asset::<Mesh>()
+            .add_systems(Update, select_tube_boxes);
+        let (full, preview) = {
+            let mut meshes = app.world_mut().resource_mut::<Assets<Mesh>>();
+            (meshes.add(boxes(tubes.len())), meshes.add(boxes_of(&slots)))
+        };
+        let set = TubeSet {
+            streamline_of: tubes.iter().map(|t| t.streamline).collect(),
+            material: Handle::default(),
+            n_tubelets: tubes.len(),
+            full: full.clone(),
+            preview: Some(preview.clone()),
+            settings: TubeSettings::default(),
+        };
+        let e = app.world_mut().spawn((set, TractSelection(vec![true; 500]))).id();
+        app.update();
+        let mut select = |keep: &dyn Fn(usize) -> bool| {
+            app.world_mut().get_mut::<TractSelection>(e).expect("selection").0 = (0..500).map(keep).collect();
+            app.update();
+            let meshes = app.world().resource::<Assets<Mesh>>();
+            let n = |h: &Handle<Mesh>| meshes.get(h).expect("mesh").count_vertices() / 8;
+            (n(&full), n(&preview))
+        };
+        // Streamlines 100-139: 400 tubelets, of which streamlines 112 and 128 (20 tubelets) are in the preview.
+        assert_eq!(select(&|s| (100..140).contains(&s)), (400, 20));
+        assert_eq!(select(&|_| false), (1, 1), "one hidden proxy");
+        assert_eq!(select(&|_| true), (5_000, 320), "all again");
     }
 
     /// A tubelet's end colours are the colour function at its streamline's two points (here the colour is
