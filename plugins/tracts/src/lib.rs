@@ -1649,17 +1649,35 @@ mod tests {
         assert!(!use_previews(Some(ms(0)), ms(300), 1_000_000, 1_000_000), "within the limit");
     }
 
+    /// `n` parallel streamlines of 11 points 1 mm apart (10 tubelets each), streamline `s` at x = `s` mm.
+    fn parallel_tracts(n: usize) -> Tractogram {
+        let mut t = Tractogram::new();
+        for s in 0..n {
+            t.push(&(0..11).map(|k| Vec3::new(s as f32, k as f32, 0.0)).collect::<Vec<_>>());
+        }
+        t
+    }
+
+    /// A [`TubeSet`] of `tubes` with every proxy, and its preview of `slots`, in `app`'s meshes.
+    fn tube_set_with_preview(app: &mut App, tubes: &[Tubelet], slots: &[u32]) -> TubeSet {
+        let mut meshes = app.world_mut().resource_mut::<Assets<Mesh>>();
+        TubeSet {
+            streamline_of: tubes.iter().map(|t| t.streamline).collect(),
+            material: Handle::default(),
+            n_tubelets: tubes.len(),
+            full: meshes.add(boxes(tubes.len())),
+            preview: Some(meshes.add(boxes_of(slots))),
+            settings: TubeSettings::default(),
+        }
+    }
+
     /// A hyperstreamline set over the limit previews whole streamlines, one in 16; the frame
     /// budget switches to the preview once a frame at the smallest scale is over budget while moving, keeps it
     /// for the interaction, and returns to the whole set when the view is still.
     #[test]
     fn tube_previews_hold_whole_streamlines_and_follow_the_budget() {
         use fascicle_render::budget::{BudgetState, FrameBudget};
-        let mut t = Tractogram::new();
-        for s in 0..2_500 {
-            t.push(&(0..11).map(|k| Vec3::new(s as f32, k as f32, 0.0)).collect::<Vec<_>>());
-        }
-        let tubes = tract_tubelets(&t, None, &TubeSettings::default());
+        let tubes = tract_tubelets(&parallel_tracts(2_500), None, &TubeSettings::default());
         assert_eq!(tubes.len(), 25_000);
         let slots = tube_preview(&tubes).expect("over the limit");
         // Streamlines 0, 16, 32, ..., 2,496, each with its 10 tubelets.
@@ -1674,18 +1692,8 @@ mod tests {
             .init_resource::<FrameBudget>()
             .insert_resource(BudgetState::default())
             .add_systems(Update, tube_detail);
-        let (full, preview) = {
-            let mut meshes = app.world_mut().resource_mut::<Assets<Mesh>>();
-            (meshes.add(boxes(tubes.len())), meshes.add(boxes_of(&slots)))
-        };
-        let set = TubeSet {
-            streamline_of: tubes.iter().map(|t| t.streamline).collect(),
-            material: Handle::default(),
-            n_tubelets: tubes.len(),
-            full: full.clone(),
-            preview: Some(preview.clone()),
-            settings: TubeSettings::default(),
-        };
+        let set = tube_set_with_preview(&mut app, &tubes, &slots);
+        let (full, preview) = (set.full.clone(), set.preview.clone().expect("preview"));
         let e = app.world_mut().spawn((set, Mesh3d(full.clone()))).id();
         let ms = std::time::Duration::from_millis;
         let mut step = |moving: bool, scale: f32, frame_ms: u64| {
@@ -1706,28 +1714,14 @@ mod tests {
     /// again restores every proxy.
     #[test]
     fn tube_proxies_follow_the_selection() {
-        let mut t = Tractogram::new();
-        for s in 0..500 {
-            t.push(&(0..11).map(|k| Vec3::new(s as f32, k as f32, 0.0)).collect::<Vec<_>>());
-        }
-        let tubes = tract_tubelets(&t, None, &TubeSettings::default());
+        let tubes = tract_tubelets(&parallel_tracts(500), None, &TubeSettings::default());
         let slots = tube_preview(&tubes).expect("over the limit");
         let mut app = App::new();
         app.add_plugins((MinimalPlugins, bevy::asset::AssetPlugin::default()))
             .init_asset::<Mesh>()
             .add_systems(Update, select_tube_boxes);
-        let (full, preview) = {
-            let mut meshes = app.world_mut().resource_mut::<Assets<Mesh>>();
-            (meshes.add(boxes(tubes.len())), meshes.add(boxes_of(&slots)))
-        };
-        let set = TubeSet {
-            streamline_of: tubes.iter().map(|t| t.streamline).collect(),
-            material: Handle::default(),
-            n_tubelets: tubes.len(),
-            full: full.clone(),
-            preview: Some(preview.clone()),
-            settings: TubeSettings::default(),
-        };
+        let set = tube_set_with_preview(&mut app, &tubes, &slots);
+        let (full, preview) = (set.full.clone(), set.preview.clone().expect("preview"));
         let e = app.world_mut().spawn((set, TractSelection(vec![true; 500]))).id();
         app.update();
         let mut select = |keep: &dyn Fn(usize) -> bool| {
