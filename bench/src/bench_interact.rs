@@ -272,7 +272,7 @@ fn hover_script((dx, dy): (i32, i32), steps: usize, every: Duration) -> String {
     (0..steps).map(|_| format!("mousemove_relative -- {dx} {dy}\nsleep {pause:.4}\n")).collect()
 }
 
-fn percentile(sorted: &[f64], p: f64) -> f64 {
+pub(crate) fn percentile(sorted: &[f64], p: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
     }

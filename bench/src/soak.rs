@@ -21,8 +21,10 @@ use bevy::render::storage::ShaderBuffer;
 use fascicle_core::roi::RoiShape;
 use fascicle_render::headless;
 
-use fascicle_scene::layers::{ActiveScene, LayerErrors};
-use fascicle_scene::model::{LayerKind, Scene};
+use fascicle_scene::layers::{ActiveScene, LayerErrors, camera_from_spec};
+use fascicle_scene::model::{CameraSpec, LayerKind, Scene};
+
+use crate::bench_interact::percentile;
 
 /// Resident set size in MiB (Linux), 0 elsewhere.
 fn rss_mib() -> f64 {
@@ -145,8 +147,8 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
     for f in 1..=frames {
         if let Some(deg) = orbit_deg {
             let turn = Quat::from_axis_angle(up.normalize(), (deg * f as f32).to_radians());
-            let tf = Transform::from_translation(look_at + turn * (eye - look_at)).looking_at(look_at, up);
-            app.world_mut().entity_mut(cam).insert(tf);
+            let spec = CameraSpec { eye: (look_at + turn * (eye - look_at)).to_array(), ..scene.camera };
+            app.world_mut().entity_mut(cam).insert(camera_from_spec(&spec).0);
         }
         {
             let mut s = app.world_mut().resource_mut::<ActiveScene>();
@@ -201,13 +203,12 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
     }
     println!("{frames} frames in {:.0} s; layer errors: {errors}", t0.elapsed().as_secs_f64());
     frame_ms.sort_by(f64::total_cmp);
-    if let (Some(median), Some(p95)) = (
-        frame_ms.get(frame_ms.len() / 2),
-        frame_ms.get((frame_ms.len() * 95 / 100).min(frame_ms.len().saturating_sub(1))),
-    ) {
+    if !frame_ms.is_empty() {
         println!(
-            "frame time {w}x{h}: median {median:.1} ms, p95 {p95:.1} ms over {} frames (orbit {:?} deg a frame, ROI \
-             every {roi_every})",
+            "frame time {w}x{h}: median {:.1} ms, p95 {:.1} ms over {} frames (orbit {:?} deg a frame, ROI every \
+             {roi_every})",
+            percentile(&frame_ms, 0.5),
+            percentile(&frame_ms, 0.95),
             frame_ms.len(),
             orbit_deg
         );

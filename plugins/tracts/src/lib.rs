@@ -915,11 +915,13 @@ pub const TUBE_PREVIEW_STRIDE: usize = 16;
 /// [`TUBE_PREVIEW_STRIDE`] (whole streamlines, so the preview shows fewer tracts, not broken ones), as the
 /// indices of their slots; `None` for a smaller set.
 pub fn tube_preview(tubes: &[Tubelet]) -> Option<Vec<u32>> {
-    (tubes.len() > TUBE_PREVIEW_MAX).then(|| {
-        (0..tubes.len() as u32)
-            .filter(|&i| (tubes[i as usize].streamline as usize).is_multiple_of(TUBE_PREVIEW_STRIDE))
-            .collect()
-    })
+    (tubes.len() > TUBE_PREVIEW_MAX)
+        .then(|| (0..tubes.len() as u32).filter(|&i| in_tube_preview(tubes[i as usize].streamline)).collect())
+}
+
+/// Whether a set's streamline `s` is in its hyperstreamline preview: one in [`TUBE_PREVIEW_STRIDE`].
+fn in_tube_preview(s: u32) -> bool {
+    (s as usize).is_multiple_of(TUBE_PREVIEW_STRIDE)
 }
 
 /// The tubelets of a tractogram with optional per-point world tensors (lower-triangular, mm²/s).
@@ -1541,7 +1543,7 @@ pub fn select_tube_boxes(
             continue;
         }
         let or_one = |s: &[u32]| if s.is_empty() { boxes_of(&[0]) } else { boxes_of(s) };
-        let of = |k: &u32| (set.streamline_of[*k as usize] as usize).is_multiple_of(TUBE_PREVIEW_STRIDE);
+        let of = |k: &u32| in_tube_preview(set.streamline_of[*k as usize]);
         let preview = set.preview.as_ref().map(|p| (p, or_one(&slots.iter().copied().filter(of).collect::<Vec<_>>())));
         for (handle, mesh) in [(&set.full, or_one(&slots))].into_iter().chain(preview) {
             fascicle_render::modify_now(&mut meshes, &mut mesh_events, handle, |m| *m = mesh);
