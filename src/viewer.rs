@@ -1135,7 +1135,8 @@ struct FileDialog(Option<bevy::tasks::Task<Option<Vec<PathBuf>>>>);
 /// after egui's textures changed (text with glyphs new to the font atlas is drawn whole in the next frame).
 /// A line per frame for `fascicle-bench interact` (the file named by `FASCICLE_FRAME_LOG`): the wall clock
 /// (Unix ms) and the frame's time (ms, the real time since the frame before, as the panel's readout), the 3D view's render scale, whether the view moved, when the next frame is
-/// due, and the window position (logical px) of the first visible tract layer's first ROI or seed sphere.
+/// due, the window position (logical px) of the first visible tract layer's first ROI or seed sphere, and
+/// whether the budget draws coarse ([`BudgetState::coarse`]).
 #[derive(Resource)]
 struct FrameLog(std::io::LineWriter<std::fs::File>);
 
@@ -1173,14 +1174,15 @@ fn log_frame(
         })
         .unwrap_or(Vec2::NAN);
     let line = format!(
-        "{} {:.2} {} {} {:?} {:.0} {:.0}",
+        "{} {:.2} {} {} {:?} {:.0} {:.0} {}",
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis()),
         time.delta_secs_f64() * 1e3,
         budget.scale,
         budget.moving,
         *next,
         roi.x,
-        roi.y
+        roi.y,
+        budget.coarse
     );
     let _ = writeln!(log.0, "{line}");
 }
@@ -1326,11 +1328,13 @@ fn panel(
             (true, NextFrame::Poll) => "while working",
             (true, _) => "on demand",
         };
-        ui.label(format!("frame {:.1} ms, scale {:.2}, drawn {drawing}", ui_state.frame_ms, budget.scale))
+        let quality = if budget.coarse { ", coarse" } else { "" };
+        ui.label(format!("frame {:.1} ms, scale {:.2}{quality}, drawn {drawing}", ui_state.frame_ms, budget.scale))
             .on_hover_text(format!(
                 "the cost of a frame drawn back to back; an idle window draws nothing. While the view moves the \
-                 3D view draws at the scale (of its side) that holds the frame budget, {} ms, and at full scale \
-                 once still",
+                 3D view draws at the scale (of its side) that holds the frame budget, {} ms, and \"coarse\" when \
+                 the smallest scale is still over it (previews of tracts, a coarser volume step); at full \
+                 quality once still",
                 budget.budget.as_millis()
             ));
         ui.separator();

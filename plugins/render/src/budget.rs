@@ -9,7 +9,7 @@
 //!   ([`Interacting::hold`]) keeps the view moving but asks for no frame.
 //! - **Measured**: a frame's time is the real time since the frame before, counted only when that one asked
 //!   for the next at once (in a window drawn on demand, [`crate::on_demand::NextFrame::Now`]; the first frame
-//!   after an idle wait measures the wait). The main pass's cost is taken as proportional to its pixels, so a
+//!   after an idle wait measures the wait); between interactions the most expensive one is kept. The main pass's cost is taken as proportional to its pixels, so a
 //!   frame `t` over budget `b` scales the side by `sqrt(b / t)` (at most 4x less a frame), and a frame under
 //!   60 % of the budget raises it (at most 1.25x), in steps of 1/16. An interaction starts at the scale the
 //!   last measured frame affords (a still scene's settling frames are measured too), and not above the scale
@@ -133,19 +133,48 @@ pub struct BudgetState {
     /// [`FrameBudget::refine_after`] ago, or a window drawn on demand has settle frames left to draw at the
     /// lower scale before the full-quality one.
     pub moving: bool,
-    /// The last measured frame (one drawn right after the one before) and the scale it was drawn at.
+    /// The last measured frame (one drawn right after the one before) and the scale it was drawn at; while
+    /// the view is still, the most expensive one (the smallest side it affords) since the last interaction
+    /// ended, where the next interaction starts from.
     pub last_frame: Option<(Duration, f32)>,
     /// The budget in force (by the adapter).
     pub budget: Duration,
     /// When the view last moved (the wall clock at that frame's update: under pipelined rendering Bevy's
     /// real time is the render world's, a frame late).
     pub last_moved: Option<std::time::Instant>,
+    /// Render scale alone cannot hold the budget: the view is moving and a frame drawn at the smallest scale
+    /// was over budget (measured), so layers also lower what pixels do not pay for (hyperstreamline and line
+    /// previews, the volume's step) until the view is still. An interaction that starts
+    /// at the smallest scale starts coarse when the last one ended so, or when the last measured frame
+    /// affords under a quarter of the side (where [`start_scale`] stops trusting the pixel count); a coarse
+    /// frame under a third of the budget ends it. Default false.
+    pub coarse: bool,
 }
 
 impl Default for BudgetState {
     fn default() -> Self {
-        Self { scale: 1.0, moving: false, last_frame: None, budget: FrameBudget::default().software, last_moved: None }
+        Self {
+            scale: 1.0,
+            moving: false,
+            last_frame: None,
+            budget: FrameBudget::default().software,
+            last_moved: None,
+            coarse: false,
+        }
     }
+}
+
+/// Whether the next frame draws coarse ([`BudgetState::coarse`]), after a measured frame of `frame` drawn at
+/// `drawn` (scale) and coarse or not (`drawn_coarse`), while the view moves: it was coarse and the frame drawn
+/// coarse took a third of the budget or more, or that frame was drawn at the smallest scale `min` without
+/// being coarse and went over budget. `coarse` is whether the frame before this one was.
+pub fn next_coarse(
+    coarse: bool,
+    (frame, drawn, drawn_coarse): (Duration, f32, bool),
+    budget: Duration,
+    min: f32,
+) -> bool {
+    if drawn_coarse { coarse && frame * 3 >= budget } else { coarse || (drawn <= min && frame > budget) }
 }
 
 /// The system that sets the scale, in `PostUpdate` before the asset events are sent (it reads camera moves
@@ -210,6 +239,7 @@ fn hold_budget(
     ),
 ) {
     let now = std::time::Instant::now();
+    let mut measured_coarse = None;
     // This frame followed the last one at once (a window drawn on demand may have waited for input).
     #[cfg(feature = "winit")]
     let (back_to_back, settling) =
@@ -222,7 +252,20 @@ fn hold_budget(
         // The frame just measured was drawn at the scale the last update chose; with pipelined rendering
         // (an update runs while the render world draws the one before), the update before that.
         let drawn = if pipelined.is_some() { chosen.0[1] } else { chosen.0[0] };
-        state.last_frame = Some((time.delta(), drawn));
+        let measured = (time.delta(), drawn.0);
+        state.last_frame = Some(if state.moving {
+            chosen.2 = None;
+            measured
+        } else {
+            // Between interactions the most expensive frame decides where the next one starts: a refining
+            // frame of a minute is followed by cheap ones (a pointer crossing the view, a pipeline compiling)
+            // that say nothing of what moving the view will cost.
+            let side = |(t, s): (Duration, f32)| affordable_side(s, t, state.budget);
+            let worst = chosen.2.filter(|w| side(*w) <= side(measured)).unwrap_or(measured);
+            chosen.2 = Some(worst);
+            worst
+        });
+        measured_coarse = Some(drawn.1);
     }
     let released = std::mem::take(&mut interacting.released);
     let marked = std::mem::take(&mut interacting.marked) || !moved.is_empty();
@@ -234,7 +277,7 @@ fn hold_budget(
         state.last_moved = None;
     }
     let was_moving = state.moving;
-    let ended_at = state.scale;
+    let ended_at = (state.scale, state.coarse);
     // Still, but a window drawn on demand still has settle frames to draw (after a wheel turn, say): they stay
     // coarse, and the full-quality frame is the last one, drawn once. A release refines at once: the settle
     // frames after it put the refined picture back (the retained picture).
@@ -252,10 +295,24 @@ fn hold_budget(
         // not above the scale the last interaction ended at (frames between interactions may put a retained
         // picture back, or draw while pipelines compile: cheap frames that say little of the scene's cost).
         (true, true, Some((frame, drawn))) if !was_moving => {
-            start_scale(drawn, frame, state.budget, min).min(chosen.1.unwrap_or(1.0))
+            start_scale(drawn, frame, state.budget, min).min(chosen.1.map_or(1.0, |e| e.0))
         }
         (true, true, _) => state.scale,
         _ => 1.0,
+    };
+    state.coarse = match (budget.enabled && state.moving, state.last_frame, measured_coarse) {
+        (false, ..) => false,
+        (true, Some((frame, drawn)), Some(drawn_coarse)) if was_moving => {
+            next_coarse(state.coarse, (frame, drawn, drawn_coarse), state.budget, min)
+        }
+        // An interaction at the smallest scale starts coarse when the last one ended so, or when the last
+        // measured frame affords under a quarter of the side (`start_scale`: there the pixels no longer pay
+        // for most of a frame).
+        (true, Some((frame, drawn)), _) if !was_moving => {
+            state.scale <= min && (chosen.1.is_some_and(|e| e.1) || affordable_side(drawn, frame, state.budget) < 0.25)
+        }
+        (true, None, _) if !was_moving => false,
+        (true, ..) => state.coarse,
     };
     if was_moving && !state.moving {
         chosen.1 = Some(ended_at);
@@ -265,7 +322,7 @@ fn hold_budget(
         // draws nothing new until the next input.
         unsettled.request();
     }
-    chosen.0 = [state.scale, chosen.0[0]];
+    chosen.0 = [(state.scale, state.coarse), chosen.0[0]];
     for mut camera in &mut cameras {
         if camera.0 != state.scale {
             camera.0 = state.scale;
@@ -273,13 +330,13 @@ fn hold_budget(
     }
 }
 
-/// The scales the last two updates chose, newest first (full scale before any), and the scale the last
-/// interaction ended at (none before the first).
-struct Chosen([f32; 2], Option<f32>);
+/// The scales (and coarseness) the last two updates chose, newest first (full scale before any), those the
+/// last interaction ended at (none before the first), and the most expensive frame measured since it ended.
+struct Chosen([(f32, bool); 2], Option<(f32, bool)>, Option<(Duration, f32)>);
 
 impl Default for Chosen {
     fn default() -> Self {
-        Chosen([1.0; 2], None)
+        Chosen([(1.0, false); 2], None, None)
     }
 }
 
@@ -290,10 +347,15 @@ impl Default for Chosen {
 /// default scene's first orbit frame at 3/16 took 214-368 ms against 90-120 ms at 1/8. The budget raises the
 /// scale from there while frames stay well under it.
 pub fn start_scale(drawn: f32, frame: Duration, budget: Duration, min: f32) -> f32 {
-    let t = frame.as_secs_f32().max(1e-6);
-    let s = drawn * (budget.as_secs_f32() / t).sqrt();
+    let s = affordable_side(drawn, frame, budget);
     let s = if s < 0.25 { min } else { s };
     ((s * 16.0).floor() / 16.0).clamp(min.min(1.0), 1.0)
+}
+
+/// The side (a scale) whose pixels would have met `budget`, by a frame of `frame` drawn at `drawn`, the cost
+/// taken as proportional to the pixels.
+fn affordable_side(drawn: f32, frame: Duration, budget: Duration) -> f32 {
+    drawn * (budget.as_secs_f32() / frame.as_secs_f32().max(1e-6)).sqrt()
 }
 
 /// On a camera in the render world: its main pass draws at a lower scale and is stretched back.
@@ -404,5 +466,21 @@ mod tests {
         // Under a quarter of the side, the smallest scale (a 2.5 s frame: 0.2 by its pixels).
         assert_eq!(start_scale(1.0, ms(2500), ms(100), 0.125), 0.125);
         assert_eq!(start_scale(0.5, ms(1000), ms(100), 0.125), 0.125);
+    }
+
+    #[test]
+    fn coarse_when_the_smallest_scale_is_over_budget() {
+        let (ms, b, min) = (Duration::from_millis, Duration::from_millis(100), 0.125);
+        // Over budget above the smallest scale: the scale goes down first.
+        assert!(!next_coarse(false, (ms(300), 0.25, false), b, min));
+        // Over budget at the smallest scale: coarse.
+        assert!(next_coarse(false, (ms(300), 0.125, false), b, min));
+        assert!(!next_coarse(false, (ms(90), 0.125, false), b, min));
+        // Coarse stays while its frames take a third of the budget or more, whatever their scale.
+        assert!(next_coarse(true, (ms(40), 0.125, true), b, min));
+        assert!(next_coarse(true, (ms(40), 0.5, true), b, min));
+        assert!(!next_coarse(true, (ms(30), 0.125, true), b, min));
+        // A frame drawn before the switch (pipelined) says nothing of the coarse frames' cost.
+        assert!(next_coarse(true, (ms(20), 0.125, false), b, min));
     }
 }

@@ -61,6 +61,8 @@ fn a_scene_over_budget_draws_at_a_lower_scale_and_refines_to_the_full_image() {
     }
     let state = *app.world().resource::<BudgetState>();
     assert_eq!(state.scale, 0.25, "{state:?}");
+    // Still over budget at the smallest scale: the layers are told to lower what pixels do not pay for.
+    assert!(state.coarse, "{state:?}");
     assert_eq!(app.world().get::<RenderScale>(camera), Some(&RenderScale(0.25)));
     // A button held still on the view: still moving and coarse, and no frame asked for (a window drawn on
     // demand waits for the next input); a marked frame asks for the next.
@@ -101,6 +103,7 @@ fn a_scene_over_budget_draws_at_a_lower_scale_and_refines_to_the_full_image() {
     app.world_mut().resource_mut::<Interacting>().release();
     let released = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(app.world().resource::<BudgetState>().scale, 1.0, "a release refines at once");
+    assert!(!app.world().resource::<BudgetState>().coarse, "a still view is not coarse");
     assert_eq!(differing(&full, &released), 0, "the frame after the release differs from the full-scale one");
 
     // Moving again, then still for longer than refine_after: the next frame is the full-scale image, exactly.

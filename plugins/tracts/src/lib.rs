@@ -392,11 +392,12 @@ fn tract_detail(
     let shown = sets.iter().any(|(set, _, _, mesh)| set.preview.as_ref() == Some(&mesh.0));
     let (moving, coarse) = match &budget {
         // With a frame budget, its view of the interaction decides (a drag's release refines at once, in the
-        // frame the budget draws at full scale), and sets arriving keep the previews for `still_after`.
+        // frame the budget draws at full scale; a coarse frame draws previews whatever the segments), and sets
+        // arriving keep the previews for `still_after`.
         Some(b) => {
             let arriving =
                 use_previews(last_arrival.map(|t| now.saturating_sub(t)), detail.still_after, segments, limit);
-            let moving = detail.enabled && (arriving || (b.moving && segments > limit));
+            let moving = detail.enabled && (arriving || (b.moving && (segments > limit || b.coarse)));
             (moving, moving)
         }
         None => {
@@ -424,23 +425,16 @@ fn tract_detail(
     }
 }
 
-/// Hyperstreamline previews under the frame budget ([`fascicle_render::budget`]): once, during an
-/// interaction, a frame at the smallest render scale is still over budget (the cost is geometry: tubelet
-/// proxies and their overdraw, which render scale does not lower), sets with a preview ([`tube_preview`])
-/// draw it until the view is still; the frame that returns to full scale draws them whole. A change of the
-/// entity's [`Mesh3d`] handle: nothing is rebuilt or uploaded. Apps without the budget are not affected.
-fn tube_detail(
-    budget: Option<Res<fascicle_render::budget::BudgetState>>,
-    settings: Option<Res<fascicle_render::budget::FrameBudget>>,
-    mut sets: Query<(&TubeSet, &mut Mesh3d)>,
-    mut coarse: Local<bool>,
-) {
+/// Hyperstreamline previews under the frame budget ([`fascicle_render::budget`]): while the budget draws
+/// coarse ([`BudgetState::coarse`](fascicle_render::budget::BudgetState::coarse): a frame at the smallest render
+/// scale was still over budget, the cost being geometry: tubelet proxies and their overdraw, which render scale
+/// does not lower), sets with a preview ([`tube_preview`]) draw it; the frame that returns to full scale draws
+/// them whole. A change of the entity's [`Mesh3d`] handle: nothing is rebuilt or uploaded. Apps without the
+/// budget are not affected.
+fn tube_detail(budget: Option<Res<fascicle_render::budget::BudgetState>>, mut sets: Query<(&TubeSet, &mut Mesh3d)>) {
     let Some(b) = budget else { return };
-    let min = settings.map_or(0.125, |s| s.min_scale);
-    let over = b.scale <= min && b.last_frame.is_some_and(|(t, _)| t > b.budget);
-    *coarse = b.moving && (*coarse || over);
     for (set, mut mesh) in &mut sets {
-        let want = match (&set.preview, *coarse) {
+        let want = match (&set.preview, b.coarse) {
             (Some(preview), true) => preview,
             _ => &set.full,
         };
@@ -1673,12 +1667,12 @@ mod tests {
         }
     }
 
-    /// A hyperstreamline set over the limit previews whole streamlines, one in 16; the frame
-    /// budget switches to the preview once a frame at the smallest scale is over budget while moving, keeps it
-    /// for the interaction, and returns to the whole set when the view is still.
+    /// A hyperstreamline set over the limit previews whole streamlines, one in 16; it draws the preview while
+    /// the frame budget draws coarse (`BudgetState::coarse`, decided by `budget::next_coarse`: a frame at the
+    /// smallest scale over budget) and the whole set otherwise.
     #[test]
     fn tube_previews_hold_whole_streamlines_and_follow_the_budget() {
-        use fascicle_render::budget::{BudgetState, FrameBudget};
+        use fascicle_render::budget::BudgetState;
         let tubes = tract_tubelets(&parallel_tracts(2_500), None, &TubeSettings::default());
         assert_eq!(tubes.len(), 25_000);
         let slots = tube_preview(&tubes).expect("over the limit");
@@ -1691,24 +1685,20 @@ mod tests {
         let mut app = App::new();
         app.add_plugins((MinimalPlugins, bevy::asset::AssetPlugin::default()))
             .init_asset::<Mesh>()
-            .init_resource::<FrameBudget>()
             .insert_resource(BudgetState::default())
             .add_systems(Update, tube_detail);
         let set = tube_set_with_preview(&mut app, &tubes, &slots);
         let (full, preview) = (set.full.clone(), set.preview.clone().expect("preview"));
         let e = app.world_mut().spawn((set, Mesh3d(full.clone()))).id();
-        let ms = std::time::Duration::from_millis;
-        let mut step = |moving: bool, scale: f32, frame_ms: u64| {
+        let mut step = |moving: bool, coarse: bool| {
             let mut b = app.world_mut().resource_mut::<BudgetState>();
-            (b.moving, b.scale, b.last_frame, b.budget) = (moving, scale, Some((ms(frame_ms), scale)), ms(100));
+            (b.moving, b.coarse) = (moving, coarse);
             app.update();
             app.world().get::<Mesh3d>(e).expect("mesh").0.clone()
         };
-        assert_eq!(step(true, 0.5, 400), full, "render scale can still lower the cost");
-        assert_eq!(step(true, 0.125, 90), full, "within budget at the smallest scale");
-        assert_eq!(step(true, 0.125, 300), preview, "over budget at the smallest scale");
-        assert_eq!(step(true, 0.25, 40), preview, "kept for the interaction");
-        assert_eq!(step(false, 1.0, 40), full, "still: the whole set");
+        assert_eq!(step(true, false), full, "render scale holds the budget");
+        assert_eq!(step(true, true), preview, "coarse");
+        assert_eq!(step(false, false), full, "still: the whole set");
     }
 
     /// A selection rebuilds the set's proxies from the selected streamlines' tubelets (and the preview's from

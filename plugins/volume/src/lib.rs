@@ -460,19 +460,21 @@ impl Plugin for VolumePlugin {
 
 /// While the frame budget draws at a lower scale (the view moves: [`fascicle_render::budget`]), ray-cast
 /// volumes with post-classification march at twice their step (half the samples; opacity is per mm, so the
-/// picture keeps its brightness); the frame that returns to full scale writes their own step back. A uniform
-/// write at each change, nothing else. Pre-integrated volumes keep their step (their table depends on it).
+/// picture keeps its brightness), and at four times it while the budget draws coarse
+/// ([`BudgetState::coarse`](fascicle_render::budget::BudgetState::coarse): the smallest scale was over budget);
+/// the frame that returns to full scale writes their own step back. A uniform write at each change, nothing
+/// else. Pre-integrated volumes keep their step (their table depends on it).
 fn coarse_step_while_moving(
     budget: Option<Res<fascicle_render::budget::BudgetState>>,
     sets: Query<&VolumeSet>,
     mut materials: ResMut<Assets<VolumeMaterial>>,
-    mut coarse: Local<bool>,
+    mut coarse: Local<Option<u32>>,
 ) {
-    let want = budget.is_some_and(|b| b.scale < 1.0);
-    if want == *coarse {
+    let want = budget.map_or(1, |b| step_factor(b.scale < 1.0, b.coarse));
+    if *coarse == Some(want) || (coarse.is_none() && want == 1) {
         return;
     }
-    *coarse = want;
+    *coarse = Some(want);
     for set in sets.iter().filter(|s| s.settings.method == VolumeMethod::Raycast && !s.settings.preintegrated) {
         if let Some(mut m) = materials.get_mut(&set.material) {
             m.params.step = marched_step(&set.settings, want);
@@ -480,9 +482,19 @@ fn coarse_step_while_moving(
     }
 }
 
-/// The step a post-classified ray-cast volume marches at, mm: its own, or twice it while the view moves.
-fn marched_step(settings: &VolumeSettings, moving: bool) -> f32 {
-    settings.step as f32 * if moving { 2.0 } else { 1.0 }
+/// How many times its own step a post-classified ray-cast volume marches at: 1 at full scale, 2 at a lower
+/// scale, 4 while the budget draws coarse.
+fn step_factor(scaled: bool, coarse: bool) -> u32 {
+    match (scaled, coarse) {
+        (_, true) => 4,
+        (true, false) => 2,
+        (false, false) => 1,
+    }
+}
+
+/// The step a post-classified ray-cast volume marches at, mm: its own times `factor` ([`step_factor`]).
+fn marched_step(settings: &VolumeSettings, factor: u32) -> f32 {
+    settings.step as f32 * factor as f32
 }
 
 fn depth_image(width: u32, height: u32) -> Image {
@@ -806,10 +818,10 @@ pub(crate) fn spawn_volume_texture(
 mod tests {
     use super::*;
 
-    /// The pipeline key of a volume drawn with `s`, the view still or moving.
-    fn key(s: &VolumeSettings, moving: bool) -> VolumeKey {
+    /// The pipeline key of a volume drawn with `s` at `factor` times its step (1 still, 2 moving, 4 coarse).
+    fn key(s: &VolumeSettings, factor: u32) -> VolumeKey {
         let mut params = VolumeUniform::new([8, 8, 8], glam::DMat4::IDENTITY, s);
-        params.step = marched_step(s, moving);
+        params.step = marched_step(s, factor);
         let material = VolumeMaterial {
             params,
             volume: Handle::default(),
@@ -824,26 +836,30 @@ mod tests {
     }
 
     /// The shader is compiled per setting, but a moving view (twice the step) keeps the still view's pipeline for
-    /// the steps of [`PRODUCT_STEPS`] up to 8 mm and for the others: an interaction compiles none. The method,
-    /// shading and pre-integration each change it.
+    /// the steps of [`PRODUCT_STEPS`] up to 8 mm and for the others, and a coarse one (four times) up to 4 mm:
+    /// an interaction compiles none. The method, shading and pre-integration each change it.
     #[test]
     fn keys_follow_the_settings_not_the_motion() {
+        assert_eq!([step_factor(false, false), step_factor(true, false), step_factor(true, true)], [1, 2, 4]);
         for step in [0.25, 0.5, 1.0, 2.0, 4.0, 8.0] {
             let s = VolumeSettings { step, ..default() };
-            let still = key(&s, false);
-            assert_eq!(still, key(&s, true), "step {step}");
+            let still = key(&s, 1);
+            assert_eq!(still, key(&s, 2), "step {step}");
+            if step <= 4.0 {
+                assert_eq!(still, key(&s, 4), "step {step}, coarse");
+            }
             assert!(still.product_steps && still.ray_cast && !still.shading && !still.preintegrated, "{still:?}");
         }
         for step in [0.3, 0.7, 1.5, 3.0] {
             let s = VolumeSettings { step, ..default() };
-            assert!(!key(&s, false).product_steps && key(&s, false) == key(&s, true), "step {step}");
+            assert!(!key(&s, 1).product_steps && key(&s, 1) == key(&s, 2) && key(&s, 1) == key(&s, 4), "step {step}");
         }
-        let base = key(&VolumeSettings::default(), false);
-        assert!(key(&VolumeSettings { shading: true, ..default() }, false).shading);
-        assert!(key(&VolumeSettings { preintegrated: true, ..default() }, false).preintegrated);
+        let base = key(&VolumeSettings::default(), 1);
+        assert!(key(&VolumeSettings { shading: true, ..default() }, 1).shading);
+        assert!(key(&VolumeSettings { preintegrated: true, ..default() }, 1).preintegrated);
         for method in [VolumeMethod::Slicing, VolumeMethod::Slicing2d, VolumeMethod::Splatting] {
-            assert_ne!(base, key(&VolumeSettings { method, ..default() }, false), "{method:?}");
-            assert!(!key(&VolumeSettings { method, ..default() }, false).ray_cast);
+            assert_ne!(base, key(&VolumeSettings { method, ..default() }, 1), "{method:?}");
+            assert!(!key(&VolumeSettings { method, ..default() }, 1).ray_cast);
         }
     }
 }
