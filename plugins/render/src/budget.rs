@@ -9,11 +9,14 @@
 //!   ([`Interacting::hold`]) keeps the view moving but asks for no frame.
 //! - **Measured**: a frame's time is the real time since the frame before, counted only when that one asked
 //!   for the next at once (in a window drawn on demand, [`crate::on_demand::NextFrame::Now`]; the first frame
-//!   after an idle wait measures the wait); between interactions the most expensive one is kept. The main pass's cost is taken as proportional to its pixels, so a
+//!   after an idle wait measures the wait). The main pass's cost is taken as proportional to its pixels, so a
 //!   frame `t` over budget `b` scales the side by `sqrt(b / t)` (at most 4x less a frame), and a frame under
 //!   60 % of the budget raises it (at most 1.25x), in steps of 1/16. An interaction starts at the scale the
-//!   last measured frame affords (a still scene's settling frames are measured too), and not above the scale
-//!   the last interaction ended at, so its first frame is not the slow one.
+//!   most expensive frame measured since the last interaction affords (a still scene's refining and settling
+//!   frames are measured too), and not above the scale the last interaction ended at, so its first frame is
+//!   not the slow one.
+//! - **Coarse**: when a frame at the smallest scale is still over budget, [`BudgetState::coarse`] tells the
+//!   layers to lower what pixels do not pay for (previews, coarser steps) until the view is still.
 //! - **Drawn**: the main pass renders into the top-left `scale` part of the camera's viewport (Bevy's
 //!   `MainPassResolutionOverride`; shaders that need the viewport read `view.main_pass_viewport`), and a
 //!   copy-and-blit pass, after the main pass and before post-processing, stretches it over the viewport with
