@@ -33,7 +33,7 @@ use fascicle_render::layer::LayerStatus;
 use fascicle_scene::handles::{HandleSystems, HandlesPlugin, RoiDrag};
 use fascicle_scene::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin, view_camera};
 use fascicle_scene::model::{CameraSpec, LayerKind, LayerSpec, MaskRoi, PaintedMask, Scene};
-use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
+use fascicle_sh_glyphs::{Highlighted, ShGlyphSet};
 use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
 use fascicle_views::{Crosshair, MainView, OrthoView, SliceSource, ViewRegion, VoxelGrid, pick_in_view};
 
@@ -968,8 +968,7 @@ fn pick_glyph(
     mut dragged: Local<f32>,
     window: Single<&Window, With<PrimaryWindow>>,
     camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
-    sets: Query<(&ShGlyphSet, &Children)>,
-    voxels: Query<(&ShVoxel, Has<Highlighted>)>,
+    sets: Query<(Entity, &ShGlyphSet, Option<&Highlighted>)>,
     mut ui: ResMut<UiState>,
 ) {
     if buttons.just_pressed(MouseButton::Left) {
@@ -985,27 +984,15 @@ fn pick_glyph(
     let (o, d) = (ray.origin.as_dvec3(), ray.direction.as_vec3().as_dvec3());
     let best = sets
         .iter()
-        .filter_map(|(set, children)| set.pick(o, d).map(|(i, hit)| (set, children, i, hit)))
-        .min_by(|a, b| a.3.t.total_cmp(&b.3.t));
-    let Some((set, children, i, hit)) = best else { return };
-    for child in children.iter() {
-        if let Ok((v, lit)) = voxels.get(child)
-            && v.index == i
-        {
-            if lit {
-                commands.entity(child).remove::<Highlighted>();
-            } else {
-                commands.entity(child).insert(Highlighted);
-            }
-            let g = &set.glyphs[i as usize];
-            ui.message = Some(format!(
-                "glyph {i}: voxel {:?}, GFA {:.3}, hit at {:.1?} mm",
-                v.voxel,
-                g.gfa,
-                hit.point.to_array()
-            ));
-        }
-    }
+        .filter_map(|(e, set, lit)| set.pick(o, d).map(|(i, hit)| (e, set, lit, i, hit)))
+        .min_by(|a, b| a.4.t.total_cmp(&b.4.t));
+    let Some((entity, set, lit, i, hit)) = best else { return };
+    let mut lit = lit.cloned().unwrap_or_default();
+    lit.toggle(i);
+    commands.entity(entity).insert(lit);
+    let g = &set.glyphs[i as usize];
+    ui.message =
+        Some(format!("glyph {i}: voxel {:?}, GFA {:.3}, hit at {:.1?} mm", set.voxel(i), g.gfa, hit.point.to_array()));
 }
 
 fn apply_orbit(orbit: Res<Orbit>, mut cam: Query<(&mut Transform, &mut Projection), With<MainView>>) {

@@ -9,7 +9,7 @@ use fascicle_render::headless;
 use fascicle_scene::layers::{ActiveScene, LayerErrors, LayerSyncCounts, ScenePlugin};
 use fascicle_scene::model::{LayerKind, Scene};
 use fascicle_scene::{cache::DataCache, jobs::JobProgress};
-use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphSet, ShVoxel};
+use fascicle_sh_glyphs::{ShGlyphMaterial, ShGlyphProxies, ShGlyphSet};
 
 /// A path under the repository: the package's folder as cargo gives it when running the test (a binary built by
 /// another clone sharing the target directory must read this clone's files), else as it was when built.
@@ -63,8 +63,9 @@ fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
     };
     let (e0, mat0, n0) = set(&mut app);
     assert!(n0 > 100, "{n0} glyphs");
-    let voxels = app.world_mut().query::<&ShVoxel>().iter(app.world()).count();
-    assert_eq!(voxels, n0);
+    // One entity draws the whole set.
+    let drawers = |app: &mut App| app.world_mut().query::<&ShGlyphProxies>().iter(app.world()).count();
+    assert_eq!(drawers(&mut app), 1);
     let buffers0 = app.world().resource::<Assets<ShaderBuffer>>().len();
 
     // Draw settings: same entity, same buffers, the uniform changed.
@@ -95,9 +96,8 @@ fn glyph_settings_update_in_place_and_structure_changes_rebuild() {
     assert_ne!(e3, e0);
     assert_ne!(mat3, mat0);
     assert_eq!(n3, n0);
-    // The old glyph entities went with their set.
-    let voxels = app.world_mut().query::<&ShVoxel>().iter(app.world()).count();
-    assert_eq!(voxels, n3);
+    // The old set's drawing entity went with it.
+    assert_eq!(drawers(&mut app), 1);
 }
 
 /// A free, oblique plane of interest with trilinear sampling: every glyph sits on the plane, inside the
@@ -198,7 +198,7 @@ fn sh_coefficient_file_renders_as_glyphs() {
 fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
     use fascicle_core::dti::glyph::TensorShape;
     use fascicle_scene::model::{LayerSpec, SliceAxis, TensorSource};
-    use fascicle_tensors::{TensorColour, TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, TensorSample};
+    use fascicle_tensors::{TensorColour, TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings};
     if headless::gpu_tests_skipped() {
         eprintln!("FASCICLE_SKIP_GPU=1: GPU test skipped");
         return;
@@ -230,7 +230,12 @@ fn tensor_glyph_layer_spawns_samples_and_updates_in_place() {
     };
     let (e0, m0, n0) = set(&mut app);
     // The ring on slice 12: every sample is anisotropic enough, and there are hundreds.
-    let fas: Vec<f32> = app.world_mut().query::<&TensorSample>().iter(app.world()).map(|s| s.fa).collect();
+    let fas: Vec<f32> = app
+        .world_mut()
+        .query::<&TensorGlyphSet>()
+        .iter(app.world())
+        .flat_map(|set| set.samples.iter().map(|s| s.fa))
+        .collect();
     assert_eq!(fas.len(), n0);
     assert!(n0 > 300 && fas.iter().all(|f| *f >= 0.3), "{n0} samples");
     if let LayerKind::TensorGlyphs { render, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[0].kind

@@ -7,9 +7,9 @@
 //! - **Moving**: a camera marked [`RenderScale`] whose transform changed, or an app's [`Interacting::mark`]
 //!   (a drag of an ROI changes the scene, not the camera); a button held still on the view
 //!   ([`Interacting::hold`]) keeps the view moving but asks for no frame.
-//! - **Measured**: a frame's time is the real time since the frame before, counted only when that one asked
-//!   for the next at once (in a window drawn on demand, [`crate::on_demand::NextFrame::Now`]; the first frame
-//!   after an idle wait measures the wait). The main pass's cost is taken as proportional to its pixels, so a
+//! - **Measured**: a frame's time is the wall time between its update and the one before, counted only when
+//!   that one asked for the next at once (in a window drawn on demand, [`crate::on_demand::NextFrame::Now`]; the
+//!   first frame after an idle wait measures the wait). The main pass's cost is taken as proportional to its pixels, so a
 //!   frame `t` over budget `b` scales the side by `sqrt(b / t)` (at most 4x less a frame), and a frame under
 //!   60 % of the budget raises it (at most 1.25x), in steps of 1/16. An interaction starts at the scale the
 //!   most expensive frame measured since the last interaction affords (a still scene's refining and settling
@@ -146,8 +146,8 @@ pub struct BudgetState {
     /// real time is the render world's, a frame late).
     pub last_moved: Option<std::time::Instant>,
     /// Render scale alone cannot hold the budget: the view is moving and a frame drawn at the smallest scale
-    /// was over budget (measured), so layers also lower what pixels do not pay for (hyperstreamline and line
-    /// previews, the volume's step) until the view is still. An interaction that starts
+    /// was over budget (measured), so layers also lower what pixels do not pay for (hyperstreamline, line
+    /// and glyph previews: [`CoarseMesh`]; the volume's step) until the view is still. An interaction that starts
     /// at the smallest scale starts coarse when the last one ended so, or when the last measured frame
     /// affords under a quarter of the side (where [`start_scale`] stops trusting the pixel count); a coarse
     /// frame under a third of the budget ends it. Default false.
@@ -194,12 +194,36 @@ impl Plugin for FrameBudgetPlugin {
             .init_resource::<Interacting>()
             .init_resource::<BudgetState>()
             .configure_sets(PostUpdate, BudgetSystems.before(bevy::asset::AssetEventSystems))
-            .add_systems(PostUpdate, hold_budget.in_set(BudgetSystems));
+            .add_systems(PostUpdate, (hold_budget, coarse_meshes).chain().in_set(BudgetSystems));
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
             render_app
                 .add_systems(ExtractSchedule, extract_scale)
                 .add_systems(Render, prepare_upscale.in_set(RenderSystems::PrepareResources))
                 .add_systems(Core3d, upscale.after(Core3dSystems::MainPass).before(Core3dSystems::PostProcess));
+        }
+    }
+}
+
+/// A mesh entity's lighter stand-in while the budget is coarse ([`BudgetState::coarse`]): the entity draws
+/// `preview` then and `full` otherwise, a change of its [`Mesh3d`] handle (nothing rebuilt or uploaded). For
+/// layers whose cost at the smallest render scale is geometry, not pixels: a glyph set's proxies (every other
+/// cell, [`crate::meshes::every_other_cell`]). Apps without [`FrameBudgetPlugin`] always draw `full`.
+#[derive(Component, Clone, Debug, PartialEq, Eq)]
+pub struct CoarseMesh {
+    /// What the entity draws at full quality.
+    pub full: Handle<Mesh>,
+    /// What it draws while the budget is coarse.
+    pub preview: Handle<Mesh>,
+}
+
+/// Swaps each [`CoarseMesh`] entity's mesh to follow [`BudgetState::coarse`] ([`FrameBudgetPlugin`] runs it in
+/// [`BudgetSystems`], after the scale is set: before Bevy computes the meshes' bounds, so the retained picture
+/// is not kept from coming back by a bound changed a frame late).
+pub fn coarse_meshes(state: Res<BudgetState>, mut meshes: Query<(&CoarseMesh, &mut Mesh3d)>) {
+    for (coarse, mut mesh) in &mut meshes {
+        let want = if state.coarse { &coarse.preview } else { &coarse.full };
+        if mesh.0 != *want {
+            mesh.0 = want.clone();
         }
     }
 }
@@ -227,7 +251,7 @@ pub fn next_scale(scale: f32, frame: Duration, budget: Duration, min: f32) -> f3
 fn hold_budget(
     budget: Res<FrameBudget>,
     adapter: Option<Res<crate::AdapterKind>>,
-    time: Res<Time<bevy::time::Real>>,
+    mut last_update: Local<Option<std::time::Instant>>,
     mut interacting: ResMut<Interacting>,
     moved: Query<(), (With<RenderScale>, Changed<Transform>)>,
     mut cameras: Query<&mut RenderScale>,
@@ -242,6 +266,11 @@ fn hold_budget(
     ),
 ) {
     let now = std::time::Instant::now();
+    // The frame's time: the wall time since the last update, when this one followed it at once (then the two
+    // are a frame apart, whatever the render thread does). Not Bevy's `Time<Real>`, which under pipelined
+    // rendering comes from the render world a frame late: the first frames of an interaction read the time
+    // of a frame that ended an idle wait (seconds on lavapipe), which made every interaction start coarse.
+    let since_last = last_update.replace(now).map(|t| now.saturating_duration_since(t));
     let mut measured_coarse = None;
     // This frame followed the last one at once (a window drawn on demand may have waited for input).
     #[cfg(feature = "winit")]
@@ -251,11 +280,14 @@ fn hold_budget(
     let (back_to_back, settling) = (true, false);
     // A frame that put a retained picture back drew no scene: its time says nothing of the scene's cost.
     let drew_scene = retained.is_none_or(|r| !r.any(2));
-    if back_to_back && drew_scene && time.delta() > Duration::ZERO {
+    if back_to_back
+        && drew_scene
+        && let Some(frame) = since_last.filter(|t| *t > Duration::ZERO)
+    {
         // The frame just measured was drawn at the scale the last update chose; with pipelined rendering
         // (an update runs while the render world draws the one before), the update before that.
         let drawn = if pipelined.is_some() { chosen.0[1] } else { chosen.0[0] };
-        let measured = (time.delta(), drawn.0);
+        let measured = (frame, drawn.0);
         state.last_frame = Some(if state.moving {
             chosen.2 = None;
             measured

@@ -51,10 +51,11 @@ impl SphereImpostorMaterial {
     }
 }
 
-/// Implements `Material` for an instanced proxy-glyph material whose vertex and fragment stages are both in
-/// `$shader`, a `ShaderRef` expression (SH glyphs, tensor glyphs): no prepass and no shadows (the reason is in
-/// this module's docs), and back faces only, so each proxy gives one fragment per pixel (half the work of both faces) and still
-/// draws with the camera inside it.
+/// Implements `Material` for a proxy-glyph material (SH glyphs, tensor glyphs) whose vertex and fragment stages
+/// are both in `$shader`, a `ShaderRef` expression: a set's proxy boxes are one mesh (`meshes::slot_boxes`)
+/// placed by the vertex stage (`fascicle::proxy`); no prepass and no shadows (the reason is in this module's
+/// docs), and back faces only, so each proxy gives one fragment per pixel (half the work of both faces) and
+/// still draws with the camera inside it.
 #[macro_export]
 macro_rules! proxy_glyph_material {
     ($material:ty, $shader:expr) => {

@@ -85,7 +85,7 @@ pub struct ShGlyphCounts(pub StageCounts);
 pub enum ShGlyphSystems {
     /// Builds, repacks and restyles the [`ShGlyphs`] layers that changed.
     Prepare,
-    /// Rewrites glyph headers whose `Highlighted` marker changed.
+    /// Rewrites the header buffer of sets whose [`Highlighted`](crate::Highlighted) changed.
     Highlight,
 }
 

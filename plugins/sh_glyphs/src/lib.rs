@@ -28,9 +28,11 @@
 //! # Render integration
 //! Bevy's `Material` pipeline serves here: the glyphs are opaque and depth-tested like any mesh. A layer is
 //! one [`ShGlyphMaterial`] holding every glyph's centre, bounds and coefficients in GPU storage buffers, and one
-//! child entity per glyph ([`ShVoxel`]): a cube proxy mesh scaled to the glyph's tight box
-//! (`fascicle_core::sh::exact::glyph_box`), with a `MeshTag` that indexes the buffers. Bevy batches them into
-//! instanced draws in the main opaque pass (`Opaque3d` phase). The fragment shader (`shaders/sh_glyph.wgsl`)
+//! child entity ([`ShGlyphProxies`]) drawing one mesh of every glyph's proxy box
+//! (`fascicle_render::meshes::slot_boxes`: vertices that carry only the glyph's index and the corner): one draw
+//! for the set in the main opaque pass (`Opaque3d` phase), whatever its size. The vertex stage
+//! (`fascicle::proxy`) places each box at the glyph's tight box (`fascicle_core::sh::exact::glyph_box`) read
+//! from the buffers. The fragment shader (`shaders/sh_glyph.wgsl`)
 //! finds the view ray's first hit with `r = ψ(u)` ([`GlyphMethod::Exact`]: the glyph's section by the ray's
 //! plane, a trigonometric polynomial known from `l_max + 1` values of ψ; or the seed's linear search) and
 //! writes true depth (`@builtin(frag_depth)`), so glyphs intersect meshes, tubes and each other; the material
@@ -42,7 +44,7 @@
 #![warn(missing_docs)]
 
 use bevy::asset::RenderAssetUsages;
-use bevy::mesh::MeshTag;
+use bevy::camera::visibility::NoFrustumCulling;
 use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
@@ -226,16 +228,12 @@ pub struct ShGlyphMaterial {
 
 fascicle_render::proxy_glyph_material!(ShGlyphMaterial, shaders::sh_glyph());
 
-/// One displayed glyph: its index in the set's buffers and, when it came from a volume, its voxel.
-#[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ShVoxel {
-    /// The glyph's index in its set's buffers (also its `MeshTag`).
-    pub index: u32,
-    /// The voxel `[x, y, z]` (indices into the field's grid) it was built from; `None` when not from a volume.
-    pub voxel: Option<[u32; 3]>,
-}
+/// The entity that draws a glyph set: one mesh of every glyph's proxy box, a child of the set's entity
+/// ([`ShGlyphSet`]). It has no frustum culling (the boxes are placed by the vertex shader).
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct ShGlyphProxies;
 
-/// A glyph set: the parent of its [`ShVoxel`] entities, with the CPU copy of its glyphs (for picking and
+/// A glyph set: the parent of its [`ShGlyphProxies`] entity, with the CPU copy of its glyphs (for picking and
 /// for rewriting the small per-glyph header when highlights change).
 #[derive(Component, Clone, Debug)]
 pub struct ShGlyphSet {
@@ -243,21 +241,48 @@ pub struct ShGlyphSet {
     pub material: Handle<ShGlyphMaterial>,
     /// Maximum SH order of the set (the largest `Glyph::l_max`); fixes the buffer's per-glyph stride.
     pub l_max: usize,
-    /// Number of glyphs, and of [`ShVoxel`] children.
+    /// Number of glyphs.
     pub len: usize,
     /// The CPU copy of the glyphs, in buffer order (centres in RAS+ mm, before the `size` factor).
     pub glyphs: std::sync::Arc<Vec<Glyph>>,
+    /// The voxel (`[x, y, z]`, indices into the field's grid) each glyph was built from, in buffer order;
+    /// `None` when the glyphs did not come from a volume.
+    pub voxels: Option<std::sync::Arc<Vec<[u32; 3]>>>,
     /// How negative lobes are drawn, as in the uniform, so that picking matches the picture.
     pub lobes: Lobes,
     /// The layer-wide size factor the uniform holds ([`RayCastSettings::size`]).
     pub size: f64,
 }
 
-/// Marks a glyph entity drawn highlighted (the shader tints it).
-#[derive(Component, Clone, Copy, Debug, Default)]
-pub struct Highlighted;
+/// The glyphs of a set drawn highlighted (the shader tints them): their indices in the set's buffers. A
+/// component of the set's entity (the layer); inserting, changing or removing it rewrites the set's small
+/// header buffer only (three `vec4` a glyph, no coefficients). A rebuilt set (new data or selection) starts
+/// with none.
+#[derive(Component, Clone, Debug, Default, PartialEq, Eq, Deref, DerefMut)]
+pub struct Highlighted(pub Vec<u32>);
+
+impl Highlighted {
+    /// Highlights glyph `i` if it was not, else stops highlighting it; returns whether it is now highlighted.
+    pub fn toggle(&mut self, i: u32) -> bool {
+        match self.0.iter().position(|&k| k == i) {
+            Some(at) => {
+                self.0.swap_remove(at);
+                false
+            }
+            None => {
+                self.0.push(i);
+                true
+            }
+        }
+    }
+}
 
 impl ShGlyphSet {
+    /// The voxel glyph `i` was built from, when the set came from a volume.
+    pub fn voxel(&self, i: u32) -> Option<[u32; 3]> {
+        self.voxels.as_ref()?.get(i as usize).copied()
+    }
+
     /// The first glyph of this set the world-space ray hits: its index and the hit.
     pub fn pick(&self, origin: glam::DVec3, dir: glam::DVec3) -> Option<(u32, fascicle_core::sh::glyph::Hit)> {
         let scaled;
@@ -282,27 +307,29 @@ impl ShGlyphSet {
     }
 }
 
-/// Rewrites a set's header buffer (three `vec4` per glyph, no coefficients) when highlights change.
+/// Rewrites a set's header buffer (three `vec4` per glyph, no coefficients) when its highlights change; a
+/// set built in this frame already has a fresh header.
 fn apply_highlights(
-    changed: Query<&ChildOf, Added<Highlighted>>,
+    changed: Query<(&ShGlyphSet, &Highlighted), Changed<Highlighted>>,
     mut removed: RemovedComponents<Highlighted>,
-    parents: Query<&ChildOf, With<ShVoxel>>,
-    sets: Query<(&ShGlyphSet, &Children)>,
-    lit: Query<&ShVoxel, With<Highlighted>>,
+    sets: Query<Ref<ShGlyphSet>>,
     materials: Res<Assets<ShGlyphMaterial>>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
 ) {
-    let mut dirty: Vec<Entity> = changed.iter().map(|c| c.parent()).collect();
-    dirty.extend(removed.read().filter_map(|e| parents.get(e).ok().map(|c| c.parent())));
-    dirty.sort();
-    dirty.dedup();
-    for parent in dirty {
-        let Ok((set, children)) = sets.get(parent) else { continue };
-        let flags: Vec<u32> = children.iter().filter_map(|c| lit.get(c).ok().map(|v| v.index)).collect();
-        let Some(material) = materials.get(&set.material) else { continue };
+    let mut rewrite = |set: &ShGlyphSet, flags: &[u32]| {
+        let Some(material) = materials.get(&set.material) else { return };
         if let Some(mut buffer) = buffers.get_mut(&material.glyphs) {
-            let (head, _) = pack_with(&set.glyphs, set.l_max, &flags, false);
-            buffer.data = Some(head);
+            buffer.data = Some(pack_with(&set.glyphs, set.l_max, flags, false).0);
+        }
+    };
+    for (set, lit) in &changed {
+        rewrite(set, lit);
+    }
+    for e in removed.read() {
+        if let Ok(set) = sets.get(e)
+            && !set.is_added()
+        {
+            rewrite(&set, &[]);
         }
     }
 }
@@ -341,8 +368,8 @@ fn pack_with(glyphs: &[Glyph], l_max: usize, highlighted: &[u32], with_coeffs: b
     (head, coeffs)
 }
 
-/// Spawns a glyph set (all glyphs must share `l_max`, as from one field). Returns the parent entity;
-/// `voxels[i]`, if given, is recorded on glyph i's entity. An empty set spawns only the parent.
+/// Spawns a glyph set (all glyphs must share `l_max`, as from one field). Returns the parent entity, which
+/// holds the [`ShGlyphSet`] (`voxels[i]`, if given, is glyph i's voxel); an empty set spawns only the parent.
 /// (A layer driven by components, [`ShGlyphs`] or [`PlacedShGlyphs`], needs none of this: its plugin spawns the set.)
 pub fn spawn_glyph_set(
     commands: &mut Commands,
@@ -354,26 +381,24 @@ pub fn spawn_glyph_set(
     settings: &RayCastSettings,
 ) -> Entity {
     let parent = commands.spawn((Transform::default(), Visibility::default())).id();
-    let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
-    let set = fill_glyph_set(commands, parent, cube, materials, buffers, glyphs, voxels, settings);
+    let set = fill_glyph_set(commands, parent, meshes, materials, buffers, glyphs, voxels, settings);
     commands.entity(parent).insert(set);
     parent
 }
 
-/// The stores a layer's glyph set is built into, and the proxy cube a system's sets share: what the field-driven
-/// and the placed layers' systems (re)build with.
+/// The stores a layer's glyph set is built into: what the field-driven and the placed layers' systems
+/// (re)build with.
 #[derive(bevy::ecs::system::SystemParam)]
-pub(crate) struct GlyphStores<'w, 's> {
+pub(crate) struct GlyphStores<'w> {
     meshes: ResMut<'w, Assets<Mesh>>,
     pub(crate) materials: ResMut<'w, Assets<ShGlyphMaterial>>,
     buffers: ResMut<'w, Assets<ShaderBuffer>>,
-    cube: Local<'s, Option<Handle<Mesh>>>,
 }
 
-impl GlyphStores<'_, '_> {
-    /// Takes away what `layer` draws: its glyph children and `old`'s material.
+impl GlyphStores<'_> {
+    /// Takes away what `layer` draws: its [`ShGlyphProxies`] child, its highlights and `old`'s material.
     pub(crate) fn clear(&mut self, commands: &mut Commands, layer: Entity, old: Option<&ShGlyphSet>) {
-        commands.entity(layer).despawn_related::<Children>();
+        commands.entity(layer).despawn_related::<Children>().try_remove::<Highlighted>();
         if let Some(old) = old {
             self.materials.remove(&old.material);
         }
@@ -389,18 +414,26 @@ impl GlyphStores<'_, '_> {
         settings: &RayCastSettings,
     ) -> ShGlyphSet {
         self.clear(commands, layer, old);
-        let cube = self.cube.get_or_insert_with(|| self.meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
-        fill_glyph_set(commands, layer, cube, &mut self.materials, &mut self.buffers, glyphs, voxels, settings)
+        fill_glyph_set(
+            commands,
+            layer,
+            &mut self.meshes,
+            &mut self.materials,
+            &mut self.buffers,
+            glyphs,
+            voxels,
+            settings,
+        )
     }
 }
 
-/// Spawns one [`ShVoxel`] child of `parent` per glyph (proxy `cube`, a 2-unit cuboid, shared) and uploads the
-/// glyph buffers into a new material; returns the [`ShGlyphSet`] for the parent.
+/// Uploads the glyph buffers into a new material and spawns the [`ShGlyphProxies`] child of `parent` that draws
+/// them (none for an empty set); returns the [`ShGlyphSet`] for the parent.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn fill_glyph_set(
     commands: &mut Commands,
     parent: Entity,
-    cube: Handle<Mesh>,
+    meshes: &mut Assets<Mesh>,
     materials: &mut Assets<ShGlyphMaterial>,
     buffers: &mut Assets<ShaderBuffer>,
     glyphs: &[Glyph],
@@ -421,28 +454,28 @@ pub(crate) fn fill_glyph_set(
         glyphs: buffers.add(buffer(head, RenderAssetUsages::default())),
         coeffs: buffers.add(buffer(coeffs, RenderAssetUsages::RENDER_WORLD)),
     });
-    commands.spawn_batch(
-        glyphs
-            .iter()
-            .enumerate()
-            .map(|(i, g)| {
-                (
-                    ShVoxel { index: i as u32, voxel: voxels.and_then(|v| v.get(i).copied()) },
-                    Mesh3d(cube.clone()),
-                    MeshMaterial3d(material.clone()),
-                    MeshTag(i as u32),
-                    // The proxy is the glyph's box (both methods: no surface lies outside it).
-                    Transform::from_translation(g.centre.as_vec3()).with_scale(g.half.as_vec3()),
-                    ChildOf(parent),
-                )
-            })
-            .collect::<Vec<_>>(),
-    );
+    if !glyphs.is_empty() {
+        let full = meshes.add(fascicle_render::meshes::slot_boxes(glyphs.len()));
+        let mut drawn = commands.spawn((
+            ShGlyphProxies,
+            Mesh3d(full.clone()),
+            MeshMaterial3d(material.clone()),
+            NoFrustumCulling,
+            ChildOf(parent),
+        ));
+        // A large set draws every other cell while the frame budget is coarse.
+        let centres: Vec<Vec3> = glyphs.iter().map(|g| g.centre.as_vec3()).collect();
+        if let Some(slots) = fascicle_render::meshes::every_other_cell(&centres) {
+            let preview = meshes.add(fascicle_render::meshes::slot_boxes_of(&slots));
+            drawn.insert(fascicle_render::budget::CoarseMesh { full, preview });
+        }
+    }
     ShGlyphSet {
         material,
         l_max,
         len: glyphs.len(),
         glyphs: std::sync::Arc::new(glyphs.to_vec()),
+        voxels: voxels.map(|v| std::sync::Arc::new(v.to_vec())),
         lobes: settings.lobes,
         size: settings.size as f64,
     }
@@ -491,4 +524,49 @@ pub fn spawn_mesh_glyphs(
         .with_inserted_indices(Indices::U32(idx));
     let material = materials.add(StandardMaterial { base_color: Color::WHITE, unlit: true, ..default() });
     commands.spawn((Mesh3d(meshes.add(mesh)), MeshMaterial3d(material), Transform::default())).id()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use fascicle_core::sh::ShBasis;
+    use fascicle_core::sh::glyph::{GlyphStyle, make_glyphs};
+    use fascicle_render::budget::CoarseMesh;
+
+    /// A set is one drawing entity whatever its size; a set over `GLYPH_PREVIEW_MIN` glyphs (a 100 x 60 slice)
+    /// also gets a coarse preview of every other cell (a quarter), a small one none.
+    #[test]
+    fn a_set_draws_as_one_entity_with_a_preview_when_large() {
+        let mut app = App::new();
+        app.add_plugins((MinimalPlugins, bevy::asset::AssetPlugin::default()))
+            .init_asset::<Mesh>()
+            .init_asset::<ShGlyphMaterial>()
+            .init_asset::<ShaderBuffer>();
+        let grid: Vec<glam::DVec3> =
+            (0..6000).map(|i| glam::DVec3::new((i % 100) as f64 * 2.0, (i / 100) as f64 * 2.0, 5.0)).collect();
+        let style = GlyphStyle { scale: 0.9, ..GlyphStyle::default() };
+        let glyphs = make_glyphs(grid.iter().map(|c| (*c, &[1.0][..])), ShBasis::default(), style).unwrap().0;
+        let spawn = |n: usize| {
+            let glyphs = glyphs[..n].to_vec();
+            move |mut commands: Commands,
+                  mut meshes: ResMut<Assets<Mesh>>,
+                  mut materials: ResMut<Assets<ShGlyphMaterial>>,
+                  mut buffers: ResMut<Assets<ShaderBuffer>>| {
+                let s = RayCastSettings::default();
+                spawn_glyph_set(&mut commands, &mut meshes, &mut materials, &mut buffers, &glyphs, None, &s)
+            }
+        };
+        for (n, preview) in [(6000, Some(1500)), (400, None)] {
+            let set = bevy::ecs::system::RunSystemOnce::run_system_once(app.world_mut(), spawn(n)).unwrap();
+            let world = app.world_mut();
+            let drawn: Vec<Entity> = world.get::<Children>(set).expect("children").iter().collect();
+            assert_eq!(drawn.len(), 1);
+            assert!(world.get::<ShGlyphProxies>(drawn[0]).is_some());
+            let vertices = |h: &Handle<Mesh>| world.resource::<Assets<Mesh>>().get(h).unwrap().count_vertices();
+            let full = &world.get::<Mesh3d>(drawn[0]).unwrap().0;
+            assert_eq!(vertices(full), 8 * n);
+            let coarse = world.get::<CoarseMesh>(drawn[0]);
+            assert_eq!(coarse.map(|c| vertices(&c.preview) / 8), preview, "{n} glyphs");
+        }
+    }
 }

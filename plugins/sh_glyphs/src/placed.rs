@@ -10,7 +10,7 @@ use fascicle_core::sh::glyph::Glyph;
 use fascicle_render::layer::{LayerStatus, despawn_drawn};
 
 use crate::layer::ShGlyphCounts;
-use crate::{GlyphStores, RayCastSettings, ShGlyphMaterial, ShGlyphSet, ShVoxel, update_settings};
+use crate::{GlyphStores, RayCastSettings, ShGlyphMaterial, ShGlyphProxies, ShGlyphSet, update_settings};
 
 /// The data component of an SH glyph layer whose glyphs are placed: drawn as they are, with the layer's
 /// [`RayCastSettings`] (added with its default when absent).
@@ -61,7 +61,7 @@ fn forget_placed(
     mut materials: ResMut<Assets<ShGlyphMaterial>>,
     sets: Query<&ShGlyphSet>,
     children: Query<&Children>,
-    glyphs: Query<(), With<ShVoxel>>,
+    glyphs: Query<(), With<ShGlyphProxies>>,
 ) {
     let e = removed.entity;
     if let Ok(set) = sets.get(e) {

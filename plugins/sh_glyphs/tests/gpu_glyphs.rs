@@ -196,11 +196,47 @@ fn ray_cast_glyphs_match_the_f64_reference() {
     assert!(median <= 2.0, "median normal error {median} degrees");
 }
 
+/// The layer-wide size factor (a uniform, no buffer rewritten) grows each glyph about its centre: the
+/// vertex stage scales each proxy box with it, so the silhouette is the f64 reference's of glyphs scaled by
+/// 1.4, not clipped to the unscaled boxes.
+#[test]
+fn the_size_factor_grows_each_glyph_and_its_box() {
+    let glyphs = glyphs();
+    let k = 1.4;
+    let settings = RayCastSettings { colour: GlyphColour::Normal, h: 0.01, refine: 4, size: k as f32, ..default() };
+    let Some((_, depth)) = render(&glyphs, settings) else { return };
+    let scaled: Vec<(Glyph, Lobes)> = glyphs
+        .iter()
+        .map(|(g, lobes)| {
+            let g = Glyph {
+                coeffs: g.coeffs.iter().map(|c| c * k).collect(),
+                rmax: g.rmax * k,
+                rbound: g.rbound * k,
+                half: g.half * k,
+                ..g.clone()
+            };
+            (g, *lobes)
+        })
+        .collect();
+    let cam = test_camera();
+    let (plain, grown) = (reference(&glyphs, &cam), reference(&scaled, &cam));
+    let (mut union, mut mismatch) = (0usize, 0usize);
+    for (i, r) in grown.iter().enumerate() {
+        let covered = depth.at(i as u32 % W, i as u32 / W) > 0.0;
+        union += usize::from(covered || r.is_some());
+        mismatch += usize::from(covered != r.is_some());
+    }
+    let (n_plain, n_grown) = (plain.iter().flatten().count(), grown.iter().flatten().count());
+    println!("size {k}: {n_grown} pixels against {n_plain} at size 1; silhouette mismatch {mismatch} of {union}");
+    assert!(n_grown as f64 > 1.3 * n_plain as f64, "the scaled reference must cover more: {n_grown} vs {n_plain}");
+    assert!(mismatch as f64 <= 0.01 * union as f64, "silhouette mismatch {mismatch} of {union}");
+}
+
 /// Picking by the CPU twin of the shader, then highlighting: only the header buffer is rewritten (the
 /// coefficients are not), and the picked glyph is drawn tinted while the others are not.
 #[test]
 fn picking_and_highlighting() {
-    use fascicle_sh_glyphs::{Highlighted, ShGlyphSet, ShVoxel};
+    use fascicle_sh_glyphs::{Highlighted, ShGlyphSet};
     let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
     app.add_plugins(ShGlyphPlugin);
     let glyphs: Vec<Glyph> = glyphs().into_iter().map(|(g, _)| g).collect();
@@ -222,7 +258,8 @@ fn picking_and_highlighting() {
     app.update();
     // A ray from the eye through the third glyph's centre (its caps point along z, towards the camera)
     // picks it, on the near cap.
-    let set = app.world_mut().query::<&ShGlyphSet>().single(app.world()).expect("set").clone();
+    let (entity, set) = app.world_mut().query::<(Entity, &ShGlyphSet)>().single(app.world()).expect("set");
+    let set = set.clone();
     let (i, hit) = set.pick(EYE, glyphs[2].centre - EYE).expect("the ray hits the capped glyph");
     assert_eq!(i, 2);
     assert!(hit.t < (glyphs[2].centre - EYE).length());
@@ -231,14 +268,7 @@ fn picking_and_highlighting() {
         app.world().resource::<Assets<bevy::render::storage::ShaderBuffer>>().get(&m).unwrap().data.clone()
     };
     let before = coeff_bytes(&app);
-    let picked = app
-        .world_mut()
-        .query::<(Entity, &ShVoxel)>()
-        .iter(app.world())
-        .find(|(_, v)| v.index == i)
-        .map(|(e, _)| e)
-        .unwrap();
-    app.world_mut().entity_mut(picked).insert(Highlighted);
+    app.world_mut().entity_mut(entity).insert(Highlighted(vec![i]));
     let img = headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(coeff_bytes(&app), before, "coefficients must not be rewritten");
     // Grey glyphs are neutral; the highlighted one is yellow (red and green well above blue).

@@ -1,5 +1,7 @@
-//! Tensor glyphs and tensor splats ([`splat`]) as a Bevy plugin; layers driven by components in [`layer`]. Glyphs: ray-cast ellipsoids and Kindlmann superquadrics, one entity per tensor
-//! sample ([`TensorSample`]), instanced on a shared cube proxy with a `MeshTag` into one storage buffer.
+//! Tensor glyphs and tensor splats ([`splat`]) as a Bevy plugin; layers driven by components in [`layer`].
+//! Glyphs: ray-cast ellipsoids and Kindlmann superquadrics. A set ([`TensorGlyphSet`], with its
+//! [`TensorSample`]s) is one storage buffer and one child entity ([`TensorGlyphProxies`]) drawing one mesh of
+//! every glyph's proxy cube (`fascicle_render::meshes::slot_boxes`), placed by the vertex stage: one draw a set.
 //! The fragment shader (`shaders/tensor_glyph.wgsl`) intersects the view ray with the glyph (closed form
 //! for ellipsoids, search and bisection for superquadrics) and writes true depth. The math and the test
 //! references are in `fascicle_core::dti::glyph`.
@@ -7,7 +9,7 @@
 #![warn(missing_docs)]
 
 use bevy::asset::RenderAssetUsages;
-use bevy::mesh::MeshTag;
+use bevy::camera::visibility::NoFrustumCulling;
 use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
@@ -147,7 +149,7 @@ impl From<&TensorGlyphSettings> for TensorGlyphUniform {
     }
 }
 
-/// The material of one tensor glyph set, drawn on the shared cube proxy by `shaders/tensor_glyph.wgsl`.
+/// The material of one tensor glyph set, drawn on its proxy cubes by `shaders/tensor_glyph.wgsl`.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct TensorGlyphMaterial {
     /// The ray caster's parameters (binding 0), from the layer's [`TensorGlyphSettings`].
@@ -161,12 +163,14 @@ pub struct TensorGlyphMaterial {
 fascicle_render::proxy_glyph_material!(TensorGlyphMaterial, shaders::tensor_glyph());
 
 /// One tensor sample on screen: its index in the set's buffer, its voxel, and what systems select on.
-#[derive(Component, Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TensorSample {
-    /// The glyph's index in its set's buffer (also its `MeshTag`).
+    /// The glyph's index in its set's buffer.
     pub index: u32,
     /// The voxel `[x, y, z]` (indices into the field's grid) it was built from; `None` when not from a volume.
     pub voxel: Option<[u32; 3]>,
+    /// The glyph's centre, RAS+ mm.
+    pub centre: Vec3,
     /// Fractional anisotropy, in [0, 1].
     pub fa: f32,
     /// Westin linearity `(l1 - l2) / l1`, in [0, 1].
@@ -175,15 +179,22 @@ pub struct TensorSample {
     pub cp: f32,
 }
 
-/// A tensor glyph set: the parent of its [`TensorSample`] entities.
+/// The entity that draws a tensor glyph set: one mesh of every glyph's proxy cube, a child of the set's
+/// entity ([`TensorGlyphSet`]). It has no frustum culling (the cubes are placed by the vertex shader).
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct TensorGlyphProxies;
+
+/// A tensor glyph set: the parent of its [`TensorGlyphProxies`] entity.
 #[derive(Component, Clone, Debug)]
 pub struct TensorGlyphSet {
     /// The material every glyph of the set draws with: the uniform and the glyph buffer.
     pub material: Handle<TensorGlyphMaterial>,
     /// The shape the buffer was packed for (a glyph's bound depends on it).
     pub shape: TensorShape,
-    /// Number of glyphs, and of [`TensorSample`] children.
+    /// Number of glyphs.
     pub len: usize,
+    /// The set's samples, in buffer order.
+    pub samples: std::sync::Arc<Vec<TensorSample>>,
 }
 
 /// The storage buffer's bytes for `glyphs` drawn as `shape`.
@@ -233,24 +244,22 @@ pub fn spawn_tensor_glyphs(
     settings: &TensorGlyphSettings,
 ) -> Entity {
     let parent = commands.spawn((Transform::default(), Visibility::default())).id();
-    let cube = meshes.add(Cuboid::new(2.0, 2.0, 2.0));
-    let set = fill_tensor_glyphs(commands, parent, cube, materials, buffers, glyphs, voxels, settings);
+    let set = fill_tensor_glyphs(commands, parent, meshes, materials, buffers, glyphs, voxels, settings);
     commands.entity(parent).insert(set);
     parent
 }
 
-/// The stores a layer's tensor glyph set is built into, and the proxy cube a system's sets share: what the
-/// field-driven and the placed layers' systems (re)build with.
+/// The stores a layer's tensor glyph set is built into: what the field-driven and the placed layers' systems
+/// (re)build with.
 #[derive(bevy::ecs::system::SystemParam)]
-pub(crate) struct TensorGlyphStores<'w, 's> {
+pub(crate) struct TensorGlyphStores<'w> {
     meshes: ResMut<'w, Assets<Mesh>>,
     pub(crate) materials: ResMut<'w, Assets<TensorGlyphMaterial>>,
     buffers: ResMut<'w, Assets<ShaderBuffer>>,
-    cube: Local<'s, Option<Handle<Mesh>>>,
 }
 
-impl TensorGlyphStores<'_, '_> {
-    /// Takes away what `layer` draws: its glyph children and `old`'s material.
+impl TensorGlyphStores<'_> {
+    /// Takes away what `layer` draws: its [`TensorGlyphProxies`] child and `old`'s material.
     pub(crate) fn clear(&mut self, commands: &mut Commands, layer: Entity, old: Option<&TensorGlyphSet>) {
         commands.entity(layer).despawn_related::<Children>();
         if let Some(old) = old {
@@ -268,18 +277,26 @@ impl TensorGlyphStores<'_, '_> {
         settings: &TensorGlyphSettings,
     ) -> TensorGlyphSet {
         self.clear(commands, layer, old);
-        let cube = self.cube.get_or_insert_with(|| self.meshes.add(Cuboid::new(2.0, 2.0, 2.0))).clone();
-        fill_tensor_glyphs(commands, layer, cube, &mut self.materials, &mut self.buffers, glyphs, voxels, settings)
+        fill_tensor_glyphs(
+            commands,
+            layer,
+            &mut self.meshes,
+            &mut self.materials,
+            &mut self.buffers,
+            glyphs,
+            voxels,
+            settings,
+        )
     }
 }
 
-/// Spawns the glyph entities of a set as children of `parent` on the shared proxy `cube` (a 2 x 2 x 2
-/// cuboid) and returns the set's component for `parent`.
+/// Uploads the set's buffer into a new material and spawns the [`TensorGlyphProxies`] child of `parent` that
+/// draws it (none for an empty set); returns the set's component for `parent`.
 #[allow(clippy::too_many_arguments, reason = "the asset stores a glyph set writes to")]
 pub(crate) fn fill_tensor_glyphs(
     commands: &mut Commands,
     parent: Entity,
-    cube: Handle<Mesh>,
+    meshes: &mut Assets<Mesh>,
     materials: &mut Assets<TensorGlyphMaterial>,
     buffers: &mut Assets<ShaderBuffer>,
     glyphs: &[TensorGlyph],
@@ -294,28 +311,33 @@ pub(crate) fn fill_tensor_glyphs(
         params: settings.into(),
         glyphs: buffers.add(ShaderBuffer::new(&bytes, RenderAssetUsages::RENDER_WORLD)),
     });
-    commands.spawn_batch(
-        glyphs
-            .iter()
-            .enumerate()
-            .map(|(i, g)| {
-                (
-                    TensorSample {
-                        index: i as u32,
-                        voxel: voxels.and_then(|v| v.get(i).copied()),
-                        fa: g.fa as f32,
-                        cl: g.cl as f32,
-                        cp: g.cp as f32,
-                    },
-                    Mesh3d(cube.clone()),
-                    MeshMaterial3d(material.clone()),
-                    MeshTag(i as u32),
-                    Transform::from_translation(g.centre.as_vec3())
-                        .with_scale(Vec3::splat(g.bound(settings.shape) as f32)),
-                    ChildOf(parent),
-                )
-            })
-            .collect::<Vec<_>>(),
-    );
-    TensorGlyphSet { material, shape: settings.shape, len: glyphs.len() }
+    if !glyphs.is_empty() {
+        let full = meshes.add(fascicle_render::meshes::slot_boxes(glyphs.len()));
+        let mut drawn = commands.spawn((
+            TensorGlyphProxies,
+            Mesh3d(full.clone()),
+            MeshMaterial3d(material.clone()),
+            NoFrustumCulling,
+            ChildOf(parent),
+        ));
+        // A large set draws every other cell while the frame budget is coarse.
+        let centres: Vec<Vec3> = glyphs.iter().map(|g| g.centre.as_vec3()).collect();
+        if let Some(slots) = fascicle_render::meshes::every_other_cell(&centres) {
+            let preview = meshes.add(fascicle_render::meshes::slot_boxes_of(&slots));
+            drawn.insert(fascicle_render::budget::CoarseMesh { full, preview });
+        }
+    }
+    let samples = glyphs
+        .iter()
+        .enumerate()
+        .map(|(i, g)| TensorSample {
+            index: i as u32,
+            voxel: voxels.and_then(|v| v.get(i).copied()),
+            centre: g.centre.as_vec3(),
+            fa: g.fa as f32,
+            cl: g.cl as f32,
+            cp: g.cp as f32,
+        })
+        .collect();
+    TensorGlyphSet { material, shape: settings.shape, len: glyphs.len(), samples: std::sync::Arc::new(samples) }
 }

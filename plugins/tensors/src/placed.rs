@@ -21,7 +21,7 @@ use fascicle_render::layer::{LayerStatus, despawn_drawn};
 
 use crate::layer::{SplatCounts, TensorGlyphCounts, restyle_splats};
 use crate::splat::{SplatMaterial, SplatSet, SplatSettings, spawn_splats};
-use crate::{TensorGlyphMaterial, TensorGlyphSet, TensorGlyphSettings, TensorGlyphStores, TensorSample};
+use crate::{TensorGlyphMaterial, TensorGlyphProxies, TensorGlyphSet, TensorGlyphSettings, TensorGlyphStores};
 
 /// The data component of a tensor glyph layer whose glyphs are placed: drawn as they are, with the layer's
 /// [`TensorGlyphSettings`] (added with its default when absent).
@@ -151,13 +151,13 @@ fn forget_placed_glyphs(
     mut materials: ResMut<Assets<TensorGlyphMaterial>>,
     sets: Query<&TensorGlyphSet>,
     children: Query<&Children>,
-    samples: Query<(), With<TensorSample>>,
+    drawn: Query<(), With<TensorGlyphProxies>>,
 ) {
     let e = removed.entity;
     if let Ok(set) = sets.get(e) {
         materials.remove(&set.material);
     }
-    despawn_drawn(&mut commands, children.get(e).ok(), |c| samples.contains(c));
+    despawn_drawn(&mut commands, children.get(e).ok(), |c| drawn.contains(c));
     commands.entity(e).try_remove::<(TensorGlyphSet, Styled<TensorGlyphSettings>)>();
 }
 

@@ -20,7 +20,7 @@ use fascicle_render::reference::srgb8;
 use fascicle_tensors::splat::{SplatSet, SplatSortStats};
 use fascicle_tensors::{
     LayerStatus, Selection, SliceAxis, SplatCounts, SplatSettings, TensorColour, TensorField, TensorGlyphCounts,
-    TensorGlyphPlugin, TensorGlyphSettings, TensorGlyphs, TensorSample, TensorSplats,
+    TensorGlyphPlugin, TensorGlyphSet, TensorGlyphSettings, TensorGlyphs, TensorSplats,
 };
 use glam::{DMat3, DVec3};
 
@@ -70,7 +70,8 @@ fn the_glyph_example_colours_each_glyph_by_its_principal_direction() {
     let world = ex.app.world_mut();
     let voxels = slice_directions(5);
     assert!(voxels.len() > 50, "{} voxels with a tensor", voxels.len());
-    assert_eq!(world.query::<&TensorSample>().iter(world).count(), voxels.len(), "a glyph per voxel of the slice");
+    let samples: usize = world.query::<&TensorGlyphSet>().iter(world).map(|set| set.samples.len()).sum();
+    assert_eq!(samples, voxels.len(), "a glyph per voxel of the slice");
     let (camera, at) = world.query::<(&Camera, &GlobalTransform)>().single(world).unwrap();
     let background = frame.pixel(0, 0);
     let (mut checked, mut matching) = (0, 0);
@@ -187,7 +188,7 @@ fn each_edit_of_a_tensor_layer_costs_what_it_changes() {
     let (g0, s0) = (children(&app, glyphs), children(&app, splats));
     let sorts = app.world().resource::<SplatSortStats>().sorts;
 
-    // Glyph colouring: a uniform write; the same glyph entities.
+    // Glyph colouring: a uniform write; the same drawing entity.
     app.world_mut().get_mut::<TensorGlyphSettings>(glyphs).unwrap().colour = TensorColour::Fa;
     app.update();
     assert_eq!(glyph_counts(&app), (1, 0, 1));
@@ -197,8 +198,11 @@ fn each_edit_of_a_tensor_layer_costs_what_it_changes() {
         fascicle_core::dti::glyph::TensorShape::Ellipsoid;
     app.update();
     assert_eq!(glyph_counts(&app), (1, 1, 1));
+    // One entity draws the set; a repack replaces it.
     let g1 = children(&app, glyphs);
-    assert!(g1.iter().all(|e| !g0.contains(e)) && g1.len() == n_glyphs);
+    assert!(g0.len() == 1 && g1.len() == 1 && g1 != g0);
+    let set_len = |app: &App| app.world().get::<TensorGlyphSet>(glyphs).unwrap().len;
+    assert_eq!(set_len(&app), n_glyphs);
     // Glyph slice: a repack of that layer only.
     *app.world_mut().get_mut::<Selection>(glyphs).unwrap() =
         Selection::Slice { axis: SliceAxis::Z, index: Some(2), spacing: 1 };
@@ -271,7 +275,9 @@ fn placed_glyphs_and_splats_are_layers_too() {
     let status = |app: &App, e| app.world().get::<LayerStatus>(e).unwrap().clone();
     assert_eq!(status(&app, g), LayerStatus::Ready { items: n });
     assert_eq!(status(&app, s), LayerStatus::Ready { items: splats.len() });
-    let samples = |app: &mut App| app.world_mut().query::<&TensorSample>().iter(app.world()).count();
+    let samples = |app: &mut App| {
+        app.world_mut().query::<&TensorGlyphSet>().iter(app.world()).map(|set| set.samples.len()).sum::<usize>()
+    };
     assert_eq!(samples(&mut app), n);
     let glyph_counts = |app: &App| {
         let c = app.world().resource::<TensorGlyphCounts>();

@@ -290,7 +290,7 @@ pub struct TubeSet {
     pub full: Handle<Mesh>,
     /// The proxy boxes of every [`TUBE_PREVIEW_STRIDE`]-th streamline's selected tubelets (sets of more than
     /// [`TUBE_PREVIEW_MAX`] tubelets), drawn while the view moves and the frame budget cannot be held by render
-    /// scale alone (the plugin's `tube_detail` system).
+    /// scale alone: the entity's [`CoarseMesh`](fascicle_render::budget::CoarseMesh) names it.
     pub preview: Option<Handle<Mesh>>,
     /// Per tubelet, its streamline's index in the set: which proxies a selection keeps
     /// ([`select_tube_boxes`]).
@@ -422,25 +422,6 @@ fn tract_detail(
     }
     if moving && let Some(mut unsettled) = unsettled {
         unsettled.request();
-    }
-}
-
-/// Hyperstreamline previews under the frame budget ([`fascicle_render::budget`]): while the budget draws
-/// coarse ([`BudgetState::coarse`](fascicle_render::budget::BudgetState::coarse): a frame at the smallest render
-/// scale was still over budget, the cost being geometry: tubelet proxies and their overdraw, which render scale
-/// does not lower), sets with a preview ([`tube_preview`]) draw it; the frame that returns to full scale draws
-/// them whole. A change of the entity's [`Mesh3d`] handle: nothing is rebuilt or uploaded. Apps without the
-/// budget are not affected.
-fn tube_detail(budget: Option<Res<fascicle_render::budget::BudgetState>>, mut sets: Query<(&TubeSet, &mut Mesh3d)>) {
-    let Some(b) = budget else { return };
-    for (set, mut mesh) in &mut sets {
-        let want = match (&set.preview, b.coarse) {
-            (Some(preview), true) => preview,
-            _ => &set.full,
-        };
-        if mesh.0 != *want {
-            mesh.0 = want.clone();
-        }
     }
 }
 
@@ -737,9 +718,6 @@ impl Plugin for TractPlugin {
                         .after(fascicle_render::budget::BudgetSystems)
                         .before(bevy::camera::visibility::VisibilitySystems::CalculateBounds)
                         .before(sync_slabs),
-                    tube_detail
-                        .after(fascicle_render::budget::BudgetSystems)
-                        .before(bevy::camera::visibility::VisibilitySystems::CalculateBounds),
                     sync_slabs.before(bevy::camera::visibility::VisibilitySystems::CalculateBounds),
                     warm_up,
                 ),
@@ -877,24 +855,15 @@ pub fn pack(tubes: &[Tubelet]) -> Vec<u8> {
     out
 }
 
-/// 8 vertices (slot, corner, 0) and 12 outward counter-clockwise triangles per tubelet.
+/// 8 vertices (slot, corner, 0) and 12 outward counter-clockwise triangles per tubelet
+/// ([`fascicle_render::meshes::slot_boxes`]).
 pub fn boxes(n: usize) -> Mesh {
-    boxes_of(&(0..n.max(1) as u32).collect::<Vec<_>>())
+    fascicle_render::meshes::slot_boxes(n)
 }
 
 /// The proxy boxes of the tubelets in `slots` (their indices in the set's buffer), as [`boxes`] lays them out.
 pub fn boxes_of(slots: &[u32]) -> Mesh {
-    let mut pos = Vec::with_capacity(8 * slots.len());
-    let mut idx = Vec::with_capacity(36 * slots.len());
-    for (k, &slot) in slots.iter().enumerate() {
-        for c in 0..8 {
-            pos.push([slot as f32, c as f32, 0.0]);
-        }
-        idx.extend(fascicle_render::meshes::BOX_TRIANGLES.iter().map(|i| i + 8 * k as u32));
-    }
-    Mesh::new(PrimitiveTopology::TriangleList, RenderAssetUsages::RENDER_WORLD)
-        .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
-        .with_inserted_indices(Indices::U32(idx))
+    fascicle_render::meshes::slot_boxes_of(slots)
 }
 
 /// Tubelets a hyperstreamline set may hold before it gets a preview: 4,000.
@@ -1147,7 +1116,14 @@ fn insert_tube_set(
         .map(|k| packed.get(112 * k + 76..112 * k + 80).map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]])))
         .collect();
     e.insert((
-        TubeSet { material: material.clone(), n_tubelets, full: full.clone(), preview, settings, streamline_of },
+        TubeSet {
+            material: material.clone(),
+            n_tubelets,
+            full: full.clone(),
+            preview: preview.clone(),
+            settings,
+            streamline_of,
+        },
         Transform::default(),
         Visibility::default(),
     ));
@@ -1155,7 +1131,12 @@ fn insert_tube_set(
         e.insert(target);
     }
     if n_tubelets > 0 {
-        e.insert((Mesh3d(full), MeshMaterial3d(material), NoFrustumCulling));
+        e.insert((Mesh3d(full.clone()), MeshMaterial3d(material), NoFrustumCulling));
+        // While the frame budget is coarse (a frame at the smallest render scale still over budget, the cost
+        // being tubelet proxies and their overdraw, which render scale does not lower), the preview draws.
+        if let Some(preview) = preview {
+            e.insert(fascicle_render::budget::CoarseMesh { full, preview });
+        }
     }
 }
 
@@ -1682,14 +1663,27 @@ mod tests {
         assert!(tube_preview(&tubes[..TUBE_PREVIEW_MAX]).is_none());
         assert_eq!(boxes_of(&slots).count_vertices(), 8 * slots.len());
 
+        // Spawned, the set's entity draws its preview while the budget is coarse and the whole set otherwise.
         let mut app = App::new();
         app.add_plugins((MinimalPlugins, bevy::asset::AssetPlugin::default()))
             .init_asset::<Mesh>()
+            .init_asset::<TubeletMaterial>()
+            .init_asset::<ShaderBuffer>()
             .insert_resource(BudgetState::default())
-            .add_systems(Update, tube_detail);
-        let set = tube_set_with_preview(&mut app, &tubes, &slots);
+            .add_systems(Update, fascicle_render::budget::coarse_meshes);
+        let tracts = Arc::new(parallel_tracts(2_500));
+        let spawn = move |mut commands: Commands,
+                          mut meshes: ResMut<Assets<Mesh>>,
+                          mut materials: ResMut<Assets<TubeletMaterial>>,
+                          mut buffers: ResMut<Assets<ShaderBuffer>>| {
+            let settings = TubeSettings::default();
+            spawn_tubes(&mut commands, &mut meshes, &mut materials, &mut buffers, tracts.clone(), None, &settings)
+        };
+        let e = bevy::ecs::system::RunSystemOnce::run_system_once(app.world_mut(), spawn).expect("spawned");
+        let set = app.world().get::<TubeSet>(e).expect("tube set").clone();
         let (full, preview) = (set.full.clone(), set.preview.clone().expect("preview"));
-        let e = app.world_mut().spawn((set, Mesh3d(full.clone()))).id();
+        let n = |app: &App, h: &Handle<Mesh>| app.world().resource::<Assets<Mesh>>().get(h).unwrap().count_vertices();
+        assert_eq!((n(&app, &full), n(&app, &preview)), (8 * tubes.len(), 8 * slots.len()));
         let mut step = |moving: bool, coarse: bool| {
             let mut b = app.world_mut().resource_mut::<BudgetState>();
             (b.moving, b.coarse) = (moving, coarse);

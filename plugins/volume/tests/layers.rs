@@ -13,7 +13,7 @@ use fascicle_core::dvr::march;
 use fascicle_render::example::ExampleApp;
 use fascicle_render::headless;
 use fascicle_render::reference::{PinholeCamera, srgb8};
-use fascicle_tensors::{TensorGlyphs, TensorSample};
+use fascicle_tensors::{TensorGlyphSet, TensorGlyphs};
 use fascicle_volume::{
     LayerStatus, ScalarVolume, ScalarVolumeSettings, VolumeCounts, VolumeLayer, VolumeMaterial, VolumeMethod,
     VolumePlugin, VolumeSet, VolumeSettings,
@@ -50,7 +50,7 @@ fn the_dvr_example_composites_the_volume_with_its_glyphs() {
     let statuses: Vec<LayerStatus> = world.query::<&LayerStatus>().iter(world).cloned().collect();
     assert!(statuses.contains(&LayerStatus::Ready { items: 1000 }), "{statuses:?}");
     let centres: Vec<Vec3> =
-        world.query::<(&TensorSample, &GlobalTransform)>().iter(world).map(|(_, t)| t.translation()).collect();
+        world.query::<&TensorGlyphSet>().iter(world).flat_map(|set| set.samples.iter().map(|s| s.centre)).collect();
     assert!(centres.len() >= 10, "{} glyphs", centres.len());
     let (camera, at) = world.query::<(&Camera, &GlobalTransform)>().single(world).unwrap();
     let (camera, at) = (camera.clone(), *at);

@@ -15,7 +15,7 @@
 // Normal: grad F = u - s'(psi) (I - u u^T) grad g / r (analytic). Headlight shading, true fragment depth.
 // Keep `GlyphParams` in sync with `ShGlyphUniform` in `plugins/sh_glyphs/src/lib.rs`.
 
-#import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex_scaled}
+#import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_glyph, proxy_vertex}
 #import bevy_pbr::mesh_view_bindings::view
 #import fascicle::ray::{Ray, view_ray, depth_of, sphere_interval}
 #import fascicle::lighting::headlight
@@ -198,7 +198,10 @@ fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
     let modes = params.l_max | (params.lobes << 8u) | (params.colour_mode << 16u) | (params.method << 24u);
     // The last knob: the linear search's step count or the exact method's samples.
     let steps = select(params.max_steps, params.samples, params.method == 1u);
-    return proxy_vertex_scaled(v, vec4<u32>(modes, params.stride, params.refine, steps), params.size);
+    // The glyph's box, scaled about its centre by the layer's size factor.
+    let i = proxy_glyph(v);
+    let half = glyphs[3u * i + 2u].xyz * params.size;
+    return proxy_vertex(v, glyphs[3u * i].xyz, half, vec4<u32>(modes, params.stride, params.refine, steps));
 }
 
 struct Knobs {

@@ -3,7 +3,7 @@
 // cube proxy per glyph. The f64 twin is `fascicle_core::dti::glyph`; keep `TensorParams` in sync with
 // `TensorGlyphUniform` in `plugins/tensors/src/lib.rs`.
 
-#import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_vertex}
+#import fascicle::proxy::{ProxyVertex, ProxyVertexOutput, proxy_glyph, proxy_vertex}
 #import bevy_pbr::mesh_view_bindings::view
 #import fascicle::ray::{Ray, view_ray, depth_of, sphere_interval}
 #import fascicle::lighting::headlight
@@ -29,7 +29,9 @@ struct TensorParams {
 @vertex
 fn vertex(v: ProxyVertex) -> ProxyVertexOutput {
     // Loop counts and modes reach the fragment stage flat (the rule in `fascicle::ray`).
-    return proxy_vertex(v, vec4<u32>(params.shape, params.colour_mode, params.refine, params.max_steps));
+    // The glyph's cube: its centre plus or minus its bound.
+    let a0 = glyphs[5u * proxy_glyph(v)];
+    return proxy_vertex(v, a0.xyz, vec3<f32>(a0.w), vec4<u32>(params.shape, params.colour_mode, params.refine, params.max_steps));
 }
 
 struct FragmentOutput {
