@@ -145,6 +145,11 @@ pub struct BudgetState {
     /// When the view last moved (the wall clock at that frame's update: under pipelined rendering Bevy's
     /// real time is the render world's, a frame late).
     pub last_moved: Option<std::time::Instant>,
+    /// What a window frame that draws no scene costs (a retained picture put back: the panel, the overlays, the
+    /// passes over the whole target and the present), measured, a running mean: the part of every frame render
+    /// scale does not lower. [`next_scale`] and [`start_scale`] take it out before they scale the rest with
+    /// the pixels. Zero until such a frame is measured (an app without a retained picture has none).
+    pub fixed: Duration,
     /// Render scale alone cannot hold the budget: the view is moving and a frame drawn at the smallest scale
     /// was over budget (measured), so layers also lower what pixels do not pay for (hyperstreamline, line
     /// and glyph previews: [`CoarseMesh`]; the volume's step) until the view is still. An interaction that starts
@@ -160,6 +165,7 @@ impl Default for BudgetState {
             scale: 1.0,
             moving: false,
             last_frame: None,
+            fixed: Duration::ZERO,
             budget: FrameBudget::default().software,
             last_moved: None,
             coarse: false,
@@ -228,16 +234,17 @@ pub fn coarse_meshes(state: Res<BudgetState>, mut meshes: Query<(&CoarseMesh, &m
     }
 }
 
-/// The next scale of a viewport's side after a moving frame of `frame` at `scale` against `budget`: the
-/// main pass's cost taken as proportional to its pixels; lowered when over budget (the side at most 4x less),
-/// raised when under 60 % of it (at most 1.25x); in steps of 1/16 between `min` and 1.
-pub fn next_scale(scale: f32, frame: Duration, budget: Duration, min: f32) -> f32 {
+/// The next scale of a viewport's side after a moving frame of `frame` at `scale` against `budget`, of which
+/// `fixed` is what scale does not lower ([`BudgetState::fixed`]): the rest taken as proportional to the pixels;
+/// lowered when over budget (the side at most 4x less), raised when under 60 % of it (at most 1.25x); in steps
+/// of 1/16 between `min` and 1.
+pub fn next_scale(scale: f32, frame: Duration, (budget, fixed): (Duration, Duration), min: f32) -> f32 {
     let t = frame.as_secs_f32().max(1e-6);
     let b = budget.as_secs_f32();
     let factor = if t > b {
-        (b / t).sqrt().max(0.25)
+        (pixel_share(b, t, fixed)).sqrt().max(0.25)
     } else if t < 0.6 * b {
-        (b / t).sqrt().min(1.25)
+        (pixel_share(b, t, fixed)).sqrt().min(1.25)
     } else {
         1.0
     };
@@ -245,6 +252,13 @@ pub fn next_scale(scale: f32, frame: Duration, budget: Duration, min: f32) -> f3
     // Raising goes up a whole step at least (1.25x of a small scale is less than a step).
     let next = if factor > 1.0 { next.max(scale + 1.0 / 16.0) } else { next };
     next.clamp(min.min(1.0), 1.0)
+}
+
+/// How many times the pixels of a frame of `t` seconds may grow to cost a frame of `b`, when `fixed` of every
+/// frame does not depend on them (counted as at most 90 % of `t`); 0 when `fixed` alone is over `b`.
+fn pixel_share(b: f32, t: f32, fixed: Duration) -> f32 {
+    let f = fixed.as_secs_f32().min(0.9 * t);
+    (b - f).max(0.0) / (t - f).max(1e-6)
 }
 
 #[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters")]
@@ -279,7 +293,14 @@ fn hold_budget(
     #[cfg(not(feature = "winit"))]
     let (back_to_back, settling) = (true, false);
     // A frame that put a retained picture back drew no scene: its time says nothing of the scene's cost.
-    let drew_scene = retained.is_none_or(|r| !r.any(2));
+    let drew_scene = retained.as_ref().is_none_or(|r| !r.any(2));
+    // Frames that put it back, one after the other, measure what render scale cannot lower.
+    if back_to_back
+        && retained.is_some_and(|r| r.all_of_last(2))
+        && let Some(frame) = since_last
+    {
+        state.fixed = if state.fixed.is_zero() { frame } else { state.fixed.mul_f32(0.75) + frame.mul_f32(0.25) };
+    }
     if back_to_back
         && drew_scene
         && let Some(frame) = since_last.filter(|t| *t > Duration::ZERO)
@@ -295,7 +316,7 @@ fn hold_budget(
             // Between interactions the most expensive frame decides where the next one starts: a refining
             // frame of a minute is followed by cheap ones (a pointer crossing the view, a pipeline compiling)
             // that say nothing of what moving the view will cost.
-            let side = |(t, s): (Duration, f32)| affordable_side(s, t, state.budget);
+            let side = |(t, s): (Duration, f32)| affordable_side(s, t, state.budget, state.fixed);
             let worst = chosen.2.filter(|w| side(*w) <= side(measured)).unwrap_or(measured);
             chosen.2 = Some(worst);
             worst
@@ -324,13 +345,13 @@ fn hold_budget(
     let min = budget.min_scale;
     state.scale = match (budget.enabled, state.moving, state.last_frame) {
         (true, true, Some((frame, drawn))) if was_moving && back_to_back => {
-            next_scale(state.scale.min(drawn), frame, state.budget, min)
+            next_scale(state.scale.min(drawn), frame, (state.budget, state.fixed), min)
         }
         // An interaction starts at the scale the last measured frame affords, with no limit on the step, but
         // not above the scale the last interaction ended at (frames between interactions may put a retained
         // picture back, or draw while pipelines compile: cheap frames that say little of the scene's cost).
         (true, true, Some((frame, drawn))) if !was_moving => {
-            start_scale(drawn, frame, state.budget, min).min(chosen.1.map_or(1.0, |e| e.0))
+            start_scale(drawn, frame, (state.budget, state.fixed), min).min(chosen.1.map_or(1.0, |e| e.0))
         }
         (true, true, _) => state.scale,
         _ => 1.0,
@@ -344,7 +365,8 @@ fn hold_budget(
         // measured frame affords under a quarter of the side (`start_scale`: there the pixels no longer pay
         // for most of a frame).
         (true, Some((frame, drawn)), _) if !was_moving => {
-            state.scale <= min && (chosen.1.is_some_and(|e| e.1) || affordable_side(drawn, frame, state.budget) < 0.25)
+            let side = affordable_side(drawn, frame, state.budget, state.fixed);
+            state.scale <= min && (chosen.1.is_some_and(|e| e.1) || side < 0.25)
         }
         (true, None, _) if !was_moving => false,
         (true, ..) => state.coarse,
@@ -376,21 +398,21 @@ impl Default for Chosen {
 }
 
 /// The scale an interaction starts at, after a frame of `frame` drawn at `drawn`: the side that frame's
-/// pixels would have needed to meet `budget`, in steps of 1/16 between `min` and 1; `min` when that side is under
-/// a quarter. Below a quarter of the side most of a frame's cost is what the pixels do not pay for (passes over
+/// pixels would have needed to meet `budget` beside the `fixed` part ([`BudgetState::fixed`]), in steps of 1/16
+/// between `min` and 1; `min` when that side is under a quarter. Below a quarter of the side most of a frame's cost is what the pixels do not pay for (passes over
 /// the whole target, geometry, the app's own work), so the pixel count promises more than it saves: on lavapipe the
 /// default scene's first orbit frame at 3/16 took 214-368 ms against 90-120 ms at 1/8. The budget raises the
 /// scale from there while frames stay well under it.
-pub fn start_scale(drawn: f32, frame: Duration, budget: Duration, min: f32) -> f32 {
-    let s = affordable_side(drawn, frame, budget);
+pub fn start_scale(drawn: f32, frame: Duration, (budget, fixed): (Duration, Duration), min: f32) -> f32 {
+    let s = affordable_side(drawn, frame, budget, fixed);
     let s = if s < 0.25 { min } else { s };
     ((s * 16.0).floor() / 16.0).clamp(min.min(1.0), 1.0)
 }
 
 /// The side (a scale) whose pixels would have met `budget`, by a frame of `frame` drawn at `drawn`, the cost
-/// taken as proportional to the pixels.
-fn affordable_side(drawn: f32, frame: Duration, budget: Duration) -> f32 {
-    drawn * (budget.as_secs_f32() / frame.as_secs_f32().max(1e-6)).sqrt()
+/// but `fixed` taken as proportional to the pixels.
+fn affordable_side(drawn: f32, frame: Duration, budget: Duration, fixed: Duration) -> f32 {
+    drawn * pixel_share(budget.as_secs_f32(), frame.as_secs_f32().max(1e-6), fixed).sqrt()
 }
 
 /// On a camera in the render world: its main pass draws at a lower scale and is stretched back.
@@ -481,26 +503,45 @@ mod tests {
     fn the_scale_follows_the_measured_frame_time() {
         let ms = Duration::from_millis;
         // 4x over budget: pixels must drop 4x, the side 2x.
-        assert_eq!(next_scale(1.0, ms(400), ms(100), 0.25), 0.5);
+        assert_eq!(next_scale(1.0, ms(400), (ms(100), ms(0)), 0.25), 0.5);
         // Far over: the side at most 4x less a frame, never under the minimum.
-        assert_eq!(next_scale(1.0, ms(5000), ms(100), 0.1), 0.25);
-        assert_eq!(next_scale(0.25, ms(5000), ms(100), 0.25), 0.25);
+        assert_eq!(next_scale(1.0, ms(5000), (ms(100), ms(0)), 0.1), 0.25);
+        assert_eq!(next_scale(0.25, ms(5000), (ms(100), ms(0)), 0.25), 0.25);
         // Within 60-100 % of the budget: kept.
-        assert_eq!(next_scale(0.5, ms(80), ms(100), 0.25), 0.5);
+        assert_eq!(next_scale(0.5, ms(80), (ms(100), ms(0)), 0.25), 0.5);
         // Well under: raised, at most 1.25x, never over 1.
-        assert_eq!(next_scale(0.5, ms(10), ms(100), 0.25), 0.625);
-        assert_eq!(next_scale(0.9375, ms(10), ms(100), 0.25), 1.0);
+        assert_eq!(next_scale(0.5, ms(10), (ms(100), ms(0)), 0.25), 0.625);
+        assert_eq!(next_scale(0.9375, ms(10), (ms(100), ms(0)), 0.25), 1.0);
         // From a small scale, a step at least.
-        assert_eq!(next_scale(0.125, ms(10), ms(100), 0.125), 0.1875);
+        assert_eq!(next_scale(0.125, ms(10), (ms(100), ms(0)), 0.125), 0.1875);
         // Slightly over: lowered by at least a step.
-        assert!(next_scale(0.5, ms(110), ms(100), 0.25) < 0.5);
+        assert!(next_scale(0.5, ms(110), (ms(100), ms(0)), 0.25) < 0.5);
         // An interaction starts where the last frame says the budget is met, up or down.
-        assert_eq!(start_scale(1.0, ms(1600), ms(100), 0.1), 0.25);
-        assert_eq!(start_scale(0.25, ms(10), ms(100), 0.1), 0.75);
-        assert_eq!(start_scale(1.0, ms(10), ms(100), 0.1), 1.0);
+        assert_eq!(start_scale(1.0, ms(1600), (ms(100), ms(0)), 0.1), 0.25);
+        assert_eq!(start_scale(0.25, ms(10), (ms(100), ms(0)), 0.1), 0.75);
+        assert_eq!(start_scale(1.0, ms(10), (ms(100), ms(0)), 0.1), 1.0);
         // Under a quarter of the side, the smallest scale (a 2.5 s frame: 0.2 by its pixels).
-        assert_eq!(start_scale(1.0, ms(2500), ms(100), 0.125), 0.125);
-        assert_eq!(start_scale(0.5, ms(1000), ms(100), 0.125), 0.125);
+        assert_eq!(start_scale(1.0, ms(2500), (ms(100), ms(0)), 0.125), 0.125);
+        assert_eq!(start_scale(0.5, ms(1000), (ms(100), ms(0)), 0.125), 0.125);
+    }
+
+    /// What render scale does not lower (a window frame that draws no scene) is taken out before the rest is
+    /// scaled with the pixels: the default scene's refine of 1.1 s at full scale with 50 ms of window work
+    /// affords a side of 0.22 (the smallest scale), not the 0.30 its pixel count alone promises.
+    #[test]
+    fn the_fixed_part_of_a_frame_is_not_scaled() {
+        let ms = Duration::from_millis;
+        assert_eq!(start_scale(1.0, ms(1100), (ms(100), ms(0)), 0.125), 0.25);
+        assert_eq!(start_scale(1.0, ms(1100), (ms(100), ms(50)), 0.125), 0.125);
+        assert!((affordable_side(1.0, ms(1100), ms(100), ms(50)) - (50.0f32 / 1050.0).sqrt()).abs() < 1e-4);
+        // 160 ms at half scale, 60 of it fixed: the pixels may take 40 of the 100, so the side goes to
+        // 0.5 * sqrt(40 / 100) = 0.316 (0.3125 in steps), not 0.5 * sqrt(100 / 160) = 0.395 (0.375).
+        assert_eq!(next_scale(0.5, ms(160), (ms(100), ms(60)), 0.125), 0.3125);
+        assert_eq!(next_scale(0.5, ms(160), (ms(100), ms(0)), 0.125), 0.375);
+        // The fixed part alone over budget: the side drops as far as a step allows.
+        assert_eq!(next_scale(0.5, ms(200), (ms(100), ms(150)), 0.125), 0.125);
+        // Under budget with most of it fixed: raised by the most a step allows (1.25x).
+        assert_eq!(next_scale(0.5, ms(55), (ms(100), ms(50)), 0.125), 0.625);
     }
 
     #[test]
