@@ -742,95 +742,102 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     )
     .add_plugins(EguiPlugin::default())
     .add_plugins((FascicleRenderPlugin, ScenePlugin, HandlesPlugin, DrawOnDemandPlugin, FrameBudgetPlugin))
-    .add_plugins(RetainedPicturePlugin)
-    .init_gizmo_group::<ViewGizmos>()
-    .add_systems(PostUpdate, egui_images_outside_picture)
-    // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
-    .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
-    // While the view moves the 3D view draws at the scale the frame budget affords (not with `--screenshot`).
-    .insert_resource(frame_budget(draw_on_demand))
-    // Line previews while the view moves or a tractogram streams in (not with `--screenshot`, whose frame count
-    // stands for a settled scene).
-    .insert_resource(fascicle_tracts::TractDetail { enabled: draw_on_demand, ..default() })
-    .add_systems(Last, keep_awake_while_working.before(ScheduleNextFrame))
-    .add_systems(Last, log_frame.after(ScheduleNextFrame).run_if(resource_exists::<FrameLog>))
-    .add_systems(
-        PreUpdate,
-        drop_repeated_modifier_events
-            .after(bevy_egui::EguiPreUpdateSet::ProcessInput)
-            .before(bevy_egui::EguiPreUpdateSet::BeginPass),
-    )
-    .insert_resource(ActiveScene(scene))
-    .init_resource::<LayerPanels>()
-    .init_resource::<FileDialog>()
-    .init_resource::<SceneHistory>()
-    .init_resource::<ViewPointer>()
-    .insert_resource(RecentFiles::for_user())
-    .insert_resource(orbit)
-    .insert_resource(UiState {
-        message: (!errors.is_empty()).then(|| errors.join("\n")),
-        scene_path: "scene.ron".into(),
-        selection_path: "selection.trk".into(),
-        ..default()
-    })
-    .add_systems(
-        Startup,
-        |mut commands: Commands,
-         mut egui_settings: ResMut<EguiGlobalSettings>,
-         mut gizmo_config: ResMut<GizmoConfigStore>| {
-            // The brush's gizmos show in the 2D views, over the images.
-            let (config, _) = gizmo_config.config_mut::<ViewGizmos>();
-            config.render_layers = RenderLayers::from_layers(&fascicle_views::VIEW_LAYERS);
-            config.depth_bias = -1.0;
-            // A pointer move that changes nothing puts the last picture back (fascicle_render::retain).
-            commands.spawn((view_camera(), Transform::default(), RenderScale::default(), RetainPicture));
-            // egui gets its own camera drawn over the 3D view, so the 3D camera can take a viewport.
-            egui_settings.auto_create_primary_context = false;
-            commands.spawn((
-                PrimaryEguiContext,
-                Camera2d,
-                // egui draws into the camera's unsampled texture: a multisampled one would only be cleared and
-                // resolved over the whole window every frame (lavapipe: about 13 ms a frame of the empty scene).
-                Msaa::Off,
-                RenderLayers::none(),
-                Camera {
-                    // Over the 3D view, the 2D views and the colour bars' overlay (order 1).
-                    order: 2,
-                    output_mode: CameraOutputMode::Write {
-                        blend_state: Some(BlendState::ALPHA_BLENDING),
-                        clear_color: ClearColorConfig::None,
+    .add_plugins(RetainedPicturePlugin);
+    // Diagnostics: every pass's CPU and GPU time (timestamp queries), logged each second.
+    if std::env::var_os("FASCICLE_PASS_TIMES").is_some() {
+        app.add_plugins((
+            bevy::render::diagnostic::RenderDiagnosticsPlugin,
+            bevy::diagnostic::LogDiagnosticsPlugin::default(),
+        ));
+    }
+    app.init_gizmo_group::<ViewGizmos>()
+        .add_systems(PostUpdate, egui_images_outside_picture)
+        // A window redraws when something changed (`--screenshot` counts frames, so it draws every frame).
+        .insert_resource(DrawOnDemand { enabled: draw_on_demand, ..default() })
+        // While the view moves the 3D view draws at the scale the frame budget affords (not with `--screenshot`).
+        .insert_resource(frame_budget(draw_on_demand))
+        // Line previews while the view moves or a tractogram streams in (not with `--screenshot`, whose frame count
+        // stands for a settled scene).
+        .insert_resource(fascicle_tracts::TractDetail { enabled: draw_on_demand, ..default() })
+        .add_systems(Last, keep_awake_while_working.before(ScheduleNextFrame))
+        .add_systems(Last, log_frame.after(ScheduleNextFrame).run_if(resource_exists::<FrameLog>))
+        .add_systems(
+            PreUpdate,
+            drop_repeated_modifier_events
+                .after(bevy_egui::EguiPreUpdateSet::ProcessInput)
+                .before(bevy_egui::EguiPreUpdateSet::BeginPass),
+        )
+        .insert_resource(ActiveScene(scene))
+        .init_resource::<LayerPanels>()
+        .init_resource::<FileDialog>()
+        .init_resource::<SceneHistory>()
+        .init_resource::<ViewPointer>()
+        .insert_resource(RecentFiles::for_user())
+        .insert_resource(orbit)
+        .insert_resource(UiState {
+            message: (!errors.is_empty()).then(|| errors.join("\n")),
+            scene_path: "scene.ron".into(),
+            selection_path: "selection.trk".into(),
+            ..default()
+        })
+        .add_systems(
+            Startup,
+            |mut commands: Commands,
+             mut egui_settings: ResMut<EguiGlobalSettings>,
+             mut gizmo_config: ResMut<GizmoConfigStore>| {
+                // The brush's gizmos show in the 2D views, over the images.
+                let (config, _) = gizmo_config.config_mut::<ViewGizmos>();
+                config.render_layers = RenderLayers::from_layers(&fascicle_views::VIEW_LAYERS);
+                config.depth_bias = -1.0;
+                // A pointer move that changes nothing puts the last picture back (fascicle_render::retain).
+                commands.spawn((view_camera(), Transform::default(), RenderScale::default(), RetainPicture));
+                // egui gets its own camera drawn over the 3D view, so the 3D camera can take a viewport.
+                egui_settings.auto_create_primary_context = false;
+                commands.spawn((
+                    PrimaryEguiContext,
+                    Camera2d,
+                    // egui draws into the camera's unsampled texture: a multisampled one would only be cleared and
+                    // resolved over the whole window every frame (lavapipe: about 13 ms a frame of the empty scene).
+                    Msaa::Off,
+                    RenderLayers::none(),
+                    Camera {
+                        // Over the 3D view, the 2D views and the colour bars' overlay (order 1).
+                        order: 2,
+                        output_mode: CameraOutputMode::Write {
+                            blend_state: Some(BlendState::ALPHA_BLENDING),
+                            clear_color: ClearColorConfig::None,
+                        },
+                        clear_color: ClearColorConfig::Custom(Color::NONE),
+                        ..default()
                     },
-                    clear_color: ClearColorConfig::Custom(Color::NONE),
-                    ..default()
-                },
-            ));
-        },
-    )
-    .add_systems(
-        Update,
-        (
-            view_input.run_if(not(egui_wants_any_pointer_input)),
-            orbit_input.after(HandleSystems).run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
-            pick_glyph.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
-            pick_streamlines.after(view_input).run_if(not(egui_wants_any_pointer_input)),
-            draw_picked,
-            paint_roi.after(view_input).run_if(not(egui_wants_any_pointer_input)),
-            save_painted_masks,
-            draw_painted,
-            keys.run_if(not(egui_wants_any_keyboard_input)),
-            dropped_files,
-            file_dialog,
-            save_selection,
-            undo_keys.run_if(not(egui_wants_any_keyboard_input)),
-            apply_orbit.run_if(resource_changed::<Orbit>),
-        ),
-    )
-    // Handles are dragged only when the pointer is over the 3D view and not on the panel.
-    .configure_sets(Update, HandleSystems.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view))
-    // Undo applies before the layers sync, so the scene it restores shows in the same frame.
-    .add_systems(Update, scene_history.before(fascicle_scene::layers::SceneSystems::Sync))
-    .add_systems(EguiPrimaryContextPass, panel)
-    .run()
+                ));
+            },
+        )
+        .add_systems(
+            Update,
+            (
+                view_input.run_if(not(egui_wants_any_pointer_input)),
+                orbit_input.after(HandleSystems).run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
+                pick_glyph.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view),
+                pick_streamlines.after(view_input).run_if(not(egui_wants_any_pointer_input)),
+                draw_picked,
+                paint_roi.after(view_input).run_if(not(egui_wants_any_pointer_input)),
+                save_painted_masks,
+                draw_painted,
+                keys.run_if(not(egui_wants_any_keyboard_input)),
+                dropped_files,
+                file_dialog,
+                save_selection,
+                undo_keys.run_if(not(egui_wants_any_keyboard_input)),
+                apply_orbit.run_if(resource_changed::<Orbit>),
+            ),
+        )
+        // Handles are dragged only when the pointer is over the 3D view and not on the panel.
+        .configure_sets(Update, HandleSystems.run_if(not(egui_wants_any_pointer_input)).run_if(pointer_in_3d_view))
+        // Undo applies before the layers sync, so the scene it restores shows in the same frame.
+        .add_systems(Update, scene_history.before(fascicle_scene::layers::SceneSystems::Sync))
+        .add_systems(EguiPrimaryContextPass, panel)
+        .run()
 }
 
 fn orbit_input(

@@ -770,7 +770,8 @@ fn track_density_slices_render() {
 /// Tracking streams into its layer: the layer shows its first streamlines while the job still runs (one
 /// part per frame), and in the end its parts hold every streamline the job tracked, in as many tract sets as
 /// parts were shown. The layer's include ROI (a child of the layer) selects in every part what it selects in
-/// the whole tractogram.
+/// the whole tractogram. With a frame budget, the frames that take parts count as the scene changing (moving),
+/// and the view is still once they stop.
 #[test]
 fn tracking_streams_into_its_layer() {
     use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
@@ -805,13 +806,21 @@ fn tracking_streams_into_its_layer() {
     };
     let mut app = headless::headless_app();
     let empty = Scene { layers: vec![], camera: CameraSpec::default(), views: Default::default() };
-    app.add_plugins((FascicleRenderPlugin, ScenePlugin)).insert_resource(ActiveScene(empty));
+    // With a frame budget: frames that take parts count as an interaction (drawn at the budget's scale).
+    app.add_plugins((FascicleRenderPlugin, ScenePlugin, fascicle_render::budget::FrameBudgetPlugin))
+        .insert_resource(ActiveScene(empty));
     headless::initialise(&mut app).unwrap_or_else(|e| panic!("{e}"));
     let parts0 = app.world().resource::<LayerSyncCounts>().parts;
     app.world_mut().resource_mut::<ActiveScene>().0.layers.push(layer);
-    let mut shown_while_running = 0;
+    let (mut shown_while_running, mut moving_as_parts_arrive) = (0, 0);
     for _ in 0..100_000 {
+        let parts_before = app.world().resource::<LayerSyncCounts>().parts;
         app.update();
+        app.update();
+        let arrived = app.world().resource::<LayerSyncCounts>().parts != parts_before;
+        if arrived && app.world().resource::<fascicle_render::budget::BudgetState>().moving {
+            moving_as_parts_arrive += 1;
+        }
         let world = app.world_mut();
         let running = world.query::<&LayerJob>().iter(world).next().is_some();
         let sets = world.query::<&TractSet>().iter(world).count();
@@ -826,6 +835,11 @@ fn tracking_streams_into_its_layer() {
     settle(&mut app);
     assert!(app.world().resource::<LayerErrors>().0.is_empty(), "{:?}", app.world().resource::<LayerErrors>().0);
     assert!(shown_while_running > 0, "no streamlines showed before the job ended");
+    assert!(moving_as_parts_arrive > 0, "parts arrived and the budget never counted the scene as changing");
+    app.world_mut().resource_mut::<fascicle_render::budget::FrameBudget>().refine_after = std::time::Duration::ZERO;
+    app.update();
+    app.update();
+    assert!(!app.world().resource::<fascicle_render::budget::BudgetState>().moving, "still once the parts stop");
 
     let whole = tract_data(app.world().resource::<DataCache>(), &source, &JobProgress::default()).unwrap().tractogram;
     let mut q = app.world_mut().query::<(&TractSet, &TractSelection, &LayerEntity)>();

@@ -426,13 +426,17 @@ fn expected_line_segments(kind: &LayerKind) -> Option<usize> {
 /// (at least one part). Parts arrive as fast as the job builds them, so a quick frame uploads about one; a slow
 /// frame (a dense scene on a software rasteriser) takes all that arrived while it drew, and a file loads in a
 /// few frames, not one frame per part with every frame drawing all so far. The first part of a job replaces
-/// the layer's old content.
+/// the layer's old content. With a frame budget, a frame that takes a part counts as an interaction (the scene
+/// changed): while parts arrive the 3D view draws at the scale the budget affords, and the full-quality frame
+/// comes once they stop, not once per part (30 s a part for the large bench scene on lavapipe).
 fn stream_parts(
     mut commands: Commands,
     mut layers: Query<(Entity, &LayerEntity, &SceneLayer, &mut LayerJob)>,
     mut counts: ResMut<LayerSyncCounts>,
     mut upload: Uploads,
+    interacting: Option<ResMut<fascicle_render::budget::Interacting>>,
 ) {
+    let before = counts.parts;
     for (e, le, layer, mut job) in &mut layers {
         if job.progress.is_cancelled() {
             continue;
@@ -453,6 +457,11 @@ fn stream_parts(
                 break;
             }
         }
+    }
+    if counts.parts != before
+        && let Some(mut interacting) = interacting
+    {
+        interacting.mark();
     }
 }
 
