@@ -51,6 +51,36 @@ impl SphereImpostorMaterial {
     }
 }
 
+/// Spawns the child of `parent` that draws a glyph set of `material`: one mesh of a proxy box per glyph
+/// ([`crate::meshes::slot_boxes`], placed by the vertex stage `fascicle::proxy`), with `marker`, no frustum
+/// culling (the boxes are placed on the GPU), and, for a set of over [`crate::meshes::GLYPH_PREVIEW_MIN`]
+/// glyphs, a [`crate::budget::CoarseMesh`] of every other cell of `centres` (the glyphs' centres, in buffer
+/// order) drawn while the frame budget is coarse. Nothing for an empty set.
+pub fn spawn_glyph_proxies<M: Material>(
+    commands: &mut Commands,
+    parent: Entity,
+    meshes: &mut Assets<Mesh>,
+    material: &Handle<M>,
+    centres: &[Vec3],
+    marker: impl Component,
+) {
+    if centres.is_empty() {
+        return;
+    }
+    let full = meshes.add(crate::meshes::slot_boxes(centres.len()));
+    let mut drawn = commands.spawn((
+        marker,
+        Mesh3d(full.clone()),
+        MeshMaterial3d(material.clone()),
+        bevy::camera::visibility::NoFrustumCulling,
+        ChildOf(parent),
+    ));
+    if let Some(slots) = crate::meshes::every_other_cell(centres) {
+        let preview = meshes.add(crate::meshes::slot_boxes_of(&slots));
+        drawn.insert(crate::budget::CoarseMesh { full, preview });
+    }
+}
+
 /// Implements `Material` for a proxy-glyph material (SH glyphs, tensor glyphs) whose vertex and fragment stages
 /// are both in `$shader`, a `ShaderRef` expression: a set's proxy boxes are one mesh (`meshes::slot_boxes`)
 /// placed by the vertex stage (`fascicle::proxy`); no prepass and no shadows (the reason is in this module's

@@ -9,7 +9,6 @@
 #![warn(missing_docs)]
 
 use bevy::asset::RenderAssetUsages;
-use bevy::camera::visibility::NoFrustumCulling;
 use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, ShaderType};
 use bevy::render::storage::ShaderBuffer;
@@ -311,22 +310,8 @@ pub(crate) fn fill_tensor_glyphs(
         params: settings.into(),
         glyphs: buffers.add(ShaderBuffer::new(&bytes, RenderAssetUsages::RENDER_WORLD)),
     });
-    if !glyphs.is_empty() {
-        let full = meshes.add(fascicle_render::meshes::slot_boxes(glyphs.len()));
-        let mut drawn = commands.spawn((
-            TensorGlyphProxies,
-            Mesh3d(full.clone()),
-            MeshMaterial3d(material.clone()),
-            NoFrustumCulling,
-            ChildOf(parent),
-        ));
-        // A large set draws every other cell while the frame budget is coarse.
-        let centres: Vec<Vec3> = glyphs.iter().map(|g| g.centre.as_vec3()).collect();
-        if let Some(slots) = fascicle_render::meshes::every_other_cell(&centres) {
-            let preview = meshes.add(fascicle_render::meshes::slot_boxes_of(&slots));
-            drawn.insert(fascicle_render::budget::CoarseMesh { full, preview });
-        }
-    }
+    let centres: Vec<Vec3> = glyphs.iter().map(|g| g.centre.as_vec3()).collect();
+    fascicle_render::impostor::spawn_glyph_proxies(commands, parent, meshes, &material, &centres, TensorGlyphProxies);
     let samples = glyphs
         .iter()
         .enumerate()
