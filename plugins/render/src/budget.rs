@@ -9,8 +9,10 @@
 //!   ([`Interacting::hold`]) keeps the view moving but asks for no frame.
 //! - **Measured**: a frame's time is the wall time between its update and the one before, counted only when
 //!   that one asked for the next at once (in a window drawn on demand, [`crate::on_demand::NextFrame::Now`]; the
-//!   first frame after an idle wait measures the wait). The main pass's cost is taken as proportional to its pixels, so a
-//!   frame `t` over budget `b` scales the side by `sqrt(b / t)` (at most 4x less a frame), and a frame under
+//!   first frame after an idle wait measures the wait). Beside the part of a frame scale does not lower
+//!   ([`BudgetState::fixed`], measured on frames that draw no scene), the cost is taken as proportional to the
+//!   pixels, so a frame `t` over budget `b` scales the side by `sqrt((b - f) / (t - f))` (at most 4x less a
+//!   frame), and a frame under
 //!   60 % of the budget raises it (at most 1.25x), in steps of 1/16. An interaction starts at the scale the
 //!   most expensive frame measured since the last interaction affords (a still scene's refining and settling
 //!   frames are measured too), and not above the scale the last interaction ended at, so its first frame is
@@ -241,10 +243,11 @@ pub fn coarse_meshes(state: Res<BudgetState>, mut meshes: Query<(&CoarseMesh, &m
 pub fn next_scale(scale: f32, frame: Duration, (budget, fixed): (Duration, Duration), min: f32) -> f32 {
     let t = frame.as_secs_f32().max(1e-6);
     let b = budget.as_secs_f32();
+    let affordable = pixel_share(b, t, fixed).sqrt();
     let factor = if t > b {
-        (pixel_share(b, t, fixed)).sqrt().max(0.25)
+        affordable.max(0.25)
     } else if t < 0.6 * b {
-        (pixel_share(b, t, fixed)).sqrt().min(1.25)
+        affordable.min(1.25)
     } else {
         1.0
     };

@@ -36,6 +36,7 @@ pub mod placed;
 pub mod shaders;
 
 pub use fascicle_render::layer::LayerStatus;
+use fascicle_render::meshes::{slot_boxes, slot_boxes_of};
 pub use layer::{TractCounts, TractStyle, TractSystems, TractogramAsset, TractogramLoader, Tracts};
 pub use placed::{PlacedTractStyle, PlacedTracts};
 
@@ -109,7 +110,7 @@ impl From<&TubeSettings> for TubeUniform {
     }
 }
 
-/// Drawing material of a hyperstreamline set ([`TubeSet`], `shaders/tubelet.wgsl`): on the [`boxes`] proxy
+/// Drawing material of a hyperstreamline set ([`TubeSet`], `shaders/tubelet.wgsl`): on the [`slot_boxes`] proxy
 /// mesh, each tubelet ray cast per pixel, writing its true depth.
 #[derive(Asset, TypePath, AsBindGroup, Debug, Clone)]
 pub struct TubeletMaterial {
@@ -285,7 +286,7 @@ pub struct TubeSet {
     pub material: Handle<TubeletMaterial>,
     /// How many tubelets the set draws (0: the entity has no mesh and draws nothing).
     pub n_tubelets: usize,
-    /// The proxy boxes of every selected tubelet ([`boxes_of`]; all of them until a selection hides some); the
+    /// The proxy boxes of every selected tubelet ([`slot_boxes_of`]: 8 vertices (slot, corner, 0) a tubelet; all of them until a selection hides some); the
     /// entity's [`Mesh3d`] holds it unless it draws the preview.
     pub full: Handle<Mesh>,
     /// The proxy boxes of every [`TUBE_PREVIEW_STRIDE`]-th streamline's selected tubelets (sets of more than
@@ -855,17 +856,6 @@ pub fn pack(tubes: &[Tubelet]) -> Vec<u8> {
     out
 }
 
-/// 8 vertices (slot, corner, 0) and 12 outward counter-clockwise triangles per tubelet
-/// ([`fascicle_render::meshes::slot_boxes`]).
-pub fn boxes(n: usize) -> Mesh {
-    fascicle_render::meshes::slot_boxes(n)
-}
-
-/// The proxy boxes of the tubelets in `slots` (their indices in the set's buffer), as [`boxes`] lays them out.
-pub fn boxes_of(slots: &[u32]) -> Mesh {
-    fascicle_render::meshes::slot_boxes_of(slots)
-}
-
 /// Tubelets a hyperstreamline set may hold before it gets a preview: 4,000.
 pub const TUBE_PREVIEW_MAX: usize = 4_000;
 
@@ -928,7 +918,7 @@ pub enum PreparedGeometry {
         n_tubelets: usize,
         /// The settings the tubelets were made with.
         settings: TubeSettings,
-        /// The proxy mesh ([`boxes`]): 8 vertices (slot, corner, 0) and 12 triangles per tubelet.
+        /// The proxy mesh ([`slot_boxes`]): 8 vertices (slot, corner, 0) and 12 triangles per tubelet.
         boxes: Box<Mesh>,
         /// The preview's proxy mesh ([`tube_preview`]; sets of more than [`TUBE_PREVIEW_MAX`] tubelets).
         preview: Option<Box<Mesh>>,
@@ -992,8 +982,8 @@ impl PreparedTracts {
             packed: pack(&tubes),
             n_tubelets: tubes.len(),
             settings: *settings,
-            boxes: Box::new(boxes(tubes.len())),
-            preview: tube_preview(&tubes).map(|slots| Box::new(boxes_of(&slots))),
+            boxes: Box::new(slot_boxes(tubes.len())),
+            preview: tube_preview(&tubes).map(|slots| Box::new(slot_boxes_of(&slots))),
         };
         PreparedTracts::with(tractogram, geometry)
     }
@@ -1193,8 +1183,8 @@ pub fn spawn_tubes(
 ) -> Entity {
     let tubes = tract_tubelets(&tractogram, tensors, settings);
     let target = tract_set(buffers, tractogram, LazyIndex::default(), 0);
-    let preview = tube_preview(&tubes).map(|slots| boxes_of(&slots));
-    let proxies = (&pack(&tubes)[..], tubes.len(), boxes(tubes.len()), preview);
+    let preview = tube_preview(&tubes).map(|slots| slot_boxes_of(&slots));
+    let proxies = (&pack(&tubes)[..], tubes.len(), slot_boxes(tubes.len()), preview);
     spawn_tube_set(commands, meshes, materials, buffers, target, proxies, *settings)
 }
 
@@ -1517,7 +1507,7 @@ pub fn select_tube_boxes(
             deferred.insert(entity);
             continue;
         }
-        let or_one = |s: &[u32]| if s.is_empty() { boxes_of(&[0]) } else { boxes_of(s) };
+        let or_one = |s: &[u32]| if s.is_empty() { slot_boxes_of(&[0]) } else { slot_boxes_of(s) };
         let of = |k: &u32| in_tube_preview(set.streamline_of[*k as usize]);
         let preview = set.preview.as_ref().map(|p| (p, or_one(&slots.iter().copied().filter(of).collect::<Vec<_>>())));
         for (handle, mesh) in [(&set.full, or_one(&slots))].into_iter().chain(preview) {
@@ -1642,8 +1632,8 @@ mod tests {
             streamline_of: tubes.iter().map(|t| t.streamline).collect(),
             material: Handle::default(),
             n_tubelets: tubes.len(),
-            full: meshes.add(boxes(tubes.len())),
-            preview: Some(meshes.add(boxes_of(slots))),
+            full: meshes.add(slot_boxes(tubes.len())),
+            preview: Some(meshes.add(slot_boxes_of(slots))),
             settings: TubeSettings::default(),
         }
     }
@@ -1661,7 +1651,7 @@ mod tests {
         assert_eq!(slots.len(), 157 * 10);
         assert!(slots.iter().all(|&i| tubes[i as usize].streamline.is_multiple_of(16)));
         assert!(tube_preview(&tubes[..TUBE_PREVIEW_MAX]).is_none());
-        assert_eq!(boxes_of(&slots).count_vertices(), 8 * slots.len());
+        assert_eq!(slot_boxes_of(&slots).count_vertices(), 8 * slots.len());
 
         // Spawned, the set's entity draws its preview while the budget is coarse and the whole set otherwise.
         let mut app = App::new();

@@ -471,7 +471,7 @@ fn coarse_step_while_moving(
     mut coarse: Local<Option<u32>>,
 ) {
     let want = budget.map_or(1, |b| step_factor(b.scale < 1.0, b.coarse));
-    if *coarse == Some(want) || (coarse.is_none() && want == 1) {
+    if coarse.unwrap_or(1) == want {
         return;
     }
     *coarse = Some(want);
