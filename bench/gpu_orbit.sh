@@ -3,6 +3,7 @@
 # `bench interact` drawn headless at 1920x1080 by `fascicle-bench soak` (SOAK_ORBIT, SOAK_ROI_EVERY), every
 # frame at full quality and waited for, on the default scene and on `bench edits`' large scene.
 # Carried from here: .bin/fascicle-bench.xz (release, stripped) and .gl/*.deb (the Vulkan loader).
+# With SOAK_BUDGET=1 in the environment the frames follow the frame budget as in the viewer (bench/src/soak.rs).
 # Usage there: bench/gpu_orbit.sh [SIZE] [DEADLINE_S]   (defaults 1920x1080, 200: runs are cut at it)
 set -u
 cd "$(dirname "$0")/.."
@@ -27,5 +28,5 @@ for run in "default_orbit 600 SOAK_ORBIT=0.5 SOAK_NO_ROI=1" "default_roi_drag 30
   [ $left -lt 10 ] && echo "$name: not started, $left s left" | tee -a $OUT/orbit.md && continue
   env SOAK_NO_TOGGLE=1 SOAK_NO_CAPTURE=1 $vars timeout $left /tmp/b/fascicle-bench soak --frames $frames --size $size \
     >$OUT/$name.log 2>&1
-  echo "$name: exit $?, $(grep -h 'frame time' $OUT/$name.log)" | tee -a $OUT/orbit.md
+  echo "$name: exit $?, $(grep -h 'frame time\|frame budget' $OUT/$name.log | tr '\n' ' ')" | tee -a $OUT/orbit.md
 done

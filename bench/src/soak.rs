@@ -10,7 +10,10 @@
 //! vertical axis through its target by that many degrees every frame (an orbit drawn without a window: the
 //! GPU rows of issue #35 where no display can present); `SOAK_ROI_EVERY=n` moves the ROI every n frames
 //! (default 10). The run ends with the frames' wall times (median, 95th percentile), each frame drawn and
-//! waited for at full quality.
+//! waited for at full quality, or, with `SOAK_BUDGET=1`, at the frame budget's scale as the viewer draws them
+//! (`FrameBudgetPlugin`, the camera marked `RenderScale`, an ROI move marked `Interacting`; the median scale is
+//! printed beside the times): the window's orbit and ROI-drag rows where no window can present;
+//! `SOAK_BUDGET_MS=x` sets the budget (default: `FrameBudget`'s, 100 ms on a software adapter, 16 on a GPU).
 
 use std::io::Write;
 use std::path::Path;
@@ -19,6 +22,7 @@ use std::time::Instant;
 use bevy::prelude::*;
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::roi::RoiShape;
+use fascicle_render::budget::{FrameBudget, FrameBudgetPlugin, Interacting, RenderScale};
 use fascicle_render::headless;
 
 use fascicle_scene::layers::{ActiveScene, LayerErrors, camera_from_spec};
@@ -130,6 +134,15 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
     let orbit_deg: Option<f32> = std::env::var("SOAK_ORBIT").ok().and_then(|d| d.parse().ok());
     let roi_every: u32 = std::env::var("SOAK_ROI_EVERY").ok().and_then(|n| n.parse().ok()).unwrap_or(10).max(1);
     let (mut app, target, cam) = fascicle_scene::headless::scene_app(&scene, w, h);
+    let budget = std::env::var("SOAK_BUDGET").is_ok_and(|v| v == "1");
+    if budget {
+        app.add_plugins(FrameBudgetPlugin);
+        if let Some(ms) = std::env::var("SOAK_BUDGET_MS").ok().and_then(|v| v.parse::<f64>().ok()) {
+            let each = std::time::Duration::from_secs_f64(ms.max(0.0) / 1e3);
+            app.insert_resource(FrameBudget { software: each, hardware: each, ..default() });
+        }
+        app.world_mut().entity_mut(cam).insert(RenderScale::default());
+    }
     if std::env::var("SOAK_NO_CAPTURE").is_ok() {
         let _ = target;
         headless::run_until_ready(&mut app, 600).map_err(|e| e.to_string())?;
@@ -142,6 +155,7 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
     let t0 = Instant::now();
     let mut errors = 0usize;
     let mut frame_ms = Vec::with_capacity(frames as usize);
+    let mut scales = Vec::with_capacity(frames as usize);
     let (eye, look_at, up) =
         (Vec3::from(scene.camera.eye), Vec3::from(scene.camera.target), Vec3::from(scene.camera.up));
     for f in 1..=frames {
@@ -150,6 +164,7 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
             let spec = CameraSpec { eye: (look_at + turn * (eye - look_at)).to_array(), ..scene.camera };
             app.world_mut().entity_mut(cam).insert(camera_from_spec(&spec).0);
         }
+        let mut roi_moved = false;
         {
             let mut s = app.world_mut().resource_mut::<ActiveScene>();
             // Toggle one layer every 50 frames (cycling), move the ROI every 10.
@@ -171,11 +186,18 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
             {
                 let a = f as f32 * 0.01;
                 *centre = [28.0 * a.sin(), 28.0 * a.cos(), 1.0];
+                roi_moved = true;
             }
+        }
+        if budget && roi_moved {
+            app.world_mut().resource_mut::<Interacting>().mark();
         }
         let t = Instant::now();
         app.update();
         frame_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        if budget && let Some(scale) = app.world().get::<RenderScale>(cam) {
+            scales.push(f64::from(scale.0));
+        }
         errors += app.world().resource::<LayerErrors>().0.len();
         if f % 100 == 0 || f == frames {
             let pipelines = headless::pipeline_count(&app);
@@ -211,6 +233,15 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
             percentile(&frame_ms, 0.95),
             frame_ms.len(),
             orbit_deg
+        );
+    }
+    if !scales.is_empty() {
+        scales.sort_by(f64::total_cmp);
+        println!(
+            "frame budget: median scale {:.3}, 5th percentile {:.3}, full-scale frames {}",
+            percentile(&scales, 0.5),
+            percentile(&scales, 0.05),
+            scales.iter().filter(|s| **s >= 1.0).count()
         );
     }
     if errors > 0 {
