@@ -11,9 +11,12 @@
 //! GPU rows of issue #35 where no display can present); `SOAK_ROI_EVERY=n` moves the ROI every n frames
 //! (default 10). The run ends with the frames' wall times (median, 95th percentile), each frame drawn and
 //! waited for at full quality, or, with `SOAK_BUDGET=1`, at the frame budget's scale as the viewer draws them
-//! (`FrameBudgetPlugin`, the camera marked `RenderScale`, an ROI move marked `Interacting`; the median scale is
-//! printed beside the times): the window's orbit and ROI-drag rows where no window can present;
-//! `SOAK_BUDGET_MS=x` sets the budget (default: `FrameBudget`'s, 100 ms on a software adapter, 16 on a GPU).
+//! (`FrameBudgetPlugin`, the camera marked `RenderScale`, an ROI move marked `Interacting`, `TractDetail` on;
+//! the median scale is printed beside the times): the window's orbit and ROI-drag rows where no window can
+//! present; `SOAK_BUDGET_MS=x` sets the budget (default: `FrameBudget`'s, 100 ms on a software adapter, 16 on
+//! a GPU). With ROI moves, the ROI selection's own time (`RoiStats`) is printed too. `SOAK_PASS_TIMES` prints
+//! Bevy's per-pass GPU times (`RenderDiagnosticsPlugin`; on lavapipe they cover a fraction of a frame, since it
+//! rasterises after a pass's closing timestamp); `SOAK_MSAA_OFF` draws without MSAA.
 
 use std::io::Write;
 use std::path::Path;
@@ -135,8 +138,16 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
     let roi_every: u32 = std::env::var("SOAK_ROI_EVERY").ok().and_then(|n| n.parse().ok()).unwrap_or(10).max(1);
     let (mut app, target, cam) = fascicle_scene::headless::scene_app(&scene, w, h);
     let budget = std::env::var("SOAK_BUDGET").is_ok_and(|v| v == "1");
+    let pass_times = std::env::var("SOAK_PASS_TIMES").is_ok();
+    if pass_times {
+        app.add_plugins(bevy::render::diagnostic::RenderDiagnosticsPlugin);
+    }
+    if std::env::var("SOAK_MSAA_OFF").is_ok() {
+        app.world_mut().entity_mut(cam).insert(Msaa::Off);
+    }
     if budget {
-        app.add_plugins(FrameBudgetPlugin);
+        // As the viewer: line sets draw their previews while the budget is coarse.
+        app.add_plugins(FrameBudgetPlugin).insert_resource(fascicle_tracts::TractDetail { enabled: true, ..default() });
         if let Some(ms) = std::env::var("SOAK_BUDGET_MS").ok().and_then(|v| v.parse::<f64>().ok()) {
             let each = std::time::Duration::from_secs_f64(ms.max(0.0) / 1e3);
             app.insert_resource(FrameBudget { software: each, hardware: each, ..default() });
@@ -156,6 +167,9 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
     let mut errors = 0usize;
     let mut frame_ms = Vec::with_capacity(frames as usize);
     let mut scales = Vec::with_capacity(frames as usize);
+    // The ROI selection's own time (`RoiStats`), each frame that re-selected.
+    let mut select_ms = Vec::new();
+    let mut evaluations = 0;
     let (eye, look_at, up) =
         (Vec3::from(scene.camera.eye), Vec3::from(scene.camera.target), Vec3::from(scene.camera.up));
     for f in 1..=frames {
@@ -195,6 +209,11 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
         let t = Instant::now();
         app.update();
         frame_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        if let Some(stats) = app.world().get_resource::<fascicle_tracts::RoiStats>()
+            && std::mem::replace(&mut evaluations, stats.evaluations) < stats.evaluations
+        {
+            select_ms.push(stats.last_ms);
+        }
         if budget && let Some(scale) = app.world().get::<RenderScale>(cam) {
             scales.push(f64::from(scale.0));
         }
@@ -234,6 +253,26 @@ pub fn run(frames: u32, size: &str, csv: Option<&Path>, max_mib_per_10k: f64) ->
             frame_ms.len(),
             orbit_deg
         );
+    }
+    if roi && !select_ms.is_empty() {
+        select_ms.sort_by(f64::total_cmp);
+        println!(
+            "ROI selection: median {:.1} ms, p95 {:.1} ms over {} selections",
+            percentile(&select_ms, 0.5),
+            percentile(&select_ms, 0.95),
+            select_ms.len()
+        );
+    }
+    if pass_times && let Some(store) = app.world().get_resource::<bevy::diagnostic::DiagnosticsStore>() {
+        let mut rows: Vec<(String, f64)> = store
+            .iter()
+            .filter(|d| d.path().as_str().ends_with("elapsed_gpu"))
+            .filter_map(|d| Some((d.path().as_str().to_string(), d.average()?)))
+            .collect();
+        rows.sort_by(|a, b| b.1.total_cmp(&a.1));
+        for (path, ms) in rows {
+            println!("pass {path}: {ms:.2} ms (mean of the last frames)");
+        }
     }
     if !scales.is_empty() {
         scales.sort_by(f64::total_cmp);

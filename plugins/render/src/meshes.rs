@@ -13,10 +13,16 @@ pub const BOX_TRIANGLES: [u32; 36] =
 /// `n` quads (at least one); each vertex is (corner x, corner y, slot), corners at ±1, counter-clockwise
 /// seen from +z. Slots are exact in f32 up to 2^24.
 pub fn slot_quads(n: usize) -> Mesh {
-    let mut pos = Vec::with_capacity(4 * n.max(1));
-    let mut idx = Vec::with_capacity(6 * n.max(1));
-    for i in 0..n.max(1) {
-        let s = i as f32;
+    slot_quads_of(0..n.max(1) as u32)
+}
+
+/// One quad per slot of `slots`, as [`slot_quads`] makes them (4 vertices (corner x, corner y, slot), 2
+/// triangles); slots are exact in f32 up to 2^24.
+pub fn slot_quads_of(slots: impl ExactSizeIterator<Item = u32>) -> Mesh {
+    let mut pos = Vec::with_capacity(4 * slots.len());
+    let mut idx = Vec::with_capacity(6 * slots.len());
+    for (i, slot) in slots.enumerate() {
+        let s = slot as f32;
         pos.extend([[-1.0, -1.0, s], [1.0, -1.0, s], [1.0, 1.0, s], [-1.0, 1.0, s]]);
         let b = 4 * i as u32;
         idx.extend([b, b + 1, b + 2, b, b + 2, b + 3]);

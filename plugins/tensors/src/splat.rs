@@ -12,6 +12,13 @@
 //! rasterised and blended in primitive order, so one draw composites them in that order; the set is drawn
 //! in Bevy's transparent phase, after the opaque layers, tested against their depth without writing it.
 //!
+//! While the frame budget is coarse ([`fascicle_render::budget::CoarseMesh`]), a set of more than
+//! [`SPLAT_PREVIEW_MIN`] splats draws every [`SPLAT_PREVIEW_STRIDE`]-th splat (by index: the same splats
+//! whatever the view): on a software rasteriser a splat costs its four vertices' footprint, whatever the
+//! render scale (the default scene's 3,456 splats: about 35 ms a frame on lavapipe at 1/8 scale). The order
+//! buffer holds their far-to-near order after the whole set's ([`preview_len`]); the GPU sort leaves that part
+//! in index order, so on a GPU the preview is unsorted.
+//!
 //! (The first version drew one entity per splat through Bevy's sorted transparent phase: correct, but
 //! a draw call and a phase item per splat, and Bevy's batching reorders instances; see `gpu_splats`.)
 
@@ -124,7 +131,8 @@ pub struct SplatMaterial {
     /// One `vec4` per splat: linear RGB, opacity.
     #[storage(2, read_only)]
     pub styles: Handle<ShaderBuffer>,
-    /// One `u32` per slot: the splat drawn there, far to near (padded to [`padded_len`] for the GPU sort).
+    /// One `u32` per slot: the splat drawn there, far to near (padded to [`padded_len`] for the GPU sort),
+    /// then the preview's slots ([`preview_len`]).
     #[storage(3, read_only)]
     pub order: Handle<ShaderBuffer>,
 }
@@ -267,6 +275,28 @@ fn pad(mut bytes: Vec<u8>) -> Vec<u8> {
     bytes
 }
 
+/// Sets of more splats than this draw a preview while the frame budget is coarse (default scene: 3,456).
+pub const SPLAT_PREVIEW_MIN: usize = 2_000;
+
+/// The preview draws every this-many-th splat.
+pub const SPLAT_PREVIEW_STRIDE: usize = 4;
+
+/// The preview's slots, after the whole set's [`padded_len`] slots in the order buffer: the splats whose
+/// index is a multiple of [`SPLAT_PREVIEW_STRIDE`] (none for sets of at most [`SPLAT_PREVIEW_MIN`]).
+pub fn preview_len(n: usize) -> usize {
+    if n > SPLAT_PREVIEW_MIN { n.div_ceil(SPLAT_PREVIEW_STRIDE) } else { 0 }
+}
+
+/// The order buffer's contents for `order`, the whole set's far-to-near order: it, the padding slots
+/// (naming themselves), then the preview's splats in the same order.
+fn order_bytes(order: &[u32]) -> Vec<u8> {
+    let n = order.len();
+    let preview = order.iter().copied().filter(|i| (*i as usize).is_multiple_of(SPLAT_PREVIEW_STRIDE));
+    let slots = order.iter().copied().chain(n as u32..padded_len(n) as u32);
+    let all: Vec<u32> = if preview_len(n) > 0 { slots.chain(preview).collect() } else { slots.collect() };
+    all.iter().flat_map(|i| i.to_le_bytes()).collect()
+}
+
 /// Spawns a splat set with the splats' colours and opacities as given (style them first with
 /// `settings.colouring.apply`); returns its entity. The order is filled by [`sort_splats`] before the first
 /// frame is drawn.
@@ -286,7 +316,9 @@ pub fn spawn_splats(
         // The two rewritable buffers stay in the main world too: rewriting a render-world-only buffer
         // reached the GPU once and then never again (Bevy 0.19.1, seen in `gpu_splats`).
         styles: buffers.add(ShaderBuffer::new(&pad(pack_styles(&splats)), RenderAssetUsages::default())),
-        order: buffers.add(ShaderBuffer::new(&vec![0u8; 4 * padded_len(n)], RenderAssetUsages::default())),
+        // In index order until the first sort (the GPU sort writes the whole set's part only).
+        order: buffers
+            .add(ShaderBuffer::new(&order_bytes(&(0..n as u32).collect::<Vec<_>>()), RenderAssetUsages::default())),
     });
     let mut e = commands.spawn((
         SplatSet { material: material.clone(), splats: Arc::new(splats), sorted_for: None },
@@ -295,11 +327,14 @@ pub fn spawn_splats(
     ));
     if n > 0 {
         // The quads are placed by the shader: no frustum test on the mesh's bounds.
-        e.insert((
-            Mesh3d(meshes.add(fascicle_render::meshes::slot_quads(n))),
-            MeshMaterial3d(material),
-            NoFrustumCulling,
-        ));
+        let full = meshes.add(fascicle_render::meshes::slot_quads(n));
+        e.insert((Mesh3d(full.clone()), MeshMaterial3d(material), NoFrustumCulling));
+        let start = padded_len(n) as u32;
+        if preview_len(n) > 0 {
+            let slots = start..start + preview_len(n) as u32;
+            let preview = meshes.add(fascicle_render::meshes::slot_quads_of(slots));
+            e.insert(fascicle_render::budget::CoarseMesh { full, preview });
+        }
     }
     e.id()
 }
@@ -344,10 +379,8 @@ pub fn sort_splats(
         }
         let s0 = Instant::now();
         let keys = depth_keys(set.splats.iter().map(|s| s.centre.as_vec3().to_array()), dir.to_array());
-        let mut order = argsort_desc(&keys);
         // The slots past the splats (the GPU sort's padding) name themselves; the draw never reads them.
-        order.extend(order.len() as u32..padded_len(order.len()) as u32);
-        let bytes: Vec<u8> = order.iter().flat_map(|i| i.to_le_bytes()).collect();
+        let bytes = order_bytes(&argsort_desc(&keys));
         stats.last_upload_bytes = bytes.len();
         // Drawn in this frame: the sort runs after the asset events' flush.
         if let Some(mat) = materials.get(&set.material) {

@@ -75,7 +75,12 @@ fn the_gpu_sorts_far_to_near_exactly_and_keeps_ties_in_index_order() {
     let Some((order, stats)) = gpu_order(splats, Vec3::new(0.0, 0.0, 40.0)) else { return };
     assert!(stats.sorts() >= 1, "no GPU sort ran");
     let padded = padded_len(n);
-    assert_eq!(order.len(), padded, "the order buffer holds the padded count");
+    let preview = fascicle_tensors::splat::preview_len(n);
+    assert_eq!(order.len(), padded + preview, "the order buffer holds the padded count and the preview's");
+    // The GPU sorts the whole set's part only: the preview's stays in index order (unsorted on a GPU).
+    let every_fourth: Vec<u32> = (0..n as u32).step_by(fascicle_tensors::splat::SPLAT_PREVIEW_STRIDE).collect();
+    assert_eq!(&order[padded..], &every_fourth[..]);
+    let order = &order[..padded];
     let want = argsort_desc(&keys);
     let ties = (1..n).filter(|i| keys[want[*i] as usize] == keys[want[*i - 1] as usize]).count();
     assert!(ties > 2000, "{ties} ties");

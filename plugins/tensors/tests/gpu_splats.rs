@@ -15,7 +15,9 @@ use fascicle_core::dti::splat::{
 use fascicle_render::headless::{self, Capture};
 use fascicle_render::reference::srgb8;
 use fascicle_tensors::TensorGlyphPlugin;
-use fascicle_tensors::splat::{SplatMaterial, SplatSet, SplatSettings, SplatSortStats, spawn_splats};
+use fascicle_tensors::splat::{
+    SPLAT_PREVIEW_MIN, SPLAT_PREVIEW_STRIDE, SplatMaterial, SplatSet, SplatSettings, SplatSortStats, spawn_splats,
+};
 use glam::{DMat3, DMat4, DQuat, DVec3};
 use rand::{RngExt, SeedableRng};
 
@@ -25,8 +27,13 @@ const EYE: Vec3 = Vec3::new(0.5, -2.0, 9.0);
 const N_SPLATS: usize = 200;
 
 fn splats() -> Vec<Splat> {
-    let mut rng = rand_pcg::Pcg64::seed_from_u64(37);
-    (0..N_SPLATS)
+    random_splats(N_SPLATS, 37)
+}
+
+/// `n` random splats (some dropped: those of tensors too small to draw) from `seed`.
+fn random_splats(n: usize, seed: u64) -> Vec<Splat> {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    (0..n)
         .filter_map(|i| {
             let q = DQuat::from_xyzw(rng.random(), rng.random(), rng.random(), rng.random::<f64>() - 0.5).normalize();
             let m = DMat3::from_quat(q);
@@ -155,4 +162,44 @@ fn attenuation_lit_tensors_and_barycentric_recolouring() {
     assert_eq!(styled, want, "the set keeps the restyled splats");
     let p99 = compare(&imgs[1], &want, EYE, &settings.reference(), "barycentric");
     assert!(p99 <= 3.0, "barycentric: 99th percentile error {p99} levels");
+}
+
+/// While the frame budget is coarse a set of more than `SPLAT_PREVIEW_MIN` splats draws its preview
+/// (`CoarseMesh`): every fourth splat by index, in the same far-to-near order (the order buffer's part after
+/// the whole set's, written by the same sort). Its picture is the f64 compositor's of that subset, within
+/// the bound above, and not the whole set's.
+#[test]
+fn a_large_sets_preview_draws_every_fourth_splat_in_order() {
+    let splats = random_splats(2_600, 41);
+    assert!(splats.len() > SPLAT_PREVIEW_MIN, "{} splats", splats.len());
+    let settings = SplatSettings { attenuation: false, ..SplatSettings::default() };
+    let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
+    app.add_plugins(TensorGlyphPlugin);
+    let spawned = splats.clone();
+    app.add_systems(
+        Startup,
+        move |mut commands: Commands,
+              mut meshes: ResMut<Assets<Mesh>>,
+              mut materials: ResMut<Assets<SplatMaterial>>,
+              mut buffers: ResMut<Assets<bevy::render::storage::ShaderBuffer>>| {
+            spawn_splats(&mut commands, &mut meshes, &mut materials, &mut buffers, &spawned, &settings);
+        },
+    );
+    let cam = headless::spawn_test_camera(&mut app, target.clone(), EYE, Vec3::ZERO);
+    app.world_mut().entity_mut(cam).insert(bevy::camera::Hdr);
+    let whole = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
+    // What the budget's `coarse_meshes` does while coarse: the entity draws its preview.
+    let world = app.world_mut();
+    let mut q = world.query::<(&fascicle_render::budget::CoarseMesh, &mut Mesh3d)>();
+    let (coarse, mut mesh) = q.single_mut(world).expect("a large set has a preview");
+    mesh.0 = coarse.preview.clone();
+    let preview = headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
+    let subset: Vec<Splat> = splats.iter().step_by(SPLAT_PREVIEW_STRIDE).cloned().collect();
+    let reference = settings.reference();
+    let p99 = compare(&whole, &splats, EYE, &reference, "whole_large");
+    assert!(p99 <= 3.0, "whole set: 99th percentile error {p99} levels");
+    let p99 = compare(&preview, &subset, EYE, &reference, "preview");
+    assert!(p99 <= 3.0, "preview: 99th percentile error {p99} levels against its subset");
+    let p99 = compare(&preview, &splats, EYE, &reference, "preview_vs_whole");
+    assert!(p99 > 10.0, "the preview draws fewer splats than the whole set: {p99} levels");
 }
