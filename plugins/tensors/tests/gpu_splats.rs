@@ -58,14 +58,9 @@ fn random_splats(n: usize, seed: u64) -> Vec<Splat> {
         .collect()
 }
 
-/// Renders the splats with `settings` from each eye in turn (one app: the set is re-sorted between views),
-/// and, last, after recolouring with `recolour` (the style buffer only).
-fn render(
-    splats: &[Splat],
-    settings: SplatSettings,
-    eyes: &[Vec3],
-    recolour: Option<SplatColouring>,
-) -> Option<(Vec<Capture>, SplatSortStats, Vec<Splat>)> {
+/// A headless app drawing `splats` as one set with `settings`, its HDR camera at `eye` looking at the origin
+/// (None when the GPU tests are skipped).
+fn splat_app(splats: &[Splat], settings: SplatSettings, eye: Vec3) -> Option<(App, Handle<Image>, Entity)> {
     let (mut app, target) = headless::gpu_test_app(W, H)?;
     app.add_plugins(TensorGlyphPlugin);
     let splats = splats.to_vec();
@@ -78,8 +73,20 @@ fn render(
             spawn_splats(&mut commands, &mut meshes, &mut materials, &mut buffers, &splats, &settings);
         },
     );
-    let cam = headless::spawn_test_camera(&mut app, target.clone(), eyes[0], Vec3::ZERO);
+    let cam = headless::spawn_test_camera(&mut app, target.clone(), eye, Vec3::ZERO);
     app.world_mut().entity_mut(cam).insert(bevy::camera::Hdr);
+    Some((app, target, cam))
+}
+
+/// Renders the splats with `settings` from each eye in turn (one app: the set is re-sorted between views),
+/// and, last, after recolouring with `recolour` (the style buffer only).
+fn render(
+    splats: &[Splat],
+    settings: SplatSettings,
+    eyes: &[Vec3],
+    recolour: Option<SplatColouring>,
+) -> Option<(Vec<Capture>, SplatSortStats, Vec<Splat>)> {
+    let (mut app, target, cam) = splat_app(splats, settings, eyes[0])?;
     let mut out = Vec::new();
     for eye in eyes {
         app.world_mut().entity_mut(cam).insert(Transform::from_translation(*eye).looking_at(Vec3::ZERO, Vec3::Y));
@@ -173,20 +180,7 @@ fn a_large_sets_preview_draws_every_fourth_splat_in_order() {
     let splats = random_splats(2_600, 41);
     assert!(splats.len() > SPLAT_PREVIEW_MIN, "{} splats", splats.len());
     let settings = SplatSettings { attenuation: false, ..SplatSettings::default() };
-    let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
-    app.add_plugins(TensorGlyphPlugin);
-    let spawned = splats.clone();
-    app.add_systems(
-        Startup,
-        move |mut commands: Commands,
-              mut meshes: ResMut<Assets<Mesh>>,
-              mut materials: ResMut<Assets<SplatMaterial>>,
-              mut buffers: ResMut<Assets<bevy::render::storage::ShaderBuffer>>| {
-            spawn_splats(&mut commands, &mut meshes, &mut materials, &mut buffers, &spawned, &settings);
-        },
-    );
-    let cam = headless::spawn_test_camera(&mut app, target.clone(), EYE, Vec3::ZERO);
-    app.world_mut().entity_mut(cam).insert(bevy::camera::Hdr);
+    let Some((mut app, target, _)) = splat_app(&splats, settings, EYE) else { return };
     let whole = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
     // What the budget's `coarse_meshes` does while coarse: the entity draws its preview.
     let world = app.world_mut();
