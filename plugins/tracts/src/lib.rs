@@ -1459,6 +1459,11 @@ pub fn apply_rois(
             }
         }
         selected += sel.iter().filter(|s| **s).count();
+        // A set whose selection stays as it was keeps its flags: an ROI drag re-selects every part of a layer,
+        // and the parts away from the ROI upload nothing and rebuild no tube proxies.
+        if !set.is_changed() && selection.0 == sel {
+            continue;
+        }
         let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();
         selection.0 = sel;
         // Drawn in this frame: the selection runs after the asset events' flush.
@@ -1683,6 +1688,50 @@ mod tests {
         assert_eq!(step(true, false), full, "render scale holds the budget");
         assert_eq!(step(true, true), preview, "coarse");
         assert_eq!(step(false, false), full, "still: the whole set");
+    }
+
+    /// An ROI move re-selects every set, but a set whose selection stays as it was keeps its flags: its
+    /// `TractSelection` is not changed (so neither its flag buffer nor its tube proxies are rewritten), as the
+    /// parts of a layer away from a dragged ROI.
+    #[test]
+    fn a_set_whose_selection_stays_keeps_its_flags() {
+        use fascicle_core::roi::{RoiMode, RoiShape};
+        let mut app = App::new();
+        app.add_plugins((MinimalPlugins, bevy::asset::AssetPlugin::default()))
+            .init_asset::<ShaderBuffer>()
+            .init_resource::<RoiStats>()
+            .add_systems(Update, apply_rois);
+        let spawn = |app: &mut App, x0: f32| {
+            let mut t = Tractogram::new();
+            for s in 0..20 {
+                t.push(&(0..=10).map(|y| Vec3::new(x0 + s as f32, y as f32, 0.0)).collect::<Vec<_>>());
+            }
+            let mut buffers = app.world_mut().resource_mut::<Assets<ShaderBuffer>>();
+            let (set, selection) = tract_set(&mut buffers, Arc::new(t), LazyIndex::default(), 0).target.unwrap();
+            app.world_mut().spawn((set, selection)).id()
+        };
+        let (near, far) = (spawn(&mut app, 0.0), spawn(&mut app, 1000.0));
+        let roi = |x: f32| {
+            TractRoi(Roi { shape: RoiShape::Sphere { centre: [x, 5.0, 0.0], radius: 1.5 }, mode: RoiMode::Include })
+        };
+        // Unparented: it acts on every set.
+        let r = app.world_mut().spawn(roi(3.0)).id();
+        app.update();
+        let state = |app: &App| {
+            [near, far].map(|e| {
+                let s = app.world().entity(e).get_ref::<TractSelection>().expect("selection");
+                (s.last_changed(), s.0.iter().enumerate().filter(|(_, k)| **k).map(|(i, _)| i).collect::<Vec<_>>())
+            })
+        };
+        let before = state(&app);
+        assert_eq!((before[0].1.clone(), before[1].1.clone()), (vec![2, 3, 4], vec![]));
+        *app.world_mut().get_mut::<TractRoi>(r).expect("roi") = roi(6.0);
+        app.update();
+        let after = state(&app);
+        assert_eq!((after[0].1.clone(), after[1].1.clone()), (vec![5, 6, 7], vec![]));
+        assert_ne!(after[0].0, before[0].0, "the near set's selection changed");
+        assert_eq!(after[1].0, before[1].0, "the far set's selection stayed: left as it was");
+        assert_eq!(app.world().resource::<RoiStats>().evaluations, 2);
     }
 
     /// A selection rebuilds the set's proxies from the selected streamlines' tubelets (and the preview's from
