@@ -801,7 +801,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
                     Msaa::Off,
                     RenderLayers::none(),
                     Camera {
-                        // Over the 3D view, the 2D views and the colour bars' overlay (order 1).
+                        // Over the 3D view (with its colour bars) and the 2D views.
                         order: 2,
                         output_mode: CameraOutputMode::Write {
                             blend_state: Some(BlendState::ALPHA_BLENDING),

@@ -186,9 +186,8 @@ fn a_click_moves_the_crosshair_and_the_slices_follow() {
     scene.views.follow = true;
     let (mut app, target, main) = fascicle_scene::headless::scene_app(&scene, W, H);
     fascicle_scene::layers::settle(&mut app).unwrap();
-    // The splats are sorted for the 3D camera, not for the colour bars' overlay drawn after it (looking down
-    // -z) nor for a 2D view: only the 3D camera's layers meet theirs. (On the GPU per view that sees them on a
-    // hardware adapter; on the CPU, for the last such camera, on lavapipe.)
+    // The splats are sorted for the 3D camera, not for a 2D view: only the 3D camera's layers meet theirs. (On
+    // the GPU per view that sees them on a hardware adapter; on the CPU, for the last such camera, on lavapipe.)
     let forward = app.world().get::<GlobalTransform>(main).unwrap().forward().as_vec3();
     let gpu = app.world().resource::<fascicle_tensors::gpu_sort::GpuSortStats>().clone();
     let world = app.world_mut();

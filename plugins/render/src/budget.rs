@@ -207,7 +207,13 @@ impl Plugin for FrameBudgetPlugin {
             render_app
                 .add_systems(ExtractSchedule, extract_scale)
                 .add_systems(Render, prepare_upscale.in_set(RenderSystems::PrepareResources))
-                .add_systems(Core3d, upscale.after(Core3dSystems::MainPass).before(Core3dSystems::PostProcess));
+                .add_systems(
+                    Core3d,
+                    upscale
+                        .after(Core3dSystems::MainPass)
+                        .before(Core3dSystems::PostProcess)
+                        .before(crate::OverlaySystems),
+                );
         }
     }
 }

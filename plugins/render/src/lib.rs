@@ -28,7 +28,7 @@ pub mod on_demand;
 pub mod reference;
 pub mod retain;
 pub mod shaders;
-mod viewport;
+pub mod viewport;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
@@ -57,11 +57,25 @@ impl Plugin for FascicleRenderPlugin {
         if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
             render_app.insert_resource(adapter).add_systems(bevy::render::RenderStartup, detect_adapter);
         }
+        if let Some(render_app) = app.get_sub_app_mut(bevy::render::RenderApp) {
+            use bevy::core_pipeline::{Core3dSystems, schedule::Core3d};
+            render_app.configure_sets(
+                Core3d,
+                OverlaySystems.after(Core3dSystems::MainPass).before(Core3dSystems::PostProcess),
+            );
+        }
         shaders::embed(app);
         retain::watch_asset::<impostor::SphereImpostorMaterial>(app);
         app.add_plugins((MaterialPlugin::<impostor::SphereImpostorMaterial>::default(), headless::DepthCopyPlugin));
     }
 }
+
+/// Render world, `Core3d`: systems that draw over a camera's finished 3D picture at the viewport's full
+/// resolution (the colour bars), after the main pass, the frame budget's upscale ([`budget`]) and the retained
+/// picture's store or put-back ([`retain`]: the stored picture holds the scene alone), and before
+/// post-processing. They run in every frame, a retained one too.
+#[derive(bevy::ecs::schedule::SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct OverlaySystems;
 
 /// Requests for more frames from systems whose picture is transient and settles over the next frames (tract
 /// previews while the view moves): a window drawn on demand keeps drawing at its busy rate while frames set it

@@ -170,7 +170,8 @@ impl Plugin for RetainedPicturePlugin {
                     (store_picture, put_back_picture)
                         .after(Core3dSystems::MainPass)
                         .after(crate::budget::upscale)
-                        .before(Core3dSystems::PostProcess),
+                        .before(Core3dSystems::PostProcess)
+                        .before(crate::OverlaySystems),
                 );
         }
     }

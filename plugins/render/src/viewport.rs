@@ -1,5 +1,6 @@
 //! A camera's viewport in its main texture: copied out into a texture of its own, and a texture blitted back
-//! over it (Bevy's blit pipeline). Shared by the frame budget's upscale and the retained picture.
+//! over it (Bevy's blit pipeline). Shared by the frame budget's upscale, the retained picture and the colour
+//! bars drawn over a view (`fascicle_views`, in [`crate::OverlaySystems`]).
 
 use bevy::camera::Viewport;
 use bevy::prelude::*;
@@ -12,7 +13,7 @@ use bevy::render::renderer::RenderContext;
 use bevy::render::view::ViewTarget;
 
 /// The camera's viewport in physical pixels of its target (the whole target when it sets none).
-pub(crate) fn physical_viewport(camera: &ExtractedCamera) -> Viewport {
+pub fn physical_viewport(camera: &ExtractedCamera) -> Viewport {
     camera
         .viewport
         .clone()
@@ -49,8 +50,10 @@ pub(crate) fn copy_out(ctx: &mut RenderContext, target: &ViewTarget, viewport: &
     );
 }
 
-/// Draws the texture of `bind_group` (Bevy's blit layout) over the viewport into `attachment` with `pipeline`.
-pub(crate) fn blit_over(
+/// Draws the texture of `bind_group` (Bevy's blit layout) over `viewport` (physical pixels of the target) into
+/// `attachment` with `pipeline` (a `BlitPipeline` specialisation: its blend state decides whether the texture
+/// replaces or blends over what is there), stretched to the viewport's size.
+pub fn blit_over(
     ctx: &mut RenderContext,
     label: &'static str,
     attachment: RenderPassColorAttachment,

@@ -38,8 +38,7 @@ fn scene(retain: bool, msaa: Msaa, x: f32, colour: Color) -> Option<Scene> {
     world.spawn((DirectionalLight::default(), Transform::from_xyz(1.0, 2.0, 3.0).looking_at(Vec3::ZERO, Vec3::Y)));
     let camera = headless::spawn_test_camera(&mut app, target.clone(), Vec3::new(0.0, 1.0, 6.0), Vec3::ZERO);
     app.world_mut().entity_mut(camera).insert(msaa);
-    // A second camera drawn after it on the same target (as the viewer's 2D views and colour-bar overlay
-    // are): with MSAA it loads the multisampled texture and resolves it over the main one.
+    // A second camera drawn after it on the same target (an app's overlay camera, say): with MSAA it loads the multisampled texture and resolves it over the main one.
     let world = app.world_mut();
     let small = world.resource_mut::<Assets<Mesh>>().add(Cuboid::new(0.5, 0.5, 0.5));
     let white = world.resource_mut::<Assets<StandardMaterial>>().add(StandardMaterial { unlit: true, ..default() });

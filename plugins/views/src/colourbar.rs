@@ -1,9 +1,9 @@
 //! Colour bars: one for every layer carrying a [`ColourBar`] (scalar slices in grey over their window, a
 //! volume's transfer function over its range, FA/GFA-coloured glyphs and splats and scalar-coloured tracts on
-//! viridis), drawn into the 3D view by an overlay camera, in a window and in headless renders alike.
+//! viridis), drawn over the 3D view by a pass of its camera ([`crate::BarOverlay`]), in a window and in headless renders alike.
 //!
 //! A bar is an image made here on the CPU (its label and range written in a 5x7 pixel font, so no text
-//! renderer is needed), shown pixel for pixel on a quad: the gradient's column `i` of [`BAR_W`] shows the map
+//! renderer is needed), shown pixel for pixel: the gradient's column `i` of [`BAR_W`] shows the map
 //! at `i / (BAR_W - 1)`. Its pixels are written in sRGB as the display shows them, so a bar looks exactly as
 //! the layer it explains.
 

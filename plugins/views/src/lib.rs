@@ -4,8 +4,8 @@
 //! can: add [`ViewsPlugin`], mark the 3D camera [`MainView`], spawn [`SliceLayer`]s, set [`Views`].
 //!
 //! - Every camera marked [`MainView`] gets three orthographic cameras ([`OrthoView`], each on its own render
-//!   layer) and an overlay camera for the colour bars ([`BarView`]), all drawing into its target. They are laid
-//!   out in [`ViewRegion`] (the target minus a side panel): with [`Views::ortho`] in a 2x2 grid (coronal,
+//!   layer) drawing into its target, and the colour bars drawn over its viewport ([`BarOverlay`]). They are
+//!   laid out in [`ViewRegion`] (the target minus a side panel): with [`Views::ortho`] in a 2x2 grid (coronal,
 //!   sagittal / axial, 3D), without it the 3D view takes the region alone.
 //! - Each 2D view looks along a world axis (RAS+) in the neurological convention (the subject's right on the
 //!   screen's right; sagittal views from the subject's left, anterior to the left). For every visible slice
@@ -25,7 +25,7 @@
 #![warn(missing_docs)]
 
 use bevy::camera::visibility::RenderLayers;
-use bevy::camera::{CameraOutputMode, RenderTarget, ScalingMode, Viewport};
+use bevy::camera::{RenderTarget, ScalingMode, Viewport};
 use bevy::core_pipeline::tonemapping::{DebandDither, Tonemapping};
 use bevy::math::{DMat4, DVec3};
 use bevy::prelude::*;
@@ -33,10 +33,12 @@ use fascicle_core::Volume;
 use serde::{Deserialize, Serialize};
 
 pub mod colourbar;
+pub mod overlay;
 pub mod slice;
 
 pub use colourbar::{ColourBar, ColourMap};
 pub use fascicle_render::layer::{LayerOrder, LayerStatus, SliceAxis};
+pub use overlay::BarOverlay;
 pub use slice::{Channels, SliceBar, SliceCounts, SliceLayer, SliceSettings, SliceSource, auto_window, slice_image};
 
 use slice::{quad_mesh, set_opacity, unlit};
@@ -65,23 +67,17 @@ impl Default for Views {
     }
 }
 
-/// Render layers of the 2D views (index: the world axis a view looks along) and of the colour bars.
+/// Render layers of the 2D views (index: the world axis a view looks along).
 pub const VIEW_LAYERS: [usize; 3] = [1, 2, 3];
-/// Render layer of the colour bars' overlay ([`BarView`]).
-pub const BAR_LAYER: usize = 4;
 
-/// The 3D camera the views belong to (one per app): it gets the three 2D cameras and the bar overlay on its
-/// target, and the 3D cell of the layout.
+/// The 3D camera the views belong to (one per app): it gets the three 2D cameras on its target, the colour
+/// bars over its viewport ([`BarOverlay`]), and the 3D cell of the layout.
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct MainView;
 
 /// A 2D view looking along world axis `.0` (0 sagittal, 1 coronal, 2 axial).
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct OrthoView(pub usize);
-
-/// The camera drawing the colour bars over the 3D view.
-#[derive(Component, Clone, Copy, Debug)]
-pub struct BarView;
 
 /// The part of the target the views share (physical pixels): what a side panel leaves.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -207,11 +203,11 @@ impl Plugin for ViewsPlugin {
                     view_slices,
                     view_tract_slabs,
                     bars,
-                    skip_covered_output,
                 )
                     .chain()
                     .in_set(ViewSystems),
             );
+        overlay::build(app);
     }
 }
 
@@ -240,8 +236,7 @@ type NewMain = (
     Has<fascicle_render::retain::RetainPicture>,
 );
 
-/// Gives every new main camera its 2D views (cleared as it is) and its colour-bar overlay, on the same target
-/// (and retaining their pictures when it retains its own: [`fascicle_render::retain`]).
+/// Gives every new main camera its 2D views (cleared as it is), on the same target (and retaining their pictures when it retains its own: [`fascicle_render::retain`]).
 /// They are HDR when it is: cameras sharing a target must share its intermediate textures, or a later camera
 /// writes over the earlier ones' pixels.
 fn spawn_view_cameras(mut commands: Commands, mains: Query<NewMain, Added<MainView>>) {
@@ -267,26 +262,6 @@ fn spawn_view_cameras(mut commands: Commands, mains: Query<NewMain, Added<MainVi
             if retain {
                 e.insert(fascicle_render::retain::RetainPicture);
             }
-        }
-        let mut e = commands.spawn((
-            view_camera_bundle(1, BAR_LAYER, ClearColorConfig::None),
-            BarView,
-            Projection::Orthographic(OrthographicProjection {
-                near: -10.0,
-                far: 10.0,
-                scaling_mode: ScalingMode::WindowSize,
-                ..OrthographicProjection::default_3d()
-            }),
-            msaa,
-        ));
-        if let Some(t) = target {
-            e.insert(t.clone());
-        }
-        if hdr {
-            e.insert(bevy::camera::Hdr);
-        }
-        if retain {
-            e.insert(fascicle_render::retain::RetainPicture);
         }
     }
 }
@@ -316,10 +291,7 @@ fn layout_views(
     views: Res<Views>,
     region: Res<ViewRegion>,
     mut main: Query<(&mut Camera, Option<&Msaa>), With<MainView>>,
-    mut others: Query<
-        (Entity, &mut Camera, Option<&OrthoView>, Option<&Msaa>),
-        (Without<MainView>, Or<(With<OrthoView>, With<BarView>)>),
-    >,
+    mut others: Query<(Entity, &mut Camera, &OrthoView, Option<&Msaa>), Without<MainView>>,
 ) {
     let Ok((mut main, msaa)) = main.single_mut() else { return };
     let Some(size) = main.physical_target_size() else { return };
@@ -337,17 +309,11 @@ fn layout_views(
     }
     let msaa = msaa.copied().unwrap_or_default();
     for (e, mut cam, view, m) in &mut others {
-        // A 2D view is on with the layout; the bar overlay (`bars` turns it on) covers the 3D view.
-        let rect = match view {
-            Some(OrthoView(a)) => {
-                if cam.is_active != ortho {
-                    cam.is_active = ortho;
-                }
-                grid[*a]
-            }
-            None => main_rect,
-        };
-        set_viewport(&mut cam, rect);
+        // A 2D view is on with the layout.
+        if cam.is_active != ortho {
+            cam.is_active = ortho;
+        }
+        set_viewport(&mut cam, grid[view.0]);
         if m.copied().unwrap_or_default() != msaa {
             commands.entity(e).insert(msaa);
         }
@@ -664,17 +630,6 @@ fn view_tract_slabs(
     }
 }
 
-/// One colour bar on the overlay.
-#[derive(Component, Clone, Copy, Debug)]
-struct BarQuad;
-
-/// The colour bars now shown.
-#[derive(Default)]
-struct ShownBars {
-    bars: Vec<ColourBar>,
-    size: UVec2,
-}
-
 /// What moves the bars: on a layer with a bar, the bar, its order or its visibility changed (not any entity's
 /// visibility: a scene holds tens of thousands of glyph entities).
 type BarsMoved = (With<ColourBar>, Or<(Changed<ColourBar>, Changed<LayerOrder>, Changed<Visibility>)>);
@@ -682,108 +637,50 @@ type BarsMoved = (With<ColourBar>, Or<(Changed<ColourBar>, Changed<LayerOrder>, 
 /// A layer's bar, and whether it is shown.
 type BarOf = (&'static ColourBar, Option<&'static LayerOrder>, &'static Visibility);
 
-/// Shows the layers' colour bars over the 3D view (bottom right, stacked upwards by [`LayerOrder`]).
-#[allow(clippy::too_many_arguments, reason = "a Bevy system's parameters are its data dependencies")]
+/// Shows the layers' colour bars over the 3D view (bottom right, stacked upwards by [`LayerOrder`]): each main
+/// camera's [`BarOverlay`] holds the images of those that fit its viewport, one made for each bar not shown
+/// before.
+#[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's parameters")]
 fn bars(
     mut commands: Commands,
     views: Res<Views>,
     layers: Query<BarOf>,
     changed: Query<(), BarsMoved>,
     mut removed: RemovedComponents<ColourBar>,
-    mut overlay: Query<&mut Camera, With<BarView>>,
-    quads: Query<Entity, With<BarQuad>>,
-    mut meshes: ResMut<Assets<Mesh>>,
+    mains: Query<(Entity, &Camera, Option<&BarOverlay>), With<MainView>>,
     mut images: ResMut<Assets<Image>>,
-    mut materials: ResMut<Assets<StandardMaterial>>,
-    mut shown: Local<ShownBars>,
+    mut shown: Local<(Vec<ColourBar>, BarOverlay, UVec2)>,
 ) {
-    let Ok(mut cam) = overlay.single_mut() else { return };
-    let size = cam.physical_viewport_size().unwrap_or_default();
     // The bars follow the layers' bars, their order and visibility, the switch and the view's size.
     let removed = removed.read().count() > 0;
-    if !views.is_changed() && changed.is_empty() && !removed && size == shown.size {
+    let new_camera = mains.iter().any(|(.., o)| o.is_none());
+    let size = mains.iter().next().and_then(|(_, c, _)| c.physical_viewport_size()).unwrap_or_default();
+    if !views.is_changed() && changed.is_empty() && !removed && !new_camera && size == shown.2 {
         return;
     }
-    let bars = if views.colour_bars {
+    let bars: Vec<ColourBar> = if views.colour_bars {
         let mut shown: Vec<(LayerOrder, &ColourBar)> = layers
             .iter()
             .filter(|(.., v)| **v != Visibility::Hidden)
             .map(|(bar, order, _)| (order.copied().unwrap_or_default(), bar))
             .collect();
         shown.sort_by_key(|(order, _)| *order);
-        shown.into_iter().map(|(_, bar)| bar.clone()).collect()
+        let fit = (0..).take_while(|&i| colourbar::bar_rect(size, i).is_some()).count();
+        shown.into_iter().take(fit).map(|(_, bar)| bar.clone()).collect()
     } else {
         vec![]
     };
-    let active = !bars.is_empty();
-    if cam.is_active != active {
-        cam.is_active = active;
+    if bars != shown.0 {
+        // A bar shown before keeps its image (hiding one layer makes no new image for the others).
+        let before = |bar: &ColourBar| shown.0.iter().position(|b| b == bar).map(|i| shown.1.0[i].clone());
+        let images = bars.iter().map(|bar| before(bar).unwrap_or_else(|| images.add(colourbar::bar_image(bar))));
+        let overlay = BarOverlay(images.collect());
+        *shown = (bars, overlay, size);
     }
-    if bars == shown.bars && size == shown.size {
-        return;
-    }
-    for e in &quads {
-        commands.entity(e).despawn();
-    }
-    // The overlay's camera sits at the view's centre, one world unit per pixel, y up.
-    let half = size.as_vec2() / 2.0;
-    let at = |x: u32, y: u32| Vec3::new(x as f32 - half.x, half.y - y as f32, 0.0);
-    for (i, bar) in bars.iter().enumerate() {
-        let Some(r) = colourbar::bar_rect(size, i as u32) else { break };
-        let corners = [at(r.min.x, r.max.y), at(r.max.x, r.max.y), at(r.max.x, r.min.y), at(r.min.x, r.min.y)];
-        let mut mesh = quad_mesh(corners);
-        // The image's first row is its top.
-        mesh.insert_attribute(Mesh::ATTRIBUTE_UV_0, vec![[0.0f32, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]]);
-        let mut m = unlit(1.0);
-        m.alpha_mode = AlphaMode::Blend;
-        m.base_color_texture = Some(images.add(colourbar::bar_image(bar)));
-        commands.spawn((
-            BarQuad,
-            Mesh3d(meshes.add(mesh)),
-            MeshMaterial3d(materials.add(m)),
-            RenderLayers::layer(BAR_LAYER),
-        ));
-    }
-    *shown = ShownBars { bars, size };
-}
-
-/// The output a main camera writes when the colour-bar overlay does not draw over it, kept while the overlay
-/// does ([`skip_covered_output`]).
-#[derive(Component, Clone, Copy, Debug)]
-struct CoveredOutput(CameraOutputMode);
-
-/// While the colour-bar overlay draws over a main camera's view, the main camera skips writing its picture to
-/// the target: the overlay shares its intermediate textures (the same MSAA and HDR, kept so by the layout) and
-/// its viewport, so the overlay's write after it puts the view and the bars on the target at once. The main
-/// camera's own write was the same pixels written twice: on a software adapter a blit of the whole view per
-/// frame (lavapipe, 1280x720 window: about 10 ms of CPU a frame). Without the overlay the main camera writes
-/// its output again (as it was before).
-#[allow(clippy::type_complexity, reason = "a Bevy system's queries")]
-fn skip_covered_output(
-    mut commands: Commands,
-    overlay: Query<(&Camera, Option<&Msaa>, Has<bevy::camera::Hdr>), (With<BarView>, Without<MainView>)>,
-    mut mains: Query<
-        (Entity, &mut Camera, Option<&Msaa>, Has<bevy::camera::Hdr>, Option<&CoveredOutput>),
-        (With<MainView>, Without<BarView>),
-    >,
-) {
-    for (e, mut cam, msaa, hdr, kept) in &mut mains {
-        let shares = |(o, m, h): (&Camera, Option<&Msaa>, bool)| {
-            o.is_active && h == hdr && m.copied().unwrap_or_default() == msaa.copied().unwrap_or_default()
-        };
-        let covered = cam.is_active && overlay.iter().any(shares);
-        match (covered, kept) {
-            (true, None) => {
-                if matches!(cam.output_mode, CameraOutputMode::Write { .. }) {
-                    commands.entity(e).insert(CoveredOutput(cam.output_mode));
-                    cam.output_mode = CameraOutputMode::Skip;
-                }
-            }
-            (false, Some(kept)) => {
-                cam.output_mode = kept.0;
-                commands.entity(e).remove::<CoveredOutput>();
-            }
-            _ => {}
+    shown.2 = size;
+    for (e, _, overlay) in &mains {
+        if overlay != Some(&shown.1) {
+            commands.entity(e).insert(shown.1.clone());
         }
     }
 }

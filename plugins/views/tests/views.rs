@@ -1,7 +1,7 @@
 //! The views plugin from a plain Bevy app (the `four_views` example), rendered headless on the GPU (lavapipe in
 //! CI): the axial 2D view shows the FA image read by the core reader through the crosshair, display grey linear
 //! in the window (a closed form, pixel for pixel); the colour bars show the slice's window and the glyphs'
-//! scale, over the 3D view (whose write the bar overlay's replaces); each edit of a slice layer costs what it
+//! scale, drawn over the 3D view by its own camera; each edit of a slice layer costs what it
 //! changes; a bad slice fails visibly; a layer that stops being a slice loses what the plugin gave it.
 
 #[allow(dead_code)]
@@ -15,8 +15,8 @@ use fascicle_render::headless::{self, Capture};
 use fascicle_render::reference::srgb8;
 use fascicle_views::colourbar::{BAR_W, GRADIENT_ROWS, bar_rect};
 use fascicle_views::{
-    BarView, ColourBar, ColourMap, LayerStatus, MainView, OrthoView, SliceCounts, SliceLayer, SliceSettings, ViewSlice,
-    cells,
+    BarOverlay, ColourBar, ColourMap, LayerStatus, MainView, OrthoView, SliceCounts, SliceLayer, SliceSettings,
+    ViewSlice, cells,
 };
 use glam::DVec3;
 
@@ -28,16 +28,16 @@ fn gpu_skipped() -> bool {
     skipped
 }
 
-/// Per frame: whether the 3D view and its bar overlay were both drawn, and whether the 3D camera skipped its
-/// write to the target.
+/// Per frame: whether the 3D view was drawn with bars over it, and whether its camera wrote its picture to the
+/// target (the bars are a pass of that camera, no camera of their own).
 #[derive(Resource, Default)]
 struct Outputs(Vec<(bool, bool)>);
 
-fn record_outputs(mut outputs: ResMut<Outputs>, cameras: Query<(&Camera, Has<MainView>, Has<BarView>)>) {
-    let active =
-        |want_main: bool| cameras.iter().any(|(c, main, bar)| c.is_active && main == want_main && bar != want_main);
-    let skipped = cameras.iter().any(|(c, main, _)| main && matches!(c.output_mode, CameraOutputMode::Skip));
-    outputs.0.push((active(true) && active(false), skipped));
+fn record_outputs(mut outputs: ResMut<Outputs>, cameras: Query<(&Camera, Option<&BarOverlay>), With<MainView>>) {
+    for (c, bars) in &cameras {
+        let with_bars = c.is_active && bars.is_some_and(|b| !b.0.is_empty());
+        outputs.0.push((with_bars, matches!(c.output_mode, CameraOutputMode::Write { .. })));
+    }
 }
 
 fn rendered() -> (ExampleApp, Capture) {
@@ -125,11 +125,10 @@ fn the_axial_view_shows_the_image_through_the_crosshair_in_its_window() {
         })
         .count();
     assert!(coloured > 2_000, "{coloured} coloured pixels in the 3D view");
-    // The bar overlay writes the 3D view's picture with its own: in every frame both drew, the main camera's
-    // write was skipped (the picture above is the overlay's write of both).
+    // The 3D camera draws its bars and writes its picture itself (one camera, one write of the view).
     let frames = &ex.app.world().resource::<Outputs>().0;
     assert!(frames.iter().any(|f| f.0), "no frame drew the 3D view with its bars");
-    assert!(frames.iter().all(|&(both, skipped)| !both || skipped), "{frames:?}");
+    assert!(frames.iter().all(|&(bars, wrote)| !bars || wrote), "{frames:?}");
     assert!(worst <= 1.0, "largest difference {worst} levels over {checked} pixels");
 }
 
@@ -246,4 +245,66 @@ fn warm_up_frames_draw_into_one_pixel_with_the_views_laid_out() {
         })
         .collect();
     assert!(cells.len() >= 4 && cells.iter().all(|r| r.size().x > 1 && r.size().y > 1), "{cells:?}");
+}
+
+/// The bars are drawn over the 3D view's finished picture at the viewport's full resolution, whatever scale
+/// the scene draws at: while the frame budget draws the 3D view at a quarter of its side, the bars' gradients
+/// are the full-quality frame's pixel for pixel, and the view around them is not.
+#[test]
+fn the_bars_stay_sharp_while_the_view_draws_at_a_lower_scale() {
+    use fascicle_render::budget::{BudgetState, FrameBudget, FrameBudgetPlugin, Interacting, RenderScale};
+    use std::time::Duration;
+    if gpu_skipped() {
+        return;
+    }
+    let mut ex = example::app(ExampleApp::offscreen(&example::data(), None));
+    ex.app
+        .add_plugins(FrameBudgetPlugin)
+        // Every frame exceeds a budget of a nanosecond; a still view refines at once.
+        .insert_resource(FrameBudget {
+            software: Duration::from_nanos(1),
+            hardware: Duration::from_nanos(1),
+            min_scale: 0.25,
+            refine_after: Duration::ZERO,
+            ..default()
+        })
+        .add_systems(PreUpdate, |mut commands: Commands, mains: Query<Entity, Added<MainView>>| {
+            for e in &mains {
+                commands.entity(e).insert(RenderScale::default());
+            }
+        });
+    let full = ex.render().unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(ex.app.world().resource::<BudgetState>().scale, 1.0, "a still view draws at full scale");
+    // Moving until told otherwise: the scale drops to its smallest.
+    ex.app.world_mut().resource_mut::<FrameBudget>().refine_after = Duration::from_secs(3600);
+    for _ in 0..4 {
+        ex.app.world_mut().resource_mut::<Interacting>().mark();
+        ex.app.update();
+    }
+    let world = ex.app.world_mut();
+    let target = world.query_filtered::<&bevy::camera::RenderTarget, With<MainView>>().single(world).unwrap().clone();
+    let bevy::camera::RenderTarget::Image(target) = target else { panic!("an offscreen target") };
+    let coarse = headless::capture(&mut ex.app, target.handle).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(ex.app.world().resource::<BudgetState>().scale, 0.25, "drawn at a quarter of the side");
+    let cell = cells(URect::new(0, 0, full.width, full.height))[3];
+    let (mut bar_pixels, mut view_differs) = (0, 0);
+    let bars: Vec<URect> = (0..2).map(|i| bar_rect(cell.size(), i).expect("the bar fits")).collect();
+    for y in cell.min.y..cell.max.y {
+        for x in cell.min.x..cell.max.x {
+            let p = UVec2::new(x, y) - cell.min;
+            // Half-open rectangles (`URect::contains` takes in the max corner).
+            let on_bar = bars.iter().find(|r| p.cmpge(r.min).all() && p.cmplt(r.max).all());
+            let (a, b) = (full.pixel(x, y), coarse.pixel(x, y));
+            match on_bar {
+                Some(r) if GRADIENT_ROWS.contains(&(p.y - r.min.y)) => {
+                    assert_eq!(a[..3], b[..3], "bar pixel ({x}, {y})");
+                    bar_pixels += 1;
+                }
+                Some(_) => {}
+                None => view_differs += usize::from(a[..3] != b[..3]),
+            }
+        }
+    }
+    assert_eq!(bar_pixels, 2 * (BAR_W * (GRADIENT_ROWS.end - GRADIENT_ROWS.start)) as usize);
+    assert!(view_differs > 500, "{view_differs} pixels of the 3D view differ at a quarter of the side");
 }
