@@ -301,8 +301,12 @@ fn hold_budget(
         (on_demand.0.is_none_or(|n| *n == crate::on_demand::NextFrame::Now), on_demand.1.is_some_and(|s| s.0 > 0));
     #[cfg(not(feature = "winit"))]
     let (back_to_back, settling) = (true, false);
-    // A frame that put a retained picture back drew no scene: its time says nothing of the scene's cost.
-    let drew_scene = retained.as_ref().is_none_or(|r| !r.any(2));
+    // A frame that put a retained picture back drew no scene: its time says nothing of the scene's cost. The
+    // time measured is the render world's last frame: with pipelined rendering the one extracted before the
+    // newest (whose render this update waited for). Not "either of the last two": a full-quality frame followed
+    // by frames that put it back was never measured, and the first interaction after launch started from a
+    // cheap frame, above the smallest scale and not coarse (two frames of 105-125 ms on lavapipe).
+    let drew_scene = retained.as_ref().is_none_or(|r| !r.was(u32::from(pipelined.is_some())));
     // Frames that put it back, one after the other, measure what render scale cannot lower.
     if back_to_back
         && retained.is_some_and(|r| r.all_of_last(2))

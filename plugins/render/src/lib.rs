@@ -138,6 +138,11 @@ impl RecentlyRetained {
         let mask = if frames >= 32 { u32::MAX } else { (1u32 << frames) - 1 };
         self.0.load(Ordering::Relaxed) & mask != 0
     }
+    /// Whether the extracted frame `frames_ago` before the newest (0: the newest; at most 31) put the stored
+    /// picture back.
+    pub fn was(&self, frames_ago: u32) -> bool {
+        frames_ago < 32 && self.0.load(Ordering::Relaxed) >> frames_ago & 1 == 1
+    }
     pub(crate) fn push(&self, retained: bool) {
         let bits = self.0.load(Ordering::Relaxed);
         self.0.store((bits << 1) | u32::from(retained), Ordering::Relaxed);
@@ -161,4 +166,25 @@ pub fn modify_now<A: Asset>(
     f(asset);
     events.write(AssetEvent::Modified { id });
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RecentlyRetained;
+
+    /// The frames put back are read one by one, newest first: the frame budget reads the one its measured
+    /// time belongs to (with pipelined rendering, the one before the newest).
+    #[test]
+    fn each_recent_frame_is_read_on_its_own() {
+        let recent = RecentlyRetained::default();
+        for retained in [true, false, false, true, false] {
+            recent.push(retained);
+        }
+        // Newest first: false, true, false, false, true.
+        let read: Vec<bool> = (0..5).map(|i| recent.was(i)).collect();
+        assert_eq!(read, [false, true, false, false, true]);
+        assert!(recent.any(2) && !recent.was(0), "either of the last two is not the one before the newest");
+        assert!(!recent.was(40), "beyond what is kept");
+        assert_eq!(recent.frames_put_back(), 2);
+    }
 }
