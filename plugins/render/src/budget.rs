@@ -38,8 +38,8 @@ use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
 use bevy::render::camera::ExtractedCamera;
 use bevy::render::render_resource::{
-    BindGroup, CachedRenderPipelineId, Operations, PipelineCache, RenderPassColorAttachment,
-    SpecializedRenderPipelines, TextureViewId,
+    BindGroup, CachedRenderPipelineId, LoadOp, Operations, PipelineCache, RenderPassColorAttachment,
+    SpecializedRenderPipelines, StoreOp, TextureViewId,
 };
 use bevy::render::renderer::{RenderContext, RenderDevice, ViewQuery};
 use bevy::render::sync_world::RenderEntity;
@@ -503,8 +503,10 @@ pub(crate) fn upscale(
         return;
     }
     crate::viewport::copy_out(&mut ctx, target, &viewport, size.0, texture);
+    // Loaded, not cleared (wgpu's default operations): the stretch covers the viewport, and this camera writes
+    // only its viewport out, so clearing the rest of the main texture was a pass over it for nothing.
     let mut attachment: RenderPassColorAttachment = target.get_unsampled_color_attachment();
-    attachment.ops = Operations::default();
+    attachment.ops = Operations { load: LoadOp::Load, store: StoreOp::Store };
     crate::viewport::blit_over(&mut ctx, "fascicle_upscale", attachment, &viewport, pipeline, &upscale.bind_group);
 }
 

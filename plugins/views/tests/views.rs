@@ -307,4 +307,12 @@ fn the_bars_stay_sharp_while_the_view_draws_at_a_lower_scale() {
     }
     assert_eq!(bar_pixels, 2 * (BAR_W * (GRADIENT_ROWS.end - GRADIENT_ROWS.start)) as usize);
     assert!(view_differs > 500, "{view_differs} pixels of the 3D view differ at a quarter of the side");
+    // The 2D views, drawn into the same target before the 3D view, are untouched by its stretched picture.
+    for (i, cell) in cells(URect::new(0, 0, full.width, full.height)).into_iter().take(3).enumerate() {
+        let differ = (cell.min.y..cell.max.y)
+            .flat_map(|y| (cell.min.x..cell.max.x).map(move |x| (x, y)))
+            .filter(|&(x, y)| full.pixel(x, y) != coarse.pixel(x, y))
+            .count();
+        assert_eq!(differ, 0, "2D view {i}: {differ} pixels changed while the 3D view drew at a quarter");
+    }
 }
