@@ -307,7 +307,17 @@ pub fn run(o: ScaleOptions) -> Result<(), Error> {
     }
     for &n in sizes {
         let name = |ext: &str| dir.join(format!("brain{n}.{ext}"));
-        if n <= drag_max {
+        // The file read whole and its grid (about 0.7 times the points' bytes) must fit beside the rest: a
+        // 10M file (12 GB) on a 24 GB machine does not, and reading it anyway swaps the machine to a halt.
+        let held = std::fs::metadata(name("tck")).map_or(0, |m| m.len()).saturating_mul(2);
+        if n <= drag_max && available_memory().is_some_and(|a| held > a) {
+            eprintln!(
+                "{n} streamlines: the ROI drag on the grid skipped: the file and its grid need about {:.1} GB, \
+                 more than the {:.1} GB available (the mapped-file row below reads it in place)",
+                held as f64 / 1e9,
+                available_memory().unwrap_or(0) as f64 / 1e9
+            );
+        } else if n <= drag_max {
             let t = Tractogram::read(name("tck"))?;
             let t0 = Instant::now();
             let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
@@ -383,6 +393,14 @@ pub fn run(o: ScaleOptions) -> Result<(), Error> {
         std::fs::write(csv, text).map_err(|e| Error::Param(format!("{}: {e}", csv.display())))?;
     }
     Ok(())
+}
+
+/// The memory the kernel says is available for new allocations (`MemAvailable`, bytes); `None` where
+/// `/proc/meminfo` cannot be read.
+fn available_memory() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kib: u64 = info.lines().find(|l| l.starts_with("MemAvailable:"))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }
 
 /// ROI drag steps on a `.tck` read in place ([`fascicle_core::io::mapped::MappedTck`]) with the streamline-cell
