@@ -310,12 +310,13 @@ pub fn run(o: ScaleOptions) -> Result<(), Error> {
         // The file read whole and its grid (about 0.7 times the points' bytes) must fit beside the rest: a
         // 10M file (12 GB) on a 24 GB machine does not, and reading it anyway swaps the machine to a halt.
         let held = std::fs::metadata(name("tck")).map_or(0, |m| m.len()).saturating_mul(2);
-        if n <= drag_max && available_memory().is_some_and(|a| held > a) {
+        let available = available_memory().filter(|&a| n <= drag_max && held > a);
+        if let Some(available) = available {
             eprintln!(
                 "{n} streamlines: the ROI drag on the grid skipped: the file and its grid need about {:.1} GB, \
                  more than the {:.1} GB available (the mapped-file row below reads it in place)",
                 held as f64 / 1e9,
-                available_memory().unwrap_or(0) as f64 / 1e9
+                available as f64 / 1e9
             );
         } else if n <= drag_max {
             let t = Tractogram::read(name("tck"))?;

@@ -38,8 +38,7 @@ use bevy::platform::collections::HashMap;
 use bevy::prelude::*;
 use bevy::render::camera::ExtractedCamera;
 use bevy::render::render_resource::{
-    BindGroup, CachedRenderPipelineId, LoadOp, Operations, PipelineCache, RenderPassColorAttachment,
-    SpecializedRenderPipelines, StoreOp, TextureViewId,
+    BindGroup, CachedRenderPipelineId, PipelineCache, SpecializedRenderPipelines, TextureViewId,
 };
 use bevy::render::renderer::{RenderContext, RenderDevice, ViewQuery};
 use bevy::render::sync_world::RenderEntity;
@@ -503,10 +502,9 @@ pub(crate) fn upscale(
         return;
     }
     crate::viewport::copy_out(&mut ctx, target, &viewport, size.0, texture);
-    // Loaded, not cleared (wgpu's default operations): the stretch covers the viewport, and this camera writes
-    // only its viewport out, so clearing the rest of the main texture was a pass over it for nothing.
-    let mut attachment: RenderPassColorAttachment = target.get_unsampled_color_attachment();
-    attachment.ops = Operations { load: LoadOp::Load, store: StoreOp::Store };
+    // Loaded, not cleared: the stretch covers the viewport, and this camera writes only its viewport out, so
+    // clearing the rest of the main texture was a pass over it for nothing.
+    let attachment = crate::viewport::loaded_main_attachment(target);
     crate::viewport::blit_over(&mut ctx, "fascicle_upscale", attachment, &viewport, pipeline, &upscale.bind_group);
 }
 

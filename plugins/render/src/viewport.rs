@@ -6,8 +6,9 @@ use bevy::camera::Viewport;
 use bevy::prelude::*;
 use bevy::render::camera::ExtractedCamera;
 use bevy::render::render_resource::{
-    BindGroup, Extent3d, Origin3d, RenderPassColorAttachment, RenderPassDescriptor, RenderPipeline,
-    TexelCopyTextureInfo, Texture, TextureAspect, TextureDescriptor, TextureDimension, TextureFormat, TextureUsages,
+    BindGroup, Extent3d, LoadOp, Operations, Origin3d, RenderPassColorAttachment, RenderPassDescriptor, RenderPipeline,
+    StoreOp, TexelCopyTextureInfo, Texture, TextureAspect, TextureDescriptor, TextureDimension, TextureFormat,
+    TextureUsages,
 };
 use bevy::render::renderer::RenderContext;
 use bevy::render::view::ViewTarget;
@@ -48,6 +49,14 @@ pub(crate) fn copy_out(ctx: &mut RenderContext, target: &ViewTarget, viewport: &
         TexelCopyTextureInfo { texture: to, mip_level: 0, origin: Origin3d::ZERO, aspect: TextureAspect::All },
         Extent3d { width: size.x, height: size.y, depth_or_array_layers: 1 },
     );
+}
+
+/// The view's unsampled main texture as a colour attachment that keeps what is there (loaded, not cleared as
+/// wgpu's default operations do): for blits over part of it, the stretched scaled picture or a colour bar.
+pub fn loaded_main_attachment(target: &ViewTarget) -> RenderPassColorAttachment<'_> {
+    let mut attachment = target.get_unsampled_color_attachment();
+    attachment.ops = Operations { load: LoadOp::Load, store: StoreOp::Store };
+    attachment
 }
 
 /// Draws the texture of `bind_group` (Bevy's blit layout) over `viewport` (physical pixels of the target) into

@@ -16,8 +16,7 @@ use bevy::render::camera::ExtractedCamera;
 use bevy::render::extract_component::{ExtractComponent, ExtractComponentPlugin};
 use bevy::render::render_asset::RenderAssets;
 use bevy::render::render_resource::{
-    BindGroup, BlendState, CachedRenderPipelineId, LoadOp, Operations, PipelineCache, SpecializedRenderPipelines,
-    StoreOp, TextureViewId,
+    BindGroup, BlendState, CachedRenderPipelineId, PipelineCache, SpecializedRenderPipelines, TextureViewId,
 };
 use bevy::render::renderer::{RenderContext, RenderDevice, ViewQuery};
 use bevy::render::texture::GpuImage;
@@ -120,9 +119,8 @@ fn draw_bars(
             physical_size: rect.size(),
             ..default()
         };
-        let mut attachment = target.get_unsampled_color_attachment();
         // What the view drew stays under the bar.
-        attachment.ops = Operations { load: LoadOp::Load, store: StoreOp::Store };
+        let attachment = fascicle_render::viewport::loaded_main_attachment(target);
         fascicle_render::viewport::blit_over(&mut ctx, "fascicle_colour_bar", attachment, &at, pipeline, group);
     }
 }
