@@ -73,6 +73,7 @@ impl MappedTck {
     }
 
     /// Points of streamline `s`, in place (RAS+ mm). Panics if `s >= n_streamlines()`.
+    #[inline]
     pub fn streamline(&self, s: usize) -> &[Vec3] {
         let points = points_of(&self.map, self.data);
         let (a, b) = (self.starts[s] as usize, self.starts[s + 1] as usize - 1);
@@ -86,6 +87,7 @@ impl MappedTck {
 }
 
 /// The whole triples of `map` from byte `offset`, as points.
+#[inline]
 fn points_of(map: &[u8], offset: usize) -> &[Vec3] {
     let bytes = map.get(offset..).unwrap_or_default();
     let n = bytes.len() / 12;
