@@ -234,8 +234,7 @@ fn pick_streamlines(
         for (e, set, sel, le, _) in eligible {
             let t = &set.tractogram;
             let shown = |s: usize| sel.0.get(s).copied().unwrap_or(false);
-            let inside =
-                fascicle_core::roi::lasso_streamlines(&t.points, &t.offsets, shown, in_view(slab_of(e)), &lasso);
+            let inside = fascicle_core::roi::lasso_streamlines(t, shown, in_view(slab_of(e)), &lasso);
             per_layer.entry(le.0).or_default().extend(inside.into_iter().map(|s| set.first + s));
         }
         let best = per_layer.into_iter().max_by_key(|(_, inside)| inside.len());
@@ -584,7 +583,7 @@ fn pick_in_slab(
         flags
     });
     let shown = |s: usize| near_flags.as_ref().is_none_or(|f| f[s]) && shown(s);
-    fascicle_core::roi::pick_projected(&t.points, &t.offsets, shown, project, at, radius)
+    fascicle_core::roi::pick_projected(t, shown, project, at, radius)
 }
 
 /// The gizmos of the 2D views (painted ROIs, picked streamlines in a view's slab): on the views' render layers.
@@ -1260,7 +1259,7 @@ fn save_selection(
                 fascicle_scene::jobs::tract_data(&cache, source, &Default::default()).map(|d| {
                     let t = &d.tractogram;
                     let mut keep = vec![true; t.n_streamlines()];
-                    fascicle_core::roi::Criteria::from_rois(rois, *ends_only).narrow(&t.points, &t.offsets, &mut keep);
+                    fascicle_core::roi::Criteria::from_rois(rois, *ends_only).narrow(t, &mut keep);
                     (t.subset(&keep), t.n_streamlines())
                 })
             }
@@ -1805,7 +1804,7 @@ mod tests {
         use std::sync::Arc;
         let t = Arc::new(Tractogram::read(crate::repo_path("data/tracts/tracks300.trk")).unwrap());
         let set = TractSet {
-            tractogram: t.clone(),
+            tractogram: fascicle_tracts::SetStreamlines::Owned(t.clone()),
             index: fascicle_tracts::LazyIndex::default(),
             selected: Handle::default(),
             first: 0,
@@ -1816,7 +1815,7 @@ mod tests {
         let (k, origin) = (3.0, Vec2::new(-100.0, 500.0));
         let project = |p: Vec3| ((p.z - z0).abs() <= 2.0).then(|| origin + Vec2::new(p.x, -p.y) * k);
         let brute = |shown: &(dyn Fn(usize) -> bool + Sync), at| {
-            fascicle_core::roi::pick_projected(&t.points, &t.offsets, shown, project, at, 4.0)
+            fascicle_core::roi::pick_projected(&t, shown, project, at, 4.0)
         };
         let near = |at| click_box(project, at, 4.0, &slab, 2).expect("the slab's plane is seen");
         // Not built yet: every streamline tested.
@@ -1908,7 +1907,7 @@ mod tests {
         // A tract set: its flags are what is saved (every third streamline here).
         let flags: Vec<bool> = (0..t.n_streamlines()).map(|s| s % 3 == 0).collect();
         let set = TractSet {
-            tractogram: Arc::new(t.clone()),
+            tractogram: fascicle_tracts::SetStreamlines::Owned(Arc::new(t.clone())),
             index: fascicle_tracts::LazyIndex::default(),
             selected: Handle::default(),
             first: 0,
@@ -1931,7 +1930,7 @@ mod tests {
         };
         for (range, first) in [(half..t.n_streamlines(), half), (0..half, 0)] {
             let set = TractSet {
-                tractogram: part(range.clone()),
+                tractogram: fascicle_tracts::SetStreamlines::Owned(part(range.clone())),
                 index: fascicle_tracts::LazyIndex::default(),
                 selected: Handle::default(),
                 first,

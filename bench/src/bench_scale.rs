@@ -451,14 +451,11 @@ pub fn pick(file: &Path) -> Result<(), Error> {
         ms[2]
     };
     let eye = centre + Vec3::Z * (hi.z - lo.z + 100.0);
-    let (points, offsets) = (&t.points, &t.offsets);
-    let click = median(&|| {
-        fascicle_core::roi::pick_streamline(points, offsets, |_| true, eye, -Vec3::Z, 0.004).map_or(0, |p| p.0)
-    });
+    let click = median(&|| fascicle_core::roi::pick_streamline(&t, |_| true, eye, -Vec3::Z, 0.004).map_or(0, |p| p.0));
     // Seen along z: a point's screen position is its x and y in mm.
     let square =
         [(-10.0, -10.0), (10.0, -10.0), (10.0, 10.0), (-10.0, 10.0)].map(|(x, y)| centre.truncate() + Vec2::new(x, y));
-    let lasso = || fascicle_core::roi::lasso_streamlines(points, offsets, |_| true, |p| Some(p.truncate()), &square);
+    let lasso = || fascicle_core::roi::lasso_streamlines(&t, |_| true, |p| Some(p.truncate()), &square);
     let picked = lasso().len();
     let lasso_ms = median(&|| lasso().len());
     println!(
@@ -474,7 +471,7 @@ pub fn pick(file: &Path) -> Result<(), Error> {
     let indexed = median(&|| through(eye).map_or(0, |p| p.0));
     assert_eq!(
         through(eye),
-        fascicle_core::roi::pick_streamline(points, offsets, |_| true, eye, -Vec3::Z, 0.004),
+        fascicle_core::roi::pick_streamline(&t, |_| true, eye, -Vec3::Z, 0.004),
         "the index picks as brute force"
     );
     let mut rays: Vec<(f64, bool)> = (0..49)
@@ -499,8 +496,7 @@ pub fn pick(file: &Path) -> Result<(), Error> {
     let (z0, k) = (centre.z, 3.0f32);
     let project = |p: Vec3| ((p.z - z0).abs() <= 1.0).then(|| Vec2::new(p.x, -p.y) * k);
     let at = Vec2::new(centre.x, -centre.y) * k;
-    let flat =
-        median(&|| fascicle_core::roi::pick_projected(points, offsets, |_| true, project, at, 4.0).map_or(0, |p| p.0));
+    let flat = median(&|| fascicle_core::roi::pick_projected(&t, |_| true, project, at, 4.0).map_or(0, |p| p.0));
     let r = 4.0 / k * 1.01 + 1e-3;
     let near = fascicle_core::roi::RoiShape::Box {
         min: [centre.x - r, centre.y - r, z0 - 1.001],
@@ -509,11 +505,11 @@ pub fn pick(file: &Path) -> Result<(), Error> {
     let through_cells = || {
         let mut flags = vec![false; t.n_streamlines()];
         index.candidates(&near).iter().for_each(|s| flags[*s as usize] = true);
-        fascicle_core::roi::pick_projected(points, offsets, |s| flags[s], project, at, 4.0)
+        fascicle_core::roi::pick_projected(&t, |s| flags[s], project, at, 4.0)
     };
     assert_eq!(
         through_cells(),
-        fascicle_core::roi::pick_projected(points, offsets, |_| true, project, at, 4.0),
+        fascicle_core::roi::pick_projected(&t, |_| true, project, at, 4.0),
         "the index picks as brute force in a slab"
     );
     let slab = median(&|| through_cells().map_or(0, |p| p.0));

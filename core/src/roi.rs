@@ -14,6 +14,8 @@
 use glam::{Vec2, Vec3};
 use rayon::prelude::*;
 
+use crate::io::Streamlines;
+
 /// A region's shape, in the tractogram's world space (RAS+ mm).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum RoiShape {
@@ -443,12 +445,11 @@ pub fn select(points: &[Vec3], offsets: &[usize], grid: &SegmentGrid, rois: &[Ro
 /// region holds the first or the last point, no exclude region holds either (with no include, every
 /// streamline not excluded; a streamline without points meets nothing). Planes, which have no inside, are met
 /// by a step crossing them anywhere along the streamline, as [`Criteria::keeps`] has them.
-pub fn select_ends(points: &[Vec3], offsets: &[usize], rois: &[Roi]) -> Vec<bool> {
-    let n = offsets.len().saturating_sub(1);
-    (0..n)
+pub fn select_ends(t: &(impl Streamlines + ?Sized), rois: &[Roi]) -> Vec<bool> {
+    (0..t.n_streamlines())
         .into_par_iter()
         .map(|s| {
-            let pts = &points[offsets[s]..offsets[s + 1]];
+            let pts = t.streamline(s);
             rois.iter().all(|r| {
                 let met = match (&r.shape, pts) {
                     (_, []) => false,
@@ -468,19 +469,17 @@ pub fn select_ends(points: &[Vec3], offsets: &[usize], rois: &[Roi]) -> Vec<bool
 /// ray. A one-point streamline is a point. Brute force over every step, in parallel; an indexed set picks the
 /// same streamline by [`crate::roi_index::StreamlineCells::pick`], testing only those near the ray.
 pub fn pick_streamline(
-    points: &[Vec3],
-    offsets: &[usize],
+    t: &(impl Streamlines + ?Sized),
     shown: impl Fn(usize) -> bool + Sync,
     o: Vec3,
     d: Vec3,
     tolerance: f32,
 ) -> Option<(usize, f32)> {
-    let n = offsets.len().saturating_sub(1);
     let ray = Ray::new(o, d, tolerance);
-    (0..n)
+    (0..t.n_streamlines())
         .into_par_iter()
         .filter(|&s| shown(s))
-        .filter_map(|s| ray.hit(&points[offsets[s]..offsets[s + 1]]).map(|t| (s, t)))
+        .filter_map(|s| ray.hit(t.streamline(s)).map(|d| (s, d)))
         .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
 }
 
@@ -490,8 +489,7 @@ pub fn pick_streamline(
 /// rule, so a lasso that crosses itself leaves out what it circles twice). The points are tested, not the steps
 /// between them, as the ROIs test them (see the module). Parallel over streamlines; in increasing order.
 pub fn lasso_streamlines(
-    points: &[Vec3],
-    offsets: &[usize],
+    t: &(impl Streamlines + ?Sized),
     shown: impl Fn(usize) -> bool + Sync,
     project: impl Fn(Vec3) -> Option<Vec2> + Sync,
     polygon: &[Vec2],
@@ -501,10 +499,9 @@ pub fn lasso_streamlines(
     }
     let (lo, hi) = polygon.iter().fold((Vec2::MAX, Vec2::MIN), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
     let inside = |q: Vec2| q.cmpge(lo).all() && q.cmple(hi).all() && in_polygon(polygon, q);
-    let n = offsets.len().saturating_sub(1);
-    (0..n)
+    (0..t.n_streamlines())
         .into_par_iter()
-        .filter(|&s| shown(s) && points[offsets[s]..offsets[s + 1]].iter().any(|p| project(*p).is_some_and(inside)))
+        .filter(|&s| shown(s) && t.streamline(s).iter().any(|p| project(*p).is_some_and(inside)))
         .collect()
 }
 
@@ -528,24 +525,22 @@ pub fn in_polygon(polygon: &[Vec2], q: Vec2) -> bool {
 /// step leaving a 2D view's slab) comes nearest `at`, within `radius` pixels; with that distance. A one-point
 /// streamline is a point. Ties go to the lower index. Brute force over every step, in parallel.
 pub fn pick_projected(
-    points: &[Vec3],
-    offsets: &[usize],
+    t: &(impl Streamlines + ?Sized),
     shown: impl Fn(usize) -> bool + Sync,
     project: impl Fn(Vec3) -> Option<Vec2> + Sync,
     at: Vec2,
     radius: f32,
 ) -> Option<(usize, f32)> {
-    let n = offsets.len().saturating_sub(1);
     let near = |a: Vec2, b: Vec2| {
         let u = b - a;
         let t = if u.length_squared() <= f32::EPSILON { 0.0 } else { ((at - a).dot(u) / u.dot(u)).clamp(0.0, 1.0) };
         (a + u * t).distance(at)
     };
-    (0..n)
+    (0..t.n_streamlines())
         .into_par_iter()
         .filter(|&s| shown(s))
         .filter_map(|s| {
-            let pts = &points[offsets[s]..offsets[s + 1]];
+            let pts = t.streamline(s);
             let screen: Vec<Option<Vec2>> = pts.iter().map(|p| project(*p)).collect();
             let steps: Box<dyn Iterator<Item = (Option<Vec2>, Option<Vec2>)>> = match &screen[..] {
                 [p] => Box::new(std::iter::once((*p, *p))),
@@ -730,14 +725,14 @@ impl Criteria {
         self.include.is_empty() && self.exclude.is_empty()
     }
 
-    /// Narrows a selection of the streamlines (`points` cut at `offsets`): each still selected stays so when
-    /// [`Criteria::keeps`] it (in parallel; the streamlines already out are not tested).
-    pub fn narrow(&self, points: &[Vec3], offsets: &[usize], selected: &mut [bool]) {
+    /// Narrows a selection of the streamlines `t`: each still selected stays so when [`Criteria::keeps`] it
+    /// (in parallel; the streamlines already out are not tested).
+    pub fn narrow(&self, t: &(impl Streamlines + ?Sized), selected: &mut [bool]) {
         if self.is_empty() {
             return;
         }
         selected.par_iter_mut().enumerate().filter(|(_, k)| **k).for_each(|(s, k)| {
-            *k = self.keeps(&points[offsets[s]..offsets[s + 1]]);
+            *k = self.keeps(t.streamline(s));
         });
     }
 

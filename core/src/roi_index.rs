@@ -553,7 +553,7 @@ mod tests {
             let o = target - dir * dist;
             let tol = [0.002, 0.01, 0.05][k % 3];
             let shown = |s: usize| !k.is_multiple_of(5) || !s.is_multiple_of(3);
-            let want = crate::roi::pick_streamline(&t.points, &t.offsets, shown, o, dir, tol);
+            let want = crate::roi::pick_streamline(&t, shown, o, dir, tol);
             let tested = AtomicU64::new(0);
             let counted = |s: usize| {
                 tested.fetch_add(1, Ordering::Relaxed);

@@ -2,7 +2,7 @@
 //! and plane ROIs in include/exclude combinations select exactly the streamlines a grid-free evaluation of
 //! every segment selects; and the segment predicates agree with dense sampling of each segment.
 
-use fascicle_core::io::Tractogram;
+use fascicle_core::io::{Csr, Tractogram};
 use fascicle_core::roi::{
     Criteria, MaskRegion, Region, Roi, RoiMode, RoiShape, SegmentGrid, in_polygon, lasso_streamlines, pick_projected,
     pick_streamline, pieces_inside, select, select_ends,
@@ -70,7 +70,7 @@ fn check(t: &Tractogram, seed: u64) -> (usize, usize) {
         let streamed: Vec<bool> = t.iter().map(|s| criteria.keeps(s)).collect();
         assert_eq!(streamed, got, "{rois:?}");
         // Ends only (the viewer's live selection, tckedit's -ends_only as `fascicle select` streams it).
-        let ends = select_ends(&t.points, &t.offsets, &rois);
+        let ends = select_ends(t, &rois);
         let streamed: Vec<bool> = t.iter().map(|s| Criteria { ends_only: true, ..criteria.clone() }.keeps(s)).collect();
         assert_eq!(ends, streamed, "ends only: {rois:?}");
         if rois.iter().all(|r| r.mode == RoiMode::Include && !matches!(r.shape, RoiShape::Plane { .. })) {
@@ -308,7 +308,7 @@ fn a_click_picks_the_nearest_streamline_within_its_cone() {
     let all = |_: usize| true;
     let down = -Vec3::Z;
     let pick = |o: Vec3, shown: &(dyn Fn(usize) -> bool + Sync), tol: f32| {
-        pick_streamline(&points, &offsets, shown, o, down, tol)
+        pick_streamline(&Csr(&points, &offsets), shown, o, down, tol)
     };
     assert_eq!(pick(Vec3::new(3.0, 0.0, 100.0), &all, 0.01), Some((2, 90.0)));
     assert_eq!(pick(Vec3::new(3.0, 0.0, 100.0), &|s| s != 2, 0.01), Some((1, 95.0)));
@@ -332,7 +332,7 @@ fn a_click_picks_the_nearest_streamline_within_its_cone() {
         let target = pts[rng.random_range(0..pts.len())];
         let o = target + Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, 1.0).normalize() * 150.0;
         let d = (target - o).normalize();
-        let got = pick_streamline(&t.points, &t.offsets, |_| true, o, d, tol).expect("the ray passes a point");
+        let got = pick_streamline(&t, |_| true, o, d, tol).expect("the ray passes a point");
         // Brute force: per step, its densely sampled point nearest the ray's line; in the cone there, the
         // nearest such along the ray wins.
         let mut best: Option<(usize, f32)> = None;
@@ -380,13 +380,13 @@ fn a_lasso_picks_the_streamlines_with_a_point_inside() {
         })
         .collect();
     assert_eq!(want.len(), 41);
-    assert_eq!(lasso_streamlines(&points, &offsets, |_| true, top, &c_shape), want);
+    assert_eq!(lasso_streamlines(&Csr(&points, &offsets), |_| true, top, &c_shape), want);
     let without_11: Vec<usize> = want.iter().copied().filter(|&s| s != 11).collect();
-    assert_eq!(lasso_streamlines(&points, &offsets, |s| s != 11, top, &c_shape), without_11);
+    assert_eq!(lasso_streamlines(&Csr(&points, &offsets), |s| s != 11, top, &c_shape), without_11);
     let slab = |p: Vec3| (p.x < 5.5).then_some(p.truncate());
     let left: Vec<usize> = want.iter().copied().filter(|&s| cell(s).0 <= 5).collect();
-    assert_eq!(lasso_streamlines(&points, &offsets, |_| true, slab, &c_shape), left);
-    assert!(lasso_streamlines(&points, &offsets, |_| true, top, &c_shape[..2]).is_empty());
+    assert_eq!(lasso_streamlines(&Csr(&points, &offsets), |_| true, slab, &c_shape), left);
+    assert!(lasso_streamlines(&Csr(&points, &offsets), |_| true, top, &c_shape[..2]).is_empty());
     assert!(in_polygon(&c_shape, Vec2::new(2.0, 3.0)) && !in_polygon(&c_shape, Vec2::new(5.0, 3.5)));
 
     let t = Tractogram::read(data("data/tracts/tracks300.trk")).unwrap();
@@ -409,7 +409,7 @@ fn a_lasso_picks_the_streamlines_with_a_point_inside() {
         };
         let brute: Vec<usize> =
             (0..t.n_streamlines()).filter(|&s| t.streamline(s).iter().any(|p| inside(oblique(*p).unwrap()))).collect();
-        let got = lasso_streamlines(&t.points, &t.offsets, |_| true, oblique, &tri);
+        let got = lasso_streamlines(&t, |_| true, oblique, &tri);
         assert_eq!(got, brute);
         picked_some += usize::from(!got.is_empty() && got.len() < t.n_streamlines());
     }
@@ -431,7 +431,8 @@ fn a_click_in_a_2d_view_picks_the_nearest_step_on_screen() {
     points.push(Vec3::new(20.0, 20.0, 0.0));
     offsets.push(points.len());
     let top = |p: Vec3| Some(p.truncate());
-    let pick = |at: (f32, f32), r: f32| pick_projected(&points, &offsets, |_| true, top, Vec2::new(at.0, at.1), r);
+    let pick =
+        |at: (f32, f32), r: f32| pick_projected(&Csr(&points, &offsets), |_| true, top, Vec2::new(at.0, at.1), r);
     assert_eq!(pick((3.0, 1.0), 3.0), Some((0, 1.0)));
     assert_eq!(pick((3.0, 2.6), 3.0), Some((1, 2.4)));
     assert_eq!(pick((3.0, 2.5), 3.0), Some((0, 2.5)));
@@ -439,8 +440,8 @@ fn a_click_in_a_2d_view_picks_the_nearest_step_on_screen() {
     assert_eq!(pick((12.0, 0.0), 3.0), Some((0, 2.0)));
     assert_eq!(pick((20.0, 21.0), 3.0), Some((3, 1.0)));
     let slab = |p: Vec3| (p.z > 0.5).then_some(p.truncate());
-    assert_eq!(pick_projected(&points, &offsets, |_| true, slab, Vec2::new(3.0, 1.0), 6.0), Some((1, 4.0)));
-    assert_eq!(pick_projected(&points, &offsets, |s| s != 1, slab, Vec2::new(3.0, 1.0), 6.0), None);
+    assert_eq!(pick_projected(&Csr(&points, &offsets), |_| true, slab, Vec2::new(3.0, 1.0), 6.0), Some((1, 4.0)));
+    assert_eq!(pick_projected(&Csr(&points, &offsets), |s| s != 1, slab, Vec2::new(3.0, 1.0), 6.0), None);
 
     let t = Tractogram::read(data("data/tracts/tracks300.trk")).unwrap();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
@@ -448,7 +449,7 @@ fn a_click_in_a_2d_view_picks_the_nearest_step_on_screen() {
         let s = rng.random_range(0..t.n_streamlines());
         let pts = t.streamline(s);
         let at = pts[rng.random_range(0..pts.len())].truncate() + Vec2::new(rng.random::<f32>(), rng.random::<f32>());
-        let got = pick_projected(&t.points, &t.offsets, |_| true, top, at, 1.5).expect("a point within 1.5");
+        let got = pick_projected(&t, |_| true, top, at, 1.5).expect("a point within 1.5");
         let mut best = (usize::MAX, f32::MAX);
         for s in 0..t.n_streamlines() {
             for w in t.streamline(s).windows(2) {

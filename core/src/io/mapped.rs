@@ -3,28 +3,31 @@
 //! streamline from the page cache, with 8 bytes per streamline of index. Float32LE data only (what `tckgen` and
 //! every writer here produce); other files are read with [`crate::io::tck`] or streamed
 //! ([`crate::io::stream::TractogramReader`]).
+//!
+//! A run of consecutive streamlines whose lengths are known (read by a stream, for example) is addressed in
+//! place without indexing the file: [`MappedRun`]. Pages read through a mapping count in the process's resident
+//! memory until released ([`MappedPoints::release`]: the page cache keeps them, a later read maps them again).
 
+use std::ops::Range;
 use std::path::Path;
+use std::sync::Arc;
 
 use glam::Vec3;
 
+use super::Streamlines;
 use crate::error::{Error, Result};
 
-/// A Float32LE `.tck` file mapped in memory, with the index of its streamlines.
-pub struct MappedTck {
+/// The points of a Float32LE `.tck` file, mapped in memory and not indexed: every triple from the data offset
+/// on, terminators included.
+pub struct MappedPoints {
     map: memmap2::Mmap,
     /// Byte offset of the first point.
     data: usize,
-    /// Per streamline, the index (in points from `data`) of its first point; one more entry ends the last.
-    /// Streamline `s` spans `starts[s]..starts[s + 1] - 1` (its NaN terminator excluded).
-    starts: Vec<u64>,
-    bounds: Option<(Vec3, Vec3)>,
 }
 
-impl MappedTck {
-    /// Maps `path` and indexes its streamlines in one pass over the points (a NaN triple ends a streamline,
-    /// an Inf triple or the end of the data ends the file; a last streamline without its terminator is kept).
-    /// Errors name the file: not a `.tck`, not Float32LE, data offset not a multiple of 4.
+impl MappedPoints {
+    /// Maps `path` and reads its header (nothing else is read). Errors name the file: not a `.tck`, not
+    /// Float32LE, data offset not a multiple of 4.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
@@ -38,7 +41,116 @@ impl MappedTck {
         if layout.offset % 4 != 0 {
             return Err(Error::format(path, format!("data offset {} is not a multiple of 4", layout.offset)));
         }
-        let points = points_of(&map, layout.offset);
+        Ok(Self { map, data: layout.offset })
+    }
+
+    /// Every whole triple from the data offset on (RAS+ mm; terminators are NaN, the end Inf).
+    #[inline]
+    pub fn points(&self) -> &[Vec3] {
+        points_of(&self.map, self.data)
+    }
+
+    /// Lets the pages holding `points` (indices into [`MappedPoints::points`]) go from this process's resident
+    /// memory (the kernel's page cache keeps them; reading them again maps them again, with the same data). A
+    /// hint: where it cannot be given (not Unix), nothing happens.
+    pub fn release(&self, points: Range<usize>) {
+        let n = self.points().len();
+        let (a, b) = (points.start.min(n), points.end.min(n));
+        if a >= b {
+            return;
+        }
+        #[cfg(unix)]
+        {
+            let (offset, len) = (self.data + a * 12, (b - a) * 12);
+            // SAFETY: the mapping is shared and read only: dropping its pages loses nothing (nothing was
+            // written), and a later read of them, through slices handed out before or after, finds the file's
+            // data again. memmap2 widens the range to whole pages within the mapping.
+            let _ = unsafe { self.map.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, offset, len) };
+        }
+    }
+}
+
+/// A run of consecutive streamlines of a [`MappedPoints`], read in place: `starts[k]..starts[k + 1] - 1` are
+/// streamline `k`'s points (the file's indices; each streamline's terminator follows it). 8 bytes a streamline.
+pub struct MappedRun {
+    file: Arc<MappedPoints>,
+    starts: Vec<u64>,
+}
+
+impl MappedRun {
+    /// The streamlines of `lengths` (points each), stored one after another from the file's point `at`, each
+    /// followed by its terminator (as a `.tck` stores them). `None` when they would run past the file's points,
+    /// or when their ends are not where the file has them (a terminator after each, the first and last points
+    /// as `check` has them: cheap checks that the lengths describe this file).
+    pub fn consecutive(
+        file: Arc<MappedPoints>,
+        at: usize,
+        lengths: impl IntoIterator<Item = usize>,
+        check: &impl Streamlines,
+    ) -> Option<Self> {
+        let mut starts = vec![at as u64];
+        for n in lengths {
+            starts.push(starts.last().copied().unwrap_or(0) + n as u64 + 1);
+        }
+        let run = MappedRun { file, starts };
+        let points = run.file.points();
+        let end = *run.starts.last().unwrap_or(&0) as usize;
+        if end > points.len() || run.n_streamlines() != check.n_streamlines() {
+            return None;
+        }
+        let terminated = |k: usize| points[run.starts[k + 1] as usize - 1].is_nan();
+        let same_ends = |k: usize| {
+            let (a, b) = (run.streamline(k), check.streamline(k));
+            a.first().map(|p| p.to_array()) == b.first().map(|p| p.to_array())
+                && a.last().map(|p| p.to_array()) == b.last().map(|p| p.to_array())
+        };
+        let n = run.n_streamlines();
+        let probes = [0, n / 2, n.saturating_sub(1)];
+        let ok = n == 0 || probes.iter().all(|&k| terminated(k) && same_ends(k));
+        run.release();
+        ok.then_some(run)
+    }
+
+    /// Lets the run's pages go from this process's resident memory ([`MappedPoints::release`]).
+    pub fn release(&self) {
+        let (a, b) = (self.starts[0] as usize, *self.starts.last().unwrap_or(&0) as usize);
+        self.file.release(a..b);
+    }
+
+    /// Bytes the run holds (its starts; the points stay in the file).
+    pub fn heap_bytes(&self) -> usize {
+        self.starts.len() * 8
+    }
+}
+
+impl Streamlines for MappedRun {
+    fn n_streamlines(&self) -> usize {
+        self.starts.len() - 1
+    }
+
+    #[inline]
+    fn streamline(&self, s: usize) -> &[Vec3] {
+        let (a, b) = (self.starts[s] as usize, self.starts[s + 1] as usize - 1);
+        &self.file.points()[a..b]
+    }
+}
+
+/// A Float32LE `.tck` file mapped in memory, with the index of its streamlines.
+pub struct MappedTck {
+    file: MappedPoints,
+    /// Per streamline, the index (in points from the data offset) of its first point; one more entry ends the
+    /// last. Streamline `s` spans `starts[s]..starts[s + 1] - 1` (its NaN terminator excluded).
+    starts: Vec<u64>,
+    bounds: Option<(Vec3, Vec3)>,
+}
+
+impl MappedTck {
+    /// Maps `path` and indexes its streamlines in one pass over the points (a NaN triple ends a streamline,
+    /// an Inf triple or the end of the data ends the file; a last streamline without its terminator is kept).
+    /// Errors name the file: not a `.tck`, not Float32LE, data offset not a multiple of 4.
+    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
+        let file = MappedPoints::open(path)?;
+        let points = file.points();
         let mut starts = vec![0u64];
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let mut open = false;
@@ -64,7 +176,9 @@ impl MappedTck {
             starts.push(points.len() as u64 + 1);
         }
         let bounds = (lo.x <= hi.x).then_some((lo, hi));
-        Ok(Self { map, data: layout.offset, starts, bounds })
+        // The pass read every page: they go from the process's memory until a streamline is read again.
+        file.release(0..points.len());
+        Ok(Self { file, starts, bounds })
     }
 
     /// Streamlines in the file (empty ones included, as MRtrix counts them).
@@ -75,7 +189,7 @@ impl MappedTck {
     /// Points of streamline `s`, in place (RAS+ mm). Panics if `s >= n_streamlines()`.
     #[inline]
     pub fn streamline(&self, s: usize) -> &[Vec3] {
-        let points = points_of(&self.map, self.data);
+        let points = self.file.points();
         let (a, b) = (self.starts[s] as usize, self.starts[s + 1] as usize - 1);
         &points[a..b.min(points.len())]
     }
@@ -83,6 +197,16 @@ impl MappedTck {
     /// Bounds of every point (RAS+ mm); None without points.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         self.bounds
+    }
+}
+
+impl Streamlines for MappedTck {
+    fn n_streamlines(&self) -> usize {
+        MappedTck::n_streamlines(self)
+    }
+
+    fn streamline(&self, s: usize) -> &[Vec3] {
+        MappedTck::streamline(self, s)
     }
 }
 
@@ -126,5 +250,40 @@ mod tests {
         let c = MappedTck::open(&cut).unwrap();
         assert_eq!(c.n_streamlines(), 4);
         assert_eq!(c.streamline(3), t.streamline(3));
+    }
+
+    /// A run of consecutive streamlines read in place is the file's: the whole file, a run from its middle
+    /// (the file's point index of its first streamline: the points and terminators before it), and an empty
+    /// run; lengths that do not describe the file give none.
+    #[test]
+    fn a_run_of_streamlines_is_read_in_place() {
+        let mut t = Tractogram::new();
+        for k in 0..7 {
+            let pts: Vec<Vec3> = (0..k % 4).map(|i| Vec3::new(k as f32, i as f32, 0.5)).collect();
+            t.push(&pts);
+        }
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-mapped-run-").tempdir().unwrap();
+        let path = tmp_dir.path().join("t.tck");
+        crate::io::tck::write(&path, &t, &[]).unwrap();
+        let file = Arc::new(MappedPoints::open(&path).unwrap());
+        let lengths = |r: Range<usize>| r.map(|s| t.streamline(s).len()).collect::<Vec<_>>();
+        let whole = MappedRun::consecutive(file.clone(), 0, lengths(0..7), &t).expect("the whole file");
+        assert_eq!(whole.n_streamlines(), 7);
+        (0..7).for_each(|s| assert_eq!(whole.streamline(s), t.streamline(s), "streamline {s}"));
+        let part = t.subset(&[false, false, true, true, true, false, false]);
+        let at = t.offsets[2] + 2;
+        let middle = MappedRun::consecutive(file.clone(), at, lengths(2..5), &part).expect("a run from the middle");
+        (0..3).for_each(|s| assert_eq!(middle.streamline(s), t.streamline(s + 2), "streamline {}", s + 2));
+        whole.release();
+        assert_eq!(middle.streamline(1), t.streamline(3), "read again after a release");
+        let none = Tractogram::new();
+        assert_eq!(MappedRun::consecutive(file.clone(), at, [], &none).map(|r| r.n_streamlines()), Some(0));
+        // One point too many, a start one off, past the end, or streamlines that are not these.
+        let mut longer = lengths(2..5);
+        longer[0] += 1;
+        assert!(MappedRun::consecutive(file.clone(), at, longer, &part).is_none());
+        assert!(MappedRun::consecutive(file.clone(), at + 1, lengths(2..5), &part).is_none());
+        assert!(MappedRun::consecutive(file.clone(), t.offsets[7] + 7, [1], &part).is_none());
+        assert!(MappedRun::consecutive(file, 0, lengths(0..3), &part).is_none());
     }
 }

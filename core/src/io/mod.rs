@@ -15,7 +15,7 @@ pub mod tsf;
 pub mod weights;
 
 pub use gradients::{BvecConvention, GradientTable};
-pub use tractogram::Tractogram;
+pub use tractogram::{Csr, Streamlines, Tractogram};
 
 use std::path::Path;
 

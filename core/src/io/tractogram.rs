@@ -19,6 +19,61 @@ pub struct Tractogram {
     pub properties: Vec<(String, Vec<f32>)>,
 }
 
+/// Streamlines addressed one at a time, wherever their points are: in memory ([`Tractogram`], [`Csr`]) or
+/// read in place from a mapped file ([`super::mapped::MappedTck`], [`super::mapped::MappedRun`]). What ROI
+/// selection and picking ([`crate::roi`], [`crate::roi_index`]) take.
+pub trait Streamlines: Sync {
+    /// How many streamlines.
+    fn n_streamlines(&self) -> usize;
+    /// The points of streamline `s` (RAS+ mm). Panics if `s >= n_streamlines()`.
+    fn streamline(&self, s: usize) -> &[Vec3];
+
+    /// The streamlines with `keep[s]` (a selection), in order, as a tractogram of points only; streamlines
+    /// past `keep`'s end are dropped.
+    fn subset(&self, keep: &[bool]) -> Tractogram {
+        let mut out = Tractogram::new();
+        for (s, _) in keep.iter().enumerate().take(self.n_streamlines()).filter(|(_, k)| **k) {
+            out.push(self.streamline(s));
+        }
+        out
+    }
+}
+
+/// Points and the offsets that cut them into streamlines (`offsets[s]..offsets[s + 1]`), borrowed: a
+/// [`Streamlines`] over arrays that are not a [`Tractogram`].
+#[derive(Clone, Copy, Debug)]
+pub struct Csr<'a>(pub &'a [Vec3], pub &'a [usize]);
+
+impl Streamlines for Csr<'_> {
+    fn n_streamlines(&self) -> usize {
+        self.1.len().saturating_sub(1)
+    }
+
+    fn streamline(&self, s: usize) -> &[Vec3] {
+        &self.0[self.1[s]..self.1[s + 1]]
+    }
+}
+
+impl<T: Streamlines + Send + ?Sized> Streamlines for std::sync::Arc<T> {
+    fn n_streamlines(&self) -> usize {
+        (**self).n_streamlines()
+    }
+
+    fn streamline(&self, s: usize) -> &[Vec3] {
+        (**self).streamline(s)
+    }
+}
+
+impl Streamlines for Tractogram {
+    fn n_streamlines(&self) -> usize {
+        Tractogram::n_streamlines(self)
+    }
+
+    fn streamline(&self, s: usize) -> &[Vec3] {
+        Tractogram::streamline(self, s)
+    }
+}
+
 impl Tractogram {
     /// An empty tractogram, ready for `push`: `offsets` holds its leading 0 (which `Default` leaves out).
     pub fn new() -> Self {
@@ -43,11 +98,7 @@ impl Tractogram {
     /// The streamlines with `keep[s]` (a selection), in order, points only (no scalars or properties);
     /// streamlines past `keep`'s end are dropped.
     pub fn subset(&self, keep: &[bool]) -> Tractogram {
-        let mut out = Tractogram::new();
-        for (s, _) in keep.iter().enumerate().take(self.n_streamlines()).filter(|(_, k)| **k) {
-            out.push(self.streamline(s));
-        }
-        out
+        Streamlines::subset(self, keep)
     }
 
     /// The streamlines with `keep[s]`, in order, with their values per point and per streamline.

@@ -25,7 +25,8 @@ use bevy::prelude::*;
 use bevy::render::render_resource::{AsBindGroup, RenderPipelineDescriptor, ShaderType, SpecializedMeshPipelineError};
 use bevy::render::storage::ShaderBuffer;
 use fascicle_core::compress::{Compression, kept_points};
-use fascicle_core::io::Tractogram;
+use fascicle_core::io::mapped::MappedRun;
+use fascicle_core::io::{Streamlines, Tractogram};
 use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi};
 use fascicle_core::roi_index::{DragMargins, StreamlineCells};
 pub use fascicle_core::tubelet::TubeMethod;
@@ -133,8 +134,9 @@ fascicle_render::proxy_glyph_material!(TubeletMaterial, shaders::tubelet());
 /// The streamlines of a tract layer and what the ROIs select of them, however they are drawn.
 #[derive(Component, Clone)]
 pub struct TractSet {
-    /// The streamlines (world RAS+ mm), shared with the layer's asset.
-    pub tractogram: Arc<Tractogram>,
+    /// The streamlines (world RAS+ mm): in memory, shared with the layer's asset, or read in place from the
+    /// layer's file.
+    pub tractogram: SetStreamlines,
     /// The spatial index ROIs and picks are tested through, built when first needed.
     pub index: LazyIndex,
     /// One `u32` per streamline, 1 when selected; the vertex shaders hide the others.
@@ -142,6 +144,59 @@ pub struct TractSet {
     /// The layer's index of the set's first streamline, for a layer shown in parts (default 0: a set alone).
     /// [`DeletedStreamlines`] on the layer index the layer's streamlines; this set hides those from `first` on.
     pub first: usize,
+}
+
+/// A tract set's streamlines: in memory, or read in place from a mapped `.tck` (a run of the file's
+/// streamlines, 8 bytes each; the points stay in the page cache, and the pages a selection or an index build
+/// read are let go again: [`SetStreamlines::release`]). What selection, picking and saving read.
+#[derive(Clone)]
+pub enum SetStreamlines {
+    /// In memory.
+    Owned(Arc<Tractogram>),
+    /// Read in place.
+    Mapped(Arc<MappedRun>),
+}
+
+impl SetStreamlines {
+    /// How many streamlines.
+    pub fn n_streamlines(&self) -> usize {
+        Streamlines::n_streamlines(self)
+    }
+
+    /// The points of streamline `s` (RAS+ mm).
+    pub fn streamline(&self, s: usize) -> &[Vec3] {
+        Streamlines::streamline(self, s)
+    }
+
+    /// The streamlines with `keep[s]`, in order, as a tractogram of points (for saving).
+    pub fn subset(&self, keep: &[bool]) -> Tractogram {
+        Streamlines::subset(self, keep)
+    }
+
+    /// Lets pages read in place go from the process's resident memory (nothing for streamlines in memory):
+    /// after a pass over every streamline (an index build, a selection or pick without the index).
+    pub fn release(&self) {
+        if let SetStreamlines::Mapped(run) = self {
+            run.release();
+        }
+    }
+}
+
+impl Streamlines for SetStreamlines {
+    fn n_streamlines(&self) -> usize {
+        match self {
+            SetStreamlines::Owned(t) => t.n_streamlines(),
+            SetStreamlines::Mapped(run) => run.n_streamlines(),
+        }
+    }
+
+    #[inline]
+    fn streamline(&self, s: usize) -> &[Vec3] {
+        match self {
+            SetStreamlines::Owned(t) => t.streamline(s),
+            SetStreamlines::Mapped(run) => run.streamline(s),
+        }
+    }
 }
 
 /// A tract set's spatial index ([`StreamlineCells`], 4 mm cells: about 160 MiB for 1M whole-brain streamlines)
@@ -164,7 +219,7 @@ const INDEX_CELL_MM: f32 = 4.0;
 
 impl LazyIndex {
     /// The index of `t` (the set's tractogram), built now if it was not.
-    pub fn get(&self, t: &Tractogram) -> &StreamlineCells {
+    pub fn get(&self, t: &(impl Streamlines + ?Sized)) -> &StreamlineCells {
         self.0.cells.get_or_init(|| build_index(t))
     }
 
@@ -173,7 +228,7 @@ impl LazyIndex {
     /// queued indexes one after another and skipping sets that are gone. The CPU that frames leave idle builds
     /// them: a whole-brain layer in 416 parts asks for 416 indexes at its first ROI (they were as many threads
     /// at normal priority, which took the cores from the frames and from the layer's other jobs).
-    pub fn ready_or_build(&self, t: &Arc<Tractogram>) -> Option<&StreamlineCells> {
+    pub fn ready_or_build(&self, t: &SetStreamlines) -> Option<&StreamlineCells> {
         use std::sync::atomic::Ordering;
         if let Some(cells) = self.0.cells.get() {
             return Some(cells);
@@ -190,7 +245,7 @@ impl LazyIndex {
     /// Which streamlines of `t` the ROIs select (as [`fascicle_core::roi::select`]), through the index,
     /// remembering the drag's margins so that a moved ROI reads only the streamlines near its boundary; with
     /// no index yet, testing every streamline (and the index is started).
-    pub fn select(&self, t: &Arc<Tractogram>, rois: &[Roi]) -> Vec<bool> {
+    pub fn select(&self, t: &SetStreamlines, rois: &[Roi]) -> Vec<bool> {
         match self.ready_or_build(t) {
             Some(cells) => {
                 let mut drag = self.0.drag.lock().unwrap_or_else(|e| e.into_inner());
@@ -198,7 +253,8 @@ impl LazyIndex {
             }
             None => {
                 let mut keep = vec![true; t.n_streamlines()];
-                Criteria::from_rois(rois, false).narrow(&t.points, &t.offsets, &mut keep);
+                Criteria::from_rois(rois, false).narrow(t, &mut keep);
+                t.release();
                 keep
             }
         }
@@ -206,7 +262,7 @@ impl LazyIndex {
 
     /// The streamlines of `t` in the index's cells that meet `shape` (a superset of those with a point or a step
     /// there), when the index is built; otherwise `None` (and it is started).
-    pub fn candidates(&self, t: &Arc<Tractogram>, shape: &fascicle_core::roi::RoiShape) -> Option<Vec<u32>> {
+    pub fn candidates(&self, t: &SetStreamlines, shape: &fascicle_core::roi::RoiShape) -> Option<Vec<u32>> {
         self.ready_or_build(t).map(|cells| cells.candidates(shape))
     }
 
@@ -214,7 +270,7 @@ impl LazyIndex {
     /// index when it is built, otherwise by brute force (and the index is started).
     pub fn pick(
         &self,
-        t: &Arc<Tractogram>,
+        t: &SetStreamlines,
         shown: impl Fn(usize) -> bool + Sync,
         o: Vec3,
         d: Vec3,
@@ -222,13 +278,17 @@ impl LazyIndex {
     ) -> Option<(usize, f32)> {
         match self.ready_or_build(t) {
             Some(cells) => cells.pick(|s| t.streamline(s), shown, o, d, tolerance),
-            None => fascicle_core::roi::pick_streamline(&t.points, &t.offsets, shown, o, d, tolerance),
+            None => {
+                let picked = fascicle_core::roi::pick_streamline(t, shown, o, d, tolerance);
+                t.release();
+                picked
+            }
         }
     }
 }
 
 /// A set's index and streamlines, queued for the background builder.
-type IndexJob = (Arc<IndexInner>, Arc<Tractogram>);
+type IndexJob = (Arc<IndexInner>, SetStreamlines);
 
 /// The queue of [`LazyIndex::ready_or_build`]'s background builder, its thread started with the first index.
 fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String> {
@@ -252,6 +312,7 @@ fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String>
                         }
                         let build = || {
                             inner.cells.get_or_init(|| build_index(&t));
+                            t.release();
                         };
                         match &pool {
                             Some(pool) => pool.install(build),
@@ -275,7 +336,7 @@ fn lowest_priority() {
     }
 }
 
-fn build_index(t: &Tractogram) -> StreamlineCells {
+fn build_index(t: &(impl Streamlines + ?Sized)) -> StreamlineCells {
     StreamlineCells::build_fitted(t.n_streamlines(), |s| t.streamline(s), INDEX_CELL_MM)
 }
 
@@ -662,7 +723,7 @@ pub struct TractMasks {
 impl TractMasks {
     /// Narrows a selection of `t`'s streamlines to those the masks keep (with `ends_only`, tested at their end
     /// points); while waiting, to none.
-    pub fn narrow(&self, t: &Tractogram, ends_only: bool, selected: &mut [bool]) {
+    pub fn narrow(&self, t: &(impl Streamlines + ?Sized), ends_only: bool, selected: &mut [bool]) {
         if self.waiting {
             selected.iter_mut().for_each(|s| *s = false);
             return;
@@ -673,7 +734,7 @@ impl TractMasks {
             exclude: self.exclude.iter().map(region).collect(),
             ends_only,
         };
-        criteria.narrow(&t.points, &t.offsets, selected);
+        criteria.narrow(t, selected);
     }
 }
 
@@ -895,7 +956,7 @@ pub fn tract_tubelets(t: &Tractogram, tensors: Option<&[[f32; 6]]>, settings: &T
 pub struct PreparedTracts {
     /// The streamlines, kept for ROI selection ([`TractSet`]); None once [`PreparedTracts::drawn_only`] let them
     /// go.
-    pub tractogram: Option<Arc<Tractogram>>,
+    pub tractogram: Option<SetStreamlines>,
     /// How many streamlines the set draws.
     pub n_streamlines: usize,
     /// The spatial index ROIs are tested through: built by [`PreparedTracts::with_index`], otherwise when first
@@ -937,7 +998,8 @@ pub enum PreparedGeometry {
 impl PreparedTracts {
     fn with(tractogram: Arc<Tractogram>, geometry: PreparedGeometry) -> Self {
         let n_streamlines = tractogram.n_streamlines();
-        PreparedTracts { index: LazyIndex::default(), tractogram: Some(tractogram), n_streamlines, geometry, first: 0 }
+        let tractogram = Some(SetStreamlines::Owned(tractogram));
+        PreparedTracts { index: LazyIndex::default(), tractogram, n_streamlines, geometry, first: 0 }
     }
 
     /// As the part of a layer whose first streamline is the layer's `first` ([`TractSet::first`]).
@@ -959,6 +1021,16 @@ impl PreparedTracts {
     /// shows a file does not need).
     pub fn drawn_only(self) -> Self {
         PreparedTracts { tractogram: None, index: LazyIndex::default(), ..self }
+    }
+
+    /// Its streamlines read in place from `run` (the same streamlines, from the file they were read from:
+    /// [`MappedRun::consecutive`]) instead of kept in memory, once the geometry is made; unchanged when `run`
+    /// holds another number of streamlines.
+    pub fn read_in_place(self, run: Arc<MappedRun>) -> Self {
+        if run.n_streamlines() != self.n_streamlines {
+            return self;
+        }
+        PreparedTracts { tractogram: Some(SetStreamlines::Mapped(run)), index: LazyIndex::default(), ..self }
     }
 
     /// Hyperstreamlines (optional per-point world tensors give the sections).
@@ -1030,7 +1102,7 @@ struct Selection {
 /// the layer's `first`.
 fn tract_set(
     buffers: &mut Assets<ShaderBuffer>,
-    tractogram: Arc<Tractogram>,
+    tractogram: SetStreamlines,
     index: LazyIndex,
     first: usize,
 ) -> Selection {
@@ -1182,7 +1254,7 @@ pub fn spawn_tubes(
     settings: &TubeSettings,
 ) -> Entity {
     let tubes = tract_tubelets(&tractogram, tensors, settings);
-    let target = tract_set(buffers, tractogram, LazyIndex::default(), 0);
+    let target = tract_set(buffers, SetStreamlines::Owned(tractogram), LazyIndex::default(), 0);
     let preview = tube_preview(&tubes).map(|slots| slot_boxes_of(&slots));
     let proxies = (&pack(&tubes)[..], tubes.len(), slot_boxes(tubes.len()), preview);
     spawn_tube_set(commands, meshes, materials, buffers, target, proxies, *settings)
@@ -1199,7 +1271,7 @@ pub fn spawn_lines(
     opacity: f32,
 ) -> Entity {
     let (mesh, preview) = (line_mesh(&tractogram), meshes.add(preview_mesh(&tractogram, None)));
-    let target = tract_set(buffers, tractogram, LazyIndex::default(), 0);
+    let target = tract_set(buffers, SetStreamlines::Owned(tractogram), LazyIndex::default(), 0);
     spawn_mesh_set(commands, meshes, materials, target, (mesh, Some(preview)), opacity)
 }
 
@@ -1217,7 +1289,7 @@ pub fn spawn_polygon_tubes(
     opacity: f32,
 ) -> Entity {
     let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
-    let target = tract_set(buffers, tractogram, LazyIndex::default(), 0);
+    let target = tract_set(buffers, SetStreamlines::Owned(tractogram), LazyIndex::default(), 0);
     spawn_mesh_set(commands, meshes, materials, target, (mesh, None), opacity)
 }
 
@@ -1446,12 +1518,17 @@ pub fn apply_rois(
         let mut sel = if list.is_empty() {
             vec![true; t.n_streamlines()]
         } else if ends_only {
-            fascicle_core::roi::select_ends(&t.points, &t.offsets, &list)
+            fascicle_core::roi::select_ends(t, &list)
         } else {
             set.index.select(t, &list)
         };
-        if let Some(m) = on_set_or_layer(&masks, entity, layer) {
+        let masked = on_set_or_layer(&masks, entity, layer);
+        if let Some(m) = masked {
             m.narrow(t, ends_only, &mut sel);
+        }
+        if (ends_only && !list.is_empty()) || masked.is_some() {
+            // A pass over every streamline: what it read in place goes again.
+            t.release();
         }
         for &s in on_set_or_layer(&deleted, entity, layer).iter().flat_map(|d| d.0.iter()) {
             if let Some(k) = (s as usize).checked_sub(set.first).and_then(|s| sel.get_mut(s)) {
@@ -1707,7 +1784,8 @@ mod tests {
                 t.push(&(0..=10).map(|y| Vec3::new(x0 + s as f32, y as f32, 0.0)).collect::<Vec<_>>());
             }
             let mut buffers = app.world_mut().resource_mut::<Assets<ShaderBuffer>>();
-            let (set, selection) = tract_set(&mut buffers, Arc::new(t), LazyIndex::default(), 0).target.unwrap();
+            let (set, selection) =
+                tract_set(&mut buffers, SetStreamlines::Owned(Arc::new(t)), LazyIndex::default(), 0).target.unwrap();
             app.world_mut().spawn((set, selection)).id()
         };
         let (near, far) = (spawn(&mut app, 0.0), spawn(&mut app, 1000.0));

@@ -332,9 +332,25 @@ fn placed_tract_parts_are_tract_sets_under_their_layer() {
 /// segment-grid selection; a pick through the index equals the brute-force pick.
 #[test]
 fn a_set_selects_and_picks_the_same_before_and_after_its_index() {
-    use fascicle_core::roi::{Roi, RoiMode, SegmentGrid, pick_streamline, select};
+    use fascicle_core::io::mapped::{MappedPoints, MappedRun};
+    use fascicle_tracts::SetStreamlines;
     use std::sync::Arc;
     let t = Arc::new(Tractogram::read(format!("{}/tracts/tracks300.trk", example::data())).unwrap());
+    // The same streamlines in memory and read in place from a .tck.
+    let tmp = tempfile::tempdir().unwrap();
+    let tck = tmp.path().join("tracks300.tck");
+    fascicle_core::io::tck::write(&tck, &t, &[]).unwrap();
+    let file = Arc::new(MappedPoints::open(&tck).unwrap());
+    let lengths = t.iter().map(<[Vec3]>::len);
+    let run = MappedRun::consecutive(file, 0, lengths, &*t).expect("the file's streamlines");
+    for set in [SetStreamlines::Owned(t.clone()), SetStreamlines::Mapped(Arc::new(run))] {
+        selects_and_picks_as_the_core(&t, &set);
+    }
+}
+
+/// [`a_set_selects_and_picks_the_same_before_and_after_its_index`] on one set: `set` holds `t`'s streamlines.
+fn selects_and_picks_as_the_core(t: &Tractogram, set: &fascicle_tracts::SetStreamlines) {
+    use fascicle_core::roi::{Roi, RoiMode, SegmentGrid, pick_streamline, select};
     let grid = SegmentGrid::new(&t.points, &t.offsets, 4.0);
     let index = fascicle_tracts::LazyIndex::default();
     let mid = t.streamline(150)[t.streamline(150).len() / 2];
@@ -349,12 +365,12 @@ fn a_set_selects_and_picks_the_same_before_and_after_its_index() {
         ]
     };
     // Before the index: every streamline tested.
-    assert!(index.ready_or_build(&t).is_none(), "an index before any was asked for");
-    let first = index.select(&t, &rois(15));
+    assert!(index.ready_or_build(set).is_none(), "an index before any was asked for");
+    let first = index.select(set, &rois(15));
     assert_eq!(first, select(&t.points, &t.offsets, &grid, &rois(15)));
     assert!(first.iter().any(|k| *k) && !first.iter().all(|k| *k));
     let start = std::time::Instant::now();
-    while index.ready_or_build(&t).is_none() {
+    while index.ready_or_build(set).is_none() {
         assert!(start.elapsed().as_secs() < 60, "the index was not built in 60 s");
         std::thread::sleep(std::time::Duration::from_millis(5));
     }
@@ -363,7 +379,7 @@ fn a_set_selects_and_picks_the_same_before_and_after_its_index() {
         let want = select(&t.points, &t.offsets, &grid, &rois(k));
         let n = want.iter().filter(|w| **w).count();
         kept_some += usize::from(n > 0 && n < t.n_streamlines());
-        assert_eq!(index.select(&t, &rois(k)), want, "step {k}: {n} kept");
+        assert_eq!(index.select(set, &rois(k)), want, "step {k}: {n} kept");
     }
     assert!(kept_some > 15, "{kept_some} of 30 steps keep a part");
     // Picks down the z axis over the bundle, every other streamline hidden in half of them.
@@ -372,8 +388,8 @@ fn a_set_selects_and_picks_the_same_before_and_after_its_index() {
         let p = t.streamline(s)[t.streamline(s).len() / 2];
         let o = p + Vec3::new(0.3, -0.2, 150.0);
         let shown = |i: usize| k.is_multiple_of(2) || i.is_multiple_of(2);
-        let want = pick_streamline(&t.points, &t.offsets, shown, o, -Vec3::Z, 0.004);
-        assert_eq!(index.pick(&t, shown, o, -Vec3::Z, 0.004), want, "ray {k}");
+        let want = pick_streamline(t, shown, o, -Vec3::Z, 0.004);
+        assert_eq!(index.pick(set, shown, o, -Vec3::Z, 0.004), want, "ray {k}");
     }
 }
 
@@ -385,8 +401,9 @@ fn a_set_selects_and_picks_the_same_before_and_after_its_index() {
 fn many_sets_share_one_background_index_builder_at_the_lowest_priority() {
     use std::sync::Arc;
     let t = Arc::new(Tractogram::read(format!("{}/tracts/tracks300.trk", example::data())).unwrap());
-    let sets: Vec<(fascicle_tracts::LazyIndex, Arc<Tractogram>)> =
-        (0..64).map(|_| (fascicle_tracts::LazyIndex::default(), Arc::new((*t).clone()))).collect();
+    let owned = |t: &Tractogram| fascicle_tracts::SetStreamlines::Owned(Arc::new(t.clone()));
+    let sets: Vec<(fascicle_tracts::LazyIndex, fascicle_tracts::SetStreamlines)> =
+        (0..64).map(|_| (fascicle_tracts::LazyIndex::default(), owned(&t))).collect();
     for (index, t) in &sets {
         assert!(index.ready_or_build(t).is_none(), "an index before it was built");
     }
