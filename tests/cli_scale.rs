@@ -1,6 +1,7 @@
 //! Whole-brain scale at a size CI affords: `info`, `select` and `convert` stream a generated tractogram of
 //! 100,000 streamlines (10M points, a 120 MB `.tck`) with a peak resident memory far below the file's size
-//! (measured from the process by `wait4`), and agree with an in-memory reading of the same file. The full
+//! (measured from the process by `wait4`), and agree with an in-memory reading of the same file; `render` draws
+//! it as a tractogram layer and as a tract layer with an ROI (its streamlines read in place) within a bound. The full
 //! sizes (1M and 10M streamlines) are in `fascicle-bench scale`.
 
 use std::path::Path;
@@ -134,6 +135,53 @@ fn commands_stream_a_large_tractogram_in_bounded_memory() {
         "the centre of the image is not covered by streamlines"
     );
     assert!(!lit(w - 3, 2) && !lit(2, h - 3) && !lit(w - 3, h - 3), "a corner of the image is not background");
+
+    // The same file as a tract layer (the kind ROIs act on) with a 10 mm include sphere 50 mm to the right: its
+    // parts read their streamlines in place from the mapped file, so the render stays within the same bound,
+    // and the sphere selects among them: the right of the picture stays covered, its far left goes dark.
+    let roi_scene = dir.join("roi.ron");
+    let roi_png = dir.join("roi.png");
+    std::fs::write(
+        &roi_scene,
+        format!(
+            "(layers: [(name: \"t\", visible: true, opacity: 1.0, kind: Tracts(source: File(path: {:?}), mode: \
+             Lines, rois: [(shape: Sphere(centre: (50.0, 0.0, 0.0), radius: 10.0), mode: Include)]))], \
+             camera: (eye: (0.0, -330.0, 60.0), target: (0.0, 0.0, 0.0), up: (0.0, 0.0, 1.0), fov_y_deg: 45.0))",
+            s(&tck)
+        ),
+    )
+    .unwrap();
+    if !fascicle_render::headless::gpu_tests_skipped() {
+        let (_, roi_peak) = fascicle(&["render", s(&roi_scene), "--out", s(&roi_png), "--size", "640x360", "--quiet"]);
+        eprintln!("render of a tract layer with an ROI: {roi_peak:.1} MiB");
+        assert!(roi_peak < RENDER_PEAK_MIB, "render with an ROI peaked at {roi_peak:.1} MiB (bound {RENDER_PEAK_MIB})");
+        let (rw, rh, roi_rgba) = read_png(&roi_png);
+        assert_eq!((rw, rh), (w, h));
+        let lit_in = |rgba: &[u8], x: u32, y: u32| {
+            let p = &rgba[4 * (y * w + x) as usize..][..3];
+            p.iter().zip(&background).map(|(a, b)| a.abs_diff(*b) as u32).sum::<u32>() > 30
+        };
+        let count = |rgba: &[u8], xs: std::ops::Range<u32>| {
+            xs.flat_map(|x| (0..h).map(move |y| (x, y))).filter(|(x, y)| lit_in(rgba, *x, *y)).count()
+        };
+        // Bands 40 pixels wide at the brain's left and right edges (it spans about 200 pixels about the centre;
+        // the sphere lies at the right): the right edge keeps its streamlines, most of the left's go.
+        let (left, right) = (cx - 100..cx - 60, cx + 60..cx + 100);
+        let (all_left, all_right) = (count(&rgba, left.clone()), count(&rgba, right.clone()));
+        let (roi_left, roi_right) = (count(&roi_rgba, left), count(&roi_rgba, right));
+        eprintln!(
+            "lit pixels at the left / right edges: {all_left} / {all_right}, with the ROI {roi_left} / {roi_right}"
+        );
+        assert!(
+            all_left > 1000 && all_right > 1000,
+            "the brain's edges are not where they were: {all_left}, {all_right}"
+        );
+        assert!(
+            roi_left * 2 < all_left,
+            "the ROI kept the left edge's streamlines: {roi_left} of {all_left} pixels lit"
+        );
+        assert!(roi_right * 5 > all_right * 4, "the ROI hid the right edge's streamlines: {roi_right} of {all_right}");
+    }
 
     let whole = Tractogram::read(&tck).unwrap();
     for json in [&outputs[0], &outputs[3]] {
