@@ -419,6 +419,74 @@ fn roi_edits_reselect_without_rebuilding() {
     assert_ne!(state(&mut app).0, e0);
 }
 
+/// A tract layer of a `.tck` in several parts, each reading its streamlines in place: once its parts are in, its
+/// include sphere selects through one run of the whole layer (`RoiStats::joined_layers`), and at every step of a
+/// drag (from where it was, moved 3 mm at a time, resized, then with a second include) the parts together keep exactly what the
+/// core's segment grid keeps in the whole file, with no part rebuilt.
+#[test]
+fn a_layer_read_in_place_selects_through_one_run() {
+    use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
+    use fascicle_scene::model::{CameraSpec, LayerSpec, TractMode, TractSource};
+    use fascicle_tracts::{RoiStats, SetStreamlines, TractSelection, TractSet};
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("brain.tck");
+    // 6,000 streamlines of 40-160 points: about 600k points, three parts or more.
+    fascicle_core::phantom::write_whole_brain(&path, 6000, 21).unwrap();
+    let whole = fascicle_core::io::Tractogram::read(&path).unwrap();
+    let sphere =
+        |x: f32, r: f32| Roi { shape: RoiShape::Sphere { centre: [x, 0.0, 0.0], radius: r }, mode: RoiMode::Include };
+    let layer = LayerSpec {
+        name: "brain".into(),
+        visible: true,
+        opacity: 1.0,
+        kind: LayerKind::Tracts {
+            source: TractSource::File { path: path.clone(), tensors: None },
+            mode: TractMode::Lines,
+            render: Default::default(),
+            rois: vec![sphere(-40.0, 10.0)],
+            masks: vec![],
+            ends_only: false,
+            deleted: vec![],
+            colouring: Default::default(),
+        },
+    };
+    let scene = Scene { layers: vec![layer], camera: CameraSpec::default(), views: Default::default() };
+    let Some(mut app) = scene_app(scene) else { return };
+    let grid = SegmentGrid::new(&whole.points, &whole.offsets, 4.0);
+    let kept = |app: &mut App| {
+        let mut q = app.world_mut().query::<(Entity, &TractSet, &TractSelection)>();
+        let mut parts: Vec<(usize, Entity, bool, Vec<bool>)> = q
+            .iter(app.world())
+            .map(|(e, set, sel)| (set.first, e, matches!(set.tractogram, SetStreamlines::Mapped(_)), sel.0.clone()))
+            .collect();
+        parts.sort_by_key(|p| p.0);
+        assert!(parts.len() >= 3 && parts.iter().all(|p| p.2), "{} parts, not all read in place", parts.len());
+        let entities: Vec<Entity> = parts.iter().map(|p| p.1).collect();
+        (entities, parts.into_iter().flat_map(|p| p.3).collect::<Vec<bool>>())
+    };
+    let (parts, _) = kept(&mut app);
+    let mut steps = vec![];
+    for k in 0..12 {
+        steps.push(vec![sphere(-30.0 + 3.0 * k as f32, 10.0)]);
+    }
+    steps.push(vec![sphere(6.0, 15.0)]);
+    steps.push(vec![sphere(6.0, 15.0), sphere(20.0, 8.0)]);
+    for rois in steps {
+        if let LayerKind::Tracts { rois: r, .. } = &mut app.world_mut().resource_mut::<ActiveScene>().0.layers[0].kind {
+            *r = rois.clone();
+        }
+        app.update();
+        app.update();
+        let want = select(&whole.points, &whole.offsets, &grid, &rois);
+        let (now, got) = kept(&mut app);
+        assert_eq!(now, parts, "an ROI edit rebuilt the layer's parts");
+        let n = want.iter().filter(|k| **k).count();
+        assert!(n > 0 && n < whole.n_streamlines(), "{rois:?}: {n} kept");
+        assert_eq!(got, want, "{rois:?}: {n} kept by the segment grid");
+        assert_eq!(app.world().resource::<RoiStats>().joined_layers, 1, "the layer was not selected as one run");
+    }
+}
+
 /// Mask images as a tract layer's include region re-select its streamlines without a rebuild: those the ROI
 /// selects that also pass through the mask (the core's image-region test, checked against tckedit). A mask
 /// that cannot be read fails the layer with a message naming the file and shows nothing; the good mask again

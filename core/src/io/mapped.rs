@@ -111,6 +111,20 @@ impl MappedRun {
         ok.then_some(run)
     }
 
+    /// The runs one after another as one run (the parts of a layer as the whole file): `None` unless they read
+    /// the same mapping and each starts where the one before ends.
+    pub fn join(runs: &[&MappedRun]) -> Option<MappedRun> {
+        let (first, rest) = runs.split_first()?;
+        let mut starts = first.starts.clone();
+        for run in rest {
+            if !Arc::ptr_eq(&run.file, &first.file) || starts.last() != run.starts.first() {
+                return None;
+            }
+            starts.extend_from_slice(&run.starts[1..]);
+        }
+        Some(MappedRun { file: first.file.clone(), starts })
+    }
+
     /// Lets the run's pages go from this process's resident memory ([`MappedPoints::release`]).
     pub fn release(&self) {
         let (a, b) = (self.starts[0] as usize, *self.starts.last().unwrap_or(&0) as usize);
@@ -284,6 +298,13 @@ mod tests {
         assert!(MappedRun::consecutive(file.clone(), at, longer, &part).is_none());
         assert!(MappedRun::consecutive(file.clone(), at + 1, lengths(2..5), &part).is_none());
         assert!(MappedRun::consecutive(file.clone(), t.offsets[7] + 7, [1], &part).is_none());
-        assert!(MappedRun::consecutive(file, 0, lengths(0..3), &part).is_none());
+        assert!(MappedRun::consecutive(file.clone(), 0, lengths(0..3), &part).is_none());
+        // Runs that follow each other join into one, the file's streamlines in order; others do not.
+        let head = MappedRun::consecutive(file.clone(), 0, lengths(0..2), &t.subset(&[true, true])).unwrap();
+        let joined = MappedRun::join(&[&head, &middle]).expect("runs that follow each other");
+        (0..5).for_each(|s| assert_eq!(joined.streamline(s), t.streamline(s), "joined streamline {s}"));
+        assert!(MappedRun::join(&[&middle, &head]).is_none());
+        assert!(MappedRun::join(&[&head, &whole]).is_none());
+        assert!(MappedRun::join(&[]).is_none());
     }
 }

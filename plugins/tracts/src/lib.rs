@@ -12,6 +12,7 @@
 
 #![warn(missing_docs)]
 
+use std::collections::HashMap;
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
@@ -747,6 +748,9 @@ pub struct RoiStats {
     pub last_ms: f64,
     /// Streamlines selected after the last re-selection, summed over every tract set.
     pub selected: usize,
+    /// Layers the last re-selection tested as one run of their parts read in place (one index each), not part
+    /// by part.
+    pub joined_layers: usize,
 }
 
 /// Tract layers ([`Tracts`]) and tract sets: their materials and shaders, ROI selection ([`apply_rois`]),
@@ -1492,7 +1496,9 @@ pub fn apply_rois(
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
+    mut layer_runs: Local<HashMap<Entity, LayerRun>>,
 ) {
+    update_layer_runs(&mut layer_runs, &sets, &rois);
     let removed_any = removed.read().count()
         + removed_rules.read().count()
         + removed_deletions.read().count()
@@ -1505,6 +1511,8 @@ pub fn apply_rois(
     }
     let t0 = Instant::now();
     let mut selected = 0;
+    // Per layer selected through its run: the whole layer's selection, made at its first set.
+    let mut layer_selections: HashMap<Entity, Vec<bool>> = HashMap::new();
     for (entity, set, mut selection, layer) in &mut sets {
         if !rois_changed && !set.is_added() {
             selected += selection.0.iter().filter(|s| **s).count();
@@ -1515,10 +1523,27 @@ pub fn apply_rois(
         let list: Vec<Roi> = rois.iter().filter(|(_, parent)| parent.is_none_or(owner)).map(|(r, _)| r.0).collect();
         let ends_only = on_set_or_layer(&rules, entity, layer).is_some_and(|r| r.ends_only);
         let t = &set.tractogram;
+        // The layer's run, when it was joined from this set among others and the ROIs are the layer's.
+        let joined = layer.map(ChildOf::parent).and_then(|l| Some(l).zip(layer_runs.get(&l))).filter(|(l, run)| {
+            let part = run.parts.binary_search_by_key(&set.first, |p| p.1);
+            let layer_rois = rois.iter().filter(|(_, p)| p.is_none_or(|p| p.parent() == *l)).map(|(r, _)| r.0);
+            part.is_ok_and(|k| run.parts[k].0 == entity) && layer_rois.eq(list.iter().copied())
+        });
         let mut sel = if list.is_empty() {
             vec![true; t.n_streamlines()]
         } else if ends_only {
             fascicle_core::roi::select_ends(t, &list)
+        } else if let Some((l, run)) = joined {
+            let whole = layer_selections.entry(l).or_insert_with(|| run.index.select(&run.streamlines, &list));
+            let from = set.first - run.first;
+            whole[from..from + t.n_streamlines()].to_vec()
+        } else if let SetStreamlines::Mapped(_) = t {
+            // A part read in place whose layer has no run yet (its parts still arriving): every streamline
+            // tested, and no index of the part's own (the layer's is made once its parts are in).
+            let mut keep = vec![true; t.n_streamlines()];
+            Criteria::from_rois(&list, false).narrow(t, &mut keep);
+            t.release();
+            keep
         } else {
             set.index.select(t, &list)
         };
@@ -1551,6 +1576,74 @@ pub fn apply_rois(
     stats.evaluations += 1;
     stats.last_ms = t0.elapsed().as_secs_f64() * 1e3;
     stats.selected = selected;
+    stats.joined_layers = layer_selections.len();
+}
+
+/// One run over every part of a tract layer read in place from one file, and its index: an ROI is tested on the
+/// whole layer through one index (and one drag's margins) instead of one per part, which a 10M-streamline layer
+/// in 4,400 parts could not afford (each part's index and drag, and until built, every part's streamlines read).
+/// Kept in [`apply_rois`] per layer entity; made once a layer with ROIs reads every part in place, one after
+/// another from one file, and no part arrived in the frame; its index is then started in the background.
+pub struct LayerRun {
+    /// The parts it was joined from, in order: (set, the layer's index of its first streamline).
+    parts: Vec<(Entity, usize)>,
+    /// The layer's index of the run's first streamline.
+    first: usize,
+    /// The parts' streamlines, joined.
+    streamlines: SetStreamlines,
+    /// Its index and drag margins.
+    index: LazyIndex,
+}
+
+/// Makes, remakes or forgets each layer's [`LayerRun`] from the sets as they are: a layer with ROIs (its own or
+/// unparented) whose sets all read one file in place, one after another, and none of which arrived in this
+/// frame, has its run; its index is asked for at once (the background builder).
+fn update_layer_runs(
+    layer_runs: &mut HashMap<Entity, LayerRun>,
+    sets: &Query<(Entity, Ref<TractSet>, &mut TractSelection, Option<&ChildOf>)>,
+    rois: &Query<(&TractRoi, Option<&ChildOf>)>,
+) {
+    let mut parts: HashMap<Entity, Vec<(Entity, usize, Arc<MappedRun>)>> = HashMap::new();
+    let mut not_joined: Vec<Entity> = vec![];
+    for (e, set, _, layer) in sets {
+        let Some(l) = layer.map(ChildOf::parent) else { continue };
+        match &set.tractogram {
+            SetStreamlines::Mapped(run) if !set.is_added() => {
+                parts.entry(l).or_default().push((e, set.first, run.clone()))
+            }
+            _ => not_joined.push(l),
+        }
+    }
+    not_joined.iter().for_each(|l| _ = parts.remove(l));
+    layer_runs.retain(|l, _| parts.contains_key(l) || not_joined.contains(l));
+    for (l, mut parts) in parts {
+        if !rois.iter().any(|(_, p)| p.is_none_or(|p| p.parent() == l)) {
+            layer_runs.remove(&l);
+            continue;
+        }
+        parts.sort_unstable_by_key(|p| p.1);
+        if layer_runs
+            .get(&l)
+            .is_some_and(|r| r.parts.len() == parts.len() && r.parts.iter().zip(&parts).all(|(a, b)| *a == (b.0, b.1)))
+        {
+            continue;
+        }
+        let follow = parts.windows(2).all(|w| w[0].1 + w[0].2.n_streamlines() == w[1].1);
+        let runs: Vec<&MappedRun> = parts.iter().map(|p| &*p.2).collect();
+        match MappedRun::join(&runs).filter(|_| follow) {
+            Some(run) => {
+                let run = LayerRun {
+                    parts: parts.iter().map(|p| (p.0, p.1)).collect(),
+                    first: parts[0].1,
+                    streamlines: SetStreamlines::Mapped(Arc::new(run)),
+                    index: LazyIndex::default(),
+                };
+                run.index.ready_or_build(&run.streamlines);
+                layer_runs.insert(l, run);
+            }
+            None => _ = layer_runs.remove(&l),
+        }
+    }
 }
 
 /// A tract set's own `T`, else its layer's (the set's parent).
