@@ -35,25 +35,44 @@ impl StreamlineCells {
         bounds: (Vec3, Vec3),
         cell: f32,
     ) -> Self {
+        Self::build_in_blocks(n, streamline, bounds, cell, |_| {})
+    }
+
+    /// [`StreamlineCells::build`], each pass going over the streamlines a block at a time and calling
+    /// `done(block)` after each block (for streamlines read in place: let the block's pages go, so that a pass
+    /// over a large file holds a block of it in memory, not the file).
+    pub fn build_in_blocks<'a>(
+        n: usize,
+        streamline: impl Fn(usize) -> &'a [Vec3] + Sync,
+        bounds: (Vec3, Vec3),
+        cell: f32,
+        done: impl Fn(std::ops::Range<usize>),
+    ) -> Self {
         let cells = Cells::over(bounds.0, bounds.1, cell);
         let n_cells = cells.count();
         let counts: Vec<AtomicU64> = (0..n_cells).map(|_| AtomicU64::new(0)).collect();
         let none = || (Vec3::INFINITY, Vec3::NEG_INFINITY);
-        let (lo, hi) = (0..n)
-            .into_par_iter()
-            .fold(
-                || (Vec::new(), none()),
-                |(mut buf, (lo, hi)), s| {
-                    let pts = streamline(s);
-                    cells_of(&cells, pts, &mut buf);
-                    for &c in buf.iter() {
-                        counts[c as usize].fetch_add(1, Ordering::Relaxed);
-                    }
-                    (buf, finite_bounds(pts, (lo, hi)))
-                },
-            )
-            .map(|(_, b)| b)
-            .reduce(none, |a, b| (a.0.min(b.0), a.1.max(b.1)));
+        let (mut lo, mut hi) = none();
+        for block in blocks(n) {
+            let (l, h) = block
+                .clone()
+                .into_par_iter()
+                .fold(
+                    || (Vec::new(), none()),
+                    |(mut buf, (lo, hi)), s| {
+                        let pts = streamline(s);
+                        cells_of(&cells, pts, &mut buf);
+                        for &c in buf.iter() {
+                            counts[c as usize].fetch_add(1, Ordering::Relaxed);
+                        }
+                        (buf, finite_bounds(pts, (lo, hi)))
+                    },
+                )
+                .map(|(_, b)| b)
+                .reduce(none, |a, b| (a.0.min(b.0), a.1.max(b.1)));
+            (lo, hi) = (lo.min(l), hi.max(h));
+            done(block);
+        }
         let extent = lo.cmple(hi).all().then_some((lo, hi));
         let mut starts = Vec::with_capacity(n_cells + 1);
         starts.push(0u64);
@@ -63,13 +82,16 @@ impl StreamlineCells {
         let fill: Vec<AtomicU64> = starts[..n_cells].iter().map(|&s| AtomicU64::new(s)).collect();
         let total = starts[n_cells] as usize;
         let ids: Vec<AtomicU32> = (0..total).map(|_| AtomicU32::new(0)).collect();
-        (0..n).into_par_iter().for_each_init(Vec::new, |buf, s| {
-            cells_of(&cells, streamline(s), buf);
-            for &c in buf.iter() {
-                let at = fill[c as usize].fetch_add(1, Ordering::Relaxed);
-                ids[at as usize].store(s as u32, Ordering::Relaxed);
-            }
-        });
+        for block in blocks(n) {
+            block.clone().into_par_iter().for_each_init(Vec::new, |buf, s| {
+                cells_of(&cells, streamline(s), buf);
+                for &c in buf.iter() {
+                    let at = fill[c as usize].fetch_add(1, Ordering::Relaxed);
+                    ids[at as usize].store(s as u32, Ordering::Relaxed);
+                }
+            });
+            done(block);
+        }
         let ids = ids.into_iter().map(AtomicU32::into_inner).collect();
         Self { cells, starts, ids, n, extent }
     }
@@ -77,13 +99,29 @@ impl StreamlineCells {
     /// [`StreamlineCells::build`] over the bounds of the streamlines' own finite points (found in one parallel
     /// pass first; a zero box without any).
     pub fn build_fitted<'a>(n: usize, streamline: impl Fn(usize) -> &'a [Vec3] + Sync, cell: f32) -> Self {
+        Self::build_fitted_in_blocks(n, streamline, cell, |_| {})
+    }
+
+    /// [`StreamlineCells::build_fitted`] a block at a time, as [`StreamlineCells::build_in_blocks`].
+    pub fn build_fitted_in_blocks<'a>(
+        n: usize,
+        streamline: impl Fn(usize) -> &'a [Vec3] + Sync,
+        cell: f32,
+        done: impl Fn(std::ops::Range<usize>),
+    ) -> Self {
         let none = || (Vec3::INFINITY, Vec3::NEG_INFINITY);
-        let (lo, hi) = (0..n)
-            .into_par_iter()
-            .map(|s| finite_bounds(streamline(s), none()))
-            .reduce(none, |a, b| (a.0.min(b.0), a.1.max(b.1)));
+        let (mut lo, mut hi) = none();
+        for block in blocks(n) {
+            let (l, h) = block
+                .clone()
+                .into_par_iter()
+                .map(|s| finite_bounds(streamline(s), none()))
+                .reduce(none, |a, b| (a.0.min(b.0), a.1.max(b.1)));
+            (lo, hi) = (lo.min(l), hi.max(h));
+            done(block);
+        }
         let bounds = if lo.cmple(hi).all() { (lo, hi) } else { (Vec3::ZERO, Vec3::ZERO) };
-        Self::build(n, streamline, bounds, cell)
+        Self::build_in_blocks(n, streamline, bounds, cell, done)
     }
 
     /// Bytes the index holds.
@@ -440,6 +478,14 @@ fn hausdorff(a: &RoiShape, b: &RoiShape) -> f32 {
         _ => f32::INFINITY,
     }
 }
+
+/// The streamlines `0..n` in blocks of [`BLOCK`], in order.
+fn blocks(n: usize) -> impl Iterator<Item = std::ops::Range<usize>> {
+    (0..n.div_ceil(BLOCK)).map(move |b| b * BLOCK..((b + 1) * BLOCK).min(n))
+}
+
+/// Streamlines a block of an index build's pass holds (about 80 MB of a whole-brain `.tck`).
+const BLOCK: usize = 1 << 16;
 
 /// `(lo, hi)` grown to the finite points of `pts`.
 fn finite_bounds(pts: &[Vec3], (lo, hi): (Vec3, Vec3)) -> (Vec3, Vec3) {

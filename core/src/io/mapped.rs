@@ -127,8 +127,14 @@ impl MappedRun {
 
     /// Lets the run's pages go from this process's resident memory ([`MappedPoints::release`]).
     pub fn release(&self) {
-        let (a, b) = (self.starts[0] as usize, *self.starts.last().unwrap_or(&0) as usize);
-        self.file.release(a..b);
+        self.release_streamlines(0..self.n_streamlines());
+    }
+
+    /// Lets the pages of the run's streamlines `streamlines` go ([`MappedPoints::release`]).
+    pub fn release_streamlines(&self, streamlines: Range<usize>) {
+        let end = streamlines.end.min(self.n_streamlines());
+        let start = streamlines.start.min(end);
+        self.file.release(self.starts[start] as usize..self.starts[end] as usize);
     }
 
     /// Bytes the run holds (its starts; the points stay in the file).

@@ -312,7 +312,7 @@ fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String>
                             continue;
                         }
                         let build = || {
-                            inner.cells.get_or_init(|| build_index(&t));
+                            inner.cells.get_or_init(|| build_set_index(&t));
                             t.release();
                         };
                         match &pool {
@@ -339,6 +339,20 @@ fn lowest_priority() {
 
 fn build_index(t: &(impl Streamlines + ?Sized)) -> StreamlineCells {
     StreamlineCells::build_fitted(t.n_streamlines(), |s| t.streamline(s), INDEX_CELL_MM)
+}
+
+/// A set's index; streamlines read in place let their pages go a block at a time as the build's passes go over
+/// them (a layer's run: the whole file, which would otherwise stay resident until the build ends).
+fn build_set_index(t: &SetStreamlines) -> StreamlineCells {
+    match t {
+        SetStreamlines::Owned(t) => build_index(&**t),
+        SetStreamlines::Mapped(run) => StreamlineCells::build_fitted_in_blocks(
+            run.n_streamlines(),
+            |s| run.streamline(s),
+            INDEX_CELL_MM,
+            |block| run.release_streamlines(block),
+        ),
+    }
 }
 
 /// A tract set drawn as hyperstreamlines (tubelets): one entity, one draw.
