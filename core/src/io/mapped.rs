@@ -78,24 +78,21 @@ pub struct MappedRun {
 }
 
 impl MappedRun {
-    /// The streamlines of `lengths` (points each), stored one after another from the file's point `at`, each
-    /// followed by its terminator (as a `.tck` stores them). `None` when they would run past the file's points,
-    /// or when their ends are not where the file has them (a terminator after each, the first and last points
-    /// as `check` has them: cheap checks that the lengths describe this file).
-    pub fn consecutive(
-        file: Arc<MappedPoints>,
-        at: usize,
-        lengths: impl IntoIterator<Item = usize>,
-        check: &impl Streamlines,
-    ) -> Option<Self> {
-        let mut starts = vec![at as u64];
-        for n in lengths {
-            starts.push(starts.last().copied().unwrap_or(0) + n as u64 + 1);
+    /// The streamlines of `check`, stored one after another from the file's point `at`, each followed by its
+    /// terminator (as a `.tck` stores them), read in place: the run takes their lengths from `check`. `None`
+    /// when they would run past the file's points, or when their ends are not where the file has them (a
+    /// terminator after each, the first and last points as `check` has them, for its first, middle and last
+    /// streamlines: cheap checks that `check` is this stretch of the file).
+    pub fn consecutive(file: Arc<MappedPoints>, at: usize, check: &impl Streamlines) -> Option<Self> {
+        let n = check.n_streamlines();
+        let mut starts = Vec::with_capacity(n + 1);
+        starts.push(at as u64);
+        for s in 0..n {
+            starts.push(starts[s] + check.streamline(s).len() as u64 + 1);
         }
         let run = MappedRun { file, starts };
         let points = run.file.points();
-        let end = *run.starts.last().unwrap_or(&0) as usize;
-        if end > points.len() || run.n_streamlines() != check.n_streamlines() {
+        if run.starts[n] as usize > points.len() {
             return None;
         }
         let terminated = |k: usize| points[run.starts[k + 1] as usize - 1].is_nan();
@@ -104,7 +101,6 @@ impl MappedRun {
             a.first().map(|p| p.to_array()) == b.first().map(|p| p.to_array())
                 && a.last().map(|p| p.to_array()) == b.last().map(|p| p.to_array())
         };
-        let n = run.n_streamlines();
         let probes = [0, n / 2, n.saturating_sub(1)];
         let ok = n == 0 || probes.iter().all(|&k| terminated(k) && same_ends(k));
         run.release();
@@ -155,12 +151,10 @@ impl Streamlines for MappedRun {
     }
 }
 
-/// A Float32LE `.tck` file mapped in memory, with the index of its streamlines.
+/// A Float32LE `.tck` file mapped in memory, with the index of its streamlines: the whole file as one
+/// [`MappedRun`].
 pub struct MappedTck {
-    file: MappedPoints,
-    /// Per streamline, the index (in points from the data offset) of its first point; one more entry ends the
-    /// last. Streamline `s` spans `starts[s]..starts[s + 1] - 1` (its NaN terminator excluded).
-    starts: Vec<u64>,
+    run: MappedRun,
     bounds: Option<(Vec3, Vec3)>,
 }
 
@@ -171,6 +165,8 @@ impl MappedTck {
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let file = MappedPoints::open(path)?;
         let points = file.points();
+        // Streamline `s` spans `starts[s]..starts[s + 1] - 1`: one past its last point is its terminator (or,
+        // for a file cut short, the end of the data).
         let mut starts = vec![0u64];
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let mut open = false;
@@ -198,25 +194,28 @@ impl MappedTck {
         let bounds = (lo.x <= hi.x).then_some((lo, hi));
         // The pass read every page: they go from the process's memory until a streamline is read again.
         file.release(0..points.len());
-        Ok(Self { file, starts, bounds })
+        Ok(Self { run: MappedRun { file: Arc::new(file), starts }, bounds })
     }
 
     /// Streamlines in the file (empty ones included, as MRtrix counts them).
     pub fn n_streamlines(&self) -> usize {
-        self.starts.len() - 1
+        self.run.n_streamlines()
     }
 
     /// Points of streamline `s`, in place (RAS+ mm). Panics if `s >= n_streamlines()`.
     #[inline]
     pub fn streamline(&self, s: usize) -> &[Vec3] {
-        let points = self.file.points();
-        let (a, b) = (self.starts[s] as usize, self.starts[s + 1] as usize - 1);
-        &points[a..b.min(points.len())]
+        self.run.streamline(s)
     }
 
     /// Bounds of every point (RAS+ mm); None without points.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         self.bounds
+    }
+
+    /// The file's streamlines as a run (to release their pages, or to share the mapping).
+    pub fn run(&self) -> &MappedRun {
+        &self.run
     }
 }
 
@@ -286,27 +285,34 @@ mod tests {
         let path = tmp_dir.path().join("t.tck");
         crate::io::tck::write(&path, &t, &[]).unwrap();
         let file = Arc::new(MappedPoints::open(&path).unwrap());
-        let lengths = |r: Range<usize>| r.map(|s| t.streamline(s).len()).collect::<Vec<_>>();
-        let whole = MappedRun::consecutive(file.clone(), 0, lengths(0..7), &t).expect("the whole file");
+        let whole = MappedRun::consecutive(file.clone(), 0, &t).expect("the whole file");
         assert_eq!(whole.n_streamlines(), 7);
         (0..7).for_each(|s| assert_eq!(whole.streamline(s), t.streamline(s), "streamline {s}"));
         let part = t.subset(&[false, false, true, true, true, false, false]);
         let at = t.offsets[2] + 2;
-        let middle = MappedRun::consecutive(file.clone(), at, lengths(2..5), &part).expect("a run from the middle");
+        let middle = MappedRun::consecutive(file.clone(), at, &part).expect("a run from the middle");
         (0..3).for_each(|s| assert_eq!(middle.streamline(s), t.streamline(s + 2), "streamline {}", s + 2));
         whole.release();
         assert_eq!(middle.streamline(1), t.streamline(3), "read again after a release");
         let none = Tractogram::new();
-        assert_eq!(MappedRun::consecutive(file.clone(), at, [], &none).map(|r| r.n_streamlines()), Some(0));
-        // One point too many, a start one off, past the end, or streamlines that are not these.
-        let mut longer = lengths(2..5);
-        longer[0] += 1;
-        assert!(MappedRun::consecutive(file.clone(), at, longer, &part).is_none());
-        assert!(MappedRun::consecutive(file.clone(), at + 1, lengths(2..5), &part).is_none());
-        assert!(MappedRun::consecutive(file.clone(), t.offsets[7] + 7, [1], &part).is_none());
-        assert!(MappedRun::consecutive(file.clone(), 0, lengths(0..3), &part).is_none());
+        assert_eq!(MappedRun::consecutive(file.clone(), at, &none).map(|r| r.n_streamlines()), Some(0));
+        // A start one off either way, past the end, or streamlines that are not these (one point longer; others
+        // of the same count).
+        assert!(MappedRun::consecutive(file.clone(), at + 1, &part).is_none());
+        assert!(MappedRun::consecutive(file.clone(), at - 1, &part).is_none());
+        assert!(MappedRun::consecutive(file.clone(), t.offsets[7] + 7, &part).is_none());
+        let mut longer = Tractogram::new();
+        for s in 0..3 {
+            let mut pts = part.streamline(s).to_vec();
+            if s == 0 {
+                pts.push(pts[pts.len() - 1]);
+            }
+            longer.push(&pts);
+        }
+        assert!(MappedRun::consecutive(file.clone(), at, &longer).is_none());
+        assert!(MappedRun::consecutive(file.clone(), 0, &t.subset(&[false, true, true, true])).is_none());
         // Runs that follow each other join into one, the file's streamlines in order; others do not.
-        let head = MappedRun::consecutive(file.clone(), 0, lengths(0..2), &t.subset(&[true, true])).unwrap();
+        let head = MappedRun::consecutive(file.clone(), 0, &t.subset(&[true, true])).unwrap();
         let joined = MappedRun::join(&[&head, &middle]).expect("runs that follow each other");
         (0..5).for_each(|s| assert_eq!(joined.streamline(s), t.streamline(s), "joined streamline {s}"));
         assert!(MappedRun::join(&[&middle, &head]).is_none());

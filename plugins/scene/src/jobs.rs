@@ -483,8 +483,7 @@ fn stream_tract_file(
     let mapped = is_tck.then(|| MappedPoints::open(path).ok()).flatten().map(Arc::new);
     let part = |t: Tractogram, first: usize, points_before: usize, detail| {
         // In a .tck, each streamline before the part is followed by its terminator.
-        let lengths: Vec<usize> = t.iter().map(<[Vec3]>::len).collect();
-        let run = mapped.as_ref().and_then(|m| MappedRun::consecutive(m.clone(), points_before + first, lengths, &t));
+        let run = mapped.as_ref().and_then(|m| MappedRun::consecutive(m.clone(), points_before + first, &t));
         match (prepare(TractData { tractogram: Arc::new(t), tensors: None }, first, detail), run) {
             (Content::Tracts(p), Some(run)) => Content::Tracts(p.read_in_place(Arc::new(run))),
             (content, _) => content,

@@ -252,12 +252,7 @@ impl LazyIndex {
                 let mut drag = self.0.drag.lock().unwrap_or_else(|e| e.into_inner());
                 cells.select_dragging(|s| t.streamline(s), rois, &mut drag)
             }
-            None => {
-                let mut keep = vec![true; t.n_streamlines()];
-                Criteria::from_rois(rois, false).narrow(t, &mut keep);
-                t.release();
-                keep
-            }
+            None => select_every(t, rois),
         }
     }
 
@@ -286,6 +281,15 @@ impl LazyIndex {
             }
         }
     }
+}
+
+/// Which streamlines of `t` the ROIs select, every streamline tested without an index (the selection
+/// [`LazyIndex::select`] makes through one); the pages the pass read in place go again after it.
+fn select_every(t: &SetStreamlines, rois: &[Roi]) -> Vec<bool> {
+    let mut keep = vec![true; t.n_streamlines()];
+    Criteria::from_rois(rois, false).narrow(t, &mut keep);
+    t.release();
+    keep
 }
 
 /// A set's index and streamlines, queued for the background builder.
@@ -1498,10 +1502,14 @@ pub fn apply_rois(
         (),
         Or<(Added<TractRoi>, Changed<TractRoi>, Changed<RoiRules>, Changed<DeletedStreamlines>, Changed<TractMasks>)>,
     >,
-    mut removed: RemovedComponents<TractRoi>,
-    mut removed_rules: RemovedComponents<RoiRules>,
-    mut removed_deletions: RemovedComponents<DeletedStreamlines>,
-    mut removed_masks: RemovedComponents<TractMasks>,
+    roi_roster: Query<(), (With<TractRoi>, Or<(Added<TractRoi>, Changed<ChildOf>)>)>,
+    (mut removed, mut removed_rules, mut removed_deletions, mut removed_masks, mut removed_sets): (
+        RemovedComponents<TractRoi>,
+        RemovedComponents<RoiRules>,
+        RemovedComponents<DeletedStreamlines>,
+        RemovedComponents<TractMasks>,
+        RemovedComponents<TractSet>,
+    ),
     rois: Query<(&TractRoi, Option<&ChildOf>)>,
     rules: Query<&RoiRules>,
     deleted: Query<&DeletedStreamlines>,
@@ -1510,17 +1518,24 @@ pub fn apply_rois(
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
-    mut layer_runs: Local<HashMap<Entity, LayerRun>>,
+    (mut layer_runs, mut arrived_before): (Local<HashMap<Entity, LayerRun>>, Local<bool>),
 ) {
-    update_layer_runs(&mut layer_runs, &sets, &rois);
-    let removed_any = removed.read().count()
-        + removed_rules.read().count()
-        + removed_deletions.read().count()
-        + removed_masks.read().count()
-        > 0;
+    let removed_rois = removed.read().count();
+    let removed_any =
+        removed_rois + removed_rules.read().count() + removed_deletions.read().count() + removed_masks.read().count()
+            > 0;
+    let arrived = sets.iter().any(|(_, s, _, _)| s.is_added());
+    // The layers' runs change only when sets come or go, or ROIs do (or change layer); and in the frame after
+    // sets arrived (a set is joined once no part of its layer arrives in the frame). A despawned layer's run and
+    // index go at once.
+    let sets_gone = removed_sets.read().count() > 0;
+    if arrived || *arrived_before || sets_gone || removed_rois > 0 || !roi_roster.is_empty() {
+        update_layer_runs(&mut layer_runs, &sets, &rois);
+    }
+    *arrived_before = arrived;
     // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
     let rois_changed = !changed_rois.is_empty() || removed_any;
-    if !rois_changed && !sets.iter().any(|(_, s, _, _)| s.is_added()) {
+    if !rois_changed && !arrived {
         return;
     }
     let t0 = Instant::now();
@@ -1554,10 +1569,7 @@ pub fn apply_rois(
         } else if let SetStreamlines::Mapped(_) = t {
             // A part read in place whose layer has no run yet (its parts still arriving): every streamline
             // tested, and no index of the part's own (the layer's is made once its parts are in).
-            let mut keep = vec![true; t.n_streamlines()];
-            Criteria::from_rois(&list, false).narrow(t, &mut keep);
-            t.release();
-            keep
+            select_every(t, &list)
         } else {
             set.index.select(t, &list)
         };

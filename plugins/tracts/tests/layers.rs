@@ -341,8 +341,7 @@ fn a_set_selects_and_picks_the_same_before_and_after_its_index() {
     let tck = tmp.path().join("tracks300.tck");
     fascicle_core::io::tck::write(&tck, &t, &[]).unwrap();
     let file = Arc::new(MappedPoints::open(&tck).unwrap());
-    let lengths = t.iter().map(<[Vec3]>::len);
-    let run = MappedRun::consecutive(file, 0, lengths, &*t).expect("the file's streamlines");
+    let run = MappedRun::consecutive(file, 0, &*t).expect("the file's streamlines");
     for set in [SetStreamlines::Owned(t.clone()), SetStreamlines::Mapped(Arc::new(run))] {
         selects_and_picks_as_the_core(&t, &set);
     }
