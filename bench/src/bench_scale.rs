@@ -408,7 +408,7 @@ fn available_memory() -> Option<u64> {
 /// index built once ([`fascicle_core::roi_index::StreamlineCells`], 4 mm cells): the bench's child process for
 /// the "select, mapped file" row. Each step selected afresh, then the same drag with the margins a drag keeps
 /// ([`fascicle_core::roi_index::DragMargins`]). Prints `median M ms, worst W ms (K kept; index built in B s, I
-/// MiB); dragging: median M ms, worst W ms (K kept; margins I MiB)`.
+/// MiB); dragging: median M ms, worst W ms (K kept; margins I MiB; R streamlines read a step on average)`.
 pub fn drag_mapped(file: &Path) -> Result<(), Error> {
     use fascicle_core::io::mapped::MappedTck;
     use fascicle_core::roi_index::{DragMargins, StreamlineCells};
@@ -425,7 +425,24 @@ pub fn drag_mapped(file: &Path) -> Result<(), Error> {
     let (median, worst, kept) =
         drag_steps(|rois| index.select_dragging(|s| t.streamline(s), rois, &mut drag).iter().filter(|k| **k).count());
     let mib = drag.heap_bytes() as f64 / 1048576.0;
-    println!("; dragging: median {median:.1} ms, worst {worst:.1} ms ({kept} kept; margins {mib:.0} MiB)");
+    // The same drag again, untimed, counting the streamlines it reads from the file (each once a step: the
+    // step's prefetch asks for them too).
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let read: Vec<AtomicBool> = (0..t.n_streamlines()).map(|_| AtomicBool::new(false)).collect();
+    let counted = |s: usize| {
+        read[s].store(true, Ordering::Relaxed);
+        t.streamline(s)
+    };
+    let (mut drag, mut total) = (DragMargins::default(), 0);
+    drag_steps(|rois| {
+        let kept = index.select_dragging(counted, rois, &mut drag).iter().filter(|k| **k).count();
+        total += read.iter().filter(|r| r.swap(false, Ordering::Relaxed)).count();
+        kept
+    });
+    let per_step = total / 40;
+    println!(
+        "; dragging: median {median:.1} ms, worst {worst:.1} ms ({kept} kept; margins {mib:.0} MiB; {per_step} streamlines read a step on average)"
+    );
     Ok(())
 }
 

@@ -215,13 +215,16 @@ impl StreamlineCells {
     }
 
     /// [`StreamlineCells::select`] for a drag: the same selection, but each streamline tested for an ROI
-    /// leaves in `drag` its point deepest inside (when it met the ROI) or how far outside it was, and the next
-    /// call decides without reading the streamline where it can: one that met the ROI still does while that
-    /// point is inside; one that did not still does not while its distance exceeds how far the ROI moved since
-    /// (for spheres and boxes: the signed distance to a convex region moves by at most the regions'
-    /// Hausdorff distance). On the generated 1M-streamline brain, a 1 mm step of a 10 mm sphere reads 20k of
-    /// its 68k candidates. Keep one `drag` per set of ROIs: a change in their number, modes or kinds starts
-    /// it afresh.
+    /// leaves in `drag` a witness (one of its points: inside the ROI, the one that stays inside longest as the
+    /// drag goes on; else for a sphere, the one it comes over first), how far outside it was, and how far from
+    /// the sphere swept on along the drag (8 steps like its last, at most its radius); the next call decides
+    /// without reading the streamline where it can: it meets the ROI while its witness is inside; it does not
+    /// while its distance exceeds how far the ROI moved since (for spheres and boxes: the signed distance to a
+    /// convex region moves by at most the regions' Hausdorff distance), or its distance from the swept sphere
+    /// how far the sphere is from it.
+    /// On the generated 1M-streamline brain, a 1 mm step of a 10 mm sphere along a line reads about 10k of its
+    /// 68k candidates (21k without the sweep). Keep one `drag` per set of ROIs: a change in their number,
+    /// modes or kinds starts it afresh.
     pub fn select_dragging<'a>(
         &self,
         streamline: impl Fn(usize) -> &'a [Vec3] + Sync,
@@ -271,30 +274,41 @@ impl StreamlineCells {
 
 /// What [`StreamlineCells::select_dragging`] remembers between the steps of a drag: per ROI (spheres and
 /// boxes; planes are always tested) and per streamline tested, its signed distance to the ROI (the least over
-/// its points; negative inside), the point of that distance, and which of the ROI's past shapes that was
-/// measured against. 20 bytes per streamline and ROI.
+/// its points; negative inside), its distance to the sphere swept on along the drag's last step (8 steps on), a
+/// point inside when it met the ROI, and which of the ROI's past shapes that was measured against. 24 bytes
+/// per streamline and ROI.
 #[derive(Default)]
 pub struct DragMargins {
     slots: Vec<Slot>,
 }
 
-/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`) and per streamline the margin and the
-/// epoch it was measured in (0: never).
+/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`), for a sphere the far end of the
+/// segment its centre was swept along in that epoch (`aheads[e - 1]`; the centre itself without a direction),
+/// and per streamline the margins and the epoch they were measured in (0: never).
 struct Slot {
     mode: RoiMode,
     kind: std::mem::Discriminant<RoiShape>,
     shapes: Vec<RoiShape>,
+    aheads: Vec<Option<Vec3>>,
     margins: Option<Margins>,
 }
 
-/// Per streamline, one cache line's worth read together: the margin's bits, its epoch, and the point deepest
-/// inside when it met the ROI (its bits).
-struct Margins(Vec<[AtomicU32; 5]>);
+/// Per streamline, read together: the margin's bits, its epoch, the point that met the ROI (its bits), and the
+/// swept margin's bits.
+struct Margins(Vec<[AtomicU32; 6]>);
 
 /// Where each value lies in a [`Margins`] entry.
 const MARGIN: usize = 0;
 const EPOCH: usize = 1;
 const WITNESS: usize = 2;
+const SWEPT: usize = 5;
+
+/// How far on a moved sphere is swept when its margins are measured, in steps like its last: a streamline
+/// clear of the whole swept sphere (a capsule) stays out while the centre keeps near that segment, so the
+/// streamlines beside a drag's path are not read again at every step (only those ahead and behind); and a
+/// streamline that met it is remembered by a point inside both the sphere and its swept end where it has one.
+/// The sweep is at most the radius long.
+const SWEEP: f32 = 8.0;
 
 /// A margin within this of the boundary (mm) is not trusted: the streamline is tested. Far above the f32
 /// rounding of distances in a brain (about 1e-5 mm at 100 mm).
@@ -306,7 +320,7 @@ const MAX_EPOCHS: usize = 1 << 16;
 impl DragMargins {
     /// Bytes held.
     pub fn heap_bytes(&self) -> usize {
-        self.slots.iter().filter_map(|s| s.margins.as_ref()).map(|m| m.0.len() * 20).sum()
+        self.slots.iter().filter_map(|s| s.margins.as_ref()).map(|m| m.0.len() * 24).sum()
     }
 
     /// One slot per ROI, reset where the ROI's mode or kind differs from the slot's.
@@ -318,8 +332,9 @@ impl DragMargins {
                 mode: roi.mode,
                 kind,
                 shapes: vec![],
+                aheads: vec![],
                 margins: (!matches!(roi.shape, RoiShape::Plane { .. }))
-                    .then(|| Margins((0..n).map(|_| [0; 5].map(AtomicU32::new)).collect())),
+                    .then(|| Margins((0..n).map(|_| [0; 6].map(AtomicU32::new)).collect())),
             };
             match self.slots.get_mut(k) {
                 Some(s) if s.mode == roi.mode && s.kind == kind && s.shapes.len() < MAX_EPOCHS => {}
@@ -340,9 +355,30 @@ impl Slot {
         streamline: &(impl Fn(usize) -> &'a [Vec3] + Sync),
     ) -> Vec<u32> {
         let Some(mem) = &self.margins else { return meets_exactly(shape, ids, streamline) };
-        // How far each past shape is from this one: no point's signed distance moved more since.
+        // How far each past shape is from this one: no point's signed distance moved more since; and how far
+        // this one is from each past swept sphere (any of its centres on the segment), likewise.
         let shifts: Vec<f32> = self.shapes.iter().map(|old| hausdorff(old, shape)).collect();
+        let swept_shifts: Vec<f32> = self
+            .shapes
+            .iter()
+            .zip(&self.aheads)
+            .map(|(old, ahead)| match (*old, *shape, ahead) {
+                (RoiShape::Sphere { centre: c0, radius: r0 }, RoiShape::Sphere { centre, radius }, Some(f)) => {
+                    segment_distance(Vec3::from(centre), Vec3::from(c0), *f) + (radius - r0).abs()
+                }
+                _ => hausdorff(old, shape),
+            })
+            .collect();
+        let ahead = match (self.shapes.last(), *shape) {
+            (Some(RoiShape::Sphere { centre: c0, .. }), RoiShape::Sphere { centre, radius }) => {
+                let (c, v) = (Vec3::from(centre), Vec3::from(centre) - Vec3::from(*c0));
+                let len = (v.length() * SWEEP).min(radius.abs());
+                (len > 0.0).then(|| c + v.normalize_or_zero() * len)
+            }
+            _ => None,
+        };
         self.shapes.push(*shape);
+        self.aheads.push(ahead);
         let now = self.shapes.len() as u32;
         // Decided from the margins where they can be; the rest tested one after another, each streamline's
         // first cache lines asked for two before while this one is tested (in a mapped file, a streamline is
@@ -355,17 +391,18 @@ impl Slot {
                     let m = &mem.0[s as usize];
                     let e = m[EPOCH].load(Ordering::Relaxed);
                     if e > 0 {
+                        // A streamline meets the ROI while its witness (one of its points) is inside, tested as
+                        // any point is; it does not while its margin exceeds the shift since, or its swept
+                        // margin the distance from the swept sphere.
+                        let w = Vec3::from([0, 1, 2].map(|k| f32::from_bits(m[WITNESS + k].load(Ordering::Relaxed))));
+                        if shape.contains(w) {
+                            kept.push(s);
+                            continue;
+                        }
                         let margin = f32::from_bits(m[MARGIN].load(Ordering::Relaxed));
-                        // A streamline that met the ROI still does while its deepest point is inside (tested as
-                        // any point is); one that did not still does not while its margin exceeds the shift.
-                        if margin <= 0.0 {
-                            let w =
-                                Vec3::from([0, 1, 2].map(|k| f32::from_bits(m[WITNESS + k].load(Ordering::Relaxed))));
-                            if shape.contains(w) {
-                                kept.push(s);
-                                continue;
-                            }
-                        } else if margin - (shifts[e as usize - 1] + MARGIN_SLACK) > 0.0 {
+                        let swept = f32::from_bits(m[SWEPT].load(Ordering::Relaxed));
+                        let e = e as usize - 1;
+                        if margin - (shifts[e] + MARGIN_SLACK) > 0.0 || swept - (swept_shifts[e] + MARGIN_SLACK) > 0.0 {
                             continue;
                         }
                     }
@@ -375,9 +412,10 @@ impl Slot {
                     if let Some(&next) = undecided.get(k + PREFETCH_AHEAD) {
                         prefetch(streamline(next as usize));
                     }
-                    let (meets, margin, w) = meets_with_margin(shape, streamline(s as usize));
+                    let (meets, margin, swept, w) = meets_with_margin(shape, ahead, streamline(s as usize));
                     let m = &mem.0[s as usize];
                     m[MARGIN].store(margin.to_bits(), Ordering::Relaxed);
+                    m[SWEPT].store(swept.to_bits(), Ordering::Relaxed);
                     m[EPOCH].store(now, Ordering::Relaxed);
                     for (b, v) in m[WITNESS..].iter().zip(w.to_array()) {
                         b.store(v.to_bits(), Ordering::Relaxed);
@@ -425,24 +463,52 @@ fn meets_exactly<'a>(shape: &RoiShape, ids: &[u32], streamline: &(impl Fn(usize)
 
 /// Whether a streamline meets a sphere or a box (as [`RoiShape::meets_streamline`] decides: a point inside,
 /// boundary included), the least signed distance of its points to it (mm, negative inside; NaN without finite
-/// points, which is never trusted) and the point of that distance.
-fn meets_with_margin(shape: &RoiShape, pts: &[Vec3]) -> (bool, f32, Vec3) {
+/// points, which is never trusted), the least signed distance to the sphere swept from its centre to `ahead`
+/// (the margin itself without `ahead`, and for boxes), and a point inside when it meets it: for a sphere, the
+/// one inside both the sphere and its swept end that is deepest in both, where there is one, else the point
+/// deepest inside.
+fn meets_with_margin(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> (bool, f32, f32, Vec3) {
     match *shape {
         RoiShape::Sphere { centre, radius } => {
             // The squared distance as `contains` computes it, so that "the least is within the radius" is
-            // "a point is inside"; the nearest point's index kept, not the point, so the loop does not branch.
+            // "a point is inside"; the points' indices kept, not the points, so the loop does not branch.
             let c = Vec3::from(centre);
-            let (mut least, mut nearest) = (f32::INFINITY, usize::MAX);
+            let d = ahead.map_or(Vec3::ZERO, |f| f - c);
+            let (u, len) = (d.normalize_or_zero(), d.length());
+            let r2 = radius * radius;
+            let (mut least, mut least_swept) = (f32::INFINITY, f32::INFINITY);
+            // Along the sweep's direction `u`, point `p` is inside the sphere centred at `c + t u` for `t` in
+            // `a - h..a + h` (`a` its distance along `u`, `h` half its chord): the witness of a streamline that
+            // meets the sphere is its point inside that stays inside the longest (the largest `a + h`); of one
+            // that does not, its point ahead that comes inside first (the least `a - h > 0`).
+            let (mut exit, mut exiting) = (f32::NEG_INFINITY, usize::MAX);
+            let (mut entry, mut entering) = (f32::INFINITY, usize::MAX);
             for (k, p) in pts.iter().enumerate() {
-                let d = c - *p;
-                let q = d.x * d.x + (d.y * d.y + d.z * d.z);
-                let nearer = q < least;
-                least = if nearer { q } else { least };
-                nearest = if nearer { k } else { nearest };
+                let w = *p - c;
+                let q = w.x * w.x + (w.y * w.y + w.z * w.z);
+                least = least.min(q);
+                let a = w.dot(u);
+                // The squared distance to the swept centre's segment, from `q` and `a`.
+                let along = a.clamp(0.0, len);
+                least_swept = least_swept.min(q - along * (2.0 * a - along));
+                let h2 = r2 - (q - a * a);
+                if h2 >= 0.0 {
+                    let h = h2.sqrt();
+                    if q <= r2 {
+                        if a + h > exit {
+                            (exit, exiting) = (a + h, k);
+                        }
+                    } else if a > h && a - h < entry {
+                        (entry, entering) = (a - h, k);
+                    }
+                }
             }
-            match pts.get(nearest) {
-                Some(&at) => (least <= radius * radius, least.sqrt() - radius, at),
-                None => (false, f32::NAN, Vec3::NAN),
+            let meets = least <= r2;
+            let witness = pts.get(if meets { exiting } else { entering }).copied().unwrap_or(Vec3::NAN);
+            if least.is_finite() {
+                (meets, least.sqrt() - radius, least_swept.max(0.0).sqrt() - radius, witness)
+            } else {
+                (false, f32::NAN, f32::NAN, Vec3::NAN)
             }
         }
         RoiShape::Box { min, max } => {
@@ -457,10 +523,18 @@ fn meets_with_margin(shape: &RoiShape, pts: &[Vec3]) -> (bool, f32, Vec3) {
                     (least, at) = (sd, *p);
                 }
             }
-            (meets, if at.is_finite() { least } else { f32::NAN }, at)
+            let margin = if at.is_finite() { least } else { f32::NAN };
+            (meets, margin, margin, at)
         }
-        RoiShape::Plane { .. } => (shape.meets_streamline(pts), f32::NAN, Vec3::NAN),
+        RoiShape::Plane { .. } => (shape.meets_streamline(pts), f32::NAN, f32::NAN, Vec3::NAN),
     }
+}
+
+/// The distance from `p` to the segment `a`-`b` (mm).
+fn segment_distance(p: Vec3, a: Vec3, b: Vec3) -> f32 {
+    let d = b - a;
+    let t = if d.length_squared() > 0.0 { ((p - a).dot(d) / d.length_squared()).clamp(0.0, 1.0) } else { 0.0 };
+    (a + d * t).distance(p)
 }
 
 /// An upper bound on the Hausdorff distance between two spheres or two boxes (mm; infinite otherwise): for
@@ -692,5 +766,38 @@ mod tests {
         let second = tested.load(Ordering::Relaxed);
         assert!(first > 1000, "{first} candidates");
         assert!(second * 3 < first, "a 1 mm step tested {second} of {first}");
+    }
+
+    /// A drag along a straight line reads little beyond the streamlines it must: the sphere swept on along the
+    /// drag decides the streamlines beside its path, and a streamline's witness ahead of it or inside decides it
+    /// as the sphere comes over it or stays. From the third step of 1 mm steps, under a sixth of the candidates
+    /// are read (about a seventh; 28 % without the sweep: the margins alone re-read every streamline within 1 mm
+    /// of the boundary at every step). Each streamline read is counted once a step (a prefetch asks for it too).
+    #[test]
+    fn a_straight_drag_reads_few_streamlines() {
+        use std::sync::atomic::AtomicBool;
+        let (t, index) = indexed_brain(20000, 5);
+        let read: Vec<AtomicBool> = (0..t.n_streamlines()).map(|_| AtomicBool::new(false)).collect();
+        let counted = |s: usize| {
+            read[s].store(true, Ordering::Relaxed);
+            t.streamline(s)
+        };
+        let mut drag = DragMargins::default();
+        let (mut tested, mut candidates) = (0, 0);
+        // Forward 12 steps, then back (what the sweep remembers must not decide wrongly when the drag turns).
+        for step in 0..24 {
+            let x = if step < 12 { step } else { 23 - step } as f32 - 6.0;
+            let shape = RoiShape::Sphere { centre: [x, 0.0, 0.0], radius: 10.0 };
+            let rois = [Roi { shape, mode: RoiMode::Include }];
+            let got = index.select_dragging(counted, &rois, &mut drag);
+            assert_eq!(got, index.select(|s| t.streamline(s), &rois), "step {step}");
+            let this_step = read.iter().filter(|r| r.swap(false, Ordering::Relaxed)).count();
+            if (2..12).contains(&step) {
+                tested += this_step;
+                candidates += index.candidates(&shape).len();
+            }
+        }
+        assert!(candidates > 10_000, "{candidates} candidates");
+        assert!(tested * 6 < candidates, "a straight drag read {tested} of {candidates} candidates");
     }
 }
