@@ -769,6 +769,28 @@ pub struct RoiStats {
     /// Layers the last re-selection tested as one run of their parts read in place (one index each), not part
     /// by part.
     pub joined_layers: usize,
+    /// Layers whose drawn selection waits for a selection in the background (their index not built yet):
+    /// their parts keep the flags they had until it is done ([`RoiBackground`]).
+    pub pending_layers: usize,
+}
+
+/// When a tract layer read in place is selected in the background: a layer of more streamlines than
+/// `above_streamlines` whose index is not built yet (the first minute or so after a whole brain opens) is not
+/// selected in the frame of an ROI edit, which would read every streamline (a 12 GB file at 10M streamlines,
+/// seconds of a frozen window per step), but on a thread of its own; its parts keep their flags until the
+/// selection is done, then take it (or the index's, once built: the drag goes on through it). One such
+/// selection at a time per layer: edits made meanwhile are selected when it is done.
+#[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RoiBackground {
+    /// Streamlines above which a layer without its index is selected in the background (default 250,000:
+    /// about 0.2 s of reading on two cores).
+    pub above_streamlines: usize,
+}
+
+impl Default for RoiBackground {
+    fn default() -> Self {
+        Self { above_streamlines: 250_000 }
+    }
 }
 
 /// Tract layers ([`Tracts`]) and tract sets: their materials and shaders, ROI selection ([`apply_rois`]),
@@ -786,6 +808,7 @@ impl Plugin for TractPlugin {
         watch::<TractDetail>(app);
         app.add_plugins((MaterialPlugin::<TubeletMaterial>::default(), MaterialPlugin::<TractMeshMaterial>::default()))
             .init_resource::<RoiStats>()
+            .init_resource::<RoiBackground>()
             .init_resource::<LineMsaa>()
             .init_resource::<TractDetail>()
             .add_systems(
@@ -1518,6 +1541,7 @@ pub fn apply_rois(
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
+    background: Res<RoiBackground>,
     (mut layer_runs, mut arrived_before): (Local<HashMap<Entity, LayerRun>>, Local<bool>),
 ) {
     let removed_rois = removed.read().count();
@@ -1533,17 +1557,31 @@ pub fn apply_rois(
         update_layer_runs(&mut layer_runs, &sets, &rois);
     }
     *arrived_before = arrived;
+    // Layers selected in the background whose selection is done (or whose index is built meanwhile): their
+    // sets take it in this frame.
+    let layer_rois = |l: Entity| -> Vec<Roi> {
+        rois.iter().filter(|(_, p)| p.is_none_or(|p| p.parent() == l)).map(|(r, _)| r.0).collect()
+    };
+    let mut news: HashMap<Entity, Vec<bool>> = HashMap::new();
+    for (l, run) in layer_runs.iter_mut().filter(|(_, run)| run.background.is_some()) {
+        if let Some(sel) = run.poll(&layer_rois(*l)) {
+            news.insert(*l, sel);
+        }
+    }
+    stats.pending_layers = layer_runs.values().filter(|run| run.background.is_some()).count();
     // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
     let rois_changed = !changed_rois.is_empty() || removed_any;
-    if !rois_changed && !arrived {
+    if !rois_changed && !arrived && news.is_empty() {
         return;
     }
     let t0 = Instant::now();
     let mut selected = 0;
-    // Per layer selected through its run: the whole layer's selection, made at its first set.
-    let mut layer_selections: HashMap<Entity, Vec<bool>> = HashMap::new();
+    // Per layer selected through its run: the whole layer's selection, made at its first set (`None`: made in
+    // the background, the sets keep their flags meanwhile).
+    let mut layer_selections: HashMap<Entity, Option<Vec<bool>>> = HashMap::new();
     for (entity, set, mut selection, layer) in &mut sets {
-        if !rois_changed && !set.is_added() {
+        let news_for_layer = layer.is_some_and(|l| news.contains_key(&l.parent()));
+        if !rois_changed && !set.is_added() && !news_for_layer {
             selected += selection.0.iter().filter(|s| **s).count();
             continue;
         }
@@ -1553,17 +1591,27 @@ pub fn apply_rois(
         let ends_only = on_set_or_layer(&rules, entity, layer).is_some_and(|r| r.ends_only);
         let t = &set.tractogram;
         // The layer's run, when it was joined from this set among others and the ROIs are the layer's.
-        let joined = layer.map(ChildOf::parent).and_then(|l| Some(l).zip(layer_runs.get(&l))).filter(|(l, run)| {
-            let part = run.parts.binary_search_by_key(&set.first, |p| p.1);
-            let layer_rois = rois.iter().filter(|(_, p)| p.is_none_or(|p| p.parent() == *l)).map(|(r, _)| r.0);
-            part.is_ok_and(|k| run.parts[k].0 == entity) && layer_rois.eq(list.iter().copied())
+        let joined = layer.map(ChildOf::parent).filter(|l| {
+            layer_runs.get(l).is_some_and(|run| {
+                let part = run.parts.binary_search_by_key(&set.first, |p| p.1);
+                part.is_ok_and(|k| run.parts[k].0 == entity) && layer_rois(*l) == list
+            })
         });
         let mut sel = if list.is_empty() {
             vec![true; t.n_streamlines()]
         } else if ends_only {
             fascicle_core::roi::select_ends(t, &list)
-        } else if let Some((l, run)) = joined {
-            let whole = layer_selections.entry(l).or_insert_with(|| run.index.select(&run.streamlines, &list));
+        } else if let Some(l) = joined {
+            let run = layer_runs.get_mut(&l).expect("a joined layer has its run");
+            let whole = layer_selections.entry(l).or_insert_with(|| match news.remove(&l) {
+                Some(done) => Some(done),
+                None => run.select(&list, &background),
+            });
+            let Some(whole) = whole else {
+                // Selected in the background: the set keeps its flags until then.
+                selected += selection.0.iter().filter(|s| **s).count();
+                continue;
+            };
             let from = set.first - run.first;
             whole[from..from + t.n_streamlines()].to_vec()
         } else if let SetStreamlines::Mapped(_) = t {
@@ -1603,6 +1651,7 @@ pub fn apply_rois(
     stats.last_ms = t0.elapsed().as_secs_f64() * 1e3;
     stats.selected = selected;
     stats.joined_layers = layer_selections.len();
+    stats.pending_layers = layer_runs.values().filter(|run| run.background.is_some()).count();
 }
 
 /// One run over every part of a tract layer read in place from one file, and its index: an ROI is tested on the
@@ -1619,6 +1668,72 @@ pub struct LayerRun {
     streamlines: SetStreamlines,
     /// Its index and drag margins.
     index: LazyIndex,
+    /// The selection made in the background while the index is not built ([`RoiBackground`]).
+    background: Option<Background>,
+}
+
+/// A layer's selection on a thread of its own: the ROIs it selects for, and where it arrives.
+struct Background {
+    rois: Vec<Roi>,
+    done: std::sync::mpsc::Receiver<Vec<bool>>,
+}
+
+impl LayerRun {
+    /// The run's selection for `rois`: through its index when built, or at once when the run is small
+    /// ([`RoiBackground`]); otherwise `None`, and the selection is made in the background (started now unless
+    /// one is under way; [`LayerRun::poll`] hands it over) while the index is built.
+    fn select(&mut self, rois: &[Roi], settings: &RoiBackground) -> Option<Vec<bool>> {
+        let built = self.index.ready_or_build(&self.streamlines).is_some();
+        if built || self.streamlines.n_streamlines() <= settings.above_streamlines {
+            self.background = None;
+            return Some(self.index.select(&self.streamlines, rois));
+        }
+        if self.background.is_none()
+            && let Err(e) = self.start(rois)
+        {
+            warn!("a tract layer is selected in the frame: no thread for it ({e})");
+            return Some(self.index.select(&self.streamlines, rois));
+        }
+        None
+    }
+
+    /// Starts the selection for `rois` on a thread of its own.
+    fn start(&mut self, rois: &[Roi]) -> Result<(), std::io::Error> {
+        let (send, done) = std::sync::mpsc::channel();
+        let (t, list) = (self.streamlines.clone(), rois.to_vec());
+        std::thread::Builder::new()
+            .name("tract selection".into())
+            .spawn(move || _ = send.send(select_every(&t, &list)))?;
+        self.background = Some(Background { rois: rois.to_vec(), done });
+        Ok(())
+    }
+
+    /// The selection made in the background, when it is done (a newer one is then started if the ROIs are no
+    /// longer `rois`, the layer's now), or the index's for `rois` once the index is built; `None` meanwhile.
+    fn poll(&mut self, rois: &[Roi]) -> Option<Vec<bool>> {
+        let background = self.background.as_ref()?;
+        if self.index.ready_or_build(&self.streamlines).is_some() {
+            self.background = None;
+            return Some(self.index.select(&self.streamlines, rois));
+        }
+        match background.done.try_recv() {
+            Ok(sel) => {
+                let stale = background.rois != rois;
+                self.background = None;
+                // Shown as it is, and the ROIs as they are now selected next.
+                if stale && let Err(e) = self.start(rois) {
+                    warn!("a tract layer is selected in the frame: no thread for it ({e})");
+                    return Some(self.index.select(&self.streamlines, rois));
+                }
+                Some(sel)
+            }
+            Err(std::sync::mpsc::TryRecvError::Empty) => None,
+            Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                self.background = None;
+                Some(self.index.select(&self.streamlines, rois))
+            }
+        }
+    }
 }
 
 /// Makes, remakes or forgets each layer's [`LayerRun`] from the sets as they are: a layer with ROIs (its own or
@@ -1663,6 +1778,7 @@ fn update_layer_runs(
                     first: parts[0].1,
                     streamlines: SetStreamlines::Mapped(Arc::new(run)),
                     index: LazyIndex::default(),
+                    background: None,
                 };
                 run.index.ready_or_build(&run.streamlines);
                 layer_runs.insert(l, run);
@@ -1826,6 +1942,59 @@ mod tests {
         t
     }
 
+    /// A layer's run without its index selects in the background: the first call hands nothing over (the
+    /// parts keep their flags), `poll` hands over the selection every streamline tested would make; ROIs
+    /// changed meanwhile are selected next (or through the index, once built); with the index built, the
+    /// selection is made at once, through it.
+    #[test]
+    fn a_large_layer_without_its_index_is_selected_in_the_background() {
+        use fascicle_core::io::mapped::{MappedPoints, MappedRun};
+        use fascicle_core::roi::{RoiMode, RoiShape};
+        let t = parallel_tracts(2000);
+        let tmp = tempfile::tempdir().unwrap();
+        let path = tmp.path().join("parallel.tck");
+        fascicle_core::io::tck::write(&path, &t, &[]).unwrap();
+        let file = Arc::new(MappedPoints::open(&path).unwrap());
+        let streamlines = SetStreamlines::Mapped(Arc::new(MappedRun::consecutive(file, 0, &t).unwrap()));
+        let sphere =
+            |x: f32| [Roi { shape: RoiShape::Sphere { centre: [x, 5.0, 0.0], radius: 10.0 }, mode: RoiMode::Include }];
+        let (a, b) = (sphere(100.0), sphere(1500.0));
+        let (want_a, want_b) = (select_every(&streamlines, &a), select_every(&streamlines, &b));
+        assert_ne!(want_a, want_b);
+        assert_eq!(want_a.iter().filter(|k| **k).count(), 21);
+        let mut run = LayerRun { parts: vec![], first: 0, streamlines, index: LazyIndex::default(), background: None };
+        let settings = RoiBackground { above_streamlines: 1000 };
+        let poll_until = |run: &mut LayerRun, rois: &[Roi]| {
+            let t0 = Instant::now();
+            loop {
+                if let Some(sel) = run.poll(rois) {
+                    return sel;
+                }
+                assert!(t0.elapsed().as_secs() < 60, "no selection after a minute");
+                std::thread::sleep(std::time::Duration::from_millis(1));
+            }
+        };
+        assert!(run.select(&a, &settings).is_none(), "selected in the frame without an index");
+        assert!(run.background.is_some());
+        // The ROI moves to `b` before `a`'s selection is done.
+        let first = poll_until(&mut run, &b);
+        assert!(first == want_a || first == want_b, "neither a's selection nor b's");
+        let last = if run.background.is_some() { poll_until(&mut run, &b) } else { first };
+        assert_eq!(last, want_b, "b's selection did not follow a's");
+        assert!(run.background.is_none());
+        // Once the index is built: at once, through it.
+        let t0 = Instant::now();
+        while run.index.ready_or_build(&run.streamlines).is_none() {
+            assert!(t0.elapsed().as_secs() < 60, "no index after a minute");
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        assert_eq!(run.select(&a, &settings), Some(want_a));
+        assert!(run.background.is_none());
+        // A run no larger than the setting is selected in the frame, built or not.
+        let mut small = LayerRun { index: LazyIndex::default(), ..run };
+        assert_eq!(small.select(&b, &RoiBackground { above_streamlines: 2000 }), Some(want_b));
+    }
+
     /// A [`TubeSet`] of `tubes` with every proxy, and its preview of `slots`, in `app`'s meshes.
     fn tube_set_with_preview(app: &mut App, tubes: &[Tubelet], slots: &[u32]) -> TubeSet {
         let mut meshes = app.world_mut().resource_mut::<Assets<Mesh>>();
@@ -1896,6 +2065,7 @@ mod tests {
         app.add_plugins((MinimalPlugins, bevy::asset::AssetPlugin::default()))
             .init_asset::<ShaderBuffer>()
             .init_resource::<RoiStats>()
+            .init_resource::<RoiBackground>()
             .add_systems(Update, apply_rois);
         let spawn = |app: &mut App, x0: f32| {
             let mut t = Tractogram::new();
