@@ -34,7 +34,7 @@ use fascicle_scene::handles::{HandleSystems, HandlesPlugin, RoiDrag};
 use fascicle_scene::layers::{ActiveScene, LayerEntity, LayerJob, RetryLayers, SceneLayer, ScenePlugin, view_camera};
 use fascicle_scene::model::{CameraSpec, LayerKind, LayerSpec, MaskRoi, PaintedMask, Scene};
 use fascicle_sh_glyphs::{Highlighted, ShGlyphSet};
-use fascicle_tracts::{TractSelection, TractSet, selected_tractogram};
+use fascicle_tracts::{RoiStats, TractSelection, TractSet, selected_tractogram};
 use fascicle_views::{Crosshair, MainView, OrthoView, SliceSource, ViewRegion, VoxelGrid, pick_in_view};
 
 #[derive(Resource, Debug, PartialEq)]
@@ -1299,7 +1299,7 @@ fn panel(
     (mut region, crosshair): (ResMut<ViewRegion>, Res<Crosshair>),
     window: Single<&Window, With<PrimaryWindow>>,
     (history, recent): (Res<SceneHistory>, Res<RecentFiles>),
-    (draw, next_frame, budget): (Res<DrawOnDemand>, Res<NextFrame>, Res<BudgetState>),
+    (draw, next_frame, budget, roi_stats): (Res<DrawOnDemand>, Res<NextFrame>, Res<BudgetState>, Res<RoiStats>),
 ) -> Result {
     let ctx = contexts.ctx_mut()?;
     trace!("egui repaint causes: {:?}; events {:?}", ctx.repaint_causes(), ctx.input(|i| i.events.clone()));
@@ -1321,6 +1321,12 @@ fn panel(
             (true, NextFrame::Poll) => "while working",
             (true, _) => "on demand",
         };
+        if roi_stats.pending_layers > 0 {
+            ui.label("ROIs: selecting in the background (the layer's index is being built)").on_hover_text(
+                "until its index is built, a whole-brain layer's ROI edits are selected on a thread of their own; \
+                 the streamlines shown follow when that selection is done",
+            );
+        }
         let quality = if budget.coarse { ", coarse" } else { "" };
         ui.label(format!("frame {:.1} ms, scale {:.2}{quality}, drawn {drawing}", ui_state.frame_ms, budget.scale))
             .on_hover_text(format!(

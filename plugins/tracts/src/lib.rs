@@ -1541,7 +1541,7 @@ pub fn apply_rois(
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
-    background: Res<RoiBackground>,
+    (background, keep_awake): (Res<RoiBackground>, Option<ResMut<fascicle_render::on_demand::KeepAwake>>),
     (mut layer_runs, mut arrived_before): (Local<HashMap<Entity, LayerRun>>, Local<bool>),
 ) {
     let removed_rois = removed.read().count();
@@ -1572,6 +1572,11 @@ pub fn apply_rois(
     // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
     let rois_changed = !changed_rois.is_empty() || removed_any;
     if !rois_changed && !arrived && news.is_empty() {
+        if stats.pending_layers > 0
+            && let Some(mut keep) = keep_awake
+        {
+            keep.busy();
+        }
         return;
     }
     let t0 = Instant::now();
@@ -1652,6 +1657,12 @@ pub fn apply_rois(
     stats.selected = selected;
     stats.joined_layers = layer_selections.len();
     stats.pending_layers = layer_runs.values().filter(|run| run.background.is_some()).count();
+    // A window drawn on demand looks again (without redrawing a picture that did not change) until it is done.
+    if stats.pending_layers > 0
+        && let Some(mut keep) = keep_awake
+    {
+        keep.busy();
+    }
 }
 
 /// One run over every part of a tract layer read in place from one file, and its index: an ROI is tested on the
