@@ -288,14 +288,13 @@ pub struct DragMargins {
     slots: Vec<Slot>,
 }
 
-/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`), for a sphere the far end of the
-/// segment its centre was swept along in that epoch (`aheads[e - 1]`; the centre itself without a direction),
-/// and per streamline the margins and the epoch they were measured in (0: never).
+/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`; a sphere's sweep in an epoch follows
+/// from it and the shape before, [`sweep_end`]) and per streamline the margins and the epoch they were
+/// measured in (0: never).
 struct Slot {
     mode: RoiMode,
     kind: std::mem::Discriminant<RoiShape>,
     shapes: Vec<RoiShape>,
-    aheads: Vec<Option<Vec3>>,
     margins: Option<Margins>,
 }
 
@@ -311,9 +310,8 @@ const SWEPT: usize = 5;
 
 /// How far on a moved sphere is swept when its margins are measured, in steps like its last: a streamline
 /// clear of the whole swept sphere (a capsule) stays out while the centre keeps near that segment, so the
-/// streamlines beside a drag's path are not read again at every step (only those ahead and behind); and a
-/// streamline that met it is remembered by a point inside both the sphere and its swept end where it has one.
-/// The sweep is at most the radius long.
+/// streamlines beside a drag's path are not read again at every step (only those ahead and behind); the
+/// sweep's direction also picks the witnesses ([`meets_with_margin`]). The sweep is at most the radius long.
 const SWEEP: f32 = 8.0;
 
 /// A margin within this of the boundary (mm) is not trusted: the streamline is tested. Far above the f32
@@ -338,7 +336,6 @@ impl DragMargins {
                 mode: roi.mode,
                 kind,
                 shapes: vec![],
-                aheads: vec![],
                 margins: (!matches!(roi.shape, RoiShape::Plane { .. }))
                     .then(|| Margins((0..n).map(|_| [0; 6].map(AtomicU32::new)).collect())),
             };
@@ -364,27 +361,19 @@ impl Slot {
         // How far each past shape is from this one: no point's signed distance moved more since; and how far
         // this one is from each past swept sphere (any of its centres on the segment), likewise.
         let shifts: Vec<f32> = self.shapes.iter().map(|old| hausdorff(old, shape)).collect();
-        let swept_shifts: Vec<f32> = self
-            .shapes
-            .iter()
-            .zip(&self.aheads)
-            .map(|(old, ahead)| match (*old, *shape, ahead) {
-                (RoiShape::Sphere { centre: c0, radius: r0 }, RoiShape::Sphere { centre, radius }, Some(f)) => {
-                    segment_distance(Vec3::from(centre), Vec3::from(c0), *f) + (radius - r0).abs()
+        let swept_shifts: Vec<f32> = (0..self.shapes.len())
+            .map(|e| {
+                let old = &self.shapes[e];
+                match (*old, *shape, sweep_end(e.checked_sub(1).map(|b| &self.shapes[b]), old)) {
+                    (RoiShape::Sphere { centre: c0, radius: r0 }, RoiShape::Sphere { centre, radius }, Some(f)) => {
+                        segment_distance(Vec3::from(centre), Vec3::from(c0), f) + (radius - r0).abs()
+                    }
+                    _ => hausdorff(old, shape),
                 }
-                _ => hausdorff(old, shape),
             })
             .collect();
-        let ahead = match (self.shapes.last(), *shape) {
-            (Some(RoiShape::Sphere { centre: c0, .. }), RoiShape::Sphere { centre, radius }) => {
-                let (c, v) = (Vec3::from(centre), Vec3::from(centre) - Vec3::from(*c0));
-                let len = (v.length() * SWEEP).min(radius.abs());
-                (len > 0.0).then(|| c + v.normalize_or_zero() * len)
-            }
-            _ => None,
-        };
+        let ahead = sweep_end(self.shapes.last(), shape);
         self.shapes.push(*shape);
-        self.aheads.push(ahead);
         let now = self.shapes.len() as u32;
         // Decided from the margins where they can be; the rest tested one after another, each streamline's
         // first cache lines asked for two before while this one is tested (in a mapped file, a streamline is
@@ -494,14 +483,14 @@ fn meets_exactly<'a>(shape: &RoiShape, ids: &[u32], streamline: &(impl Fn(usize)
 /// Whether a streamline meets a sphere or a box (as [`RoiShape::meets_streamline`] decides: a point inside,
 /// boundary included), the least signed distance of its points to it (mm, negative inside; NaN without finite
 /// points, which is never trusted), the least signed distance to the sphere swept from its centre to `ahead`
-/// (the margin itself without `ahead`, and for boxes), and a point inside when it meets it: for a sphere, the
-/// one inside both the sphere and its swept end that is deepest in both, where there is one, else the point
-/// deepest inside.
+/// (the margin itself without `ahead`, and for boxes), and a witness: for a sphere, the point inside that stays
+/// inside longest as the sphere is swept on, or (not meeting it) the point the sweep comes over first (NaN
+/// without one); for a box, the point of the least signed distance.
 fn meets_with_margin(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> (bool, f32, f32, Vec3) {
     match *shape {
         RoiShape::Sphere { centre, radius } => {
             // The squared distance as `contains` computes it, so that "the least is within the radius" is
-            // "a point is inside"; the points' indices kept, not the points, so the loop does not branch.
+            // "a point is inside"; a square root only for the points within the sweep's path.
             let c = Vec3::from(centre);
             let d = ahead.map_or(Vec3::ZERO, |f| f - c);
             let (u, len) = (d.normalize_or_zero(), d.length());
@@ -557,6 +546,20 @@ fn meets_with_margin(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> (bo
             (meets, margin, margin, at)
         }
         RoiShape::Plane { .. } => (shape.meets_streamline(pts), f32::NAN, f32::NAN, Vec3::NAN),
+    }
+}
+
+/// The far end of the segment a sphere's centre is swept along when its margins are measured against `shape`:
+/// [`SWEEP`] steps like the one from `before`, at most the radius long; `None` without such a step (the first
+/// shape, not two spheres, or no move).
+fn sweep_end(before: Option<&RoiShape>, shape: &RoiShape) -> Option<Vec3> {
+    match (before, *shape) {
+        (Some(RoiShape::Sphere { centre: c0, .. }), RoiShape::Sphere { centre, radius }) => {
+            let (c, v) = (Vec3::from(centre), Vec3::from(centre) - Vec3::from(*c0));
+            let len = (v.length() * SWEEP).min(radius.abs());
+            (len > 0.0).then(|| c + v.normalize_or_zero() * len)
+        }
+        _ => None,
     }
 }
 

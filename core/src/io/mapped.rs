@@ -212,11 +212,6 @@ impl MappedTck {
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         self.bounds
     }
-
-    /// The file's streamlines as a run (to release their pages, or to share the mapping).
-    pub fn run(&self) -> &MappedRun {
-        &self.run
-    }
 }
 
 impl Streamlines for MappedTck {

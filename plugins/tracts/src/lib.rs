@@ -1568,15 +1568,10 @@ pub fn apply_rois(
             news.insert(*l, sel);
         }
     }
-    stats.pending_layers = layer_runs.values().filter(|run| run.background.is_some()).count();
     // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
     let rois_changed = !changed_rois.is_empty() || removed_any;
     if !rois_changed && !arrived && news.is_empty() {
-        if stats.pending_layers > 0
-            && let Some(mut keep) = keep_awake
-        {
-            keep.busy();
-        }
+        note_pending(&layer_runs, &mut stats, keep_awake);
         return;
     }
     let t0 = Instant::now();
@@ -1656,8 +1651,17 @@ pub fn apply_rois(
     stats.last_ms = t0.elapsed().as_secs_f64() * 1e3;
     stats.selected = selected;
     stats.joined_layers = layer_selections.len();
+    note_pending(&layer_runs, &mut stats, keep_awake);
+}
+
+/// Counts the layers selected in the background into `stats`; while there are any, a window drawn on demand
+/// looks again (without redrawing a picture that did not change) until they are done.
+fn note_pending(
+    layer_runs: &HashMap<Entity, LayerRun>,
+    stats: &mut RoiStats,
+    keep_awake: Option<ResMut<fascicle_render::on_demand::KeepAwake>>,
+) {
     stats.pending_layers = layer_runs.values().filter(|run| run.background.is_some()).count();
-    // A window drawn on demand looks again (without redrawing a picture that did not change) until it is done.
     if stats.pending_layers > 0
         && let Some(mut keep) = keep_awake
     {
@@ -1699,24 +1703,26 @@ impl LayerRun {
             self.background = None;
             return Some(self.index.select(&self.streamlines, rois));
         }
-        if self.background.is_none()
-            && let Err(e) = self.start(rois)
-        {
-            warn!("a tract layer is selected in the frame: no thread for it ({e})");
-            return Some(self.index.select(&self.streamlines, rois));
-        }
-        None
+        if self.background.is_none() { self.start(rois) } else { None }
     }
 
-    /// Starts the selection for `rois` on a thread of its own.
-    fn start(&mut self, rois: &[Roi]) -> Result<(), std::io::Error> {
+    /// Starts the selection for `rois` on a thread of its own (`None`); without a thread, selects in the frame.
+    fn start(&mut self, rois: &[Roi]) -> Option<Vec<bool>> {
         let (send, done) = std::sync::mpsc::channel();
         let (t, list) = (self.streamlines.clone(), rois.to_vec());
-        std::thread::Builder::new()
+        let spawned = std::thread::Builder::new()
             .name("tract selection".into())
-            .spawn(move || _ = send.send(select_every(&t, &list)))?;
-        self.background = Some(Background { rois: rois.to_vec(), done });
-        Ok(())
+            .spawn(move || _ = send.send(select_every(&t, &list)));
+        match spawned {
+            Ok(_) => {
+                self.background = Some(Background { rois: rois.to_vec(), done });
+                None
+            }
+            Err(e) => {
+                warn!("a tract layer is selected in the frame: no thread for it ({e})");
+                Some(self.index.select(&self.streamlines, rois))
+            }
+        }
     }
 
     /// The selection made in the background, when it is done (a newer one is then started if the ROIs are no
@@ -1732,9 +1738,8 @@ impl LayerRun {
                 let stale = background.rois != rois;
                 self.background = None;
                 // Shown as it is, and the ROIs as they are now selected next.
-                if stale && let Err(e) = self.start(rois) {
-                    warn!("a tract layer is selected in the frame: no thread for it ({e})");
-                    return Some(self.index.select(&self.streamlines, rois));
+                if stale && let Some(now) = self.start(rois) {
+                    return Some(now);
                 }
                 Some(sel)
             }
