@@ -348,8 +348,9 @@ pub fn run(o: ScaleOptions) -> Result<(), Error> {
         let me = std::env::current_exe().map_err(|e| Error::Param(format!("this program's path: {e}")))?;
         let (_, peak, out) =
             measure(Command::new(me).args(["scale", "--drag-mapped", file.to_str().unwrap_or_default()]))?;
-        // The drag's step (the margins kept between steps); the fresh selection's is in the result.
-        let dragging = out.split("dragging: ").nth(1).unwrap_or(&out);
+        // The straight drag's step (the margins kept between steps); the fresh selection's and the bent drag's
+        // are in the result.
+        let dragging = out.split("dragging along a line: ").nth(1).unwrap_or(&out);
         let median_ms: f64 = dragging.split_whitespace().nth(1).and_then(|v| v.parse().ok()).unwrap_or(f64::NAN);
         log(
             Row {
@@ -407,8 +408,9 @@ fn available_memory() -> Option<u64> {
 /// ROI drag steps on a `.tck` read in place ([`fascicle_core::io::mapped::MappedTck`]) with the streamline-cell
 /// index built once ([`fascicle_core::roi_index::StreamlineCells`], 4 mm cells): the bench's child process for
 /// the "select, mapped file" row. Each step selected afresh, then the same drag with the margins a drag keeps
-/// ([`fascicle_core::roi_index::DragMargins`]). Prints `median M ms, worst W ms (K kept; index built in B s, I
-/// MiB); dragging: median M ms, worst W ms (K kept; margins I MiB; R streamlines read a step on average)`.
+/// ([`fascicle_core::roi_index::DragMargins`]), along the line and along an arc. Prints `median M ms, worst W ms
+/// (K kept; index built in B s, I MiB); dragging along a line: median M ms, worst W ms (K kept; margins I MiB; R
+/// streamlines read a step on average); dragging along an arc of 40 mm: ...`.
 pub fn drag_mapped(file: &Path) -> Result<(), Error> {
     use fascicle_core::io::mapped::MappedTck;
     use fascicle_core::roi_index::{DragMargins, StreamlineCells};
@@ -421,28 +423,33 @@ pub fn drag_mapped(file: &Path) -> Result<(), Error> {
         drag_steps(|rois| index.select(|s| t.streamline(s), rois).iter().filter(|k| **k).count());
     let mib = index.heap_bytes() as f64 / 1048576.0;
     print!("median {median:.1} ms, worst {worst:.1} ms ({kept} kept; index built in {build:.1} s, {mib:.0} MiB)");
-    let mut drag = DragMargins::default();
-    let (median, worst, kept) =
-        drag_steps(|rois| index.select_dragging(|s| t.streamline(s), rois, &mut drag).iter().filter(|k| **k).count());
-    let mib = drag.heap_bytes() as f64 / 1048576.0;
-    // The same drag again, untimed, counting the streamlines it reads from the file (each once a step: the
-    // step's prefetch asks for them too).
+    // Dragging, along the line and along an arc of 40 mm radius; each drag again, untimed, counting the
+    // streamlines it reads from the file (each once a step: the step's prefetch asks for them too).
     use std::sync::atomic::{AtomicBool, Ordering};
     let read: Vec<AtomicBool> = (0..t.n_streamlines()).map(|_| AtomicBool::new(false)).collect();
     let counted = |s: usize| {
         read[s].store(true, Ordering::Relaxed);
         t.streamline(s)
     };
-    let (mut drag, mut total) = (DragMargins::default(), 0);
-    drag_steps(|rois| {
-        let kept = index.select_dragging(counted, rois, &mut drag).iter().filter(|k| **k).count();
-        total += read.iter().filter(|r| r.swap(false, Ordering::Relaxed)).count();
-        kept
-    });
-    let per_step = total / 40;
-    println!(
-        "; dragging: median {median:.1} ms, worst {worst:.1} ms ({kept} kept; margins {mib:.0} MiB; {per_step} streamlines read a step on average)"
-    );
+    for bend in [None, Some(40.0)] {
+        let mut drag = DragMargins::default();
+        let (median, worst, kept) = drag_steps_along(bend, |rois| {
+            index.select_dragging(|s| t.streamline(s), rois, &mut drag).iter().filter(|k| **k).count()
+        });
+        let mib = drag.heap_bytes() as f64 / 1048576.0;
+        let (mut drag, mut total) = (DragMargins::default(), 0);
+        drag_steps_along(bend, |rois| {
+            let kept = index.select_dragging(counted, rois, &mut drag).iter().filter(|k| **k).count();
+            total += read.iter().filter(|r| r.swap(false, Ordering::Relaxed)).count();
+            kept
+        });
+        let per_step = total / 40;
+        let path = bend.map_or("along a line".to_string(), |r| format!("along an arc of {r} mm"));
+        print!(
+            "; dragging {path}: median {median:.1} ms, worst {worst:.1} ms ({kept} kept; margins {mib:.0} MiB; {per_step} streamlines read a step on average)"
+        );
+    }
+    println!();
     Ok(())
 }
 
@@ -537,11 +544,21 @@ pub fn pick(file: &Path) -> Result<(), Error> {
 /// The ROI drag the bench times: an include sphere of 10 mm radius moved 1 mm at a time along x, from -20 mm,
 /// 40 steps, each step `select` (the streamlines kept). The median and worst step in ms, and the last step's
 /// kept count.
-fn drag_steps(mut select: impl FnMut(&[Roi]) -> usize) -> (f64, f64, usize) {
+fn drag_steps(select: impl FnMut(&[Roi]) -> usize) -> (f64, f64, usize) {
+    drag_steps_along(None, select)
+}
+
+/// [`drag_steps`] along a line, or along an arc of `bend` mm radius in the x-y plane (1 mm steps along it,
+/// starting along x): a hand's drag is seldom straight.
+fn drag_steps_along(bend: Option<f32>, mut select: impl FnMut(&[Roi]) -> usize) -> (f64, f64, usize) {
     let mut times = vec![];
     let mut kept = 0;
     for k in 0..40 {
-        let centre = [-20.0 + k as f32, 0.0, 0.0];
+        let s = k as f32;
+        let centre = match bend {
+            None => [-20.0 + s, 0.0, 0.0],
+            Some(r) => [-20.0 + r * (s / r).sin(), r * (1.0 - (s / r).cos()), 0.0],
+        };
         let rois = [Roi { shape: RoiShape::Sphere { centre, radius: 10.0 }, mode: RoiMode::Include }];
         let t1 = Instant::now();
         kept = select(&rois);

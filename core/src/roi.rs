@@ -229,6 +229,11 @@ impl RoiShape {
     }
 }
 
+/// Per axis, the eighths of a cell (bit `x + 2 y + 4 z`) in its lower half (index 1), its upper half (2), both
+/// (3) or neither (0) along that axis.
+const EIGHTHS: [[u8; 4]; 3] =
+    [[0, 0b0101_0101, 0b1010_1010, 0xff], [0, 0b0011_0011, 0b1100_1100, 0xff], [0, 0x0f, 0xf0, 0xff]];
+
 /// The cells of a uniform grid over a box, at most 1024 an axis: the frame [`SegmentGrid`] and
 /// [`crate::roi_index::StreamlineCells`] bin into. Points beyond the box fall in the border cells, which
 /// therefore reach to infinity when a region is tested against them.
@@ -303,6 +308,79 @@ impl Cells {
             for y in a[1]..=b[1] {
                 for x in (a[0]..=b[0]).filter(|&x| self.meets(&shape, [x, y, z])) {
                     cells.push(self.linear([x, y, z]));
+                }
+            }
+            cells
+        })
+    }
+
+    /// The halves of cell `k`'s side along `axis` that the span `lo..=hi` (mm; in cells `first..=last`) reaches:
+    /// bit 0 the lower, bit 1 the upper. A value within a thousandth of a cell of the middle reaches both, so
+    /// that the eighths a region is tested against ([`Self::meeting_eighths`]) hold it whatever the rounding.
+    fn halves(&self, axis: usize, k: usize, (lo, hi): (f32, f32), (first, last): (usize, usize)) -> u8 {
+        let (mid, eps) = (self.middle(axis, k), self.cell * 1e-3);
+        u8::from(k > first || lo <= mid + eps) | (u8::from(k < last || hi >= mid - eps) << 1)
+    }
+
+    /// The middle of cell `k` along `axis` (mm).
+    fn middle(&self, axis: usize, k: usize) -> f32 {
+        self.lo[axis] + self.cell * k as f32 + self.cell * 0.5
+    }
+
+    /// Calls `f` with the linear position of every cell that the bounding box of the segment `a`-`b` meets, and
+    /// the mask of the cell's eighths the box meets (bit `x + 2 y + 4 z` for the eighth in the lower (0) or
+    /// upper (1) half along each axis).
+    pub(crate) fn spanned_eighths(&self, a: Vec3, b: Vec3, mut f: impl FnMut(usize, u8)) {
+        let (blo, bhi) = (a.min(b), a.max(b));
+        let (lo, hi) = (self.index(blo), self.index(bhi));
+        let halves = |axis: usize, k: usize| self.halves(axis, k, (blo[axis], bhi[axis]), (lo[axis], hi[axis]));
+        for z in lo[2]..=hi[2] {
+            let mz = EIGHTHS[2][halves(2, z) as usize];
+            for y in lo[1]..=hi[1] {
+                let my = mz & EIGHTHS[1][halves(1, y) as usize];
+                for x in lo[0]..=hi[0] {
+                    f(self.linear([x, y, z]), my & EIGHTHS[0][halves(0, x) as usize]);
+                }
+            }
+        }
+    }
+
+    /// The mask of cell `k`'s eighths (as [`Self::spanned_eighths`] numbers them) that may hold what meets
+    /// `shape` there ([`Self::meets`] for each eighth: the border cells' outer eighths reach to infinity).
+    pub(crate) fn meeting_eighths(&self, shape: &RoiShape, k: [usize; 3]) -> u8 {
+        let mut mask = 0;
+        for e in 0..8 {
+            let (mut lo, mut hi) = (Vec3::ZERO, Vec3::ZERO);
+            for a in 0..3 {
+                let (start, mid) = (self.lo[a] + self.cell * k[a] as f32, self.middle(a, k[a]));
+                (lo[a], hi[a]) = if (e >> a) & 1 == 0 { (start, mid) } else { (mid, start + self.cell) };
+                if k[a] == 0 && (e >> a) & 1 == 0 {
+                    lo[a] = -1e30;
+                }
+                if k[a] + 1 == self.dims[a] && (e >> a) & 1 == 1 {
+                    hi[a] = 1e30;
+                }
+            }
+            if shape.meets_box(lo, hi) {
+                mask |= 1 << e;
+            }
+        }
+        mask
+    }
+
+    /// The cells meeting `shape` with the masks of their eighths that do ([`Self::meeting_eighths`]), as
+    /// [`Self::meeting`] gives them.
+    pub(crate) fn meeting_with_eighths(&self, shape: &RoiShape) -> impl Iterator<Item = Vec<(usize, u8)>> + '_ {
+        let (a, b) = self.under(shape);
+        let shape = *shape;
+        (a[2]..=b[2]).map(move |z| {
+            let mut cells = Vec::new();
+            for y in a[1]..=b[1] {
+                for x in a[0]..=b[0] {
+                    let mask = self.meeting_eighths(&shape, [x, y, z]);
+                    if mask != 0 {
+                        cells.push((self.linear([x, y, z]), mask));
+                    }
                 }
             }
             cells

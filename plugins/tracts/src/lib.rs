@@ -201,7 +201,7 @@ impl Streamlines for SetStreamlines {
 }
 
 /// A tract set's spatial index ([`StreamlineCells`], 4 mm cells: about 160 MiB for 1M whole-brain streamlines)
-/// and the margins of the ROI drag in progress ([`DragMargins`], 24 bytes per streamline and ROI), shared by
+/// and the margins of the ROI drag in progress ([`DragMargins`], 32 bytes per streamline and ROI), shared by
 /// clones. Built where it is made ([`PreparedTracts::with_index`]), or in the background when an ROI or a
 /// pick first needs it ([`LazyIndex::ready_or_build`]: a builder at the lowest priority), and until then ROIs
 /// are tested on every streamline (the same selection: [`Criteria`]) and picks by brute force.
