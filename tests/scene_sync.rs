@@ -421,18 +421,32 @@ fn roi_edits_reselect_without_rebuilding() {
 
 /// A tract layer of a `.tck` in several parts, each reading its streamlines in place: once its parts are in, its
 /// include sphere selects through one run of the whole layer (`RoiStats::joined_layers`), and at every step of a
-/// drag (from where it was, moved 3 mm at a time, resized, then with a second include) the parts together keep exactly what the
-/// core's segment grid keeps in the whole file, with no part rebuilt.
+/// drag (from where it was, moved 3 mm at a time, resized, then with a second include) the parts together keep
+/// exactly what the core's segment grid keeps in the whole file, with no part rebuilt.
 #[test]
 fn a_layer_read_in_place_selects_through_one_run() {
+    layer_read_in_place_selects_through_one_run("tck");
+}
+
+/// The same for a TRX written here (stored float32 positions on their boundary): its positions are read in place.
+#[test]
+fn a_trx_layer_is_read_in_place_and_selects_through_one_run() {
+    layer_read_in_place_selects_through_one_run("trx");
+}
+
+fn layer_read_in_place_selects_through_one_run(extension: &str) {
     use fascicle_core::roi::{Roi, RoiMode, RoiShape, SegmentGrid, select};
     use fascicle_scene::model::{CameraSpec, LayerSpec, TractMode, TractSource};
     use fascicle_tracts::{RoiStats, SetStreamlines, TractSelection, TractSet};
     let tmp = tempfile::tempdir().unwrap();
-    let path = tmp.path().join("brain.tck");
+    let tck = tmp.path().join("brain.tck");
     // 6,000 streamlines of 40-160 points: about 600k points, three parts or more.
-    fascicle_core::phantom::write_whole_brain(&path, 6000, 21).unwrap();
-    let whole = fascicle_core::io::Tractogram::read(&path).unwrap();
+    fascicle_core::phantom::write_whole_brain(&tck, 6000, 21).unwrap();
+    let whole = fascicle_core::io::Tractogram::read(&tck).unwrap();
+    let path = tmp.path().join(format!("brain.{extension}"));
+    if extension == "trx" {
+        fascicle_core::io::trx::write(&path, &whole, None, fascicle_core::io::trx::PositionType::F32).unwrap();
+    }
     let sphere =
         |x: f32, r: f32| Roi { shape: RoiShape::Sphere { centre: [x, 0.0, 0.0], radius: r }, mode: RoiMode::Include };
     let layer = LayerSpec {

@@ -2,7 +2,8 @@
 //! a tractogram larger than the memory a program can hold (10M streamlines, 12 GB) is addressed streamline by
 //! streamline from the page cache, with 8 bytes per streamline of index. Float32LE data only (what `tckgen` and
 //! every writer here produce); other files are read with [`crate::io::tck`] or streamed
-//! ([`crate::io::stream::TractogramReader`]).
+//! ([`crate::io::stream::TractogramReader`]). A TRX file's positions are read in place likewise when they are
+//! float32, stored and on a 4-byte boundary (as `fascicle convert` writes them): [`MappedPoints::open_trx`].
 //!
 //! A run of consecutive streamlines whose lengths are known (read by a stream, for example) is addressed in
 //! place without indexing the file: [`MappedRun`]. Pages read through a mapping count in the process's resident
@@ -17,12 +18,16 @@ use glam::Vec3;
 use super::Streamlines;
 use crate::error::{Error, Result};
 
-/// The points of a Float32LE `.tck` file, mapped in memory and not indexed: every triple from the data offset
-/// on, terminators included.
+/// The points of a Float32LE `.tck` file (every triple from the data offset on, terminators included) or of a
+/// TRX file's positions, mapped in memory and not indexed.
 pub struct MappedPoints {
     map: memmap2::Mmap,
     /// Byte offset of the first point.
     data: usize,
+    /// How many points: every whole triple (`None`: a `.tck`), or a TRX's positions.
+    len: Option<usize>,
+    /// Points between one streamline and the next: a `.tck`'s terminator (1); none in a TRX (0).
+    gap: usize,
 }
 
 impl MappedPoints {
@@ -41,13 +46,49 @@ impl MappedPoints {
         if layout.offset % 4 != 0 {
             return Err(Error::format(path, format!("data offset {} is not a multiple of 4", layout.offset)));
         }
-        Ok(Self { map, data: layout.offset })
+        Ok(Self { map, data: layout.offset, len: None, gap: 1 })
     }
 
-    /// Every whole triple from the data offset on (RAS+ mm; terminators are NaN, the end Inf).
+    /// Maps a TRX file and finds its positions (its header.json and central directory are read, no array).
+    /// Errors name the file: not a TRX, positions not float32 or deflated (read those with
+    /// [`crate::io::stream::TractogramReader`]), or not on a 4-byte boundary.
+    pub fn open_trx(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let (data, len) = super::stream::trx_positions(path)?;
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        // SAFETY: as in `open`.
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(path, e))?;
+        if data % 4 != 0 || cfg!(target_endian = "big") {
+            return Err(Error::format(path, format!("positions at byte {data}, not on a 4-byte boundary")));
+        }
+        if data.saturating_add((len as u64).saturating_mul(12)) > map.len() as u64 {
+            return Err(Error::format(path, format!("{len} positions run past the end of the file")));
+        }
+        Ok(Self { map, data: data as usize, len: Some(len), gap: 0 })
+    }
+
+    /// [`MappedPoints::open`] for a `.tck`, [`MappedPoints::open_trx`] for a `.trx`; an error for other files.
+    pub fn open_tractogram(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        match super::tractogram::extension(path).as_str() {
+            "tck" => Self::open(path),
+            "trx" => Self::open_trx(path),
+            other => Err(Error::format(path, format!("a .{other} file is not read in place (.tck and .trx are)"))),
+        }
+    }
+
+    /// Every whole triple from the data offset on (RAS+ mm; in a `.tck` terminators are NaN, the end Inf), or a
+    /// TRX's positions.
     #[inline]
     pub fn points(&self) -> &[Vec3] {
-        points_of(&self.map, self.data)
+        let all = points_of(&self.map, self.data);
+        &all[..self.len.unwrap_or(all.len()).min(all.len())]
+    }
+
+    /// Where in [`MappedPoints::points`] the streamline lies that follows `streamlines` streamlines of
+    /// `points` points in all (in a `.tck`, each followed by its terminator).
+    pub fn start_after(&self, points: usize, streamlines: usize) -> usize {
+        points + streamlines * self.gap
     }
 
     /// Lets the pages holding `points` (indices into [`MappedPoints::points`]) go from this process's resident
@@ -70,32 +111,33 @@ impl MappedPoints {
     }
 }
 
-/// A run of consecutive streamlines of a [`MappedPoints`], read in place: `starts[k]..starts[k + 1] - 1` are
-/// streamline `k`'s points (the file's indices; each streamline's terminator follows it). 8 bytes a streamline.
+/// A run of consecutive streamlines of a [`MappedPoints`], read in place: `starts[k]..starts[k + 1] - gap` are
+/// streamline `k`'s points (the file's indices; in a `.tck` each streamline's terminator follows it). 8 bytes a
+/// streamline.
 pub struct MappedRun {
     file: Arc<MappedPoints>,
     starts: Vec<u64>,
 }
 
 impl MappedRun {
-    /// The streamlines of `check`, stored one after another from the file's point `at`, each followed by its
-    /// terminator (as a `.tck` stores them), read in place: the run takes their lengths from `check`. `None`
-    /// when they would run past the file's points, or when their ends are not where the file has them (a
-    /// terminator after each, the first and last points as `check` has them, for its first, middle and last
-    /// streamlines: cheap checks that `check` is this stretch of the file).
+    /// The streamlines of `check`, stored one after another from the file's point `at` (in a `.tck` each
+    /// followed by its terminator: [`MappedPoints::start_after`]), read in place: the run takes their lengths
+    /// from `check`. `None` when they would run past the file's points, or when their ends are not where the
+    /// file has them (in a `.tck` a terminator after each; the first and last points as `check` has them, for
+    /// its first, middle and last streamlines: cheap checks that `check` is this stretch of the file).
     pub fn consecutive(file: Arc<MappedPoints>, at: usize, check: &impl Streamlines) -> Option<Self> {
         let n = check.n_streamlines();
         let mut starts = Vec::with_capacity(n + 1);
         starts.push(at as u64);
         for s in 0..n {
-            starts.push(starts[s] + check.streamline(s).len() as u64 + 1);
+            starts.push(starts[s] + (check.streamline(s).len() + file.gap) as u64);
         }
         let run = MappedRun { file, starts };
         let points = run.file.points();
         if run.starts[n] as usize > points.len() {
             return None;
         }
-        let terminated = |k: usize| points[run.starts[k + 1] as usize - 1].is_nan();
+        let terminated = |k: usize| run.file.gap == 0 || points[run.starts[k + 1] as usize - 1].is_nan();
         let same_ends = |k: usize| {
             let (a, b) = (run.streamline(k), check.streamline(k));
             a.first().map(|p| p.to_array()) == b.first().map(|p| p.to_array())
@@ -146,7 +188,7 @@ impl Streamlines for MappedRun {
 
     #[inline]
     fn streamline(&self, s: usize) -> &[Vec3] {
-        let (a, b) = (self.starts[s] as usize, self.starts[s + 1] as usize - 1);
+        let (a, b) = (self.starts[s] as usize, self.starts[s + 1] as usize - self.file.gap);
         &self.file.points()[a..b]
     }
 }
@@ -313,5 +355,59 @@ mod tests {
         assert!(MappedRun::join(&[&middle, &head]).is_none());
         assert!(MappedRun::join(&[&head, &whole]).is_none());
         assert!(MappedRun::join(&[]).is_none());
+    }
+
+    /// A TRX's float32 positions, written here (on a 64-byte boundary), are read in place: the whole file and a
+    /// run from its middle are its streamlines (an empty one among them), a start one off is refused, and the
+    /// streaming writer's files map as well. Positions that cannot be mapped name the file and why: float16,
+    /// deflated (trx-python's files), or off a 4-byte boundary.
+    #[test]
+    fn a_trx_is_read_in_place() {
+        use crate::io::trx::{PositionType, write};
+        let tmp_dir = tempfile::Builder::new().prefix("fascicle-mapped-trx-").tempdir().unwrap();
+        let dir = tmp_dir.path().to_path_buf();
+        crate::phantom::write_whole_brain(&dir.join("brain.tck"), 300, 4).unwrap();
+        let mut t = Tractogram::read(dir.join("brain.tck")).unwrap();
+        t.push(&[]);
+        t.push(&[Vec3::new(1.0, 2.0, 3.0)]);
+        let path = dir.join("brain.trx");
+        write(&path, &t, None, PositionType::F32).unwrap();
+        let file = Arc::new(MappedPoints::open_tractogram(&path).unwrap());
+        assert_eq!(file.points().len(), t.points.len());
+        let whole = MappedRun::consecutive(file.clone(), 0, &t).expect("the whole file");
+        assert_eq!(whole.n_streamlines(), t.n_streamlines());
+        for s in 0..t.n_streamlines() {
+            assert_eq!(whole.streamline(s), t.streamline(s), "streamline {s}");
+        }
+        let keep: Vec<bool> = (0..t.n_streamlines()).map(|s| (100..200).contains(&s)).collect();
+        let part = t.subset(&keep);
+        let at = file.start_after(t.offsets[100], 100);
+        assert_eq!(at, t.offsets[100]);
+        let middle = MappedRun::consecutive(file.clone(), at, &part).expect("a run from the middle");
+        assert_eq!(middle.streamline(99), t.streamline(199));
+        assert!(MappedRun::consecutive(file.clone(), at + 1, &part).is_none());
+        assert!(MappedRun::consecutive(file.clone(), at - 1, &part).is_none());
+        // The streaming writer's positions map too.
+        let streamed = dir.join("streamed.trx");
+        let mut writer = crate::io::stream::TractogramWriter::create(&streamed, &Default::default()).unwrap();
+        writer.write_chunk(&t).unwrap();
+        writer.finish().unwrap();
+        let file = Arc::new(MappedPoints::open_trx(&streamed).unwrap());
+        let run = MappedRun::consecutive(file, 0, &t).expect("the streamed file");
+        assert_eq!(run.streamline(7), t.streamline(7));
+        // What cannot be mapped.
+        let data = |name: &str| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/tracts").join(name);
+        let why = |path: &std::path::Path| MappedPoints::open_tractogram(path).err().map(|e| e.to_string()).unwrap();
+        let f16 = why(&data("tracks300_f16.trx"));
+        assert!(f16.contains("tracks300_f16.trx") && f16.contains("F16"), "{f16}");
+        let deflated = why(&data("tracks300_f32_deflate.trx"));
+        assert!(deflated.contains("deflated"), "{deflated}");
+        assert!(why(&data("tracks300.trk")).contains(".trk file is not read in place"));
+        // Positions one byte off their boundary: the header and central directory shifted by one byte.
+        let bytes = std::fs::read(&path).unwrap();
+        let shifted = dir.join("shifted.trx");
+        std::fs::write(&shifted, [&[0u8][..], &bytes].concat()).unwrap();
+        let e = MappedPoints::open_trx(&shifted).err().expect("positions off their boundary mapped");
+        assert!(e.to_string().contains("shifted.trx"), "{e}");
     }
 }

@@ -705,6 +705,28 @@ fn trx_header(path: &Path) -> Result<(StreamHeader, Vec<TrxEntry>)> {
     Ok((header, entries))
 }
 
+/// Where a TRX file's positions lie, to be read in place ([`crate::io::mapped::MappedPoints::open_trx`]): the
+/// byte offset of their data in the file and how many points the header says. An error naming the file unless
+/// they are three float32 per point, stored (not deflated), and as many as the header says.
+pub(crate) fn trx_positions(path: &Path) -> Result<(u64, usize)> {
+    let bad = |reason: String| Error::format(path, reason);
+    let (header, entries) = trx_header(path)?;
+    let n = header.points.unwrap_or(0);
+    let pos = entries.iter().find(|e| e.base == "positions").ok_or_else(|| bad("no positions array".into()))?;
+    if pos.components != 3 || pos.dtype != Dtype::F32 || pos.deflated {
+        return Err(bad(format!(
+            "positions are {} x {:?}{}: only stored float32 positions are read in place",
+            pos.components,
+            pos.dtype,
+            if pos.deflated { ", deflated" } else { "" }
+        )));
+    }
+    if pos.size != n as u64 * 12 {
+        return Err(bad(format!("positions hold {} points, the header says {n}", pos.size / 12)));
+    }
+    Ok((pos.data_start, n))
+}
+
 impl TrxStream {
     fn open(path: &Path) -> Result<(Self, StreamHeader, Arc<AtomicU64>)> {
         let bad = |reason: String| Error::format(path, reason);
@@ -1015,7 +1037,9 @@ impl TractogramWriter {
                 let opts = zip::write::SimpleFileOptions::default()
                     .compression_method(zip::CompressionMethod::Stored)
                     .large_file(true);
-                zip.start_file(format!("positions.3.{suffix}"), opts).map_err(|e| zip_error(&part, e))?;
+                // Positions on a cache line's boundary, so that a reader can map them in place.
+                zip.start_file(format!("positions.3.{suffix}"), opts.with_alignment(64))
+                    .map_err(|e| zip_error(&part, e))?;
                 let side = |what: &str| side_file(what.to_string());
                 let arrays = |folder: &str, names: &[String]| -> Result<Vec<(String, PathBuf, BufWriter<File>)>> {
                     names

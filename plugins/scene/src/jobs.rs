@@ -469,9 +469,10 @@ fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> 
 /// A tract layer's file (without tensors to sample) read in parts of at most [`PART_POINTS`] points, never
 /// whole ([`stream_parts`]), each made by `prepare` (the part, the layer's index of its first streamline, the
 /// lines' detail for the file's size). Each part's streamlines stay addressable (ROIs, picks, saving): a
-/// Float32LE `.tck` (what `tckgen` writes) is mapped and each part reads its streamlines in place once its
-/// geometry is made ([`PreparedTracts::read_in_place`]: 8 bytes a streamline instead of 12 a point, 1.2 GB for a
-/// 1M whole brain); other files keep each part's points. The whole tractogram is not held, nor kept in the
+/// Float32LE `.tck` (what `tckgen` writes) or a TRX with stored float32 positions on a 4-byte boundary (what
+/// `fascicle convert` writes) is mapped and each part reads its streamlines in place once its geometry is made
+/// ([`PreparedTracts::read_in_place`]: 8 bytes a streamline instead of 12 a point, 1.2 GB for a 1M whole brain);
+/// other files keep each part's points. The whole tractogram is not held, nor kept in the
 /// cache, so a rebuild reads the file again. An empty file is an empty layer.
 fn stream_tract_file(
     path: &Path,
@@ -479,11 +480,11 @@ fn stream_tract_file(
     prepare: &(dyn Fn(TractData, usize, LineDetail) -> Content + Sync),
 ) -> Result<Content, String> {
     use fascicle_core::io::mapped::{MappedPoints, MappedRun};
-    let is_tck = fascicle_core::io::tractogram::extension(path) == "tck";
-    let mapped = is_tck.then(|| MappedPoints::open(path).ok()).flatten().map(Arc::new);
+    // A file that cannot be read in place (another format, other encodings) keeps its parts' points.
+    let mapped = MappedPoints::open_tractogram(path).ok().map(Arc::new);
     let part = |t: Tractogram, first: usize, points_before: usize, detail| {
-        // In a .tck, each streamline before the part is followed by its terminator.
-        let run = mapped.as_ref().and_then(|m| MappedRun::consecutive(m.clone(), points_before + first, &t));
+        let run =
+            mapped.as_ref().and_then(|m| MappedRun::consecutive(m.clone(), m.start_after(points_before, first), &t));
         match (prepare(TractData { tractogram: Arc::new(t), tensors: None }, first, detail), run) {
             (Content::Tracts(p), Some(run)) => Content::Tracts(p.read_in_place(Arc::new(run))),
             (content, _) => content,
