@@ -21,6 +21,7 @@ pub mod budget;
 pub mod example;
 pub mod headless;
 pub mod impostor;
+pub mod keep_awake;
 pub mod layer;
 pub mod meshes;
 #[cfg(feature = "winit")]
@@ -29,6 +30,8 @@ pub mod reference;
 pub mod retain;
 pub mod shaders;
 pub mod viewport;
+
+pub use keep_awake::KeepAwake;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};

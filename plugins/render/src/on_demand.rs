@@ -46,23 +46,7 @@ impl Default for DrawOnDemand {
     }
 }
 
-/// Requests from the app's systems for the next frame; cleared after each frame.
-#[derive(Resource, Default, Debug)]
-pub struct KeepAwake {
-    busy: bool,
-    redraw: bool,
-}
-
-impl KeepAwake {
-    /// Something progresses in the background: draw every [`DrawOnDemand::busy_wait`] until it is done.
-    pub fn busy(&mut self) {
-        self.busy = true;
-    }
-    /// Draw the next frame (and the settle frames after it).
-    pub fn redraw(&mut self) {
-        self.redraw = true;
-    }
-}
+pub use crate::KeepAwake;
 
 /// What the last frame decided, for readouts and tests.
 #[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -1541,7 +1541,7 @@ pub fn apply_rois(
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
-    (background, keep_awake): (Res<RoiBackground>, Option<ResMut<fascicle_render::on_demand::KeepAwake>>),
+    (background, keep_awake): (Res<RoiBackground>, Option<ResMut<fascicle_render::KeepAwake>>),
     (mut layer_runs, mut arrived_before): (Local<HashMap<Entity, LayerRun>>, Local<bool>),
 ) {
     let removed_rois = removed.read().count();
@@ -1659,7 +1659,7 @@ pub fn apply_rois(
 fn note_pending(
     layer_runs: &HashMap<Entity, LayerRun>,
     stats: &mut RoiStats,
-    keep_awake: Option<ResMut<fascicle_render::on_demand::KeepAwake>>,
+    keep_awake: Option<ResMut<fascicle_render::KeepAwake>>,
 ) {
     stats.pending_layers = layer_runs.values().filter(|run| run.background.is_some()).count();
     if stats.pending_layers > 0
