@@ -250,8 +250,9 @@ impl StreamlineCells {
     /// last step (where the sphere, grown by a tenth of the step, holds one of its points: outside it, the
     /// streamline is out) and its cover (where the sphere shrunk so holds one: inside it, in), valid while the
     /// centre keeps within that tenth of the line.
-    /// On the generated 1M-streamline brain, a 1 mm step of a 10 mm sphere along a line reads about 6k of its
-    /// 68k candidates (10k with the witnesses alone, 21k without the sweep); along an arc of 40 mm, 11k.
+    /// On the generated 1M-streamline brain, a 1 mm step of a 10 mm sphere along a line reads about 5k of its
+    /// 50k candidates (10.5k of 68k with the witnesses alone and whole cells, 21k without the sweep); along an
+    /// arc of 40 mm, 8.5k.
     /// Keep one `drag` per set of ROIs: a change in their number, modes or kinds starts it afresh.
     pub fn select_dragging<'a>(
         &self,
