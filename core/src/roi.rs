@@ -281,14 +281,13 @@ impl Cells {
         }
     }
 
-    /// Whether cell `k` may hold what meets `shape` there. A segment meeting the region does so at a point of
-    /// its bounding box, so in some cell that meets the region: the cells that do not can be skipped.
-    pub(crate) fn meets(&self, shape: &RoiShape, k: [usize; 3]) -> bool {
+    /// The box cell `k` holds: its own, but the outermost cells also hold what the index clamp puts there
+    /// (beyond a grid capped at 1024 cells per axis), so their outer sides lie far away (large but finite, so
+    /// that a plane's test stays finite).
+    fn extent(&self, k: [usize; 3]) -> (Vec3, Vec3) {
         let mut lo = self.lo + self.cell * Vec3::new(k[0] as f32, k[1] as f32, k[2] as f32);
         let mut hi = lo + Vec3::splat(self.cell);
         for a in 0..3 {
-            // The outermost cells also hold what the index clamp puts there (beyond a grid capped at 1024
-            // cells per axis). Large but finite, so that a plane's test stays finite.
             if k[a] == 0 {
                 lo[a] = -1e30;
             }
@@ -296,18 +295,37 @@ impl Cells {
                 hi[a] = 1e30;
             }
         }
+        (lo, hi)
+    }
+
+    /// Whether cell `k` may hold what meets `shape` there. A segment meeting the region does so at a point of
+    /// its bounding box, so in some cell that meets the region: the cells that do not can be skipped.
+    pub(crate) fn meets(&self, shape: &RoiShape, k: [usize; 3]) -> bool {
+        let (lo, hi) = self.extent(k);
         shape.meets_box(lo, hi)
     }
 
     /// The cells meeting `shape`, as the linear positions of those in each z layer of [`Self::under`].
     pub(crate) fn meeting(&self, shape: &RoiShape) -> impl Iterator<Item = Vec<usize>> + '_ {
-        let (a, b) = self.under(shape);
         let shape = *shape;
+        self.under_by_layer(self.under(&shape), move |k| self.meets(&shape, k).then_some(()))
+            .map(|layer| layer.into_iter().map(|(c, ())| c).collect())
+    }
+
+    /// For each z layer of the cells `a..=b` (a region's [`Self::under`]), the linear positions of those for which
+    /// `f` gives something, with it.
+    fn under_by_layer<'a, T>(
+        &'a self,
+        (a, b): ([usize; 3], [usize; 3]),
+        f: impl Fn([usize; 3]) -> Option<T> + 'a,
+    ) -> impl Iterator<Item = Vec<(usize, T)>> + 'a {
         (a[2]..=b[2]).map(move |z| {
             let mut cells = Vec::new();
             for y in a[1]..=b[1] {
-                for x in (a[0]..=b[0]).filter(|&x| self.meets(&shape, [x, y, z])) {
-                    cells.push(self.linear([x, y, z]));
+                for x in a[0]..=b[0] {
+                    if let Some(v) = f([x, y, z]) {
+                        cells.push((self.linear([x, y, z]), v));
+                    }
                 }
             }
             cells
@@ -346,21 +364,15 @@ impl Cells {
     }
 
     /// The mask of cell `k`'s eighths (as [`Self::spanned_eighths`] numbers them) that may hold what meets
-    /// `shape` there ([`Self::meets`] for each eighth: the border cells' outer eighths reach to infinity).
+    /// `shape` there ([`Self::meets`] for each eighth: the cell's box ([`Self::extent`]) cut at its middle).
     pub(crate) fn meeting_eighths(&self, shape: &RoiShape, k: [usize; 3]) -> u8 {
+        let (cell_lo, cell_hi) = self.extent(k);
+        let mid = Vec3::from([0, 1, 2].map(|a| self.middle(a, k[a])));
         let mut mask = 0;
         for e in 0..8 {
-            let (mut lo, mut hi) = (Vec3::ZERO, Vec3::ZERO);
-            for a in 0..3 {
-                let (start, mid) = (self.lo[a] + self.cell * k[a] as f32, self.middle(a, k[a]));
-                (lo[a], hi[a]) = if (e >> a) & 1 == 0 { (start, mid) } else { (mid, start + self.cell) };
-                if k[a] == 0 && (e >> a) & 1 == 0 {
-                    lo[a] = -1e30;
-                }
-                if k[a] + 1 == self.dims[a] && (e >> a) & 1 == 1 {
-                    hi[a] = 1e30;
-                }
-            }
+            let upper = |a: usize| (e >> a) & 1 == 1;
+            let lo = Vec3::from([0, 1, 2].map(|a| if upper(a) { mid[a] } else { cell_lo[a] }));
+            let hi = Vec3::from([0, 1, 2].map(|a| if upper(a) { cell_hi[a] } else { mid[a] }));
             if shape.meets_box(lo, hi) {
                 mask |= 1 << e;
             }
@@ -371,19 +383,9 @@ impl Cells {
     /// The cells meeting `shape` with the masks of their eighths that do ([`Self::meeting_eighths`]), as
     /// [`Self::meeting`] gives them.
     pub(crate) fn meeting_with_eighths(&self, shape: &RoiShape) -> impl Iterator<Item = Vec<(usize, u8)>> + '_ {
-        let (a, b) = self.under(shape);
         let shape = *shape;
-        (a[2]..=b[2]).map(move |z| {
-            let mut cells = Vec::new();
-            for y in a[1]..=b[1] {
-                for x in a[0]..=b[0] {
-                    let mask = self.meeting_eighths(&shape, [x, y, z]);
-                    if mask != 0 {
-                        cells.push((self.linear([x, y, z]), mask));
-                    }
-                }
-            }
-            cells
+        self.under_by_layer(self.under(&shape), move |k| {
+            Some(self.meeting_eighths(&shape, k)).filter(|&mask| mask != 0)
         })
     }
 

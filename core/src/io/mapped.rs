@@ -24,8 +24,8 @@ pub struct MappedPoints {
     map: memmap2::Mmap,
     /// Byte offset of the first point.
     data: usize,
-    /// How many points: every whole triple (`None`: a `.tck`), or a TRX's positions.
-    len: Option<usize>,
+    /// How many points: in a `.tck` every whole triple after the data offset, in a TRX its positions.
+    len: usize,
     /// Points between one streamline and the next: a `.tck`'s terminator (1); none in a TRX (0).
     gap: usize,
 }
@@ -46,7 +46,8 @@ impl MappedPoints {
         if layout.offset % 4 != 0 {
             return Err(Error::format(path, format!("data offset {} is not a multiple of 4", layout.offset)));
         }
-        Ok(Self { map, data: layout.offset, len: None, gap: 1 })
+        let len = (map.len() - layout.offset.min(map.len())) / 12;
+        Ok(Self { map, data: layout.offset, len, gap: 1 })
     }
 
     /// Maps a TRX file and finds its positions (its header.json and central directory are read, no array).
@@ -58,13 +59,16 @@ impl MappedPoints {
         let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
         // SAFETY: as in `open`.
         let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|e| Error::io(path, e))?;
-        if data % 4 != 0 || cfg!(target_endian = "big") {
+        if cfg!(target_endian = "big") {
+            return Err(Error::format(path, "TRX positions are little-endian: not read in place on this machine"));
+        }
+        if data % 4 != 0 {
             return Err(Error::format(path, format!("positions at byte {data}, not on a 4-byte boundary")));
         }
         if data.saturating_add((len as u64).saturating_mul(12)) > map.len() as u64 {
             return Err(Error::format(path, format!("{len} positions run past the end of the file")));
         }
-        Ok(Self { map, data: data as usize, len: Some(len), gap: 0 })
+        Ok(Self { map, data: data as usize, len, gap: 0 })
     }
 
     /// [`MappedPoints::open`] for a `.tck`, [`MappedPoints::open_trx`] for a `.trx`; an error for other files.
@@ -81,8 +85,14 @@ impl MappedPoints {
     /// TRX's positions.
     #[inline]
     pub fn points(&self) -> &[Vec3] {
-        let all = points_of(&self.map, self.data);
-        &all[..self.len.unwrap_or(all.len()).min(all.len())]
+        if self.len == 0 {
+            // (A `.tck` whose data offset lies at or past its end.)
+            return &[];
+        }
+        // SAFETY: `Vec3` is three `f32` with `repr(C)`, alignment 4: the mapping starts on a page and `data` is a
+        // multiple of 4, every bit pattern is a valid f32, and `len` triples from `data` lie within the mapping
+        // (all checked where the file was opened).
+        unsafe { std::slice::from_raw_parts(self.map.as_ptr().add(self.data).cast::<Vec3>(), self.len) }
     }
 
     /// Where in [`MappedPoints::points`] the streamline lies that follows `streamlines` streamlines of
@@ -264,16 +274,6 @@ impl Streamlines for MappedTck {
     fn streamline(&self, s: usize) -> &[Vec3] {
         MappedTck::streamline(self, s)
     }
-}
-
-/// The whole triples of `map` from byte `offset`, as points.
-#[inline]
-fn points_of(map: &[u8], offset: usize) -> &[Vec3] {
-    let bytes = map.get(offset..).unwrap_or_default();
-    let n = bytes.len() / 12;
-    // SAFETY: `Vec3` is three `f32` with `repr(C)`, alignment 4: the mapping starts on a page and `offset` is a
-    // multiple of 4 (checked in `open`), every bit pattern is a valid f32, and `n` triples lie within `bytes`.
-    unsafe { std::slice::from_raw_parts(bytes.as_ptr().cast::<Vec3>(), n) }
 }
 
 #[cfg(test)]
