@@ -119,8 +119,9 @@ impl MappedPoints {
 /// Maps `path` read only, asking (on Linux) for its pages in huge folios: the pages a fault reads come in 2 MiB
 /// folios, mapped a 2 MiB page at a time, so that reading streamlines scattered over a file of gigabytes (an ROI
 /// drag) waits for far fewer page walks. On the generated 10M-streamline `.tck` (12 GB) a 1 mm drag step of a
-/// 10 mm sphere took 74-76 ms with the file in the page cache in small folios, 56-57 ms in huge ones. Pages
-/// already cached keep the folios they have.
+/// 10 mm sphere took 74-76 ms with the file in the page cache in small 4 KiB folios, 56-57 ms in 2 MiB ones.
+/// Pages already cached keep the folios they have (a sequential read's readahead also makes large ones; a first
+/// touch at scattered places, without this, small ones).
 fn map_read_only(path: &Path) -> Result<memmap2::Mmap> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     // SAFETY: the mapping is read only; a file changed by another process while mapped can change what is read
