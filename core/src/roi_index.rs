@@ -852,23 +852,21 @@ fn blocks(n: usize) -> impl Iterator<Item = std::ops::Range<usize>> {
     (0..n.div_ceil(BLOCK)).map(move |b| b * BLOCK..((b + 1) * BLOCK).min(n))
 }
 
-/// `items` cut into at most `k` consecutive shares of about equal `weight`.
+/// `items` cut into at most `k` consecutive shares of about equal `weight` (each but the last closed once it
+/// holds a `k`th of the whole).
 fn shares<T>(items: &[T], weight: impl Fn(&T) -> u64, k: usize) -> Vec<&[T]> {
-    let total: u64 = items.iter().map(&weight).sum();
-    let each = total.div_ceil(k.max(1) as u64).max(1);
-    let mut out = Vec::with_capacity(k);
-    let (mut from, mut sum) = (0, 0);
+    let each = items.iter().map(&weight).sum::<u64>().div_ceil(k.max(1) as u64).max(1);
+    let mut starts = vec![0];
+    let mut sum = 0;
     for (i, item) in items.iter().enumerate() {
         sum += weight(item);
-        if sum >= each {
-            out.push(&items[from..=i]);
-            (from, sum) = (i + 1, 0);
+        if sum >= each && starts.len() < k {
+            starts.push(i + 1);
+            sum = 0;
         }
     }
-    if from < items.len() {
-        out.push(&items[from..]);
-    }
-    out
+    starts.push(items.len());
+    starts.windows(2).map(|w| &items[w[0]..w[1]]).filter(|share| !share.is_empty()).collect()
 }
 
 /// Streamlines a block of an index build's pass holds (about 80 MB of a whole-brain `.tck`).
@@ -1201,5 +1199,18 @@ mod tests {
         assert_eq!((a, b), (f32::NEG_INFINITY, f32::INFINITY));
         let (a, b) = unpack_span(pack_span(0.0, f32::NAN, false));
         assert!(a > b, "a NaN span packed inward holds ({a}, {b})");
+    }
+
+    /// Shares cover the items in order, never more than asked for, weightless items at the end included.
+    #[test]
+    fn shares_cover_the_items_in_at_most_k() {
+        let items = [3u64, 1, 0, 2, 2, 0, 0];
+        for k in 1..=8 {
+            let got = shares(&items, |&w| w, k);
+            assert!(!got.is_empty() && got.len() <= k, "{k}: {got:?}");
+            assert_eq!(got.concat(), items, "{k}");
+        }
+        assert_eq!(shares(&[1u64, 1, 0], |&w| w, 2), vec![&[1u64][..], &[1, 0][..]]);
+        assert!(shares::<u64>(&[], |&w| w, 2).is_empty());
     }
 }
