@@ -49,6 +49,13 @@ def main():
     try:
         while not os.path.exists(f"/tmp/.X11-unix/X{display[1:]}"):
             time.sleep(0.05)
+        # The socket comes before the server answers: a viewer started then finds no display and exits.
+        for _ in range(100):
+            try:
+                ImageGrab.grab(xdisplay=display)
+                break
+            except OSError:
+                time.sleep(0.05)
         t0 = time.time()
         proc = subprocess.Popen([viewer, "view", path], env=dict(os.environ, DISPLAY=display),
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
