@@ -495,7 +495,7 @@ fn stream_tract_file(
 }
 
 /// The most points of a part in the `batches`-th batch of a file streamed in parts of `first` points at first
-/// ([`stream_parts`]): twice the batch before's, from the third batch on, up to 16 times `first` and at most
+/// (`stream_parts`): twice the batch before's, from the third batch on, up to 16 times `first` and at most
 /// [`GROWN_PART_POINTS`] (never under `first`). The first parts stay small, so that the first streamlines are
 /// drawn soon; the later ones are larger, so that a whole brain does not come as thousands of parts: every
 /// frame costs something per part (a draw, and in Bevy's renderer two buffer writes per part and view, each

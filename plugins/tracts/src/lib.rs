@@ -1408,8 +1408,10 @@ pub const WHOLE_BRAIN_TOLERANCE_MM: f64 = 0.25;
 /// Points above which lines are compressed to [`PREVIEW_TOLERANCE_MM`]: 230M (2.3M streamlines of 100
 /// points), about 25M segments at 0.5 mm (0.7 GB of vertices and indices).
 pub const COARSE_DETAIL_POINTS: u64 = 230_000_000;
-/// Line segments a preview aims at, whatever the tractogram's size (a frame of about 0.4 s on lavapipe).
-pub const PREVIEW_SEGMENTS: u64 = 1_500_000;
+/// Line segments a preview aims at, whatever the tractogram's size: 750k, about a 1M whole brain's preview
+/// (every 16th streamline at 0.5 mm: 715k), whose moving frames keep within the 100 ms budget on lavapipe with
+/// 2 cores; 10M streamlines with 1.5M took 144 ms a moving frame.
+pub const PREVIEW_SEGMENTS: u64 = 750_000;
 
 impl LineDetail {
     /// The detail for a tractogram of about `points` points (a header's count, or a file's size over 12
@@ -1894,7 +1896,7 @@ mod tests {
         let huge = LineDetail::for_points(1_040_000_000);
         assert_eq!(huge.tolerance_mm, PREVIEW_TOLERANCE_MM);
         let preview_segments = 1_040_000_000.0 * 0.11 / huge.preview_stride as f64;
-        assert!((1.3e6..=1.5e6).contains(&preview_segments), "{preview_segments}");
+        assert!((0.65e6..=0.75e6).contains(&preview_segments), "{preview_segments}");
         let sizes = [0, FULL_DETAIL_POINTS, FULL_DETAIL_POINTS + 1, COARSE_DETAIL_POINTS, COARSE_DETAIL_POINTS + 1];
         for w in sizes.windows(2) {
             let (a, b) = (LineDetail::for_points(w[0]), LineDetail::for_points(w[1]));
