@@ -74,8 +74,9 @@ impl ValueHistogram {
 }
 
 /// Parts of a layer's content that its job delivers while it runs, oldest first: streamlines as they are
-/// tracked, or a large tractogram in parts of at most [`PART_POINTS`] points, so that the main thread uploads
-/// them a few at a time and never stalls on one large upload.
+/// tracked, or a large tractogram in parts of at most [`PART_POINTS`] points (a streamed file's later parts
+/// larger: [`grown_part_points`]), so that the main thread uploads them a few at a time and never stalls on one
+/// large upload.
 #[derive(Default)]
 pub struct Parts(Mutex<std::collections::VecDeque<Content>>);
 
@@ -115,8 +116,9 @@ impl Parts {
 /// about 27 ms on this project's 2-core reference machine).
 pub const GLYPH_PART: usize = 4096;
 
-/// The most points of one delivered part of a tract layer (lines: about 2 vertices per point; 250k points
-/// upload in about 20 ms on this project's 2-core reference machine).
+/// The most points of one delivered part of a tract layer, and of a streamed file's first parts (later ones
+/// grow: [`grown_part_points`]) (lines: about 2 vertices per point; 250k points upload in about 20 ms on this
+/// project's 2-core reference machine).
 pub const PART_POINTS: usize = 250_000;
 
 /// The error a cancelled job ends with.
@@ -453,9 +455,9 @@ pub fn build(kind: &LayerKind, cache: &DataCache, progress: &JobProgress) -> Res
 pub const LINE_PART_POINTS: usize = 1_000_000;
 
 /// A tractogram file as lines, read and drawn part by part: the file is streamed in parts of whole
-/// streamlines (at most [`LINE_PART_POINTS`] points), a batch of parts (one per job thread) is read and then
-/// built in parallel, and each part is delivered to be drawn while the rest is read ([`stream_parts`]). The
-/// whole tractogram is never held (nor the file's bytes): a part's points are let go once its lines are made
+/// streamlines (at most [`LINE_PART_POINTS`] points at first, larger later: [`grown_part_points`]), a batch of
+/// parts (one per job thread) is read and then built in parallel, and each part is delivered to be drawn while
+/// the rest is read ([`stream_parts`]). The whole tractogram is never held (nor the file's bytes): a part's points are let go once its lines are made
 /// ([`PreparedTracts::drawn_only`]; a tractogram layer only shows the file, ROIs act on tract layers, which
 /// keep theirs).
 fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> {
@@ -466,9 +468,9 @@ fn stream_lines(path: &Path, progress: &JobProgress) -> Result<Content, String> 
         .ok_or_else(|| format!("{}: the tractogram holds no streamlines", path.display()))
 }
 
-/// A tract layer's file (without tensors to sample) read in parts of at most [`PART_POINTS`] points, never
-/// whole ([`stream_parts`]), each made by `prepare` (the part, the layer's index of its first streamline, the
-/// lines' detail for the file's size). Each part's streamlines stay addressable (ROIs, picks, saving): a
+/// A tract layer's file (without tensors to sample) read in parts of at most [`PART_POINTS`] points at first
+/// (later ones grow: [`grown_part_points`]), never whole ([`stream_parts`]), each made by `prepare` (the part,
+/// the layer's index of its first streamline, the lines' detail for the file's size). Each part's streamlines stay addressable (ROIs, picks, saving): a
 /// Float32LE `.tck` (what `tckgen` writes) or a TRX with stored float32 positions on a 4-byte boundary (what
 /// `fascicle convert` writes) is mapped and each part reads its streamlines in place once its geometry is made
 /// ([`PreparedTracts::read_in_place`]: 8 bytes a streamline instead of 12 a point, 1.2 GB for a 1M whole brain);
@@ -532,9 +534,9 @@ fn stream_parts(
     let (mut items, mut points, mut done, mut sent) = (0, 0, 0, 0);
     for batches in 0.. {
         let mut chunks = Vec::with_capacity(batch);
-        let max_points = grown_part_points(max_points, batches);
+        let part_points = grown_part_points(max_points, batches);
         while chunks.len() < batch
-            && let Some(t) = reader.next_chunk(max_points).map_err(|e| e.to_string())?
+            && let Some(t) = reader.next_chunk(part_points).map_err(|e| e.to_string())?
         {
             let (n, p) = (t.n_streamlines(), t.points.len());
             chunks.push((t, items, points));
