@@ -344,7 +344,32 @@ struct Slot {
 
 /// Per streamline, read together: the margin's bits, its epoch, the witness (its bits), the swept margin's bits,
 /// its span and its cover ([`Measured`], [`pack_span`]); an entry is half a cache line.
-struct Margins(Vec<Entry>);
+///
+/// Held in anonymous memory mapped zero-filled (an entry of zeros is "never measured") and advised into huge
+/// pages: a step reads the entries of half a million candidates scattered over 305 MiB at 10M streamlines, and
+/// in 4 KiB pages nearly each of those reads also missed the TLB. Nothing is written at the drag's start (a
+/// `Vec` was 305 MiB of zeros written before the first step); a page takes memory when first touched.
+struct Margins {
+    map: memmap2::MmapMut,
+    n: usize,
+}
+
+impl Margins {
+    /// `n` entries of zeros; `None` when the memory cannot be mapped.
+    fn zeroed(n: usize) -> Option<Self> {
+        let map = memmap2::MmapMut::map_anon((n * std::mem::size_of::<Entry>()).max(1)).ok()?;
+        // A hint: a kernel without transparent huge pages refuses it, and the pages come as they would.
+        #[cfg(target_os = "linux")]
+        let _ = map.advise(memmap2::Advice::HugePage);
+        Some(Self { map, n })
+    }
+
+    fn entries(&self) -> &[Entry] {
+        // SAFETY: the map is page-aligned (an entry's 32 bytes are), at least `n` entries long and lives as long
+        // as `self`; its bytes start as zeros and change only through the atomics, for which any bits are valid.
+        unsafe { std::slice::from_raw_parts(self.map.as_ptr().cast::<Entry>(), self.n) }
+    }
+}
 
 /// One streamline's [`Margins`], aligned so that it never straddles two cache lines.
 #[repr(align(32))]
@@ -375,7 +400,7 @@ const MAX_EPOCHS: usize = 1 << 16;
 impl DragMargins {
     /// Bytes held.
     pub fn heap_bytes(&self) -> usize {
-        self.slots.iter().filter_map(|s| s.margins.as_ref()).map(|m| std::mem::size_of_val(m.0.as_slice())).sum()
+        self.slots.iter().filter_map(|s| s.margins.as_ref()).map(|m| std::mem::size_of_val(m.entries())).sum()
     }
 
     /// One slot per ROI, reset where the ROI's mode or kind differs from the slot's.
@@ -387,8 +412,7 @@ impl DragMargins {
                 mode: roi.mode,
                 kind,
                 shapes: vec![],
-                margins: (!matches!(roi.shape, RoiShape::Plane { .. }))
-                    .then(|| Margins((0..n).map(|_| Entry([0; 8].map(AtomicU32::new))).collect())),
+                margins: (!matches!(roi.shape, RoiShape::Plane { .. })).then(|| Margins::zeroed(n)).flatten(),
             };
             match self.slots.get_mut(k) {
                 Some(s) if s.mode == roi.mode && s.kind == kind && s.shapes.len() < MAX_EPOCHS => {}
@@ -451,7 +475,9 @@ impl Slot {
         ids: &[u32],
         streamline: &(impl Fn(usize) -> &'a [Vec3] + Sync),
     ) -> Vec<u32> {
-        let Some(mem) = &self.margins else { return meets_exactly(shape, ids, streamline) };
+        let Some(mem) = self.margins.as_ref().map(Margins::entries) else {
+            return meets_exactly(shape, ids, streamline);
+        };
         let since: Vec<Since> = (0..self.shapes.len()).map(|e| self.since(e, shape)).collect();
         let ahead = sweep_end(self.shapes.last(), shape);
         self.shapes.push(*shape);
@@ -465,9 +491,9 @@ impl Slot {
                 let mut undecided = Vec::new();
                 for (i, &s) in chunk.iter().enumerate() {
                     if let Some(&ahead) = chunk.get(i + MARGIN_PREFETCH_AHEAD) {
-                        prefetch_entry(&mem.0[ahead as usize]);
+                        prefetch_entry(&mem[ahead as usize]);
                     }
-                    let m = &mem.0[s as usize].0;
+                    let m = &mem[s as usize].0;
                     let e = m[EPOCH].load(Ordering::Relaxed);
                     if e > 0 {
                         // A streamline meets the ROI while its witness (one of its points) is inside, tested as
@@ -505,7 +531,7 @@ impl Slot {
                         prefetch(next);
                     }
                     let measured = measure(shape, ahead, points[k]);
-                    let m = &mem.0[s as usize].0;
+                    let m = &mem[s as usize].0;
                     m[MARGIN].store(measured.margin.to_bits(), Ordering::Relaxed);
                     m[SWEPT].store(measured.swept.to_bits(), Ordering::Relaxed);
                     m[SPAN].store(pack_span(measured.entry, measured.exit, true), Ordering::Relaxed);
