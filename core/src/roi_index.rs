@@ -398,6 +398,11 @@ const MARGIN_SLACK: f32 = 1e-3;
 const MAX_EPOCHS: usize = 1 << 16;
 
 impl DragMargins {
+    /// Whether it holds nothing yet (no selection made with it).
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
     /// Bytes held.
     pub fn heap_bytes(&self) -> usize {
         self.slots.iter().filter_map(|s| s.margins.as_ref()).map(|m| std::mem::size_of_val(m.entries())).sum()

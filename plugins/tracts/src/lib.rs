@@ -213,6 +213,9 @@ struct IndexInner {
     cells: OnceLock<StreamlineCells>,
     building: std::sync::atomic::AtomicBool,
     drag: std::sync::Mutex<DragMargins>,
+    /// The ROIs last selected for without the index ([`LazyIndex::seed`]): once built, the builder selects
+    /// for them through it, so that a drag of them starts from margins.
+    seed: std::sync::Mutex<Vec<Roi>>,
 }
 
 /// The side of an index cell (mm).
@@ -252,8 +255,20 @@ impl LazyIndex {
                 let mut drag = self.0.drag.lock().unwrap_or_else(|e| e.into_inner());
                 cells.select_dragging(|s| t.streamline(s), rois, &mut drag)
             }
-            None => select_every(t, rois),
+            None => {
+                self.seed(rois);
+                select_every(t, rois)
+            }
         }
+    }
+
+    /// Asks the background builder to select for `rois` through the index once it is built, keeping the
+    /// margins ([`DragMargins`]) for the frames: a selection made without the index leaves none, and a drag's
+    /// first step then tests every candidate (on 10M streamlines read in place 2.4 s in the window: 500k
+    /// streamlines read, their pages faulted back and 305 MiB of margins written). The ROIs of the last call
+    /// count; margins a drag started meanwhile are kept.
+    pub fn seed(&self, rois: &[Roi]) {
+        *self.0.seed.lock().unwrap_or_else(|e| e.into_inner()) = rois.to_vec();
     }
 
     /// The streamlines of `t` in the index's cells that meet `shape` (a superset of those with a point or a step
@@ -316,7 +331,8 @@ fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String>
                             continue;
                         }
                         let build = || {
-                            inner.cells.get_or_init(|| build_set_index(&t));
+                            let cells = inner.cells.get_or_init(|| build_set_index(&t));
+                            seed_margins(&inner, cells, &t);
                             t.release();
                         };
                         match &pool {
@@ -330,6 +346,22 @@ fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String>
         })
         .as_ref()
         .map_err(Clone::clone)
+}
+
+/// Selects for the ROIs [`LazyIndex::seed`] left through `cells`, into margins of its own that become the
+/// set's unless a drag started meanwhile (the frames never wait for this).
+fn seed_margins(inner: &IndexInner, cells: &StreamlineCells, t: &SetStreamlines) {
+    let rois = std::mem::take(&mut *inner.seed.lock().unwrap_or_else(|e| e.into_inner()));
+    if rois.is_empty() {
+        return;
+    }
+    let mut seeded = DragMargins::default();
+    cells.select_dragging(|s| t.streamline(s), &rois, &mut seeded);
+    if let Ok(mut drag) = inner.drag.try_lock()
+        && drag.is_empty()
+    {
+        *drag = seeded;
+    }
 }
 
 /// Lowers the calling thread to the lowest scheduling priority (nice 19), where the platform allows.
@@ -778,18 +810,31 @@ pub struct RoiStats {
 /// `above_streamlines` whose index is not built yet (the first minute or so after a whole brain opens) is not
 /// selected in the frame of an ROI edit, which would read every streamline (a 12 GB file at 10M streamlines,
 /// seconds of a frozen window per step), but on a thread of its own; its parts keep their flags until the
-/// selection is done, then take it (or the index's, once built: the drag goes on through it). One such
-/// selection at a time per layer: edits made meanwhile are selected when it is done.
+/// selection is done, then take it. With the index built, a layer of more than `indexed_above_streamlines` is
+/// still selected there, through the index: a window's drag step is the pointer's move between two frames,
+/// several millimetres, and at 10M streamlines such a step read 0.5-2.6 s of streamlines in the frame. One
+/// such selection at a time per layer: edits made meanwhile are selected when it is done, the ROI drawn where
+/// it is meanwhile.
 #[derive(Resource, Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RoiBackground {
     /// Streamlines above which a layer without its index is selected in the background (default 250,000:
     /// about 0.2 s of reading on two cores).
     pub above_streamlines: usize,
+    /// Streamlines above which a layer with its index is selected in the background (default 4,000,000: a
+    /// 1M whole brain's drag step through the index, 65 ms a frame in the window, stays in the frame).
+    pub indexed_above_streamlines: usize,
 }
 
 impl Default for RoiBackground {
     fn default() -> Self {
-        Self { above_streamlines: 250_000 }
+        Self { above_streamlines: 250_000, indexed_above_streamlines: 4_000_000 }
+    }
+}
+
+impl RoiBackground {
+    /// Whether a layer of `n` streamlines, its index built or not, is selected in the frame.
+    fn in_frame(&self, n: usize, built: bool) -> bool {
+        n <= self.above_streamlines || (built && n <= self.indexed_above_streamlines)
     }
 }
 
@@ -1566,7 +1611,7 @@ pub fn apply_rois(
     };
     let mut news: HashMap<Entity, Vec<bool>> = HashMap::new();
     for (l, run) in layer_runs.iter_mut().filter(|(_, run)| run.background.is_some()) {
-        if let Some(sel) = run.poll(&layer_rois(*l)) {
+        if let Some(sel) = run.poll(&layer_rois(*l), &background) {
             news.insert(*l, sel);
         }
     }
@@ -1685,7 +1730,7 @@ pub struct LayerRun {
     streamlines: SetStreamlines,
     /// Its index and drag margins.
     index: LazyIndex,
-    /// The selection made in the background while the index is not built ([`RoiBackground`]).
+    /// The selection made in the background ([`RoiBackground`]).
     background: Option<Background>,
 }
 
@@ -1696,25 +1741,26 @@ struct Background {
 }
 
 impl LayerRun {
-    /// The run's selection for `rois`: through its index when built, or at once when the run is small
-    /// ([`RoiBackground`]); otherwise `None`, and the selection is made in the background (started now unless
-    /// one is under way; [`LayerRun::poll`] hands it over) while the index is built.
+    /// The run's selection for `rois`, at once when [`RoiBackground::in_frame`] says so (through its index
+    /// when built); otherwise `None`, and the selection is made in the background (started now unless one is
+    /// under way; [`LayerRun::poll`] hands it over).
     fn select(&mut self, rois: &[Roi], settings: &RoiBackground) -> Option<Vec<bool>> {
         let built = self.index.ready_or_build(&self.streamlines).is_some();
-        if built || self.streamlines.n_streamlines() <= settings.above_streamlines {
+        if settings.in_frame(self.streamlines.n_streamlines(), built) {
             self.background = None;
             return Some(self.index.select(&self.streamlines, rois));
         }
         if self.background.is_none() { self.start(rois) } else { None }
     }
 
-    /// Starts the selection for `rois` on a thread of its own (`None`); without a thread, selects in the frame.
+    /// Starts the selection for `rois` on a thread of its own (`None`): through the index when built (keeping
+    /// the drag's margins), else every streamline tested; without a thread, selects in the frame.
     fn start(&mut self, rois: &[Roi]) -> Option<Vec<bool>> {
         let (send, done) = std::sync::mpsc::channel();
-        let (t, list) = (self.streamlines.clone(), rois.to_vec());
+        let (t, list, index) = (self.streamlines.clone(), rois.to_vec(), self.index.clone());
         let spawned = std::thread::Builder::new()
             .name("tract selection".into())
-            .spawn(move || _ = send.send(select_every(&t, &list)));
+            .spawn(move || _ = send.send(index.select(&t, &list)));
         match spawned {
             Ok(_) => {
                 self.background = Some(Background { rois: rois.to_vec(), done });
@@ -1728,10 +1774,12 @@ impl LayerRun {
     }
 
     /// The selection made in the background, when it is done (a newer one is then started if the ROIs are no
-    /// longer `rois`, the layer's now), or the index's for `rois` once the index is built; `None` meanwhile.
-    fn poll(&mut self, rois: &[Roi]) -> Option<Vec<bool>> {
+    /// longer `rois`, the layer's now), or the index's for `rois` once the index is built and
+    /// [`RoiBackground::in_frame`] lets it be made in the frame; `None` meanwhile.
+    fn poll(&mut self, rois: &[Roi], settings: &RoiBackground) -> Option<Vec<bool>> {
         let background = self.background.as_ref()?;
-        if self.index.ready_or_build(&self.streamlines).is_some() {
+        let built = self.index.ready_or_build(&self.streamlines).is_some();
+        if built && settings.in_frame(self.streamlines.n_streamlines(), built) {
             self.background = None;
             return Some(self.index.select(&self.streamlines, rois));
         }
@@ -1798,6 +1846,10 @@ fn update_layer_runs(
                     index: LazyIndex::default(),
                     background: None,
                 };
+                // Built with the layer's ROIs selected through it, for a drag's margins.
+                let list: Vec<Roi> =
+                    rois.iter().filter(|(_, p)| p.is_none_or(|p| p.parent() == l)).map(|(r, _)| r.0).collect();
+                run.index.seed(&list);
                 run.index.ready_or_build(&run.streamlines);
                 layer_runs.insert(l, run);
             }
@@ -1981,11 +2033,11 @@ mod tests {
         assert_ne!(want_a, want_b);
         assert_eq!(want_a.iter().filter(|k| **k).count(), 21);
         let mut run = LayerRun { parts: vec![], first: 0, streamlines, index: LazyIndex::default(), background: None };
-        let settings = RoiBackground { above_streamlines: 1000 };
+        let settings = RoiBackground { above_streamlines: 1000, indexed_above_streamlines: 4000 };
         let poll_until = |run: &mut LayerRun, rois: &[Roi]| {
             let t0 = Instant::now();
             loop {
-                if let Some(sel) = run.poll(rois) {
+                if let Some(sel) = run.poll(rois, &settings) {
                     return sel;
                 }
                 assert!(t0.elapsed().as_secs() < 60, "no selection after a minute");
@@ -2006,11 +2058,32 @@ mod tests {
             assert!(t0.elapsed().as_secs() < 60, "no index after a minute");
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
+        // The builder went on to select for the ROIs last selected without it (`b`), keeping the margins
+        // for a drag of them.
+        while run.index.0.drag.lock().unwrap().is_empty() {
+            assert!(t0.elapsed().as_secs() < 60, "the drag's margins not seeded after a minute");
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        assert!(run.index.0.seed.lock().unwrap().is_empty());
+        assert!(run.index.0.drag.lock().unwrap().heap_bytes() >= 32 * 2000);
         assert_eq!(run.select(&a, &settings), Some(want_a));
         assert!(run.background.is_none());
+        // Above `indexed_above_streamlines`, built or not, in the background.
+        let large = RoiBackground { indexed_above_streamlines: 1000, ..settings };
+        assert!(run.select(&b, &large).is_none(), "selected in the frame above indexed_above_streamlines");
+        let t0 = Instant::now();
+        let sel = loop {
+            if let Some(sel) = run.poll(&b, &large) {
+                break sel;
+            }
+            assert!(t0.elapsed().as_secs() < 60, "no selection after a minute");
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        };
+        assert_eq!(sel, want_b);
         // A run no larger than the setting is selected in the frame, built or not.
         let mut small = LayerRun { index: LazyIndex::default(), ..run };
-        assert_eq!(small.select(&b, &RoiBackground { above_streamlines: 2000 }), Some(want_b));
+        let at_most = RoiBackground { above_streamlines: 2000, indexed_above_streamlines: 2000 };
+        assert_eq!(small.select(&b, &at_most), Some(want_b));
     }
 
     /// A [`TubeSet`] of `tubes` with every proxy, and its preview of `slots`, in `app`'s meshes.
