@@ -213,9 +213,6 @@ struct IndexInner {
     cells: OnceLock<StreamlineCells>,
     building: std::sync::atomic::AtomicBool,
     drag: std::sync::Mutex<DragMargins>,
-    /// The ROIs last selected for without the index ([`LazyIndex::seed`]): once built, the builder selects
-    /// for them through it, so that a drag of them starts from margins.
-    seed: std::sync::Mutex<Vec<Roi>>,
 }
 
 /// The side of an index cell (mm).
@@ -255,20 +252,8 @@ impl LazyIndex {
                 let mut drag = self.0.drag.lock().unwrap_or_else(|e| e.into_inner());
                 cells.select_dragging(|s| t.streamline(s), rois, &mut drag)
             }
-            None => {
-                self.seed(rois);
-                select_every(t, rois)
-            }
+            None => select_every(t, rois),
         }
-    }
-
-    /// Asks the background builder to select for `rois` through the index once it is built, keeping the
-    /// margins ([`DragMargins`]) for the frames: a selection made without the index leaves none, and a drag's
-    /// first step then tests every candidate (on 10M streamlines read in place 2.4 s in the window: 500k
-    /// streamlines read, their pages faulted back and 305 MiB of margins written). The ROIs of the last call
-    /// count; margins a drag started meanwhile are kept.
-    pub fn seed(&self, rois: &[Roi]) {
-        *self.0.seed.lock().unwrap_or_else(|e| e.into_inner()) = rois.to_vec();
     }
 
     /// The streamlines of `t` in the index's cells that meet `shape` (a superset of those with a point or a step
@@ -331,8 +316,7 @@ fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String>
                             continue;
                         }
                         let build = || {
-                            let cells = inner.cells.get_or_init(|| build_set_index(&t));
-                            seed_margins(&inner, cells, &t);
+                            inner.cells.get_or_init(|| build_set_index(&t));
                             t.release();
                         };
                         match &pool {
@@ -346,22 +330,6 @@ fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String>
         })
         .as_ref()
         .map_err(Clone::clone)
-}
-
-/// Selects for the ROIs [`LazyIndex::seed`] left through `cells`, into margins of its own that become the
-/// set's unless a drag started meanwhile (the frames never wait for this).
-fn seed_margins(inner: &IndexInner, cells: &StreamlineCells, t: &SetStreamlines) {
-    let rois = std::mem::take(&mut *inner.seed.lock().unwrap_or_else(|e| e.into_inner()));
-    if rois.is_empty() {
-        return;
-    }
-    let mut seeded = DragMargins::default();
-    cells.select_dragging(|s| t.streamline(s), &rois, &mut seeded);
-    if let Ok(mut drag) = inner.drag.try_lock()
-        && drag.is_empty()
-    {
-        *drag = seeded;
-    }
 }
 
 /// Lowers the calling thread to the lowest scheduling priority (nice 19), where the platform allows.
@@ -1846,10 +1814,6 @@ fn update_layer_runs(
                     index: LazyIndex::default(),
                     background: None,
                 };
-                // Built with the layer's ROIs selected through it, for a drag's margins.
-                let list: Vec<Roi> =
-                    rois.iter().filter(|(_, p)| p.is_none_or(|p| p.parent() == l)).map(|(r, _)| r.0).collect();
-                run.index.seed(&list);
                 run.index.ready_or_build(&run.streamlines);
                 layer_runs.insert(l, run);
             }
@@ -2058,14 +2022,6 @@ mod tests {
             assert!(t0.elapsed().as_secs() < 60, "no index after a minute");
             std::thread::sleep(std::time::Duration::from_millis(1));
         }
-        // The builder went on to select for the ROIs last selected without it (`b`), keeping the margins
-        // for a drag of them.
-        while run.index.0.drag.lock().unwrap().is_empty() {
-            assert!(t0.elapsed().as_secs() < 60, "the drag's margins not seeded after a minute");
-            std::thread::sleep(std::time::Duration::from_millis(1));
-        }
-        assert!(run.index.0.seed.lock().unwrap().is_empty());
-        assert!(run.index.0.drag.lock().unwrap().heap_bytes() >= 32 * 2000);
         assert_eq!(run.select(&a, &settings), Some(want_a));
         assert!(run.background.is_none());
         // Above `indexed_above_streamlines`, built or not, in the background.
