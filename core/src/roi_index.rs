@@ -349,10 +349,7 @@ struct Slot {
 /// pages: a step reads the entries of half a million candidates scattered over 305 MiB at 10M streamlines, and
 /// in 4 KiB pages nearly each of those reads also missed the TLB. Nothing is written at the drag's start (a
 /// `Vec` was 305 MiB of zeros written before the first step); a page takes memory when first touched.
-struct Margins {
-    map: memmap2::MmapMut,
-    n: usize,
-}
+struct Margins(memmap2::MmapMut);
 
 impl Margins {
     /// `n` entries of zeros; `None` when the memory cannot be mapped.
@@ -361,13 +358,16 @@ impl Margins {
         // A hint: a kernel without transparent huge pages refuses it, and the pages come as they would.
         #[cfg(target_os = "linux")]
         let _ = map.advise(memmap2::Advice::HugePage);
-        Some(Self { map, n })
+        Some(Self(map))
     }
 
     fn entries(&self) -> &[Entry] {
-        // SAFETY: the map is page-aligned (an entry's 32 bytes are), at least `n` entries long and lives as long
-        // as `self`; its bytes start as zeros and change only through the atomics, for which any bits are valid.
-        unsafe { std::slice::from_raw_parts(self.map.as_ptr().cast::<Entry>(), self.n) }
+        // SAFETY: the map is page-aligned (an entry's 32 bytes are), holds the entries it was made for (its length
+        // over an entry's size) and lives as long as `self`; its bytes start as zeros and change only through the
+        // atomics, for which any bits are valid.
+        unsafe {
+            std::slice::from_raw_parts(self.0.as_ptr().cast::<Entry>(), self.0.len() / std::mem::size_of::<Entry>())
+        }
     }
 }
 
@@ -398,11 +398,6 @@ const MARGIN_SLACK: f32 = 1e-3;
 const MAX_EPOCHS: usize = 1 << 16;
 
 impl DragMargins {
-    /// Whether it holds nothing yet (no selection made with it).
-    pub fn is_empty(&self) -> bool {
-        self.slots.is_empty()
-    }
-
     /// Bytes held.
     pub fn heap_bytes(&self) -> usize {
         self.slots.iter().filter_map(|s| s.margins.as_ref()).map(|m| std::mem::size_of_val(m.entries())).sum()

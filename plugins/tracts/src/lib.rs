@@ -1747,7 +1747,7 @@ impl LayerRun {
     fn poll(&mut self, rois: &[Roi], settings: &RoiBackground) -> Option<Vec<bool>> {
         let background = self.background.as_ref()?;
         let built = self.index.ready_or_build(&self.streamlines).is_some();
-        if built && settings.in_frame(self.streamlines.n_streamlines(), built) {
+        if built && settings.in_frame(self.streamlines.n_streamlines(), true) {
             self.background = None;
             return Some(self.index.select(&self.streamlines, rois));
         }
@@ -1998,10 +1998,10 @@ mod tests {
         assert_eq!(want_a.iter().filter(|k| **k).count(), 21);
         let mut run = LayerRun { parts: vec![], first: 0, streamlines, index: LazyIndex::default(), background: None };
         let settings = RoiBackground { above_streamlines: 1000, indexed_above_streamlines: 4000 };
-        let poll_until = |run: &mut LayerRun, rois: &[Roi]| {
+        let poll_until = |run: &mut LayerRun, rois: &[Roi], settings: &RoiBackground| {
             let t0 = Instant::now();
             loop {
-                if let Some(sel) = run.poll(rois, &settings) {
+                if let Some(sel) = run.poll(rois, settings) {
                     return sel;
                 }
                 assert!(t0.elapsed().as_secs() < 60, "no selection after a minute");
@@ -2011,9 +2011,9 @@ mod tests {
         assert!(run.select(&a, &settings).is_none(), "selected in the frame without an index");
         assert!(run.background.is_some());
         // The ROI moves to `b` before `a`'s selection is done.
-        let first = poll_until(&mut run, &b);
+        let first = poll_until(&mut run, &b, &settings);
         assert!(first == want_a || first == want_b, "neither a's selection nor b's");
-        let last = if run.background.is_some() { poll_until(&mut run, &b) } else { first };
+        let last = if run.background.is_some() { poll_until(&mut run, &b, &settings) } else { first };
         assert_eq!(last, want_b, "b's selection did not follow a's");
         assert!(run.background.is_none());
         // Once the index is built: at once, through it.
@@ -2027,15 +2027,7 @@ mod tests {
         // Above `indexed_above_streamlines`, built or not, in the background.
         let large = RoiBackground { indexed_above_streamlines: 1000, ..settings };
         assert!(run.select(&b, &large).is_none(), "selected in the frame above indexed_above_streamlines");
-        let t0 = Instant::now();
-        let sel = loop {
-            if let Some(sel) = run.poll(&b, &large) {
-                break sel;
-            }
-            assert!(t0.elapsed().as_secs() < 60, "no selection after a minute");
-            std::thread::sleep(std::time::Duration::from_millis(1));
-        };
-        assert_eq!(sel, want_b);
+        assert_eq!(poll_until(&mut run, &b, &large), want_b);
         // A run no larger than the setting is selected in the frame, built or not.
         let mut small = LayerRun { index: LazyIndex::default(), ..run };
         let at_most = RoiBackground { above_streamlines: 2000, indexed_above_streamlines: 2000 };
