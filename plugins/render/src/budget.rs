@@ -6,7 +6,8 @@
 //! - **Budget**: [`FrameBudget`], a resource: 100 ms a frame on a software adapter, 16 ms on a hardware GPU.
 //! - **Moving**: a camera marked [`RenderScale`] whose transform changed, or an app's [`Interacting::mark`]
 //!   (a drag of an ROI changes the scene, not the camera); a button held still on the view
-//!   ([`Interacting::hold`]) keeps the view moving but asks for no frame.
+//!   ([`Interacting::hold`]) keeps the view moving but asks for no frame, and so does a result still being made
+//!   ([`Interacting::pending`]), past the release, until it lands.
 //! - **Measured**: a frame's time is the wall time between its update and the one before, counted only when
 //!   that one asked for the next at once (in a window drawn on demand, [`crate::on_demand::NextFrame::Now`]; the
 //!   first frame after an idle wait measures the wait). Beside the part of a frame scale does not lower
@@ -104,6 +105,7 @@ pub struct Interacting {
     marked: bool,
     held: bool,
     released: bool,
+    pending: bool,
 }
 
 impl Interacting {
@@ -125,6 +127,16 @@ impl Interacting {
     /// frames before it.
     pub fn release(&mut self) {
         self.released = true;
+    }
+
+    /// What the interaction changes is still being made elsewhere this frame (an ROI drag's selection of a
+    /// large tract layer, on a thread of its own). An interaction under way, or released while it is, goes on
+    /// as a held button does (moving, at its scale, no frame asked for) through every frame that reports it;
+    /// after a release, the first frame that no longer does draws at full quality at once, as a release does.
+    /// So a drag's full-quality frame shows its last selection, once, instead of every selection that lands
+    /// after the release. Reported while the view is still, it does nothing.
+    pub fn pending(&mut self) {
+        self.pending = true;
     }
 }
 
@@ -281,6 +293,7 @@ fn hold_budget(
     mut unsettled: ResMut<crate::Unsettled>,
     pipelined: Option<Res<bevy::render::pipelined_rendering::RenderAppChannels>>,
     mut chosen: Local<Chosen>,
+    mut awaiting: Local<bool>,
     retained: Option<Res<crate::RecentlyRetained>>,
     #[cfg(feature = "winit")] on_demand: (
         Option<Res<crate::on_demand::NextFrame>>,
@@ -335,9 +348,20 @@ fn hold_budget(
         });
         measured_coarse = Some(drawn.1);
     }
-    let released = std::mem::take(&mut interacting.released);
+    let mut released = std::mem::take(&mut interacting.released);
     let marked = std::mem::take(&mut interacting.marked) || !moved.is_empty();
-    let held = std::mem::take(&mut interacting.held) && !marked && !released;
+    // A release while the interaction's result is pending is kept (`awaiting`) until the result has landed.
+    let pending = std::mem::take(&mut interacting.pending) && (state.moving || marked || released);
+    if marked {
+        *awaiting = false;
+    }
+    if pending {
+        *awaiting |= released;
+        released = false;
+    } else if std::mem::take(&mut *awaiting) {
+        released = true;
+    }
+    let held = (std::mem::take(&mut interacting.held) && !marked && !released) || (pending && !marked);
     if marked {
         state.last_moved = Some(now);
     }

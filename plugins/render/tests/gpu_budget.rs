@@ -117,3 +117,52 @@ fn a_scene_over_budget_draws_at_a_lower_scale_and_refines_to_the_full_image() {
     assert_eq!(app.world().resource::<BudgetState>().scale, 1.0);
     assert_eq!(differing(&full, &refined), 0, "the refined frame differs from the full-scale one");
 }
+
+/// A release while the interaction's result is still being made (`Interacting::pending`: an ROI drag's
+/// selection on a thread) keeps the view moving at its scale, asking for no frame, until a frame no longer
+/// reports it; that frame draws at full scale at once. Reported while the view is still, it changes nothing.
+#[test]
+fn a_release_waits_for_the_pending_result_then_refines_at_once() {
+    let Some((mut app, target, camera)) = scene() else { return };
+    headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
+    let frame = |app: &mut App, act: &dyn Fn(&mut Interacting)| {
+        act(&mut app.world_mut().resource_mut::<Interacting>());
+        app.update();
+        let asked = app.world_mut().resource_mut::<Unsettled>().take();
+        (*app.world().resource::<BudgetState>(), asked)
+    };
+    // Still: a pending result does not start an interaction.
+    let (state, _) = frame(&mut app, &|i| i.pending());
+    assert!(!state.moving && state.scale == 1.0, "{state:?}");
+    app.world_mut().resource_mut::<FrameBudget>().refine_after = Duration::from_secs(3600);
+    for _ in 0..4 {
+        frame(&mut app, &|i| i.mark());
+    }
+    let (state, _) = frame(&mut app, &|i| i.pending());
+    assert!(state.moving && state.scale == 0.25, "{state:?}");
+    // Released while pending, and pending for two frames more: moving, at the drag's scale, no frame asked for.
+    for k in 0..3 {
+        let act = |i: &mut Interacting| {
+            if k == 0 {
+                i.release();
+            }
+            i.pending();
+        };
+        let (state, asked) = frame(&mut app, &act);
+        assert!(state.moving && state.scale == 0.25 && state.coarse, "{state:?}");
+        assert!(!asked, "a frame was asked for while the result was pending");
+        assert_eq!(app.world().get::<RenderScale>(camera), Some(&RenderScale(0.25)));
+    }
+    // Landed: the first frame without it refines at once (refine_after is an hour).
+    let (state, _) = frame(&mut app, &|_| {});
+    assert!(!state.moving && state.scale == 1.0 && !state.coarse, "{state:?}");
+    assert_eq!(app.world().get::<RenderScale>(camera), Some(&RenderScale(1.0)));
+    // Without a release, a drag whose result is pending goes on, and stays moving after it lands (no release).
+    for _ in 0..4 {
+        frame(&mut app, &|i| i.mark());
+    }
+    let (state, _) = frame(&mut app, &|i| i.pending());
+    assert!(state.moving && state.scale < 1.0, "{state:?}");
+    let (state, _) = frame(&mut app, &|_| {});
+    assert!(state.moving, "{state:?}");
+}

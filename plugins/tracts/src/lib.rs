@@ -1556,7 +1556,11 @@ pub fn apply_rois(
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
-    (background, keep_awake): (Res<RoiBackground>, Option<ResMut<fascicle_render::KeepAwake>>),
+    (background, mut keep_awake, mut interacting): (
+        Res<RoiBackground>,
+        Option<ResMut<fascicle_render::KeepAwake>>,
+        Option<ResMut<fascicle_render::budget::Interacting>>,
+    ),
     (mut layer_runs, mut arrived_before): (Local<HashMap<Entity, LayerRun>>, Local<bool>),
 ) {
     let removed_rois = removed.read().count();
@@ -1586,7 +1590,7 @@ pub fn apply_rois(
     // A changed ROI re-selects every set; a new set (a layer's next part) only itself.
     let rois_changed = !changed_rois.is_empty() || removed_any;
     if !rois_changed && !arrived && news.is_empty() {
-        note_pending(&layer_runs, &mut stats, keep_awake);
+        note_pending(&layer_runs, &mut stats, (keep_awake.as_deref_mut(), interacting.as_deref_mut()));
         return;
     }
     let t0 = Instant::now();
@@ -1666,21 +1670,36 @@ pub fn apply_rois(
     stats.last_ms = t0.elapsed().as_secs_f64() * 1e3;
     stats.selected = selected;
     stats.joined_layers = layer_selections.len();
-    note_pending(&layer_runs, &mut stats, keep_awake);
+    note_pending(&layer_runs, &mut stats, (keep_awake.as_deref_mut(), interacting.as_deref_mut()));
 }
 
 /// Counts the layers selected in the background into `stats`; while there are any, a window drawn on demand
-/// looks again (without redrawing a picture that did not change) until they are done.
+/// looks again (without redrawing a picture that did not change) until they are done, and while one is
+/// selected through its index (a drag's step, not a layer's first selection while it opens) the interaction
+/// that moved its ROIs is not over ([`fascicle_render::budget::Interacting::pending`]).
 fn note_pending(
     layer_runs: &HashMap<Entity, LayerRun>,
     stats: &mut RoiStats,
-    keep_awake: Option<ResMut<fascicle_render::KeepAwake>>,
+    (keep_awake, interacting): (
+        Option<&mut fascicle_render::KeepAwake>,
+        Option<&mut fascicle_render::budget::Interacting>,
+    ),
 ) {
-    stats.pending_layers = layer_runs.values().filter(|run| run.background.is_some()).count();
-    if stats.pending_layers > 0
-        && let Some(mut keep) = keep_awake
+    let pending = || layer_runs.values().filter_map(|run| run.background.as_ref());
+    let before = std::mem::replace(&mut stats.pending_layers, pending().count());
+    if let Some(keep) = keep_awake {
+        if stats.pending_layers > 0 {
+            keep.busy();
+        } else if before > 0 {
+            // The last one landed (or went with its layer): the next frame finds none pending, and draws at full
+            // quality after a drag.
+            keep.redraw();
+        }
+    }
+    if pending().any(|b| b.indexed)
+        && let Some(interacting) = interacting
     {
-        keep.busy();
+        interacting.pending();
     }
 }
 
@@ -1706,6 +1725,9 @@ pub struct LayerRun {
 struct Background {
     rois: Vec<Roi>,
     done: std::sync::mpsc::Receiver<Vec<bool>>,
+    /// Made through the built index (a drag's step, a second or two at 10M streamlines), not by testing every
+    /// streamline (minutes, while a layer opens).
+    indexed: bool,
 }
 
 impl LayerRun {
@@ -1725,13 +1747,14 @@ impl LayerRun {
     /// the drag's margins), else every streamline tested; without a thread, selects in the frame.
     fn start(&mut self, rois: &[Roi]) -> Option<Vec<bool>> {
         let (send, done) = std::sync::mpsc::channel();
+        let indexed = self.index.ready_or_build(&self.streamlines).is_some();
         let (t, list, index) = (self.streamlines.clone(), rois.to_vec(), self.index.clone());
         let spawned = std::thread::Builder::new()
             .name("tract selection".into())
             .spawn(move || _ = send.send(index.select(&t, &list)));
         match spawned {
             Ok(_) => {
-                self.background = Some(Background { rois: rois.to_vec(), done });
+                self.background = Some(Background { rois: rois.to_vec(), done, indexed });
                 None
             }
             Err(e) => {
@@ -2009,7 +2032,8 @@ mod tests {
             }
         };
         assert!(run.select(&a, &settings).is_none(), "selected in the frame without an index");
-        assert!(run.background.is_some());
+        // Not through the index: no interaction waits for it (`Interacting::pending`).
+        assert!(run.background.as_ref().is_some_and(|b| !b.indexed));
         // The ROI moves to `b` before `a`'s selection is done.
         let first = poll_until(&mut run, &b, &settings);
         assert!(first == want_a || first == want_b, "neither a's selection nor b's");
@@ -2027,6 +2051,7 @@ mod tests {
         // Above `indexed_above_streamlines`, built or not, in the background.
         let large = RoiBackground { indexed_above_streamlines: 1000, ..settings };
         assert!(run.select(&b, &large).is_none(), "selected in the frame above indexed_above_streamlines");
+        assert!(run.background.as_ref().is_some_and(|b| b.indexed), "a drag's step waits for it");
         assert_eq!(poll_until(&mut run, &b, &large), want_b);
         // A run no larger than the setting is selected in the frame, built or not.
         let mut small = LayerRun { index: LazyIndex::default(), ..run };
