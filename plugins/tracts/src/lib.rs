@@ -1740,14 +1740,14 @@ impl LayerRun {
             self.background = None;
             return Some(self.index.select(&self.streamlines, rois));
         }
-        if self.background.is_none() { self.start(rois) } else { None }
+        if self.background.is_none() { self.start(rois, built) } else { None }
     }
 
     /// Starts the selection for `rois` on a thread of its own (`None`): through the index when built (keeping
-    /// the drag's margins), else every streamline tested; without a thread, selects in the frame.
-    fn start(&mut self, rois: &[Roi]) -> Option<Vec<bool>> {
+    /// the drag's margins), else every streamline tested; without a thread, selects in the frame. `indexed`:
+    /// whether the index is built (read by [`note_pending`]).
+    fn start(&mut self, rois: &[Roi], indexed: bool) -> Option<Vec<bool>> {
         let (send, done) = std::sync::mpsc::channel();
-        let indexed = self.index.ready_or_build(&self.streamlines).is_some();
         let (t, list, index) = (self.streamlines.clone(), rois.to_vec(), self.index.clone());
         let spawned = std::thread::Builder::new()
             .name("tract selection".into())
@@ -1779,7 +1779,7 @@ impl LayerRun {
                 let stale = background.rois != rois;
                 self.background = None;
                 // Shown as it is, and the ROIs as they are now selected next.
-                if stale && let Some(now) = self.start(rois) {
+                if stale && let Some(now) = self.start(rois, built) {
                     return Some(now);
                 }
                 Some(sel)
