@@ -332,13 +332,14 @@ pub struct DragMargins {
     slots: Vec<Slot>,
 }
 
-/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`; a sphere's sweep in an epoch follows
-/// from it and the shapes before, [`sweep_end`]) and per streamline the margins and the epoch they were
-/// measured in (0: never).
+/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`) and the far ends of their sweeps
+/// (`sweeps[e - 1]`, [`sweep_end`] of that shape after the ones before, made once, when the margins were
+/// measured against it), and per streamline the margins and the epoch they were measured in (0: never).
 struct Slot {
     mode: RoiMode,
     kind: std::mem::Discriminant<RoiShape>,
     shapes: Vec<RoiShape>,
+    sweeps: Vec<Option<Vec3>>,
     margins: Option<Margins>,
 }
 
@@ -412,6 +413,7 @@ impl DragMargins {
                 mode: roi.mode,
                 kind,
                 shapes: vec![],
+                sweeps: vec![],
                 margins: (!matches!(roi.shape, RoiShape::Plane { .. })).then(|| Margins::zeroed(n)).flatten(),
             };
             match self.slots.get_mut(k) {
@@ -445,7 +447,7 @@ impl Slot {
     fn since(&self, e: usize, shape: &RoiShape) -> Since {
         let old = self.shapes[e];
         let shift = hausdorff(&old, shape);
-        let sweep = sweep_end(&self.shapes[..e], &old);
+        let sweep = self.sweeps[e];
         match (old, *shape, sweep) {
             (RoiShape::Sphere { centre: c0, radius: r0 }, RoiShape::Sphere { centre, radius }, Some(end)) => {
                 let (c0, c) = (Vec3::from(c0), Vec3::from(centre));
@@ -481,6 +483,7 @@ impl Slot {
         let since: Vec<Since> = (0..self.shapes.len()).map(|e| self.since(e, shape)).collect();
         let ahead = sweep_end(&self.shapes, shape);
         self.shapes.push(*shape);
+        self.sweeps.push(ahead);
         let now = self.shapes.len() as u32;
         // Decided from the margins where they can be; the rest tested one after another, each streamline's
         // first cache lines asked for two before while this one is tested (in a mapped file, a streamline is
@@ -855,26 +858,24 @@ fn sweep_end(before: &[RoiShape], shape: &RoiShape) -> Option<Vec3> {
         _ => None,
     };
     let RoiShape::Sphere { centre, radius } = *shape else { return None };
-    let c = Vec3::from(centre);
-    let v = c - centre_of(before.last()?)?;
+    let (c, c1) = (Vec3::from(centre), centre_of(before.last()?)?);
+    let v = c - c1;
     let len = (v.length() * SWEEP).min(radius.abs());
     if len <= 0.0 {
         return None;
     }
     let turned = before.len().checked_sub(2).and_then(|k| centre_of(&before[k])).map_or(v, |c2| {
-        let w = centre_of(&before[before.len() - 1]).map_or(Vec3::ZERO, |c1| c1 - c2);
-        let axis = w.cross(v);
-        let turn = axis.length().atan2(w.dot(v));
+        let axis = (c1 - c2).cross(v);
+        let turn = axis.length().atan2((c1 - c2).dot(v));
+        // A turn of more than a twelfth of a circle a step is no arc a hand follows.
+        if !(turn > 1e-4 && turn < std::f32::consts::FRAC_PI_6) {
+            return v;
+        }
         // Over `n` steps of length `s` turning `turn` each, an arc bows `n² s turn / 8` from its chord: `n` steps
         // keep within `BEND_FILL` of the reach (`REACH s`). The chord to `n` steps on lies `(n + 1) / 2` turns
-        // from the last step's chord. A turn of more than a twelfth of a circle a step is no arc a hand follows.
-        let n = (8.0 * REACH * BEND_FILL / turn.max(1e-6)).sqrt().min(SWEEP).floor();
-        let rotation = turn * (n + 1.0) / 2.0;
-        if turn > 1e-4 && turn < std::f32::consts::FRAC_PI_6 && axis.length_squared() > 0.0 {
-            glam::Quat::from_axis_angle(axis.normalize(), rotation) * v
-        } else {
-            v
-        }
+        // from the last step's chord.
+        let n = (8.0 * REACH * BEND_FILL / turn).sqrt().min(SWEEP).floor();
+        glam::Quat::from_axis_angle(axis.normalize(), turn * (n + 1.0) / 2.0) * v
     });
     Some(c + turned.normalize_or_zero() * len)
 }
