@@ -7,7 +7,7 @@
 
 use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::roi::{Cells, Ray, Roi, RoiMode, RoiShape};
@@ -267,13 +267,14 @@ impl StreamlineCells {
     /// without reading the streamline where it can: it meets the ROI while its witness is inside; it does not
     /// while its distance exceeds how far the ROI moved since (for spheres and boxes: the signed distance to a
     /// convex region moves by at most the regions' Hausdorff distance), or its distance from the swept sphere
-    /// how far the sphere is from it. A sphere also leaves the streamline's span along the line of the drag's
-    /// sweep (its last step, turned along the arc when the drag bends), where the sphere grown by a tenth of the
-    /// step holds one of its points (outside it, the streamline is out), and its cover, where the sphere shrunk
-    /// so holds one (inside it, in); both valid while the centre keeps within that tenth of the line.
-    /// On the generated 1M-streamline brain, a 1 mm step of a 10 mm sphere along a line reads about 5k of its
-    /// 50k candidates (10.5k of 68k with the witnesses alone and whole cells, 21k without the sweep); along an
-    /// arc of 40 mm, 7.1k (8.5k along the last step's line).
+    /// how far the sphere is from it. A sphere also leaves the streamline's span along the drag's path (the
+    /// circle through its last three centres, a line when they are in line), where the sphere grown by
+    /// a tenth of the step holds one of its points (outside it, the streamline is out), and its cover, where the
+    /// sphere shrunk so holds one (inside it, in); both valid while the centre keeps within that tenth of the
+    /// path, within three radii of where they were measured. On the generated 1M-streamline brain,
+    /// 40 steps of 1 mm of a 10 mm sphere read 5.4k of its 50k candidates a step along a line (the first step
+    /// reads all 51k, the others 4.2k), 5.9k, 5.6k and 5.6k along arcs of 20, 40 and 100 mm radius (7.8k, 7.1k and
+    /// 6.8k with spans along a line aimed at the arc's chord, 9.4k, 8.5k and 7.7k along the last step's line).
     /// Keep one `drag` per set of ROIs: a change in their number, modes or kinds starts it afresh.
     pub fn select_dragging<'a>(
         &self,
@@ -325,21 +326,23 @@ impl StreamlineCells {
 /// What [`StreamlineCells::select_dragging`] remembers between the steps of a drag: per ROI (spheres and
 /// boxes; planes are always tested) and per streamline tested, its signed distance to the ROI (the least over
 /// its points; negative inside), its distance to the sphere swept on along the drag's last step (8 steps on), a
-/// witness point, its span and cover along that step's line, and which of the ROI's past shapes they were
+/// witness point, its span and cover along the drag's path, and which of the ROI's past shapes they were
 /// measured against. 32 bytes per streamline and ROI.
 #[derive(Default)]
 pub struct DragMargins {
     slots: Vec<Slot>,
 }
 
-/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`) and the far ends of their sweeps
-/// (`sweeps[e - 1]`, [`sweep_end`] of that shape after the ones before, made once, when the margins were
+/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`), the far ends of their sweeps
+/// (`sweeps[e - 1]`, [`sweep_end`] of that shape after the ones before) and their paths (`paths[e - 1]`,
+/// [`Path::through`] its centre and the two before), each made once, when the margins were
 /// measured against it), and per streamline the margins and the epoch they were measured in (0: never).
 struct Slot {
     mode: RoiMode,
     kind: std::mem::Discriminant<RoiShape>,
     shapes: Vec<RoiShape>,
     sweeps: Vec<Option<Vec3>>,
+    paths: Vec<Path>,
     margins: Option<Margins>,
 }
 
@@ -414,6 +417,7 @@ impl DragMargins {
                 kind,
                 shapes: vec![],
                 sweeps: vec![],
+                paths: vec![],
                 margins: (!matches!(roi.shape, RoiShape::Plane { .. })).then(|| Margins::zeroed(n)).flatten(),
             };
             match self.slots.get_mut(k) {
@@ -433,11 +437,11 @@ struct Since {
     /// How far the shape's sphere lies from the past one swept on (mm: its centre from the swept segment, plus
     /// the change of radius); `shift` when there was no sweep.
     swept: f32,
-    /// How far along the past sweep's line the centre's foot lies (mm), when the shape lies within the past
-    /// sphere grown ([`grown_and_shrunk`]) and moved there; NaN otherwise. A streamline whose entry lies beyond it
+    /// Where along the past path the centre's foot lies (its place, [`Path`]), when the shape lies within the
+    /// past sphere grown ([`grown_and_shrunk`]) and moved there; NaN otherwise. A streamline whose entry lies beyond it
     /// or whose exit lies before it does not meet the shape.
     along: f32,
-    /// The same foot (mm), when the shape holds the past sphere shrunk and moved there; NaN
+    /// The same foot, when the shape holds the past sphere shrunk and moved there; NaN
     /// otherwise. A streamline whose cover holds it meets the shape.
     covered: f32,
 }
@@ -452,16 +456,18 @@ impl Slot {
             (RoiShape::Sphere { centre: c0, radius: r0 }, RoiShape::Sphere { centre, radius }, Some(end)) => {
                 let (c0, c) = (Vec3::from(c0), Vec3::from(centre));
                 let swept = segment_distance(c, c0, end) + (radius - r0).abs();
-                // A point within `radius` of `c` is within `radius + off` of `c`'s foot on the line, `t` along
+                // A point within `radius` of `c` is within `radius + off` of `c`'s foot on the path, `t` along
                 // it: within the grown sphere there, so `t` lies between the streamline's entry and exit; and a
                 // point within the shrunk sphere there is within `radius`.
-                let u = (end - c0).normalize_or_zero();
-                let t = (c - c0).dot(u);
-                let off = f64::from((c - c0 - u * t).length());
+                // The spans hold only the points within reach of the path's first `WINDOW` radii each way.
+                let path = self.paths[e];
+                let (t, off) = path.foot((c - c0).as_dvec3());
                 let (grown, shrunk) = grown_and_shrunk(r0, c0, end);
                 let (r, slack) = (f64::from(radius.abs()), f64::from(MARGIN_SLACK));
-                let within = r + off <= grown - slack;
-                let holds = shrunk + off <= r - slack;
+                let inside = path.arc(t).abs() <= WINDOW * f64::from(r0.abs());
+                let within = inside && r + off <= grown - slack;
+                let holds = inside && shrunk + off <= r - slack;
+                let t = t as f32;
                 let at = |yes: bool| if yes { t } else { f32::NAN };
                 Since { shift, swept, along: at(within), covered: at(holds) }
             }
@@ -481,9 +487,10 @@ impl Slot {
             return meets_exactly(shape, ids, streamline);
         };
         let since: Vec<Since> = (0..self.shapes.len()).map(|e| self.since(e, shape)).collect();
-        let ahead = sweep_end(&self.shapes, shape);
         self.shapes.push(*shape);
+        let (ahead, path) = (sweep_end(&self.shapes), path_through(&self.shapes));
         self.sweeps.push(ahead);
+        self.paths.push(path);
         let now = self.shapes.len() as u32;
         // Decided from the margins where they can be; the rest tested one after another, each streamline's
         // first cache lines asked for two before while this one is tested (in a mapped file, a streamline is
@@ -533,7 +540,7 @@ impl Slot {
                     if let Some(next) = points.get(k + PREFETCH_AHEAD) {
                         prefetch(next);
                     }
-                    let measured = measure(shape, ahead, points[k]);
+                    let measured = measure(shape, ahead, &path, points[k]);
                     let m = &mem[s as usize].0;
                     m[MARGIN].store(measured.margin.to_bits(), Ordering::Relaxed);
                     m[SWEPT].store(measured.swept.to_bits(), Ordering::Relaxed);
@@ -610,28 +617,28 @@ struct Measured {
     /// The least signed distance of its points to the sphere swept from its centre to the sweep's end (mm; the
     /// margin itself without a sweep, and for boxes).
     swept: f32,
-    /// Where along the sweep's line (mm from the centre, backward negative) the sphere grown ([`grown_and_shrunk`])
+    /// Where along the path (a place, [`Path`]; backward negative) the sphere grown ([`grown_and_shrunk`])
     /// first has a point within it: infinite when none ever does (NaN for boxes and without finite points).
     entry: f32,
-    /// Where along that line it last has one (negative infinity when none ever does, NaN as above).
+    /// Where along that path it last has one (negative infinity when none ever does, NaN as above).
     exit: f32,
-    /// A span of that line over which the sphere shrunk always holds one of the streamline's points
+    /// A span of that path over which the sphere shrunk always holds one of the streamline's points
     /// (mm; the span of successive points whose own spans overlap: the one that holds the centre, or else the
     /// first ahead; empty (NaN) when none).
     cover: (f32, f32),
-    /// For a sphere, the point inside that stays inside longest as the sphere is swept on, or (not meeting it)
-    /// the point the sweep comes over first (NaN without one); for a box, the point of the least signed
+    /// For a sphere, the point inside that stays inside longest as the sphere goes on along the path, or (not
+    /// meeting it) the point it comes over first (NaN without one); for a box, the point of the least signed
     /// distance.
     witness: Vec3,
 }
 
-/// Tests a streamline against a sphere or a box (a sphere swept on to `ahead`, when given) and measures its
-/// margins; a plane is tested only.
-fn measure(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> Measured {
+/// Tests a streamline against a sphere or a box (a sphere swept on to `ahead`, when given, its spans measured
+/// along `path`) and measures its margins; a plane is tested only.
+fn measure(shape: &RoiShape, ahead: Option<Vec3>, path: &Path, pts: &[Vec3]) -> Measured {
     match *shape {
         RoiShape::Sphere { centre, radius } => {
             // The squared distance as `contains` computes it, so that "the least is within the radius" is
-            // "a point is inside"; a square root only for the points near the sweep's line.
+            // "a point is inside"; a square root only for the points near the path.
             let c = Vec3::from(centre);
             let end = ahead.unwrap_or(c);
             let d = end - c;
@@ -639,12 +646,15 @@ fn measure(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> Measured {
             let (r2, r) = (radius * radius, f64::from(radius.abs()));
             let (grown, shrunk) = grown_and_shrunk(radius, c, end);
             let near2 = (grown * grown) as f32 + NEAR_SLACK;
+            // Points farther from the centre than this are farther than `grown` from the path's first `WINDOW`
+            // radii each way (its points there are within that arc length of the centre): left out of the spans.
+            let window2 = ((WINDOW * r + grown).powi(2)) as f32 + NEAR_SLACK;
             let (mut entry, mut exit_grown) = (f32::INFINITY, f32::NEG_INFINITY);
-            // Along the sweep's direction `u`, point `p` is inside the sphere centred at `c + t u` for `t` in
-            // `a - h..a + h` (`a` its distance along `u`, `h` half its chord): the witness of a streamline that
-            // meets the sphere is its point inside that stays inside the longest (the largest `a + h`); of one
-            // that does not, its point ahead that comes inside first (the least `a - h > 0`). Its entry and exit
-            // are where the grown sphere first and last holds a point ([`span`]).
+            // Along the path, point `p` is inside the sphere centred `t` along it for `t` in a span
+            // ([`Path::span`]): the witness of a streamline that meets the sphere is its point inside that stays
+            // inside the longest (the span reaching farthest); of one that does not, its point ahead that comes
+            // inside first (the least start ahead). Its entry and exit are where the grown sphere first and last
+            // holds a point.
             let (mut exit, mut exiting) = (f32::NEG_INFINITY, usize::MAX);
             let (mut first, mut entering) = (f32::INFINITY, usize::MAX);
             // Spans of successive points over which the shrunk sphere holds one of them: the one growing, and
@@ -652,8 +662,11 @@ fn measure(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> Measured {
             let none = (f32::NAN, f32::NAN);
             let (mut run, mut cover) = (none, none);
             // Eight points at a time, each lane with its own least distances (vectorised); the few points near
-            // the sweep's line in point order after them (a point not held by the shrunk sphere ends a run).
+            // the path in point order after them (a point not held by the shrunk sphere ends a run).
             let (mut least8, mut swept8) = ([f32::INFINITY; LANES], [f32::INFINITY; LANES]);
+            let k = path.kappa as f32;
+            let kernel = Kernel { c, u, len, tangent: path.u.as_vec3(), out: path.out.as_vec3(), k, near2, window2 };
+            let bent = k > 0.0;
             for (at, chunk) in pts.chunks(LANES).enumerate() {
                 // A whole chunk as an array (a copy the compiler inlines; `copy_from_slice` of a slice's length
                 // was a call to `memmove` for every eight points, a third of a 10M drag step's samples).
@@ -662,18 +675,12 @@ fn measure(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> Measured {
                     chunk.iter().enumerate().for_each(|(i, p)| lanes[i] = *p);
                     lanes
                 });
-                let (mut q8, mut near8) = ([0.0f32; LANES], [false; LANES]);
-                for i in 0..LANES {
-                    let w = lanes[i] - c;
-                    let q = w.x * w.x + (w.y * w.y + w.z * w.z);
-                    let a = w.dot(u);
-                    // The squared distance to the swept centre's segment, from `q` and `a`.
-                    let along = a.clamp(0.0, len);
-                    least8[i] = least8[i].min(q);
-                    swept8[i] = swept8[i].min(q - along * (2.0 * a - along));
-                    q8[i] = q;
-                    near8[i] = q - a * a <= near2;
-                }
+                let mut q8 = [0.0f32; LANES];
+                // (One loop for each kind of path, each vectorised.)
+                let near8 = match bent {
+                    true => lanes8::<true>(&lanes, &kernel, &mut least8, &mut swept8, &mut q8),
+                    false => lanes8::<false>(&lanes, &kernel, &mut least8, &mut swept8, &mut q8),
+                };
                 if !near8.contains(&true) {
                     cover = better_cover(cover, run);
                     run = none;
@@ -682,13 +689,11 @@ fn measure(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> Measured {
                 for (i, p) in chunk.iter().enumerate() {
                     let mut held = false;
                     if near8[i] {
-                        // Exactly, in f64 (`q - a * a` cancels in f32 near the line's tangents).
-                        let w = p.as_dvec3() - c.as_dvec3();
-                        let a64 = w.dot(u.as_dvec3());
-                        let off64 = w.length_squared() - a64 * a64;
-                        if let Some((lo, hi)) = span(grown, a64, off64) {
+                        // Exactly, in f64 (the f32 distances from the path cancel near its tangents).
+                        let w = path.coordinates(p.as_dvec3() - c.as_dvec3());
+                        if let Some((lo, hi)) = path.span(grown, w, true) {
                             (entry, exit_grown) = (entry.min(lo as f32), exit_grown.max(hi as f32));
-                            if let Some((lo, hi)) = span(r, a64, off64) {
+                            if let Some((lo, hi)) = path.span(r, w, true) {
                                 let (lo, hi) = (lo as f32, hi as f32);
                                 if q8[i] <= r2 {
                                     if hi > exit {
@@ -698,7 +703,7 @@ fn measure(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> Measured {
                                     (first, entering) = (lo, at * LANES + i);
                                 }
                             }
-                            if let Some((lo, hi)) = span(shrunk, a64, off64) {
+                            if let Some((lo, hi)) = path.span(shrunk, w, false) {
                                 let (lo, hi) = (lo as f32, hi as f32);
                                 // (No run yet, NaN, overlaps nothing.)
                                 if lo <= run.1 && run.0 <= hi {
@@ -760,7 +765,72 @@ fn measure(shape: &RoiShape, ahead: Option<Vec3>, pts: &[Vec3]) -> Measured {
     }
 }
 
-/// Of the span kept so far and a new one along a sweep's line (mm; NaN: none), the one a drag along it is held
+/// What [`measure`] needs of a sphere and its path for [`lanes8`].
+struct Kernel {
+    /// The sphere's centre.
+    c: Vec3,
+    /// The unit direction of its sweep and the sweep's length (mm).
+    u: Vec3,
+    len: f32,
+    /// The path's tangent, the direction out from its circle's centre, its curvature ([`Path`]).
+    tangent: Vec3,
+    out: Vec3,
+    k: f32,
+    /// How near the path a point is near it, and the window's reach, squared (mm²).
+    near2: f32,
+    window2: f32,
+}
+
+/// For eight points, the squared distance from the sphere's centre (into `q8`; the least so far in `least8`)
+/// and from its sweep (`swept8`), and whether each is near the path (a line, or a circle when `BENT`) within
+/// the window: at most its squared distance to the path is within `near2`.
+#[inline(always)]
+fn lanes8<const BENT: bool>(
+    lanes: &[Vec3; LANES],
+    kernel: &Kernel,
+    least8: &mut [f32; LANES],
+    swept8: &mut [f32; LANES],
+    q8: &mut [f32; LANES],
+) -> [bool; LANES] {
+    let Kernel { c, u, len, tangent, out, k, near2, window2 } = *kernel;
+    // The lanes' coordinates apart (x, y, z of each), so that the arithmetic below is on whole vectors; the
+    // least kept by comparisons, which the compiler makes a vector's minimum (`f32::min` it did not: its NaN
+    // rule is not the instruction's). NaN padding compares false and is passed over as `min` would.
+    let mut w8 = [[0.0f32; LANES]; 3];
+    for (i, p) in lanes.iter().enumerate() {
+        let w = *p - c;
+        (w8[0][i], w8[1][i], w8[2][i]) = (w.x, w.y, w.z);
+    }
+    let mut near8 = [false; LANES];
+    for i in 0..LANES {
+        let (x, y, z) = (w8[0][i], w8[1][i], w8[2][i]);
+        // As `contains` and `Vec3::dot` compute them.
+        let q = x * x + (y * y + z * z);
+        let a = x * u.x + y * u.y + z * u.z;
+        // The squared distance to the swept centre's segment, from `q` and `a` (`a` clamped to the segment).
+        let along = if a > 0.0 { if a < len { a } else { len } } else { 0.0 };
+        let swept = q - along * (2.0 * a - along);
+        least8[i] = if q < least8[i] { q } else { least8[i] };
+        swept8[i] = if swept < swept8[i] { swept } else { swept8[i] };
+        q8[i] = q;
+        let near = if BENT {
+            // Off the plane `h`, and radially in it: `(rho - R)^2 + h^2 <= near2` for the distance `rho` from
+            // the circle's centre, squared twice over (no root) and over `R^2`.
+            let ox = x * out.x + y * out.y + z * out.z;
+            let ty = x * tangent.x + y * tangent.y + z * tangent.z;
+            let g = near2 - (q - ox * ox - ty * ty);
+            let m = 2.0 * ox + k * (ox * ox + ty * ty) - k * g;
+            (g >= 0.0) & (m * m <= 4.0 * g)
+        } else {
+            // Off the line (the sweep's, the path's).
+            q - a * a <= near2
+        };
+        near8[i] = (q <= window2) & near;
+    }
+    near8
+}
+
+/// Of the span kept so far and a new one along a drag's path (places; NaN: none), the one a drag along it is held
 /// by longest: one that holds the centre (0), the one reaching farther ahead; else the first ahead.
 fn better_cover(kept: (f32, f32), new: (f32, f32)) -> (f32, f32) {
     let holds = |s: (f32, f32)| s.0 <= 0.0 && 0.0 <= s.1;
@@ -773,19 +843,105 @@ fn better_cover(kept: (f32, f32), new: (f32, f32)) -> (f32, f32) {
     if better { new } else { kept }
 }
 
-/// The span of the line along which a sphere of `radius` (mm) moves over which it holds a point `a` mm along the
-/// line and `off2` mm² from it squared (mm along the line, or `None`).
-fn span(radius: f64, a: f64, off2: f64) -> Option<(f64, f64)> {
-    let h2 = radius * radius - off2;
-    (h2 >= 0.0).then(|| {
-        let h = h2.sqrt();
-        (a - h, a + h)
-    })
+/// The path a moved sphere's spans are measured along ([`measure`]) and its later centres placed on
+/// ([`Slot::since`]): the circle through its last three centres, or the line of its last step (curvature 0).
+/// A place on it is given by `2 tan(kappa t / 2) / kappa` for the arc length `t` from the sphere's centre
+/// (forward positive): on a line the length itself, on a circle the same near the centre (mm) and growing
+/// without bound half a turn away; in it a sphere's places along the path are a quadratic's roots (no
+/// trigonometry), and it orders them as the arc length does.
+#[derive(Clone, Copy, Debug)]
+struct Path {
+    /// Unit tangent at the centre, forward (zero before a first step).
+    u: DVec3,
+    /// Unit, in the circle's plane, from the circle's centre out through the sphere's (zero for a line).
+    out: DVec3,
+    /// Curvature (1/mm; 0 for a line).
+    kappa: f64,
+}
+
+impl Path {
+    /// The path of a sphere at `c` whose centre was at `b` the step before and at `a` the one before that:
+    /// the circle through the three while both steps go forward (a line when they are in line), else the line
+    /// from `b`; none (no direction) without `b`.
+    fn through(a: Option<Vec3>, b: Option<Vec3>, c: Vec3) -> Path {
+        let c = c.as_dvec3();
+        let Some(b) = b.map(Vec3::as_dvec3) else { return Path { u: DVec3::ZERO, out: DVec3::ZERO, kappa: 0.0 } };
+        let step = c - b;
+        let line = Path { u: step.normalize_or_zero(), out: DVec3::ZERO, kappa: 0.0 };
+        let Some(a) = a.map(Vec3::as_dvec3).filter(|a| (b - a).dot(step) > 0.0) else { return line };
+        // The circumcentre, from `c`.
+        let (p, q) = (a - c, b - c);
+        let n = p.cross(q);
+        let centre = (q * p.length_squared() - p * q.length_squared()).cross(n) / (2.0 * n.length_squared());
+        let radius = centre.length();
+        let out = -centre / radius;
+        let u = (step - out * step.dot(out)).normalize_or_zero();
+        if radius.is_finite() && out.is_finite() && u != DVec3::ZERO {
+            Path { u, out, kappa: 1.0 / radius }
+        } else {
+            line
+        }
+    }
+
+    /// The place on the path of the foot of the point `w` from the centre (the path's point nearest it), and
+    /// how far `w` is from the path there (mm).
+    fn foot(&self, w: DVec3) -> (f64, f64) {
+        let (x, y, k) = (w.dot(self.out), w.dot(self.u), self.kappa);
+        if k > 0.0 {
+            // Off the circle radially in its plane (its distance from the circle's centre less the radius,
+            // without the cancellation) and off the plane; `2 tan(theta / 2) / kappa` from the foot's angle's
+            // sine and cosine.
+            let far = ((1.0 + k * x).powi(2) + (k * y).powi(2)).sqrt();
+            let radial = (2.0 * x + k * (x * x + y * y)) / (1.0 + far);
+            let plane = (w.length_squared() - x * x - y * y).max(0.0);
+            (2.0 * y / (1.0 + k * x + far), (radial * radial + plane).sqrt())
+        } else {
+            (y, (w - self.u * y).length())
+        }
+    }
+
+    /// The arc length (mm) to a place on the path.
+    fn arc(&self, place: f64) -> f64 {
+        let k = self.kappa;
+        if k > 0.0 { 2.0 * (k * place / 2.0).atan() / k } else { place }
+    }
+
+    /// A point `w` from the centre as [`Path::span`] takes it: its squared distance from the centre, its
+    /// distance out from the circle's centre (0 for a line) and along the tangent (mm).
+    fn coordinates(&self, w: DVec3) -> [f64; 3] {
+        [w.length_squared(), w.dot(self.out), w.dot(self.u)]
+    }
+
+    /// The places on the path where a sphere of radius `rho` centred there holds the point of `coordinates`
+    /// ([`Path::coordinates`]): a span, or none. Where the path curls round the point so that the places are
+    /// not one span of it, the whole path when `outward` (a span that must hold the true places), none otherwise.
+    fn span(&self, rho: f64, [q, x, y]: [f64; 3], outward: bool) -> Option<(f64, f64)> {
+        let k = self.kappa;
+        let d = rho * rho - q;
+        if k == 0.0 {
+            let disc = y * y + d;
+            return (disc >= 0.0).then(|| (y - disc.sqrt(), y + disc.sqrt()));
+        }
+        // The sphere at place `tau` holds `w` where `a tau^2 - 2 y tau - d <= 0` (on a line:
+        // `|w - tau u|^2 <= rho^2`).
+        let a = 1.0 + k * x - k * k * d / 4.0;
+        if a.is_nan() || a <= 0.0 {
+            return outward.then_some((f64::NEG_INFINITY, f64::INFINITY));
+        }
+        let disc = y * y + a * d;
+        if disc.is_nan() || disc < 0.0 {
+            return None;
+        }
+        // The roots without cancellation: the larger in size from `y` and the root, the other from their product.
+        let big = y + disc.sqrt().copysign(y);
+        let (r0, r1) = if big == 0.0 { (0.0, 0.0) } else { (big / a, -d / big) };
+        Some((r0.min(r1), r0.max(r1)))
+    }
 }
 
 /// The radii a sphere of `radius` at `centre`, swept on to `end`, is measured with: grown (a streamline is out
 /// while the drag keeps within it, away from its span) and shrunk (one it holds is in while the drag keeps
-/// within that), by [`REACH`] of the drag's step, so that a drag a little off its line still finds them
+/// within that), by [`REACH`] of the drag's step, so that a drag a little off its path still finds them
 /// decided. Without a sweep, both are the radius itself.
 fn grown_and_shrunk(radius: f32, centre: Vec3, end: Vec3) -> (f64, f64) {
     let (r, reach) = (f64::from(radius.abs()), f64::from(centre.distance(end) / SWEEP * REACH));
@@ -793,10 +949,16 @@ fn grown_and_shrunk(radius: f32, centre: Vec3, end: Vec3) -> (f64, f64) {
 }
 
 /// How far a sphere is grown or shrunk for its streamlines' spans, as a part of the drag's step: the drag's
-/// centre may stray that far off the line of its last step and still find them valid. On the generated 1M
+/// centre may stray that far off its path ([`Path`]) and still find them valid. On the generated 1M
 /// brain (before the cells' eighths), a straight 1 mm drag read 6.4k streamlines a step at 0.1, 7.5k at 0.3,
 /// 9.4k at 1.
 const REACH: f32 = 0.1;
+
+/// How far along a path its spans reach, in radii of the sphere each way: a drag that goes on farther reads
+/// the streamlines near the sphere again. On a circle wider than the sphere (radius above 3/π of the sphere's),
+/// 3 radii of arc stay short of a half turn, where a place grows without bound. On
+/// the 1M brain's arcs of 20 to 100 mm, 2 radii read 8 % more a step, 5 radii 1 % less.
+const WINDOW: f64 = 3.0;
 
 /// How many points [`measure`] takes at a time.
 const LANES: usize = 8;
@@ -805,7 +967,7 @@ const LANES: usize = 8;
 /// cancellation in `q - a²` at a brain's distances is far below it.
 const NEAR_SLACK: f32 = 1.0;
 
-/// A span along a sweep's line (mm) in 32 bits: each end in 1/32 mm as an `i16`, rounded `outward` (a span that
+/// A span along a drag's path (places, [`Path`]: mm near the centre) in 32 bits: each end in 1/32 mm as an `i16`, rounded `outward` (a span that
 /// must hold the true one: where a streamline may meet a sphere) or inward (one the true one must hold: where it
 /// surely does); past about ±1 m an end is infinite or the last finite value, whichever lies that way. A span
 /// with a NaN end is everything outward and nothing inward.
@@ -844,47 +1006,32 @@ fn unpack_span(bits: u32) -> (f32, f32) {
 /// Steps of a packed span per mm.
 const SPAN_UNITS: f32 = 32.0;
 
-/// The far end of the segment a sphere's centre is swept along when its margins are measured against `shape`,
-/// after the shapes of `before` (oldest first): [`SWEEP`] steps like the last one, at most the radius long;
-/// `None` without such a step (the first shape, not two spheres, or no move). A drag that turned between its last
-/// two steps is taken to go on turning as much a step: the sweep then points at where it will be some steps on
-/// (the chord of that arc, not its tangent), as many as keep the arc within [`BEND_FILL`] of the spans' reach
-/// ([`REACH`]) of the chord, so that the next steps keep near the sweep's line and find the spans measured along
-/// it valid. On the generated 1M brain, 10 mm sphere, 1 mm steps along arcs of 20, 40 and 100 mm radius: 7.8k,
-/// 7.1k and 6.8k streamlines read a step, against 9.4k, 8.5k and 7.7k swept along the last step's line.
-fn sweep_end(before: &[RoiShape], shape: &RoiShape) -> Option<Vec3> {
-    let centre_of = |s: &RoiShape| match *s {
+/// The far end of the segment the centre of the last of `shapes` (oldest first) is swept along when its margins
+/// are measured: [`SWEEP`] steps like its last one, at most the radius long; `None` without such a step (the
+/// first shape, not two spheres, or no move).
+fn sweep_end(shapes: &[RoiShape]) -> Option<Vec3> {
+    let [.., before, now] = shapes else { return None };
+    let (RoiShape::Sphere { centre: c1, .. }, RoiShape::Sphere { centre, radius }) = (*before, *now) else {
+        return None;
+    };
+    let c = Vec3::from(centre);
+    let v = c - Vec3::from(c1);
+    let len = (v.length() * SWEEP).min(radius.abs());
+    (len > 0.0).then(|| c + v.normalize_or_zero() * len)
+}
+
+/// The path a sphere's spans are measured along, the last of `shapes` (oldest first): through its centre and the
+/// two before ([`Path::through`]); a path of no direction when it is not a sphere after a sphere.
+fn path_through(shapes: &[RoiShape]) -> Path {
+    let centre = |s: &RoiShape| match *s {
         RoiShape::Sphere { centre, .. } => Some(Vec3::from(centre)),
         _ => None,
     };
-    let RoiShape::Sphere { centre, radius } = *shape else { return None };
-    let (c, c1) = (Vec3::from(centre), centre_of(before.last()?)?);
-    let v = c - c1;
-    let len = (v.length() * SWEEP).min(radius.abs());
-    if len <= 0.0 {
-        return None;
-    }
-    let turned = before.len().checked_sub(2).and_then(|k| centre_of(&before[k])).map_or(v, |c2| {
-        let axis = (c1 - c2).cross(v);
-        let turn = axis.length().atan2((c1 - c2).dot(v));
-        // A turn of more than a twelfth of a circle a step is no arc a hand follows.
-        if !(turn > 1e-4 && turn < std::f32::consts::FRAC_PI_6) {
-            return v;
-        }
-        // Over `n` steps of length `s` turning `turn` each, an arc bows `n² s turn / 8` from its chord: `n` steps
-        // keep within `BEND_FILL` of the reach (`REACH s`). The chord to `n` steps on lies `(n + 1) / 2` turns
-        // from the last step's chord.
-        let n = (8.0 * REACH * BEND_FILL / turn).sqrt().min(SWEEP).floor();
-        glam::Quat::from_axis_angle(axis.normalize(), turn * (n + 1.0) / 2.0) * v
-    });
-    Some(c + turned.normalize_or_zero() * len)
+    let mut back = shapes.iter().rev().map(centre);
+    let c = back.next().flatten().unwrap_or(Vec3::ZERO);
+    let (b, a) = (back.next().flatten(), back.next().flatten());
+    Path::through(a, b, c)
 }
-
-/// How much of the spans' reach ([`REACH`]) a turning drag's path may bow from its sweep's line ([`sweep_end`]):
-/// along an arc of 40 mm radius in 1 mm steps, the chord to 5 steps on (0.08 mm at most from the arc), which
-/// keeps the first 6 steps valid where the last step's line kept 2. On the 1M brain's arcs, 0.6 and 1.0 read
-/// up to 2 % and 3 % more.
-const BEND_FILL: f32 = 0.8;
 
 /// The distance from `p` to the segment `a`-`b` (mm).
 fn segment_distance(p: Vec3, a: Vec3, b: Vec3) -> f32 {
@@ -1181,10 +1328,10 @@ mod tests {
     /// A drag along a straight line reads little beyond the streamlines it must: the sphere swept on along the
     /// drag decides the streamlines beside its path, and a streamline's span and cover along the drag's line
     /// decide it until the sphere reaches it and while the sphere holds it. From the fifth step of 1 mm steps,
-    /// under a tenth of the candidates are read (7.6 %; 12.7 % with the witnesses and margins alone, checked by
-    /// leaving the spans out). Then it turns back, and bends along an arc: every step keeps what a fresh
-    /// selection keeps. Along an arc of 40 mm radius, under 12 % are read (the sweep aimed along the arc's
-    /// chord). Each streamline read is counted once a step (a prefetch asks for it too).
+    /// under a tenth of the candidates are read (8.7 %). Then it turns back, and bends along an arc: every step
+    /// keeps what a fresh selection keeps. Along an arc of 40 mm radius, under a tenth are read too (the spans
+    /// along the circle the drag follows). Each streamline read is counted once a step (a prefetch asks for it
+    /// too).
     #[test]
     fn a_straight_drag_reads_few_streamlines() {
         use std::sync::atomic::AtomicBool;
@@ -1234,8 +1381,8 @@ mod tests {
                 candidates += index.candidates(&shape).len();
             }
         }
-        // 10.9 %; 13.9 % with the sweep along the last step's line (`sweep_end`'s chord left out).
-        assert!(tested * 25 < candidates * 3, "a drag along an arc read {tested} of {candidates} candidates");
+        // 9.0 %; 10.9 % with spans along a line aimed at the arc's chord, 13.9 % along the last step's line.
+        assert!(tested * 10 < candidates, "a drag along an arc read {tested} of {candidates} candidates");
     }
 
     /// A packed span holds the true one when rounded outward and lies within it (or is empty) when rounded
@@ -1293,5 +1440,114 @@ mod tests {
         }
         assert_eq!(shares(&[1u64, 1, 0], |&w| w, 2), vec![&[1u64][..], &[1, 0][..]]);
         assert!(shares::<u64>(&[], |&w| w, 2).is_empty());
+    }
+
+    /// A path through three centres on a circle is that circle; its spans hold the places where a sphere holds a
+    /// point, and only those, and its foot is the place nearest a point: against each path sampled every 0.01 mm
+    /// (circles of 12 mm to 10 m radius in three planes, lines; points near and far, on either side).
+    #[test]
+    fn a_path_places_spheres_as_its_samples_do() {
+        let mut rng = 4242u64;
+        let mut uniform = |lo: f64, hi: f64| {
+            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            lo + (hi - lo) * ((rng >> 11) as f64 / (1u64 << 53) as f64)
+        };
+        let frames = [
+            (DVec3::X, DVec3::Y),
+            (DVec3::new(0.6, 0.0, 0.8), DVec3::new(0.0, 1.0, 0.0)),
+            (DVec3::new(0.0, 0.6, -0.8), DVec3::new(0.48, 0.64, 0.48).normalize()),
+        ];
+        let mut checked = 0;
+        for (f, &(out, tangent)) in frames.iter().enumerate() {
+            let tangent = (tangent - out * tangent.dot(out)).normalize();
+            let c = DVec3::new(10.0 * f as f64, -5.0, 3.0);
+            for radius in [12.0, 40.0, 300.0, 1e4, f64::INFINITY] {
+                // Along the circle (or line) through `c`, `s` mm of arc on.
+                let at = |s: f64| {
+                    if radius.is_finite() {
+                        let th = s / radius;
+                        c + (out * (th.cos() - 1.0) + tangent * th.sin()) * radius
+                    } else {
+                        c + tangent * s
+                    }
+                };
+                let step = 3.0;
+                let f32s = |p: DVec3| p.as_vec3();
+                let path = Path::through(Some(f32s(at(-2.0 * step))), Some(f32s(at(-step))), f32s(c));
+                let k = if radius.is_finite() { 1.0 / radius } else { 0.0 };
+                assert!((path.kappa - k).abs() <= 1e-2 * k + 1e-6, "radius {radius}: curvature {}", path.kappa);
+                assert!(path.u.dot(tangent) > 0.999, "radius {radius}: tangent {}", path.u);
+                for back in [step, 2.0 * step] {
+                    let (place, off) = path.foot(at(-back) - c);
+                    assert!(
+                        off < 1e-3 && (path.arc(place) + back).abs() < 1e-3,
+                        "radius {radius}: foot of {back} back"
+                    );
+                }
+                // The path's own places and positions, sampled (a line, or its circle but the far side).
+                let k = path.kappa;
+                let reach = if k > 0.0 { (std::f64::consts::PI / k - 1.0).min(200.0) } else { 200.0 };
+                let samples: Vec<(f64, DVec3)> = (-(reach * 100.0) as i64..=(reach * 100.0) as i64)
+                    .map(|i| i as f64 / 100.0)
+                    .map(|s| match k > 0.0 {
+                        true => (
+                            2.0 * (k * s / 2.0).tan() / k,
+                            c + (path.out * ((k * s).cos() - 1.0) + path.u * (k * s).sin()) / k,
+                        ),
+                        false => (s, c + path.u * s),
+                    })
+                    .collect();
+                for _ in 0..40 {
+                    let w = DVec3::new(uniform(-30.0, 30.0), uniform(-30.0, 30.0), uniform(-30.0, 30.0));
+                    let p = c + w;
+                    // The foot: the nearest sample, as near as the sampling allows.
+                    let (place, off) = path.foot(w);
+                    let nearest = samples.iter().map(|(_, q)| q.distance(p)).fold(f64::INFINITY, f64::min);
+                    if path.arc(place).abs() < reach - 0.1 {
+                        assert!(
+                            off <= nearest + 1e-8 * (1.0 + off) && nearest - off < 1e-3,
+                            "radius {radius}, {w}: foot {off} vs {nearest}"
+                        );
+                        let s = path.arc(place);
+                        let foot = match k > 0.0 {
+                            true => c + (path.out * ((k * s).cos() - 1.0) + path.u * (k * s).sin()) / k,
+                            false => c + path.u * s,
+                        };
+                        assert!(
+                            (foot.distance(p) - off).abs() < 1e-8 * (1.0 + off),
+                            "radius {radius}, {w}: foot at {s}"
+                        );
+                    }
+                    for rho in [3.0, 10.0, 10.1, 25.0] {
+                        let coordinates = path.coordinates(w);
+                        let Some((lo, hi)) = path.span(rho, coordinates, true) else {
+                            assert!(samples.iter().all(|(_, q)| q.distance(p) > rho - 1e-9), "radius {radius}: none");
+                            assert_eq!(path.span(rho, coordinates, false), None);
+                            continue;
+                        };
+                        if lo.is_infinite() {
+                            // The places are not one span (the circle curls round the point): none inward.
+                            assert_eq!(path.span(rho, coordinates, false), None);
+                            continue;
+                        }
+                        assert_eq!(path.span(rho, coordinates, false), Some((lo, hi)));
+                        for (place, q) in &samples {
+                            let d = q.distance(p);
+                            let spanned = (lo..=hi).contains(place);
+                            assert!(
+                                spanned || d > rho - 1e-7,
+                                "radius {radius}, {w}, {rho}: {place} outside ({lo}, {hi}) at {d}"
+                            );
+                            assert!(
+                                !spanned || d <= rho + 1e-7,
+                                "radius {radius}, {w}, {rho}: {place} inside ({lo}, {hi}) at {d}"
+                            );
+                        }
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        assert!(checked > 300, "{checked} spans checked");
     }
 }
