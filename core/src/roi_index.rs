@@ -335,8 +335,8 @@ pub struct DragMargins {
 
 /// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`), the far ends of their sweeps
 /// (`sweeps[e - 1]`, [`sweep_end`] of that shape after the ones before) and their paths (`paths[e - 1]`,
-/// [`Path::through`] its centre and the two before), each made once, when the margins were
-/// measured against it), and per streamline the margins and the epoch they were measured in (0: never).
+/// [`Path::through`] its centre and the two before), each made once, when the margins were measured against
+/// that shape; and per streamline the margins and the epoch they were measured in (0: never).
 struct Slot {
     mode: RoiMode,
     kind: std::mem::Discriminant<RoiShape>,
@@ -438,8 +438,8 @@ struct Since {
     /// the change of radius); `shift` when there was no sweep.
     swept: f32,
     /// Where along the past path the centre's foot lies (its place, [`Path`]), when the shape lies within the
-    /// past sphere grown ([`grown_and_shrunk`]) and moved there; NaN otherwise. A streamline whose entry lies beyond it
-    /// or whose exit lies before it does not meet the shape.
+    /// past sphere grown ([`grown_and_shrunk`]) and moved there; NaN otherwise. A streamline whose entry lies
+    /// beyond it or whose exit lies before it does not meet the shape.
     along: f32,
     /// The same foot, when the shape holds the past sphere shrunk and moved there; NaN
     /// otherwise. A streamline whose cover holds it meets the shape.
@@ -967,10 +967,10 @@ const LANES: usize = 8;
 /// cancellation in `q - a²` at a brain's distances is far below it.
 const NEAR_SLACK: f32 = 1.0;
 
-/// A span along a drag's path (places, [`Path`]: mm near the centre) in 32 bits: each end in 1/32 mm as an `i16`, rounded `outward` (a span that
-/// must hold the true one: where a streamline may meet a sphere) or inward (one the true one must hold: where it
-/// surely does); past about ±1 m an end is infinite or the last finite value, whichever lies that way. A span
-/// with a NaN end is everything outward and nothing inward.
+/// A span along a drag's path (places, [`Path`]: mm near the centre) in 32 bits: each end in 1/32 mm as an
+/// `i16`, rounded `outward` (a span that must hold the true one: where a streamline may meet a sphere) or inward
+/// (one the true one must hold: where it surely does); past about ±1 m an end is infinite or the last finite
+/// value, whichever lies that way. A span with a NaN end is everything outward and nothing inward.
 fn pack_span(lo: f32, hi: f32, outward: bool) -> u32 {
     let (lo, hi) = match (lo.is_nan() || hi.is_nan(), outward) {
         (true, true) => (f32::NEG_INFINITY, f32::INFINITY),
