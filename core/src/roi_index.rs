@@ -333,17 +333,51 @@ pub struct DragMargins {
     slots: Vec<Slot>,
 }
 
-/// One ROI's memory: its shapes so far (`shapes[e - 1]` is epoch `e`), the far ends of their sweeps
-/// (`sweeps[e - 1]`, [`sweep_end`] of that shape after the ones before) and their paths (`paths[e - 1]`,
-/// [`Path::through`] its centre and the two before), each made once, when the margins were measured against
-/// that shape; and per streamline the margins and the epoch they were measured in (0: never).
+/// One ROI's memory: its shapes so far with what margins were measured against (`epochs[e - 1]` is epoch `e`),
+/// and per streamline the margins and the epoch they were measured in (0: never).
 struct Slot {
     mode: RoiMode,
     kind: std::mem::Discriminant<RoiShape>,
-    shapes: Vec<RoiShape>,
-    sweeps: Vec<Option<Vec3>>,
-    paths: Vec<Path>,
+    epochs: Vec<Epoch>,
     margins: Option<Margins>,
+}
+
+/// A shape of a [`Slot`]'s ROI and what its margins were measured against, made once, when the ROI took it.
+#[derive(Clone, Copy)]
+struct Epoch {
+    shape: RoiShape,
+    /// The far end of the segment a sphere's centre is swept along: [`SWEEP`] steps like its last one, at most
+    /// the radius long; `None` without such a step (the first shape, not a sphere after a sphere, or no move).
+    sweep: Option<Vec3>,
+    /// The path its spans are measured along: through its centre and the two before ([`Path::through`]); a
+    /// path of no direction when it is not a sphere after a sphere.
+    path: Path,
+}
+
+impl Epoch {
+    /// The epoch of `shape` taken after `before` (oldest first).
+    fn after(before: &[Epoch], shape: RoiShape) -> Epoch {
+        let centre = |s: &RoiShape| match *s {
+            RoiShape::Sphere { centre, .. } => Some(Vec3::from(centre)),
+            _ => None,
+        };
+        let mut back = before.iter().rev().map(|e| centre(&e.shape));
+        let (b, a) = (back.next().flatten(), back.next().flatten());
+        let sweep = match (shape, b) {
+            (RoiShape::Sphere { centre, radius }, Some(b)) => {
+                let c = Vec3::from(centre);
+                let v = c - b;
+                let len = (v.length() * SWEEP).min(radius.abs());
+                (len > 0.0).then(|| c + v.normalize_or_zero() * len)
+            }
+            _ => None,
+        };
+        let path = match centre(&shape) {
+            Some(c) => Path::through(a, b, c),
+            None => Path::through(None, None, Vec3::ZERO),
+        };
+        Epoch { shape, sweep, path }
+    }
 }
 
 /// Per streamline, read together: the margin's bits, its epoch, the witness (its bits), the swept margin's bits,
@@ -415,13 +449,11 @@ impl DragMargins {
             let fresh = || Slot {
                 mode: roi.mode,
                 kind,
-                shapes: vec![],
-                sweeps: vec![],
-                paths: vec![],
+                epochs: vec![],
                 margins: (!matches!(roi.shape, RoiShape::Plane { .. })).then(|| Margins::zeroed(n)).flatten(),
             };
             match self.slots.get_mut(k) {
-                Some(s) if s.mode == roi.mode && s.kind == kind && s.shapes.len() < MAX_EPOCHS => {}
+                Some(s) if s.mode == roi.mode && s.kind == kind && s.epochs.len() < MAX_EPOCHS => {}
                 Some(s) => *s = fresh(),
                 None => self.slots.push(fresh()),
             }
@@ -449,9 +481,8 @@ struct Since {
 impl Slot {
     /// How `shape` lies from the shape of epoch `e + 1`.
     fn since(&self, e: usize, shape: &RoiShape) -> Since {
-        let old = self.shapes[e];
+        let Epoch { shape: old, sweep, path } = self.epochs[e];
         let shift = hausdorff(&old, shape);
-        let sweep = self.sweeps[e];
         match (old, *shape, sweep) {
             (RoiShape::Sphere { centre: c0, radius: r0 }, RoiShape::Sphere { centre, radius }, Some(end)) => {
                 let (c0, c) = (Vec3::from(c0), Vec3::from(centre));
@@ -460,7 +491,6 @@ impl Slot {
                 // it: within the grown sphere there, so `t` lies between the streamline's entry and exit; and a
                 // point within the shrunk sphere there is within `radius`.
                 // The spans hold only the points within reach of the path's first `WINDOW` radii each way.
-                let path = self.paths[e];
                 let (t, off) = path.foot((c - c0).as_dvec3());
                 let (grown, shrunk) = grown_and_shrunk(r0, c0, end);
                 let (r, slack) = (f64::from(radius.abs()), f64::from(MARGIN_SLACK));
@@ -486,12 +516,11 @@ impl Slot {
         let Some(mem) = self.margins.as_ref().map(Margins::entries) else {
             return meets_exactly(shape, ids, streamline);
         };
-        let since: Vec<Since> = (0..self.shapes.len()).map(|e| self.since(e, shape)).collect();
-        self.shapes.push(*shape);
-        let (ahead, path) = (sweep_end(&self.shapes), path_through(&self.shapes));
-        self.sweeps.push(ahead);
-        self.paths.push(path);
-        let now = self.shapes.len() as u32;
+        let since: Vec<Since> = (0..self.epochs.len()).map(|e| self.since(e, shape)).collect();
+        let epoch = Epoch::after(&self.epochs, *shape);
+        let Epoch { sweep: ahead, path, .. } = epoch;
+        self.epochs.push(epoch);
+        let now = self.epochs.len() as u32;
         // Decided from the margins where they can be; the rest tested one after another, each streamline's
         // first cache lines asked for two before while this one is tested (in a mapped file, a streamline is
         // a cache and TLB miss away from the one before: that wait, not the arithmetic, was most of a step).
@@ -536,6 +565,7 @@ impl Slot {
                     undecided.push(s);
                 }
                 let points: Vec<&[Vec3]> = undecided.iter().map(|&s| streamline(s as usize)).collect();
+                let mut tested = Vec::new();
                 for (k, &s) in undecided.iter().enumerate() {
                     if let Some(next) = points.get(k + PREFETCH_AHEAD) {
                         prefetch(next);
@@ -551,14 +581,31 @@ impl Slot {
                         m[WITNESS + k].store(v.to_bits(), Ordering::Relaxed);
                     }
                     if measured.meets {
-                        kept.push(s);
+                        tested.push(s);
                     }
                 }
-                kept.sort_unstable();
-                kept
+                merged(&kept, &tested)
             })
             .collect()
     }
+}
+
+/// The ids of two ascending lists, in one ascending list (no id is in both).
+fn merged(a: &[u32], b: &[u32]) -> Vec<u32> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        if a[i] < b[j] {
+            out.push(a[i]);
+            i += 1;
+        } else {
+            out.push(b[j]);
+            j += 1;
+        }
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+    out
 }
 
 /// Asks the CPU for the first cache lines of `pts` (a hint: no effect on other targets, never a fault).
@@ -1006,33 +1053,6 @@ fn unpack_span(bits: u32) -> (f32, f32) {
 /// Steps of a packed span per mm.
 const SPAN_UNITS: f32 = 32.0;
 
-/// The far end of the segment the centre of the last of `shapes` (oldest first) is swept along when its margins
-/// are measured: [`SWEEP`] steps like its last one, at most the radius long; `None` without such a step (the
-/// first shape, not two spheres, or no move).
-fn sweep_end(shapes: &[RoiShape]) -> Option<Vec3> {
-    let [.., before, now] = shapes else { return None };
-    let (RoiShape::Sphere { centre: c1, .. }, RoiShape::Sphere { centre, radius }) = (*before, *now) else {
-        return None;
-    };
-    let c = Vec3::from(centre);
-    let v = c - Vec3::from(c1);
-    let len = (v.length() * SWEEP).min(radius.abs());
-    (len > 0.0).then(|| c + v.normalize_or_zero() * len)
-}
-
-/// The path a sphere's spans are measured along, the last of `shapes` (oldest first): through its centre and the
-/// two before ([`Path::through`]); a path of no direction when it is not a sphere after a sphere.
-fn path_through(shapes: &[RoiShape]) -> Path {
-    let centre = |s: &RoiShape| match *s {
-        RoiShape::Sphere { centre, .. } => Some(Vec3::from(centre)),
-        _ => None,
-    };
-    let mut back = shapes.iter().rev().map(centre);
-    let c = back.next().flatten().unwrap_or(Vec3::ZERO);
-    let (b, a) = (back.next().flatten(), back.next().flatten());
-    Path::through(a, b, c)
-}
-
 /// The distance from `p` to the segment `a`-`b` (mm).
 fn segment_distance(p: Vec3, a: Vec3, b: Vec3) -> f32 {
     let d = b - a;
@@ -1427,6 +1447,14 @@ mod tests {
         assert_eq!((a, b), (f32::NEG_INFINITY, f32::INFINITY));
         let (a, b) = unpack_span(pack_span(0.0, f32::NAN, false));
         assert!(a > b, "a NaN span packed inward holds ({a}, {b})");
+    }
+
+    /// Two ascending lists merge into the ascending list of both, whichever runs out first.
+    #[test]
+    fn merged_lists_ascend() {
+        assert_eq!(merged(&[1, 4, 9], &[2, 3, 10, 11]), [1, 2, 3, 4, 9, 10, 11]);
+        assert_eq!(merged(&[5, 6, 7], &[0]), [0, 5, 6, 7]);
+        assert_eq!(merged(&[], &[3]), [3]);
     }
 
     /// Shares cover the items in order, never more than asked for, weightless items at the end included.

@@ -154,17 +154,17 @@ impl Starts {
     /// Starts of at least this many bytes go to huge pages: 2 MiB, one huge page.
     const HUGE: usize = 2 << 20;
 
-    fn new(starts: Vec<u64>) -> Self {
-        let bytes = std::mem::size_of_val(starts.as_slice());
-        if bytes < Self::HUGE {
-            return Self::Heap(starts);
-        }
-        let Ok(mut map) = memmap2::MmapMut::map_anon(bytes) else { return Self::Heap(starts) };
+    /// The `len` starts `values` yields, written straight into their huge pages when they fill one (no copy
+    /// of them made first: 80 MB at 10M streamlines); on the heap when they do not, or cannot be mapped.
+    fn collect(len: usize, values: impl IntoIterator<Item = u64>) -> Self {
+        let bytes = len * 8;
+        let mapped = (bytes >= Self::HUGE).then(|| memmap2::MmapMut::map_anon(bytes).ok()).flatten();
+        let Some(mut map) = mapped else { return Self::Heap(values.into_iter().take(len).collect()) };
         // A hint, given before the pages are first written so that they come as huge pages; refused by a kernel
         // without transparent huge pages.
         #[cfg(target_os = "linux")]
         let _ = map.advise(memmap2::Advice::HugePage);
-        for (to, from) in map.chunks_exact_mut(8).zip(&starts) {
+        for (to, from) in map.chunks_exact_mut(8).zip(values) {
             to.copy_from_slice(&from.to_ne_bytes());
         }
         Self::Mapped(map)
@@ -193,12 +193,12 @@ impl MappedRun {
     /// its first, middle and last streamlines: cheap checks that `check` is this stretch of the file).
     pub fn consecutive(file: Arc<MappedPoints>, at: usize, check: &impl Streamlines) -> Option<Self> {
         let n = check.n_streamlines();
-        let mut starts = Vec::with_capacity(n + 1);
-        starts.push(at as u64);
-        for s in 0..n {
-            starts.push(starts[s] + (check.streamline(s).len() + file.gap) as u64);
-        }
-        let run = MappedRun { file, starts: Starts::new(starts) };
+        let gap = file.gap;
+        let ends = (0..n).scan(at as u64, |end, s| {
+            *end += (check.streamline(s).len() + gap) as u64;
+            Some(*end)
+        });
+        let run = MappedRun { file, starts: Starts::collect(n + 1, std::iter::once(at as u64).chain(ends)) };
         let points = run.file.points();
         if run.starts[n] as usize > points.len() {
             return None;
@@ -219,14 +219,17 @@ impl MappedRun {
     /// the same mapping and each starts where the one before ends.
     pub fn join(runs: &[&MappedRun]) -> Option<MappedRun> {
         let (first, rest) = runs.split_first()?;
-        let mut starts = first.starts.to_vec();
+        let mut end = first.starts.last();
         for run in rest {
-            if !Arc::ptr_eq(&run.file, &first.file) || starts.last() != run.starts.first() {
+            if !Arc::ptr_eq(&run.file, &first.file) || end != run.starts.first() {
                 return None;
             }
-            starts.extend_from_slice(&run.starts[1..]);
+            end = run.starts.last();
         }
-        Some(MappedRun { file: first.file.clone(), starts: Starts::new(starts) })
+        // Written once, straight into the joined run's own pages.
+        let len = 1 + runs.iter().map(|r| r.starts.len() - 1).sum::<usize>();
+        let values = first.starts.iter().take(1).chain(runs.iter().flat_map(|r| &r.starts[1..])).copied();
+        Some(MappedRun { file: first.file.clone(), starts: Starts::collect(len, values) })
     }
 
     /// Lets the run's pages go from this process's resident memory ([`MappedPoints::release`]).
@@ -302,7 +305,7 @@ impl MappedTck {
         let bounds = (lo.x <= hi.x).then_some((lo, hi));
         // The pass read every page: they go from the process's memory until a streamline is read again.
         file.release(0..points.len());
-        Ok(Self { run: MappedRun { file: Arc::new(file), starts: Starts::new(starts) }, bounds })
+        Ok(Self { run: MappedRun { file: Arc::new(file), starts: Starts::collect(starts.len(), starts) }, bounds })
     }
 
     /// Streamlines in the file (empty ones included, as MRtrix counts them).
