@@ -162,17 +162,14 @@ impl Plugin for ScenePlugin {
         if !app.is_plugin_added::<TractPlugin>() {
             app.add_plugins(TractPlugin);
         }
-        // Meshes over 256 KiB (the parts of a tract layer, the first small ones included) get buffers of their
-        // own: in Bevy's shared slabs each part would grow the slab by half and copy all of it (on a
-        // 1M-streamline layer, frames of 40 to 250 ms as the parts arrived, growing with what was already
-        // shown), and a slab's room to grow is memory held: at 4 MiB the first parts of a 1M-streamline layer
-        // and the previews grew two slabs to about 130 MiB each (host memory on a software adapter), and the
-        // viewer's peak on that layer was 2.25-2.42 GiB where at 256 KiB it is 1.55-1.79 GiB.
+        // Meshes over 4 MiB (the parts of a large tract layer) get buffers of their own: in Bevy's shared
+        // slabs each part would grow the slab by half and copy all of it (on a 1M-streamline layer, frames of
+        // 40 to 250 ms as the parts arrived, growing with what was already shown).
         if let Some(render) = app.get_sub_app_mut(bevy::render::RenderApp)
             && let Some(mut s) =
                 render.world_mut().get_resource_mut::<bevy::render::mesh::allocator::MeshAllocatorSettings>()
         {
-            s.large_threshold = s.large_threshold.min(256 << 10);
+            s.large_threshold = s.large_threshold.min(4 << 20);
         }
         if !app.is_plugin_added::<ViewsPlugin>() {
             app.add_plugins(ViewsPlugin);
