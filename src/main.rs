@@ -11,6 +11,8 @@ fn main() -> std::process::ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // SAFETY: before any thread starts. Lavapipe on few cores keeps a frame's binned lines (GBs) otherwise.
+    unsafe { fascicle_render::software::oversubscribe_software_rasterizer() };
     let args = cli::Cli::parse();
     if let Err(e) = cli::set_globals(&args) {
         eprintln!("error: {e}");

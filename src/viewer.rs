@@ -17,6 +17,7 @@ use bevy::camera::CameraOutputMode;
 use bevy::camera::visibility::RenderLayers;
 use bevy::input::mouse::{AccumulatedMouseMotion, AccumulatedMouseScroll};
 use bevy::prelude::*;
+use bevy::render::RenderPlugin;
 use bevy::render::render_resource::BlendState;
 use bevy::render::view::screenshot::{Screenshot, save_to_disk};
 use bevy::window::{FileDragAndDrop, PrimaryWindow};
@@ -737,7 +738,8 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
     }
     app.add_plugins(
         DefaultPlugins
-            .set(WindowPlugin { primary_window: Some(Window { title: "Fascicle".into(), ..default() }), ..default() }),
+            .set(WindowPlugin { primary_window: Some(Window { title: "Fascicle".into(), ..default() }), ..default() })
+            .set(RenderPlugin { render_creation: fascicle_render::wgpu_settings().into(), ..default() }),
     )
     .add_plugins(EguiPlugin::default())
     .add_plugins((FascicleRenderPlugin, ScenePlugin, HandlesPlugin, DrawOnDemandPlugin, FrameBudgetPlugin))

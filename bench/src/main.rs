@@ -26,6 +26,8 @@ struct Cli {
 }
 
 fn main() -> std::process::ExitCode {
+    // SAFETY: before any thread starts; the renders measured in this process see what `fascicle` sees.
+    unsafe { fascicle_render::software::oversubscribe_software_rasterizer() };
     let cli = Cli::parse();
     match suites::run(cli.suite) {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -290,11 +290,11 @@ pub fn headless_app_with_assets(asset_root: Option<&str>) -> App {
 /// of them ("Unable to find a GPU!"), and each opening costs about half a second.
 static SHARED_RENDER: Mutex<Option<bevy::render::settings::RenderResources>> = Mutex::new(None);
 
-/// `Manual` with the process's shared device once one is open, else `Automatic` (default settings).
+/// `Manual` with the process's shared device once one is open, else `Automatic` ([`crate::wgpu_settings`]).
 fn shared_render_creation() -> bevy::render::settings::RenderCreation {
     match SHARED_RENDER.lock().unwrap_or_else(|e| e.into_inner()).clone() {
         Some(resources) => bevy::render::settings::RenderCreation::Manual(resources),
-        None => default(),
+        None => crate::wgpu_settings().into(),
     }
 }
 

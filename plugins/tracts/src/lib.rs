@@ -676,13 +676,20 @@ impl Material for TractMeshMaterial {
         layout: &MeshVertexBufferLayoutRef,
         key: MaterialPipelineKey<Self>,
     ) -> Result<(), SpecializedMeshPipelineError> {
-        if key.bind_group_data.slab_crop
-            && let Some(fragment) = descriptor.fragment.as_mut()
-        {
-            fragment.shader_defs.push("SLAB_CROP".into());
+        let normals = layout.0.contains(Mesh::ATTRIBUTE_NORMAL);
+        let mut defs = Vec::new();
+        if key.bind_group_data.slab_crop {
+            defs.push("SLAB_CROP".into());
+        }
+        if key.bind_group_data.slab_crop || normals {
+            defs.push("WORLD_POSITION".into());
+        }
+        descriptor.vertex.shader_defs.extend(defs.iter().cloned());
+        if let Some(fragment) = descriptor.fragment.as_mut() {
+            fragment.shader_defs.extend(defs);
         }
         let mut attributes = vec![Mesh::ATTRIBUTE_POSITION.at_shader_location(0)];
-        if layout.0.contains(Mesh::ATTRIBUTE_NORMAL) {
+        if normals {
             attributes.push(Mesh::ATTRIBUTE_NORMAL.at_shader_location(1));
         }
         attributes.push(ATTRIBUTE_STREAMLINE.at_shader_location(2));

@@ -32,11 +32,17 @@ struct TractVertex {
     @location(5) color: vec4<f32>,
 };
 
+// Lines that do not crop pass the colour alone: every varying is interpolated per fragment and stored with each
+// primitive lavapipe bins (WORLD_POSITION: cropping or shaded tubes).
 struct TractVertexOutput {
     @builtin(position) clip_position: vec4<f32>,
     @location(0) color: vec4<f32>,
+#ifdef WORLD_POSITION
     @location(1) world_position: vec3<f32>,
+#endif
+#ifdef VERTEX_NORMALS
     @location(2) world_normal: vec3<f32>,
+#endif
 };
 
 @vertex
@@ -55,11 +61,11 @@ fn vertex(v: TractVertex) -> TractVertexOutput {
     let drawn_at = select(w.xyz, on_plane, params.slab_half > 0.0);
     out.clip_position = select(position_world_to_clip(drawn_at), vec4<f32>(2.0, 2.0, 2.0, 1.0), hidden);
     out.color = v.color;
+#ifdef WORLD_POSITION
     out.world_position = w.xyz;
+#endif
 #ifdef VERTEX_NORMALS
     out.world_normal = mesh_functions::mesh_normal_local_to_world(v.normal, v.instance_index);
-#else
-    out.world_normal = vec3<f32>(0.0);
 #endif
     return out;
 }
