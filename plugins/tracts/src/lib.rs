@@ -122,7 +122,7 @@ pub struct TubeletMaterial {
     /// The tubelets as [`pack`] lays them out, seven `vec4<f32>` (112 bytes) each (storage binding 1).
     #[storage(1, read_only)]
     pub tubes: Handle<ShaderBuffer>,
-    /// One `u32` per streamline, 1 when selected, 0 hidden (storage binding 2; the set's
+    /// One bit per streamline, set when selected ([`selection_words`]; storage binding 2; the set's
     /// [`TractSet::selected`]).
     #[storage(2, read_only)]
     pub selected: Handle<ShaderBuffer>,
@@ -140,7 +140,7 @@ pub struct TractSet {
     pub tractogram: SetStreamlines,
     /// The spatial index ROIs and picks are tested through, built when first needed.
     pub index: LazyIndex,
-    /// One `u32` per streamline, 1 when selected; the vertex shaders hide the others.
+    /// One bit per streamline, set when selected ([`selection_words`]); the vertex shaders hide the others.
     pub selected: Handle<ShaderBuffer>,
     /// The layer's index of the set's first streamline, for a layer shown in parts (default 0: a set alone).
     /// [`DeletedStreamlines`] on the layer index the layer's streamlines; this set hides those from `first` on.
@@ -637,7 +637,7 @@ pub struct TractMeshMaterial {
     /// Opacity, shading and slab crop (uniform binding 0).
     #[uniform(0)]
     pub params: TractMeshUniform,
-    /// One `u32` per streamline, 1 when selected, 0 hidden (storage binding 1; the set's
+    /// One bit per streamline, set when selected ([`selection_words`]; storage binding 1; the set's
     /// [`TractSet::selected`]).
     #[storage(1, read_only)]
     pub selected: Handle<ShaderBuffer>,
@@ -1152,8 +1152,19 @@ impl PreparedTracts {
 
 /// The flag buffer of `n_streamlines` streamlines, every one selected.
 fn all_selected(buffers: &mut Assets<ShaderBuffer>, n_streamlines: usize) -> Handle<ShaderBuffer> {
-    let flags = [1u8, 0, 0, 0].repeat(n_streamlines.max(1));
+    let flags = selection_words(&vec![true; n_streamlines]);
     buffers.add(ShaderBuffer::new(&flags, RenderAssetUsages::default()))
+}
+
+/// A selection as the shaders read it: streamline `s` is bit `s % 32` of the little-endian `u32` word `s / 32`,
+/// set when selected (at least one word: a storage buffer is never empty). A 10M-streamline layer's selection
+/// is 1.25 MB, where a `u32` a streamline made every ROI drag step upload 40 MB.
+pub fn selection_words(selected: &[bool]) -> Vec<u8> {
+    let mut words = vec![0u32; selected.len().div_ceil(32).max(1)];
+    for (s, _) in selected.iter().enumerate().filter(|(_, k)| **k) {
+        words[s / 32] |= 1 << (s % 32);
+    }
+    words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
 
 /// What a set's shaders read of its selection (the flag buffer) and, for a set that keeps its streamlines,
@@ -1666,7 +1677,7 @@ pub fn apply_rois(
         if !set.is_changed() && selection.0 == sel {
             continue;
         }
-        let bytes: Vec<u8> = sel.iter().flat_map(|s| u32::from(*s).to_le_bytes()).collect();
+        let bytes = selection_words(&sel);
         selection.0 = sel;
         // Drawn in this frame: the selection runs after the asset events' flush.
         if !bytes.is_empty() {
@@ -2124,6 +2135,21 @@ mod tests {
         assert_eq!(step(true, false), full, "render scale holds the budget");
         assert_eq!(step(true, true), preview, "coarse");
         assert_eq!(step(false, false), full, "still: the whole set");
+    }
+
+    /// Streamline `s` is bit `s % 32` of word `s / 32`, as the vertex shaders read it; an empty selection is one
+    /// word.
+    #[test]
+    fn selections_are_one_bit_a_streamline() {
+        let sel: Vec<bool> = (0..70).map(|s| s % 3 == 0 || s == 69).collect();
+        let bytes = selection_words(&sel);
+        assert_eq!(bytes.len(), 12);
+        let words: Vec<u32> = bytes.chunks(4).map(|b| u32::from_le_bytes(b.try_into().unwrap())).collect();
+        for (s, &k) in sel.iter().enumerate() {
+            assert_eq!((words[s >> 5] >> (s & 31)) & 1 == 1, k, "streamline {s}");
+        }
+        assert_eq!(words[2] >> 6, 0, "no bit past the last streamline");
+        assert_eq!(selection_words(&[]), vec![0; 4]);
     }
 
     /// An ROI move re-selects every set, but a set whose selection stays as it was keeps its flags: its

@@ -1,7 +1,7 @@
 // Tract meshes: lines (`fascicle_tracts::line_mesh`) or polygon tubes (`polygon_tube_mesh`) in direction
-// colours, tubes with headlight shading. The vertex stage looks up the streamline's selection flag (the vertex
-// carries its index) and moves the vertices of unselected streamlines outside the clip volume, so an ROI edit uploads 4
-// bytes per streamline and nothing else. Keep `TractMeshParams` in sync with `TractMeshUniform` in
+// colours, tubes with headlight shading. The vertex stage looks up the streamline's selection bit (the vertex
+// carries its index) and moves the vertices of unselected streamlines outside the clip volume, so an ROI edit
+// uploads a bit per streamline and nothing else. Keep `TractMeshParams` in sync with `TractMeshUniform` in
 // `plugins/tracts/src/lib.rs`.
 
 #import bevy_pbr::mesh_functions
@@ -17,7 +17,7 @@ struct TractMeshParams {
 };
 
 @group(#{MATERIAL_BIND_GROUP}) @binding(0) var<uniform> params: TractMeshParams;
-// One flag per streamline: 1 selected, 0 hidden.
+// One bit per streamline, set when selected: bit s % 32 of word s / 32 (`selection_words`).
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> selected: array<u32>;
 
 // The compact vertex (`TractMeshMaterial::specialize`): position 0, normal 1 (tubes only: VERTEX_NORMALS),
@@ -50,7 +50,7 @@ fn vertex(v: TractVertex) -> TractVertexOutput {
     var out: TractVertexOutput;
     let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
     let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
-    let hidden = selected[v.streamline] == 0u;
+    let hidden = ((selected[v.streamline >> 5u] >> (v.streamline & 31u)) & 1u) == 0u;
     // Cropped to a slab: drawn on the slab's centre plane, 1 mm towards the eye, so that a 2D view looking along
     // the normal shows it where it is, over its images (within 1 mm of the plane) and under its crosshair. The
     // fragment stage crops by the true position. A select, not an `if` on a uniform alone (lavapipe, see

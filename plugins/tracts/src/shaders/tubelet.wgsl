@@ -24,7 +24,7 @@ struct TubeParams {
 // Seven vec4 per tubelet: (centre, h), quaternion, (ry_l, rz_l, ry_r, rz_r), (cut_l, twist),
 // (cut_r, streamline bits), (colour_l, 0), (colour_r, 0).
 @group(#{MATERIAL_BIND_GROUP}) @binding(1) var<storage, read> tubes: array<vec4<f32>>;
-// One u32 per streamline: 1 selected, 0 hidden.
+// One bit per streamline, set when selected: bit s % 32 of word s / 32 (`selection_words`).
 @group(#{MATERIAL_BIND_GROUP}) @binding(2) var<storage, read> selected: array<u32>;
 
 const TWIST_STEP: f32 = 0.15;
@@ -113,7 +113,7 @@ fn vertex(v: TubeVertex) -> TubeVertexOutput {
         select(-1.0, 1.0, (corner & 2u) != 0u),
         select(-1.0, 1.0, (corner & 4u) != 0u),
     );
-    let hidden = selected[t.streamline] == 0u;
+    let hidden = ((selected[t.streamline >> 5u] >> (t.streamline & 31u)) & 1u) == 0u;
     let w = t.centre + rotate(t.q, sign * half_extents(t));
     out.world_position = w;
     out.clip_position = select(view.clip_from_world * vec4<f32>(w, 1.0), vec4<f32>(2.0, 2.0, 2.0, 1.0), hidden);
