@@ -1185,6 +1185,8 @@ pub struct PreviewLines {
     /// Per preview streamline: its index in the set, its first vertex and its vertex count (a streamline's
     /// kept points are consecutive vertices, joined by the segments between neighbours).
     runs: Vec<(u32, u32, u32)>,
+    /// The preview mesh holds fewer than all the preview's streamlines.
+    narrowed: bool,
 }
 
 impl PreviewLines {
@@ -1213,7 +1215,7 @@ impl PreviewLines {
                 _ => runs.push((id, v as u32, 1)),
             }
         }
-        Some(Self { positions: positions.clone(), colours: colours.clone(), runs })
+        Some(Self { positions: positions.clone(), colours: colours.clone(), runs, narrowed: false })
     }
 
     /// The preview of the streamlines `selected` keeps (indexed by streamline in the set), in the format of
@@ -1249,7 +1251,7 @@ impl PreviewLines {
 /// next (its preview's `Added` event is sent then, and would extract the mesh a second time).
 pub fn narrow_previews(
     changed: Query<(Entity, Ref<TractSelection>), Changed<TractSelection>>,
-    sets: Query<(&TractSelection, &MeshSet, &PreviewLines)>,
+    mut sets: Query<(&TractSelection, &MeshSet, &mut PreviewLines)>,
     mut meshes: ResMut<Assets<Mesh>>,
     mut mesh_events: MessageWriter<AssetEvent<Mesh>>,
     mut arrived: Local<Vec<Entity>>,
@@ -1262,7 +1264,14 @@ pub fn narrow_previews(
     let mut due = due;
     due.sort_unstable();
     due.dedup();
-    for (selection, set, lines) in due.into_iter().filter_map(|e| sets.get(e).ok()) {
+    for e in due {
+        let Ok((selection, set, mut lines)) = sets.get_mut(e) else { continue };
+        // A preview that holds every streamline already (a layer without ROIs) is not sent again.
+        let all = selection.0.iter().all(|s| *s);
+        if all && !lines.narrowed {
+            continue;
+        }
+        lines.narrowed = !all;
         if let Some(preview) = &set.preview {
             let narrowed = lines.selected(&selection.0);
             fascicle_render::modify_now(&mut meshes, &mut mesh_events, preview, |m| *m = narrowed);
