@@ -297,6 +297,21 @@ fn select_every(t: &SetStreamlines, rois: &[Roi]) -> Vec<bool> {
 type IndexJob = (Arc<IndexInner>, SetStreamlines);
 
 /// The queue of [`LazyIndex::ready_or_build`]'s background builder, its thread started with the first index.
+/// The rayon pool a layer's selection in the background runs on: all cores but one (at least one), so that the
+/// frames drawn meanwhile (a window's ROI drag) keep a core; `None` when it cannot be made (the global pool then).
+fn selection_pool() -> Option<&'static rayon::ThreadPool> {
+    static POOL: OnceLock<Option<rayon::ThreadPool>> = OnceLock::new();
+    POOL.get_or_init(|| {
+        let cores = std::thread::available_parallelism().map_or(1, usize::from);
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(cores.saturating_sub(1).max(1))
+            .thread_name(|i| format!("tract-select-{i}"))
+            .build()
+            .ok()
+    })
+    .as_ref()
+}
+
 fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String> {
     static BUILDER: OnceLock<Result<std::sync::mpsc::Sender<IndexJob>, String>> = OnceLock::new();
     BUILDER
@@ -1894,9 +1909,13 @@ impl LayerRun {
     fn start(&mut self, rois: &[Roi], indexed: bool) -> Option<Vec<bool>> {
         let (send, done) = std::sync::mpsc::channel();
         let (t, list, index) = (self.streamlines.clone(), rois.to_vec(), self.index.clone());
-        let spawned = std::thread::Builder::new()
-            .name("tract selection".into())
-            .spawn(move || _ = send.send(index.select(&t, &list)));
+        let spawned = std::thread::Builder::new().name("tract selection".into()).spawn(move || {
+            let select = || index.select(&t, &list);
+            _ = send.send(match selection_pool() {
+                Some(pool) => pool.install(select),
+                None => select(),
+            })
+        });
         match spawned {
             Ok(_) => {
                 self.background = Some(Background { rois: rois.to_vec(), done, indexed });
