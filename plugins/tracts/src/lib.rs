@@ -296,7 +296,6 @@ fn select_every(t: &SetStreamlines, rois: &[Roi]) -> Vec<bool> {
 /// A set's index and streamlines, queued for the background builder.
 type IndexJob = (Arc<IndexInner>, SetStreamlines);
 
-/// The queue of [`LazyIndex::ready_or_build`]'s background builder, its thread started with the first index.
 /// The rayon pool a layer's selection in the background runs on: all cores but one (at least one), so that the
 /// frames drawn meanwhile (a window's ROI drag) keep a core; `None` when it cannot be made (the global pool then).
 fn selection_pool() -> Option<&'static rayon::ThreadPool> {
@@ -312,6 +311,7 @@ fn selection_pool() -> Option<&'static rayon::ThreadPool> {
     .as_ref()
 }
 
+/// The queue of [`LazyIndex::ready_or_build`]'s background builder, its thread started with the first index.
 fn index_builder() -> Result<&'static std::sync::mpsc::Sender<IndexJob>, String> {
     static BUILDER: OnceLock<Result<std::sync::mpsc::Sender<IndexJob>, String>> = OnceLock::new();
     BUILDER
@@ -1253,11 +1253,7 @@ impl PreviewLines {
             ids.extend(std::iter::repeat_n(id, count as usize));
             idx.extend((0..count.saturating_sub(1)).flat_map(|k| [base + k, base + k + 1]));
         }
-        Mesh::new(PrimitiveTopology::LineList, RenderAssetUsages::RENDER_WORLD)
-            .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
-            .with_inserted_attribute(ATTRIBUTE_STREAMLINE, ids)
-            .with_inserted_attribute(ATTRIBUTE_RGBA8, VertexAttributeValues::Unorm8x4(col))
-            .with_inserted_indices(Indices::U32(idx))
+        compact_line_list(pos, ids, col, idx)
     }
 }
 
@@ -1271,12 +1267,10 @@ pub fn narrow_previews(
     mut mesh_events: MessageWriter<AssetEvent<Mesh>>,
     mut arrived: Local<Vec<Entity>>,
 ) {
-    let due: Vec<Entity> = std::mem::take(&mut *arrived)
-        .into_iter()
-        .chain(changed.iter().filter(|(_, s)| !s.is_added()).map(|(e, _)| e))
-        .collect();
-    arrived.extend(changed.iter().filter(|(_, s)| s.is_added()).map(|(e, _)| e));
-    let mut due = due;
+    let mut due = std::mem::take(&mut *arrived);
+    for (e, selection) in &changed {
+        if selection.is_added() { arrived.push(e) } else { due.push(e) }
+    }
     due.sort_unstable();
     due.dedup();
     for e in due {
@@ -1639,6 +1633,11 @@ fn strided_line_mesh(t: &Tractogram, colour: Option<PointColour>, tolerance_mm: 
         }
         idx.extend((0..kept.len() as u32 - 1).flat_map(|k| [base + k, base + k + 1]));
     }
+    compact_line_list(pos, ids, col, idx)
+}
+
+/// An indexed line list in the compact format of [`TractMeshMaterial`] (main world's copy dropped once sent).
+fn compact_line_list(pos: impl Into<VertexAttributeValues>, ids: Vec<u32>, col: Vec<[u8; 4]>, idx: Vec<u32>) -> Mesh {
     Mesh::new(PrimitiveTopology::LineList, RenderAssetUsages::RENDER_WORLD)
         .with_inserted_attribute(Mesh::ATTRIBUTE_POSITION, pos)
         .with_inserted_attribute(ATTRIBUTE_STREAMLINE, ids)
