@@ -1976,7 +1976,7 @@ mod tests {
         let check = |content: Content| -> (usize, usize) {
             let Content::Tracts(p) = content else { panic!("a part that is not tracts") };
             assert!(p.tractogram.is_none(), "a tractogram layer's part kept its points");
-            let PreparedGeometry::Mesh { mesh, preview } = p.geometry else { panic!("not lines") };
+            let PreparedGeometry::Mesh { mesh, preview, .. } = p.geometry else { panic!("not lines") };
             assert!(preview.is_some(), "lines without a preview");
             (p.n_streamlines, line_segments(&mesh))
         };

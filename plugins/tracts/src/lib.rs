@@ -36,12 +36,14 @@ use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
 
 pub mod layer;
 pub mod placed;
+pub mod selected;
 pub mod shaders;
 
 pub use fascicle_render::layer::LayerStatus;
 use fascicle_render::meshes::{slot_boxes, slot_boxes_of};
 pub use layer::{TractCounts, TractStyle, TractSystems, TractogramAsset, TractogramLoader, Tracts};
 pub use placed::{PlacedTractStyle, PlacedTracts};
+pub use selected::{PreviewLines, SELECTED_LINES_BELOW, SelectedLines, make_selected_lines, narrow_previews};
 
 /// Drawing options of hyperstreamlines.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -466,7 +468,7 @@ fn tract_detail(
     time: Res<Time<bevy::time::Real>>,
     moved: Query<(), (With<Camera3d>, Changed<GlobalTransform>)>,
     added: Query<(), Added<MeshSet>>,
-    mut sets: Query<(&MeshSet, &LineSegments, &InheritedVisibility, &mut Mesh3d)>,
+    mut sets: Query<(&MeshSet, &LineSegments, &InheritedVisibility, &mut Mesh3d, Option<&SelectedLines>)>,
     (mut last_activity, mut last_arrival, mut settling): (
         Local<Option<std::time::Duration>>,
         Local<Option<std::time::Duration>>,
@@ -484,9 +486,15 @@ fn tract_detail(
     }
     let software = adapter.is_some_and(|a| a.is_software());
     let limit = if software { detail.software_max_segments } else { detail.hardware_max_segments };
-    let segments: usize =
-        sets.iter().filter(|(set, _, shown, _)| set.preview.is_some() && shown.get()).map(|(_, s, _, _)| s.0).sum();
-    let shown = sets.iter().any(|(set, _, _, mesh)| set.preview.as_ref() == Some(&mesh.0));
+    // A set whose selection has lines of its own draws those when still.
+    let whole =
+        |s: &LineSegments, selected: Option<&SelectedLines>| selected.and_then(|l| l.mesh()).map_or(s.0, |m| m.1);
+    let segments: usize = sets
+        .iter()
+        .filter(|(set, _, shown, _, _)| set.preview.is_some() && shown.get())
+        .map(|(_, s, _, _, selected)| whole(s, selected))
+        .sum();
+    let shown = sets.iter().any(|(set, _, _, mesh, _)| set.preview.as_ref() == Some(&mesh.0));
     let (moving, coarse) = match &budget {
         // With a frame budget, its view of the interaction decides (a drag's release refines at once, in the
         // frame the budget draws at full scale; a coarse frame draws previews whatever the segments), and sets
@@ -508,10 +516,13 @@ fn tract_detail(
     };
     *settling = shown && !moving;
     trace!("tract detail: moving {moving}, previews shown {shown}, coarse {coarse}, {segments} segments");
-    for (set, _, _, mut mesh) in &mut sets {
-        let want = match (&set.preview, coarse) {
+    for (set, _, _, mut mesh, selected) in &mut sets {
+        // In a viewer (previews on), a set whose selection's lines are being made keeps its preview until
+        // they can be drawn, rather than a frame of the whole mesh (seconds at 10M on lavapipe).
+        let awaiting = detail.enabled && selected.is_some_and(SelectedLines::pending);
+        let want = match (&set.preview, coarse || awaiting) {
             (Some(preview), true) => preview,
-            _ => &set.full,
+            _ => selected.and_then(SelectedLines::mesh).map_or(&set.full, |m| m.0),
         };
         if mesh.0 != *want {
             mesh.0 = want.clone();
@@ -853,6 +864,7 @@ impl Plugin for TractPlugin {
                     apply_rois.in_set(TractSystems::Select),
                     select_tube_boxes.in_set(TractSystems::Select).after(apply_rois),
                     narrow_previews.in_set(TractSystems::Select).after(apply_rois),
+                    make_selected_lines.in_set(TractSystems::Select).after(apply_rois),
                     line_msaa,
                     // The preview switches (a `Mesh3d` change) come before Bevy computes the meshes' bounds:
                     // a bound changed a frame later would keep the retained picture from being put back, and a
@@ -1078,6 +1090,10 @@ pub enum PreparedGeometry {
         /// Lines only: every [`LineDetail::preview_stride`]-th streamline compressed to
         /// [`PREVIEW_TOLERANCE_MM`] (as [`preview_mesh`]); `None` for polygon tubes.
         preview: Option<Box<Mesh>>,
+        /// Lines coloured by direction: the tolerance they were compressed to (mm), with which the lines of a
+        /// selection are made again alike ([`SelectedLines`]); `None` for polygon tubes and lines coloured
+        /// otherwise (their colours are not kept).
+        lines_tolerance_mm: Option<f64>,
     },
 }
 
@@ -1161,13 +1177,15 @@ impl PreparedTracts {
     pub fn lines_in_detail(tractogram: Arc<Tractogram>, colour: Option<PointColour>, detail: LineDetail) -> Self {
         let mesh = Box::new(line_mesh_coloured(&tractogram, colour, detail.tolerance_mm));
         let preview = strided_line_mesh(&tractogram, colour, PREVIEW_TOLERANCE_MM, detail.preview_stride);
-        PreparedTracts::with(tractogram, PreparedGeometry::Mesh { mesh, preview: Some(Box::new(preview)) })
+        let lines_tolerance_mm = colour.is_none().then_some(detail.tolerance_mm);
+        let geometry = PreparedGeometry::Mesh { mesh, preview: Some(Box::new(preview)), lines_tolerance_mm };
+        PreparedTracts::with(tractogram, geometry)
     }
 
     /// Polygon tubes, 16 sides per ring ([`polygon_tube_mesh`]).
     pub fn polygon_tubes(tractogram: Arc<Tractogram>, tensors: Option<&[[f32; 6]]>, scale: f64) -> Self {
         let mesh = Box::new(polygon_tube_mesh(&tractogram, tensors, scale, 16));
-        PreparedTracts::with(tractogram, PreparedGeometry::Mesh { mesh, preview: None })
+        PreparedTracts::with(tractogram, PreparedGeometry::Mesh { mesh, preview: None, lines_tolerance_mm: None })
     }
 }
 
@@ -1181,111 +1199,15 @@ fn all_selected(buffers: &mut Assets<ShaderBuffer>, n_streamlines: usize) -> Han
 /// set when selected (at least one word: a storage buffer is never empty). A 10M-streamline layer's selection
 /// is 1.25 MB, where a `u32` a streamline made every ROI drag step upload 40 MB.
 pub fn selection_words(selected: &[bool]) -> Vec<u8> {
-    let mut words = vec![0u32; selected.len().div_ceil(32).max(1)];
-    for (word, flags) in words.iter_mut().zip(selected.chunks(32)) {
-        *word = flags.iter().enumerate().fold(0, |w, (i, &k)| w | (u32::from(k) << i));
+    let mut bytes = vec![0u8; 4 * selected.len().div_ceil(32).max(1)];
+    // Eight flags a byte of bits: each flag is a byte of 0 or 1, and the product gathers bit 0 of byte i of
+    // the little-endian u64 into bit 56 + i (a drag step of a 10M-streamline layer packs 10M flags a frame).
+    for (byte, flags) in bytes.iter_mut().zip(selected.chunks(8)) {
+        let mut eight = [0u8; 8];
+        eight.iter_mut().zip(flags).for_each(|(b, &f)| *b = u8::from(f));
+        *byte = (u64::from_le_bytes(eight).wrapping_mul(0x0102_0408_1020_4080) >> 56) as u8;
     }
-    words.iter().flat_map(|w| w.to_le_bytes()).collect()
-}
-
-/// A line set's whole preview kept on the CPU (at most about [`PREVIEW_SEGMENTS`] segments: some tens of MB),
-/// from which the preview mesh the set draws is made of its selected streamlines only ([`narrow_previews`]).
-/// The vertex stage runs for every vertex a draw indexes, hidden or not: a 10 mm sphere that keeps 3 % of a
-/// 10M-streamline layer left 97 % of each preview frame's vertex work (about 40 ms of a window's ROI drag frame
-/// on lavapipe with 2 cores) to streamlines it then hid.
-#[derive(Component, Clone, Debug, Default)]
-pub struct PreviewLines {
-    positions: Vec<[f32; 3]>,
-    colours: Vec<[u8; 4]>,
-    /// Per preview streamline: its index in the set, its first vertex and its vertex count (a streamline's
-    /// kept points are consecutive vertices, joined by the segments between neighbours).
-    runs: Vec<(u32, u32, u32)>,
-    /// The preview mesh holds fewer than all the preview's streamlines.
-    narrowed: bool,
-}
-
-impl PreviewLines {
-    /// The preview mesh's vertices and streamlines; `None` unless it is a line list in the compact format with
-    /// each streamline's points consecutive (as [`line_mesh_coloured`] and [`preview_mesh`] make it).
-    pub fn of(mesh: &Mesh) -> Option<Self> {
-        let (
-            Some(VertexAttributeValues::Float32x3(positions)),
-            Some(VertexAttributeValues::Unorm8x4(colours)),
-            Some(VertexAttributeValues::Uint32(ids)),
-        ) = (
-            mesh.attribute(Mesh::ATTRIBUTE_POSITION),
-            mesh.attribute(ATTRIBUTE_RGBA8),
-            mesh.attribute(ATTRIBUTE_STREAMLINE),
-        )
-        else {
-            return None;
-        };
-        if mesh.primitive_topology() != PrimitiveTopology::LineList {
-            return None;
-        }
-        let mut runs: Vec<(u32, u32, u32)> = Vec::new();
-        for (v, &id) in ids.iter().enumerate() {
-            match runs.last_mut() {
-                Some(run) if run.0 == id => run.2 += 1,
-                _ => runs.push((id, v as u32, 1)),
-            }
-        }
-        Some(Self { positions: positions.clone(), colours: colours.clone(), runs, narrowed: false })
-    }
-
-    /// The preview of the streamlines `selected` keeps (indexed by streamline in the set), in the format of
-    /// [`line_mesh_coloured`]. With none kept, the first streamline (hidden by the set's flags), since a mesh
-    /// is never empty.
-    pub fn selected(&self, selected: &[bool]) -> Mesh {
-        let kept = |&&(id, _, _): &&(u32, u32, u32)| selected.get(id as usize).copied().unwrap_or(false);
-        let mut runs: Vec<_> = self.runs.iter().filter(kept).collect();
-        if runs.is_empty() {
-            runs.extend(self.runs.first());
-        }
-        let n: usize = runs.iter().map(|r| r.2 as usize).sum();
-        let (mut pos, mut col, mut ids, mut idx) =
-            (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n), Vec::new());
-        for &&(id, first, count) in &runs {
-            let base = pos.len() as u32;
-            let range = first as usize..(first + count) as usize;
-            pos.extend_from_slice(&self.positions[range.clone()]);
-            col.extend_from_slice(&self.colours[range]);
-            ids.extend(std::iter::repeat_n(id, count as usize));
-            idx.extend((0..count.saturating_sub(1)).flat_map(|k| [base + k, base + k + 1]));
-        }
-        compact_line_list(pos, ids, col, idx)
-    }
-}
-
-/// Remakes the preview mesh of each line set whose selection changed ([`apply_rois`]) of its selected
-/// streamlines ([`PreviewLines::selected`]), drawn in the same frame; a set that arrived in this frame, in the
-/// next (its preview's `Added` event is sent then, and would extract the mesh a second time).
-pub fn narrow_previews(
-    changed: Query<(Entity, Ref<TractSelection>), Changed<TractSelection>>,
-    mut sets: Query<(&TractSelection, &MeshSet, &mut PreviewLines)>,
-    mut meshes: ResMut<Assets<Mesh>>,
-    mut mesh_events: MessageWriter<AssetEvent<Mesh>>,
-    mut arrived: Local<Vec<Entity>>,
-) {
-    let mut due = std::mem::take(&mut *arrived);
-    for (e, selection) in &changed {
-        if selection.is_added() { arrived.push(e) } else { due.push(e) }
-    }
-    due.sort_unstable();
-    due.dedup();
-    for e in due {
-        let Ok((selection, set, mut lines)) = sets.get_mut(e) else { continue };
-        // A preview that holds every streamline already (a layer without ROIs) is not sent again.
-        let all = selection.0.iter().all(|s| *s);
-        if all && !lines.narrowed {
-            continue;
-        }
-        lines.narrowed = !all;
-        if let Some(preview) = &set.preview {
-            let narrowed = lines.selected(&selection.0);
-            fascicle_render::modify_now(&mut meshes, &mut mesh_events, preview, |m| *m = narrowed);
-        }
-    }
+    bytes
 }
 
 /// What a set's shaders read of its selection (the flag buffer) and, for a set that keeps its streamlines,
@@ -1329,9 +1251,12 @@ pub(crate) fn insert_prepared(
             let tubes = (&packed[..], n_tubelets, *boxes, preview.map(|p| *p));
             insert_tube_set(e, meshes, tube_materials, buffers, target, tubes, settings)
         }
-        PreparedGeometry::Mesh { mesh, preview } => {
+        PreparedGeometry::Mesh { mesh, preview, lines_tolerance_mm } => {
             if let Some(lines) = preview.as_deref().and_then(PreviewLines::of) {
                 e.insert(lines);
+            }
+            if let Some(tolerance) = lines_tolerance_mm {
+                e.insert(SelectedLines::new(tolerance));
             }
             let preview = preview.map(|p| meshes.add(*p));
             insert_mesh_set(e, meshes, mesh_materials, target, (*mesh, preview), opacity)
@@ -1481,6 +1406,7 @@ pub fn spawn_lines(
     let preview = meshes.add(preview);
     let target = tract_set(buffers, SetStreamlines::Owned(tractogram), LazyIndex::default(), 0);
     let e = spawn_mesh_set(commands, meshes, materials, target, (mesh, Some(preview)), opacity);
+    commands.entity(e).insert(SelectedLines::new(LINE_TOLERANCE_MM));
     if let Some(lines) = lines {
         commands.entity(e).insert(lines);
     }
@@ -1609,11 +1535,22 @@ pub fn preview_mesh(t: &Tractogram, colour: Option<PointColour>) -> Mesh {
 
 /// [`line_mesh_coloured`] of every `stride`-th streamline.
 fn strided_line_mesh(t: &Tractogram, colour: Option<PointColour>, tolerance_mm: f64, stride: usize) -> Mesh {
+    line_list(t.iter().enumerate().step_by(stride.max(1)), colour, tolerance_mm)
+}
+
+/// [`line_mesh_coloured`] of the streamlines `of` yields (each its index in the set, which its vertices keep,
+/// and its points): the one construction of whole lines, previews and the lines of a selection
+/// ([`SelectedLines`]), so that each draws a streamline as the others do.
+fn line_list<'a>(
+    of: impl Iterator<Item = (usize, &'a [Vec3])>,
+    colour: Option<PointColour>,
+    tolerance_mm: f64,
+) -> Mesh {
     let compression = Compression { tolerance_mm, ..Compression::default() };
     let (mut pos, mut col, mut ids) = (Vec::new(), Vec::new(), Vec::new());
     let mut idx: Vec<u32> = Vec::new();
     let mut kept = Vec::new();
-    for (i, s) in t.iter().enumerate().step_by(stride.max(1)).filter(|(_, s)| s.len() >= 2) {
+    for (i, s) in of.filter(|(_, s)| s.len() >= 2) {
         kept.clear();
         kept_points(s, compression, &mut kept);
         let base = pos.len() as u32;
@@ -1767,6 +1704,8 @@ pub fn apply_rois(
         let owner = |p: &ChildOf| p.parent() == entity || layer.is_some_and(|l| l.parent() == p.parent());
         let list: Vec<Roi> = rois.iter().filter(|(_, parent)| parent.is_none_or(owner)).map(|(r, _)| r.0).collect();
         let ends_only = on_set_or_layer(&rules, entity, layer).is_some_and(|r| r.ends_only);
+        let masked = on_set_or_layer(&masks, entity, layer);
+        let deletions = on_set_or_layer(&deleted, entity, layer);
         let t = &set.tractogram;
         // The layer's run, when it was joined from this set among others and the ROIs are the layer's.
         let joined = layer.map(ChildOf::parent).filter(|l| {
@@ -1791,7 +1730,13 @@ pub fn apply_rois(
                 continue;
             };
             let from = set.first - run.first;
-            whole[from..from + t.n_streamlines()].to_vec()
+            let part = &whole[from..from + t.n_streamlines()];
+            // A part the step left as it was is neither copied nor packed (most of a layer, away from the ROI).
+            if !set.is_changed() && masked.is_none() && deletions.is_none() && selection.0 == part {
+                selected += part.iter().filter(|s| **s).count();
+                continue;
+            }
+            part.to_vec()
         } else if let SetStreamlines::Mapped(_) = t {
             // A part read in place whose layer has no run yet (its parts still arriving): every streamline
             // tested, and no index of the part's own (the layer's is made once its parts are in).
@@ -1799,7 +1744,6 @@ pub fn apply_rois(
         } else {
             set.index.select(t, &list)
         };
-        let masked = on_set_or_layer(&masks, entity, layer);
         if let Some(m) = masked {
             m.narrow(t, ends_only, &mut sel);
         }
@@ -1807,7 +1751,7 @@ pub fn apply_rois(
             // A pass over every streamline: what it read in place goes again.
             t.release();
         }
-        for &s in on_set_or_layer(&deleted, entity, layer).iter().flat_map(|d| d.0.iter()) {
+        for &s in deletions.iter().flat_map(|d| d.0.iter()) {
             if let Some(k) = (s as usize).checked_sub(set.first).and_then(|s| sel.get_mut(s)) {
                 *k = false;
             }
@@ -2338,6 +2282,14 @@ mod tests {
         }
         assert_eq!(words[2] >> 6, 0, "no bit past the last streamline");
         assert_eq!(selection_words(&[]), vec![0; 4]);
+        // Flags in no pattern: each bit as the shaders read it.
+        let sel: Vec<bool> = (0..1_001u64).map(|s| (s.wrapping_mul(2_654_435_761) >> 13) & 1 == 1).collect();
+        let bytes = selection_words(&sel);
+        assert_eq!(bytes.len(), 4 * 32);
+        for (s, &k) in sel.iter().enumerate() {
+            let word = u32::from_le_bytes(bytes[4 * (s >> 5)..4 * (s >> 5) + 4].try_into().unwrap());
+            assert_eq!((word >> (s & 31)) & 1 == 1, k, "streamline {s}");
+        }
     }
 
     /// An ROI move re-selects every set, but a set whose selection stays as it was keeps its flags: its

@@ -296,3 +296,46 @@ fn a_slab_shows_the_streamlines_within_it_and_the_set_all() {
     assert_eq!(lit_runs(&set), 17, "the set's lines: columns {:?}", lit_columns(&set));
     assert_eq!(lit_runs(&slab), 5, "the slab's lines: columns {:?}", lit_columns(&slab));
 }
+
+/// A selection of few streamlines draws lines of its own ([`SelectedLines`]: the whole mesh's vertices of the
+/// selected streamlines only) and the picture is the one the whole mesh draws with the selection's flags:
+/// the 17-line fan with a sphere around the lines at x = 0 and 1 (2 of 17, under an eighth), drawn both ways.
+#[test]
+fn the_lines_of_a_small_selection_draw_what_the_whole_set_draws() {
+    use fascicle_tracts::{MeshSet, SelectedLines};
+    let render = |own_lines: bool| {
+        let (mut app, target) = headless::gpu_test_app(W, H)?;
+        app.add_plugins(TractPlugin);
+        app.add_systems(
+            Startup,
+            move |mut commands: Commands,
+                  mut meshes: ResMut<Assets<Mesh>>,
+                  mut materials: ResMut<Assets<TractMeshMaterial>>,
+                  mut buffers: ResMut<Assets<ShaderBuffer>>| {
+                let set = spawn_lines(&mut commands, &mut meshes, &mut materials, &mut buffers, Arc::new(fan()), 1.0);
+                let sphere = RoiShape::Sphere { centre: [0.5, 0.0, 0.0], radius: 0.6 };
+                commands.spawn((TractRoi(Roi { shape: sphere, mode: RoiMode::Include }), ChildOf(set)));
+                if !own_lines {
+                    commands.entity(set).remove::<SelectedLines>();
+                }
+            },
+        );
+        headless::spawn_test_camera(&mut app, target.clone(), Vec3::new(0.0, 0.0, EYE_Z), Vec3::ZERO);
+        let img = headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(app.world().resource::<RoiStats>().selected, 2);
+        let mut q = app.world_mut().query::<(&MeshSet, &Mesh3d, Option<&SelectedLines>)>();
+        let (set, mesh, lines) = q.single(app.world()).expect("one line set");
+        let drawn = lines.and_then(SelectedLines::mesh).map(|(h, _)| h.clone());
+        assert_eq!(drawn.is_some(), own_lines, "the selection's own lines made");
+        assert_eq!(mesh.0, drawn.unwrap_or(set.full.clone()), "the set draws them");
+        Some(img)
+    };
+    let Some(own) = render(true) else { return };
+    let Some(whole) = render(false) else { return };
+    let cols = lit_columns(&own);
+    println!("lit columns: {cols:?}");
+    // The two selected lines (the sphere's outline joins them on row 60), none of the others.
+    let near = |x: f32| cols.iter().any(|&c| (c as f32 - column(x)).abs() <= 1.0);
+    assert!(near(0.0) && near(1.0) && !near(-2.0) && !near(3.0) && !near(-8.0), "{cols:?}");
+    assert!(own.rgba == whole.rgba, "the selection's lines drew another picture than the whole set with its flags");
+}
