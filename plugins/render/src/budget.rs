@@ -138,6 +138,11 @@ impl Interacting {
     pub fn pending(&mut self) {
         self.pending = true;
     }
+
+    /// Whether [`Interacting::pending`] was reported since the budget last read it (each frame).
+    pub fn is_pending(&self) -> bool {
+        self.pending
+    }
 }
 
 /// What the budget decided, for readouts and tests.

@@ -486,13 +486,13 @@ fn tract_detail(
     }
     let software = adapter.is_some_and(|a| a.is_software());
     let limit = if software { detail.software_max_segments } else { detail.hardware_max_segments };
-    // A set whose selection has lines of its own draws those when still.
-    let whole =
-        |s: &LineSegments, selected: Option<&SelectedLines>| selected.and_then(|l| l.mesh()).map_or(s.0, |m| m.1);
+    // The whole meshes' segments, also where a selection's own lines are drawn when still: those cost their
+    // segments, not pixels, and drawn while moving they would take the render scale to its smallest (0.7M
+    // segments of a 1M layer's sphere: 80 ms frames at an eighth of the side, where its previews take 35 ms).
     let segments: usize = sets
         .iter()
         .filter(|(set, _, shown, _, _)| set.preview.is_some() && shown.get())
-        .map(|(_, s, _, _, selected)| whole(s, selected))
+        .map(|(_, s, _, _, _)| s.0)
         .sum();
     let shown = sets.iter().any(|(set, _, _, mesh, _)| set.preview.as_ref() == Some(&mesh.0));
     let (moving, coarse) = match &budget {

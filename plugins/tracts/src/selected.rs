@@ -8,7 +8,8 @@
 
 use bevy::mesh::{PrimitiveTopology, VertexAttributeValues};
 use bevy::prelude::*;
-use bevy::tasks::{AsyncComputeTaskPool, Task, futures::check_ready};
+use std::sync::mpsc::{Receiver, TryRecvError};
+use std::sync::{Arc, Mutex};
 
 use crate::{
     ATTRIBUTE_RGBA8, ATTRIBUTE_STREAMLINE, MeshSet, SetStreamlines, TractSelection, TractSet, compact_line_list,
@@ -124,7 +125,7 @@ pub fn narrow_previews(
 pub const SELECTED_LINES_BELOW: f64 = 0.125;
 
 /// The selected points up to which a set's selected lines are made in the frame that needs them (a few
-/// milliseconds); more are made on Bevy's async compute pool.
+/// milliseconds); more are made on rayon's pool.
 const IN_FRAME_POINTS: usize = 200_000;
 
 /// The whole lines of a line set's selected streamlines, when the selection keeps fewer than
@@ -132,9 +133,9 @@ const IN_FRAME_POINTS: usize = 200_000;
 /// (coloured by direction, compressed to the same tolerance: sets coloured otherwise carry none of this), each
 /// vertex keeping its streamline's index in the set, so the set's material and flags act on it as on the
 /// whole mesh. Made once the selection rests (no frame budget, or the view still: never at each step of an
-/// ROI drag, whose frames draw the previews), in the frame for a small selection, otherwise in the background;
-/// until it is drawn, the whole mesh with the selection's flags draws the same picture (and a viewer with
-/// [`crate::TractDetail`] on keeps the preview). The set then draws it where it drew the whole mesh, while
+/// ROI drag, whose frames draw the previews), in the frame for a small selection, otherwise on rayon's pool
+/// (every core: no frame is drawn meanwhile); until it is drawn, the whole mesh with the selection's flags
+/// draws the same picture (and a viewer with [`crate::TractDetail`] on keeps the preview). The set then draws it where it drew the whole mesh, while
 /// the view is still; a new selection drops it at once (its GPU copy goes with it).
 #[derive(Component, Default)]
 pub struct SelectedLines {
@@ -143,8 +144,9 @@ pub struct SelectedLines {
     /// Whether the current selection keeps few enough streamlines for a mesh of its own; `None` until it is
     /// weighed (once the view is still: not at each step of a drag).
     wanted: Option<bool>,
-    /// Its mesh being made in the background (dropped, and so cancelled, when the selection changes).
-    task: Option<Task<Mesh>>,
+    /// Its mesh being made on rayon's pool, and the token that job holds weakly: dropped when the selection
+    /// changes, so that a job not started yet does nothing.
+    task: Option<(Mutex<Receiver<Mesh>>, Arc<()>)>,
     /// Its mesh, the segments it draws, and whether it can be drawn: the render world has it from the frame
     /// after it was added (its `Added` event is sent then).
     made: Option<(Handle<Mesh>, usize, bool)>,
@@ -185,17 +187,25 @@ fn selected_lines(t: &SetStreamlines, selected: &[bool], tolerance_mm: f64) -> M
 
 /// Keeps each line set's [`SelectedLines`] in step with its selection: a changed selection drops the mesh
 /// of the last one (and a build under way) and wants one when it keeps fewer than [`SELECTED_LINES_BELOW`] of
-/// the streamlines; a wanted mesh is made once the view is still ([`BudgetState`](fascicle_render::budget::BudgetState),
-/// when there is one), and can be drawn the frame after it is added. While any is being made, a window drawn
-/// on demand keeps looking, and draws once the last can be.
+/// the streamlines; a wanted mesh is made once the selection rests: the view is still
+/// ([`BudgetState`](fascicle_render::budget::BudgetState), when there is one), or the set's selection did not
+/// change in this frame and no layer's is being made ([`RoiStats::pending_layers`](crate::RoiStats)), as
+/// after the last step of a drag. It can be drawn the frame after it is added. While any is being made, the
+/// interaction that changed the selection is not over ([`Interacting::pending`](fascicle_render::budget::Interacting::pending):
+/// its full-quality frame waits for them, and draws once), and a window drawn on demand keeps looking.
 #[allow(clippy::type_complexity, reason = "a Bevy system's parameters")]
 pub fn make_selected_lines(
     mut sets: Query<(Ref<TractSelection>, &TractSet, &mut SelectedLines)>,
     mut meshes: ResMut<Assets<Mesh>>,
-    budget: Option<Res<fascicle_render::budget::BudgetState>>,
-    (mut keep_awake, mut was_making): (Option<ResMut<fascicle_render::KeepAwake>>, Local<bool>),
+    (budget, stats): (Option<Res<fascicle_render::budget::BudgetState>>, Option<Res<crate::RoiStats>>),
+    (mut keep_awake, mut interacting, mut was_making): (
+        Option<ResMut<fascicle_render::KeepAwake>>,
+        Option<ResMut<fascicle_render::budget::Interacting>>,
+        Local<bool>,
+    ),
 ) {
     let still = budget.is_none_or(|b| !b.moving);
+    let selecting = stats.is_some_and(|s| s.pending_layers > 0);
     let (mut making, mut landed) = (false, false);
     for (selection, set, mut lines) in &mut sets {
         // Book-keeping only: what the set draws changes with its `Mesh3d` ([`crate::TractDetail`]'s system),
@@ -205,10 +215,11 @@ pub fn make_selected_lines(
             made.2 = true;
             landed = true;
         }
-        if selection.is_changed() {
+        let changed = selection.is_changed();
+        if changed {
             (lines.wanted, lines.task, lines.made) = (None, None, None);
         }
-        if still && lines.wanted.is_none() {
+        if (still || (!changed && !selecting)) && lines.wanted.is_none() {
             let kept = selection.0.iter().filter(|s| **s).count();
             lines.wanted = Some((kept as f64) < SELECTED_LINES_BELOW * selection.0.len() as f64);
         }
@@ -224,19 +235,40 @@ pub fn make_selected_lines(
                 mesh = Some(selected_lines(t, &selection.0, lines.tolerance_mm));
             } else {
                 let (t, selected, tolerance) = (t.clone(), selection.0.clone(), lines.tolerance_mm);
-                let task = async move { selected_lines(&t, &selected, tolerance) };
-                lines.task = Some(AsyncComputeTaskPool::get().spawn(task));
+                let (send, done) = std::sync::mpsc::channel();
+                let token = Arc::new(());
+                let wanted = Arc::downgrade(&token);
+                rayon::spawn(move || {
+                    // A job that panicked sends nothing (its sender dropped): the whole mesh draws instead.
+                    let make = std::panic::AssertUnwindSafe(|| selected_lines(&t, &selected, tolerance));
+                    if wanted.strong_count() > 0
+                        && let Ok(mesh) = std::panic::catch_unwind(make)
+                    {
+                        _ = send.send(mesh);
+                    }
+                });
+                lines.task = Some((Mutex::new(done), token));
             }
         }
-        if let Some(made) = lines.task.as_mut().and_then(check_ready) {
-            lines.task = None;
-            mesh = Some(made);
+        let received =
+            lines.task.as_ref().map(|(done, _)| done.lock().map_or(Err(TryRecvError::Disconnected), |d| d.try_recv()));
+        match received {
+            Some(Ok(made)) => {
+                lines.task = None;
+                mesh = Some(made);
+            }
+            // The job died: the whole mesh and its flags draw the selection.
+            Some(Err(TryRecvError::Disconnected)) => (lines.task, lines.wanted) = (None, Some(false)),
+            _ => {}
         }
         if let Some(mesh) = mesh {
             let segments = crate::line_segments(&mesh);
             lines.made = Some((meshes.add(mesh), segments, false));
         }
         making |= lines.task.is_some() || lines.made.is_some();
+    }
+    if making && let Some(interacting) = interacting.as_deref_mut() {
+        interacting.pending();
     }
     if let Some(keep) = keep_awake.as_deref_mut() {
         if making {
@@ -257,7 +289,7 @@ mod tests {
     use bevy::mesh::Indices;
     use bevy::render::storage::ShaderBuffer;
     use fascicle_core::io::Tractogram;
-    use fascicle_render::budget::BudgetState;
+    use fascicle_render::budget::{BudgetState, Interacting};
 
     use super::*;
     use crate::{TractMeshMaterial, line_mesh, spawn_lines};
@@ -372,15 +404,24 @@ mod tests {
         let lines_now = app.world().get::<SelectedLines>(e).unwrap();
         assert!(lines_now.mesh().is_none() && !lines_now.pending());
 
-        // While the view moves (a frame budget's drag), nothing is made; once still, it is.
-        app.insert_resource(BudgetState { moving: true, ..default() });
-        select(&mut app, e, &keep);
-        for _ in 0..3 {
+        // While the view moves (a frame budget's drag), nothing is made while the selection changes every frame
+        // or a layer's selection is being made; a frame that changes it not, with none being made, makes it, and
+        // the interaction is pending until it can be drawn.
+        app.insert_resource(BudgetState { moving: true, ..default() }).init_resource::<Interacting>();
+        app.insert_resource(crate::RoiStats { pending_layers: 1, ..default() });
+        for k in 0..4 {
+            if k < 2 {
+                select(&mut app, e, if k % 2 == 0 { &keep } else { &many });
+            }
             app.update();
+            assert!(app.world().get::<SelectedLines>(e).unwrap().mesh().is_none(), "made while selecting ({k})");
         }
-        assert!(app.world().get::<SelectedLines>(e).unwrap().pending());
-        app.world_mut().resource_mut::<BudgetState>().moving = false;
+        select(&mut app, e, &keep);
         app.update();
+        app.world_mut().resource_mut::<crate::RoiStats>().pending_layers = 0;
+        app.update();
+        assert!(app.world().get::<SelectedLines>(e).unwrap().pending(), "made in the frame the selection rests");
+        assert!(app.world().resource::<Interacting>().is_pending(), "the interaction is pending meanwhile");
         app.update();
         assert_eq!(selected_mesh(&app, e).map(|m| lines(&m)), Some(expected));
     }
