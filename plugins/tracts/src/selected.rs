@@ -434,10 +434,12 @@ mod tests {
         let whole = line_mesh(&t);
         let (mut app, e) = app_with_lines(t);
         let keep: Vec<bool> = (0..2_000).map(|s| s % 9 == 4).collect();
+        assert!(keep.iter().filter(|k| **k).count() * 1_000 > IN_FRAME_POINTS, "more points than a frame makes");
         select(&mut app, e, &keep);
         app.update();
+        // Sent to rayon's pool (or, when this thread was descheduled meanwhile, already back from it).
         let lines_now = app.world().get::<SelectedLines>(e).unwrap();
-        assert!(lines_now.task.is_some(), "222 streamlines of 1,000 points: over {IN_FRAME_POINTS} points");
+        assert!(lines_now.task.is_some() || lines_now.made.as_ref().is_some_and(|m| !m.2));
         let start = std::time::Instant::now();
         while selected_mesh(&app, e).is_none() && start.elapsed() < std::time::Duration::from_secs(60) {
             std::thread::sleep(std::time::Duration::from_millis(5));
