@@ -1131,7 +1131,8 @@ struct FileDialog(Option<bevy::tasks::Task<Option<Vec<PathBuf>>>>);
 /// A line per frame for `fascicle-bench interact` (the file named by `FASCICLE_FRAME_LOG`): the wall clock
 /// (Unix ms) and the frame's time (ms, the real time since the frame before, as the panel's readout), the 3D view's render scale, whether the view moved, when the next frame is
 /// due, the window position (logical px) of the first visible tract layer's first ROI or seed sphere, and
-/// whether the budget draws coarse ([`BudgetState::coarse`]).
+/// whether the budget draws coarse ([`BudgetState::coarse`]), and how many ROI selections have been made
+/// ([`RoiStats::evaluations`]: a drag's steps that landed).
 #[derive(Resource)]
 struct FrameLog(std::io::LineWriter<std::fs::File>);
 
@@ -1150,7 +1151,7 @@ impl FrameLog {
 fn log_frame(
     mut log: ResMut<FrameLog>,
     time: Res<Time<bevy::time::Real>>,
-    (budget, next): (Res<BudgetState>, Res<NextFrame>),
+    (budget, next, roi_stats): (Res<BudgetState>, Res<NextFrame>, Res<RoiStats>),
     scene: Res<ActiveScene>,
     camera: Single<(&Camera, &GlobalTransform), With<MainView>>,
 ) {
@@ -1169,7 +1170,7 @@ fn log_frame(
         })
         .unwrap_or(Vec2::NAN);
     let line = format!(
-        "{} {:.2} {} {} {:?} {:.0} {:.0} {}",
+        "{} {:.2} {} {} {:?} {:.0} {:.0} {} {}",
         std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis()),
         time.delta_secs_f64() * 1e3,
         budget.scale,
@@ -1177,7 +1178,8 @@ fn log_frame(
         *next,
         roi.x,
         roi.y,
-        budget.coarse
+        budget.coarse,
+        roi_stats.evaluations
     );
     let _ = writeln!(log.0, "{line}");
 }

@@ -23,7 +23,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// The CSV's header (one row per scene and action).
-pub const CSV_HEADER: &str = "scene,action,frames,median_ms,p95_ms,refine_ms,idle_cpu_pct";
+pub const CSV_HEADER: &str = "scene,action,frames,median_ms,p95_ms,refine_ms,idle_cpu_pct,selections";
 
 /// What to run.
 pub struct InteractOptions<'a> {
@@ -55,6 +55,8 @@ struct Row {
     idle_cpu_pct: Option<f64>,
     /// The median render scale of the frames (for the printed table).
     scale: f64,
+    /// ROI selections that landed during the action (a drag's steps), from the frame log.
+    selections: Option<u64>,
 }
 
 impl Row {
@@ -79,6 +81,7 @@ impl Row {
             refine_ms,
             idle_cpu_pct: None,
             scale: percentile(&scales, 0.5),
+            selections: None,
         }
     }
 
@@ -94,6 +97,7 @@ impl Row {
             f.push(num(self.scale, 3));
         }
         f.extend([opt(self.refine_ms, d), opt(self.idle_cpu_pct, 2 + d)]);
+        f.push(self.selections.map_or(String::new(), |n| n.to_string()));
         f
     }
 }
@@ -130,6 +134,8 @@ struct Frame {
     scale: f64,
     next: String,
     roi: Option<(f64, f64)>,
+    /// ROI selections made so far (the log's ninth column, when there).
+    selections: Option<u64>,
 }
 
 fn read_log(path: &Path) -> Vec<Frame> {
@@ -146,6 +152,7 @@ fn read_log(path: &Path) -> Vec<Frame> {
                 scale: f[2].parse().ok()?,
                 next: f[4].to_string(),
                 roi: (x.is_finite() && y.is_finite()).then_some((x, y)),
+                selections: f.get(8).and_then(|n| n.parse().ok()),
             })
         })
         .collect()
@@ -340,7 +347,11 @@ fn measure_drag(
         .map(|w| ((w[1].at_ms - w[0].at_ms) as f64, w[1].scale))
         .collect();
     let (ms, scales) = during.into_iter().unzip();
-    Ok(Row::of_frames(scene, action, ms, scales, refine_ms))
+    // The selections that landed from the press until the picture settled (the last ones after the release).
+    let made = |f: &Frame| f.selections;
+    let before = frames.iter().rev().find(|f| f.at_ms < press).and_then(made);
+    let selections = frames.last().and_then(made).zip(before).map(|(end, start)| end.saturating_sub(start));
+    Ok(Row { selections, ..Row::of_frames(scene, action, ms, scales, refine_ms) })
 }
 
 /// The bench (see the module docs).
@@ -428,17 +439,19 @@ pub fn run(o: InteractOptions) -> Result<(), String> {
             refine_ms: None,
             idle_cpu_pct: Some(idle_pct),
             scale: f64::NAN,
+            selections: None,
         });
         for r in rows.iter().filter(|r| r.scene == name) {
             eprintln!(
-                "  {:9} {:4} frames, median {:7.1} ms, p95 {:7.1} ms, scale {:.3}, refine {:?} ms, idle {:?} %",
-                r.action, r.frames, r.median_ms, r.p95_ms, r.scale, r.refine_ms, r.idle_cpu_pct
+                "  {:9} {:4} frames, median {:7.1} ms, p95 {:7.1} ms, scale {:.3}, refine {:?} ms, idle {:?} %, \
+                 selections {:?}",
+                r.action, r.frames, r.median_ms, r.p95_ms, r.scale, r.refine_ms, r.idle_cpu_pct, r.selections
             );
         }
     }
     println!(
-        "| scene | action | frames | median ms | p95 ms | render scale (median) | refine ms | idle CPU % |\n\
-         |---|---|---:|---:|---:|---:|---:|---:|"
+        "| scene | action | frames | median ms | p95 ms | render scale (median) | refine ms | idle CPU % | selections |\n\
+         |---|---|---:|---:|---:|---:|---:|---:|---:|"
     );
     for r in &rows {
         println!("| {} |", r.fields(true).join(" | "));
@@ -463,12 +476,16 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("fascicle-interact-test-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("dir");
         let p = dir.join("frames");
-        std::fs::write(&p, "1700000000000 12.50 0.5 true Now 640 360\n1700000000100 3.00 1 false Idle NaN NaN\nbad\n")
-            .expect("write");
+        std::fs::write(
+            &p,
+            "1700000000000 12.50 0.5 true Now 640 360\n1700000000100 3.00 1 false Idle NaN NaN false 7\nbad\n",
+        )
+        .expect("write");
         let f = read_log(&p);
         assert_eq!(f.len(), 2);
         assert_eq!((f[0].at_ms, f[0].scale, f[0].roi), (1700000000000, 0.5, Some((640.0, 360.0))));
         assert_eq!((f[1].next.as_str(), f[1].roi), ("Idle", None));
+        assert_eq!((f[0].selections, f[1].selections), (None, Some(7)));
         let _ = std::fs::remove_dir_all(&dir);
         let v: Vec<f64> = (1..=20).map(f64::from).collect();
         assert_eq!((percentile(&v, 0.5), percentile(&v, 0.95)), (11.0, 19.0));
@@ -482,13 +499,20 @@ mod tests {
             refine_ms: None,
             idle_cpu_pct: Some(0.25),
             scale: f64::NAN,
+            selections: None,
         };
-        assert_eq!(row.fields(false).join(","), "default,idle,0,,,,0.250");
+        assert_eq!(row.fields(false).join(","), "default,idle,0,,,,0.250,");
         assert_eq!(row.fields(false).len(), CSV_HEADER.split(',').count());
-        assert_eq!(row.fields(true).len(), 8);
+        assert_eq!(row.fields(true).len(), 9);
         // The opening: its frames' intervals, and the time to the complete picture in refine_ms.
-        let at = |ms: u128| Frame { at_ms: 1_700_000_000_000 + ms, scale: 1.0, next: "Poll".into(), roi: None };
+        let at = |ms: u128| Frame {
+            at_ms: 1_700_000_000_000 + ms,
+            scale: 1.0,
+            next: "Poll".into(),
+            roi: None,
+            selections: None,
+        };
         let open = open_row("f.tck", &[at(0), at(100), at(400)], Duration::from_millis(5200));
-        assert_eq!(open.fields(false).join(","), "f.tck,open,3,300.00,300.00,5200.0,");
+        assert_eq!(open.fields(false).join(","), "f.tck,open,3,300.00,300.00,5200.0,,");
     }
 }
