@@ -4,7 +4,8 @@
 //! first ROI sphere), then the idle window.
 //!
 //! The viewer writes a line per frame to the file named by `FASCICLE_FRAME_LOG` (wall clock, the frame's time
-//! as the panel's readout shows it, the render scale, the ROI's window position). Per action: the frames drawn
+//! as the panel's readout shows it, the render scale, the ROI's window position, the ROI selections made so
+//! far). Per action: the ROI selections that landed from the press until the picture settled; the frames drawn
 //! between the press and the release (a hover: its first and last move), each timed from the frame before (the wall clock of the lines: the
 //! readout's time comes from the render world, a frame late under pipelined rendering), their median and
 //! 95th percentile; `refine_ms`, from the release until the process stops using the CPU (the
