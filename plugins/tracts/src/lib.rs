@@ -1177,7 +1177,7 @@ impl PreparedTracts {
     pub fn lines_in_detail(tractogram: Arc<Tractogram>, colour: Option<PointColour>, detail: LineDetail) -> Self {
         let mesh = Box::new(line_mesh_coloured(&tractogram, colour, detail.tolerance_mm));
         let preview = strided_line_mesh(&tractogram, colour, PREVIEW_TOLERANCE_MM, detail.preview_stride);
-        let lines_tolerance_mm = colour.is_none().then_some(detail.tolerance_mm);
+        let lines_tolerance_mm = (colour.is_none() && detail.selected_lines).then_some(detail.tolerance_mm);
         let geometry = PreparedGeometry::Mesh { mesh, preview: Some(Box::new(preview)), lines_tolerance_mm };
         PreparedTracts::with(tractogram, geometry)
     }
@@ -1481,11 +1481,15 @@ pub struct LineDetail {
     pub tolerance_mm: f64,
     /// One streamline in this many is in the preview (default [`PREVIEW_STRIDE`], 16).
     pub preview_stride: usize,
+    /// Whether a selection of few streamlines draws lines of its own ([`SelectedLines`]; default true, false
+    /// above [`COARSE_DETAIL_POINTS`]: a 10M-streamline layer's viewer then peaked at 7.0-7.9 GiB instead of
+    /// 6.4-6.5, over #33's 8 GB in one run).
+    pub selected_lines: bool,
 }
 
 impl Default for LineDetail {
     fn default() -> Self {
-        Self { tolerance_mm: LINE_TOLERANCE_MM, preview_stride: PREVIEW_STRIDE }
+        Self { tolerance_mm: LINE_TOLERANCE_MM, preview_stride: PREVIEW_STRIDE, selected_lines: true }
     }
 }
 
@@ -1512,7 +1516,7 @@ impl LineDetail {
     /// compressed to [`WHOLE_BRAIN_TOLERANCE_MM`] and the default preview; above, whole lines compressed to
     /// [`PREVIEW_TOLERANCE_MM`] (about half the segments of 0.1 mm: 10M streamlines in about 3 GB) and a
     /// preview stride that keeps the preview near [`PREVIEW_SEGMENTS`] (0.5 mm keeps about 11 % of the points
-    /// of a whole-brain tractogram at 1 mm steps).
+    /// of a whole-brain tractogram at 1 mm steps), and no lines of a selection's own.
     pub fn for_points(points: u64) -> Self {
         if points <= FULL_DETAIL_POINTS {
             return Self::default();
@@ -1521,7 +1525,7 @@ impl LineDetail {
             return Self { tolerance_mm: WHOLE_BRAIN_TOLERANCE_MM, ..Self::default() };
         }
         let preview_stride = (points * 11 / 100).div_ceil(PREVIEW_SEGMENTS).max(PREVIEW_STRIDE as u64);
-        Self { tolerance_mm: PREVIEW_TOLERANCE_MM, preview_stride: preview_stride as usize }
+        Self { tolerance_mm: PREVIEW_TOLERANCE_MM, preview_stride: preview_stride as usize, selected_lines: false }
     }
 }
 
