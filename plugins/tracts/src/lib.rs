@@ -522,7 +522,7 @@ fn tract_detail(
         let awaiting = detail.enabled && selected.is_some_and(SelectedLines::pending);
         let want = match (&set.preview, coarse || awaiting) {
             (Some(preview), true) => preview,
-            _ => selected.and_then(SelectedLines::mesh).map_or(&set.full, |m| m.0),
+            _ => selected.and_then(SelectedLines::mesh).unwrap_or(&set.full),
         };
         if mesh.0 != *want {
             mesh.0 = want.clone();
@@ -1252,14 +1252,8 @@ pub(crate) fn insert_prepared(
             insert_tube_set(e, meshes, tube_materials, buffers, target, tubes, settings)
         }
         PreparedGeometry::Mesh { mesh, preview, lines_tolerance_mm } => {
-            if let Some(lines) = preview.as_deref().and_then(PreviewLines::of) {
-                e.insert(lines);
-            }
-            if let Some(tolerance) = lines_tolerance_mm {
-                e.insert(SelectedLines::new(tolerance));
-            }
-            let preview = preview.map(|p| meshes.add(*p));
-            insert_mesh_set(e, meshes, mesh_materials, target, (*mesh, preview), opacity)
+            let mesh = (*mesh, preview.map(|p| *p), lines_tolerance_mm);
+            insert_mesh_set(e, meshes, mesh_materials, target, mesh, opacity)
         }
     }
 }
@@ -1333,7 +1327,7 @@ fn spawn_mesh_set(
     meshes: &mut Assets<Mesh>,
     materials: &mut Assets<TractMeshMaterial>,
     selection: Selection,
-    mesh: (Mesh, Option<Handle<Mesh>>),
+    mesh: (Mesh, Option<Mesh>, Option<f64>),
     opacity: f32,
 ) -> Entity {
     let mut e = commands.spawn_empty();
@@ -1341,15 +1335,24 @@ fn spawn_mesh_set(
     e.id()
 }
 
-/// [`spawn_mesh_set`]'s components, onto `e`.
+/// [`spawn_mesh_set`]'s components, onto `e`: the whole mesh, its preview (lines: kept on the CPU too,
+/// [`PreviewLines`]) and, for lines coloured by direction, the tolerance the lines of a selection are made
+/// with ([`SelectedLines`]).
 fn insert_mesh_set(
     e: &mut EntityCommands,
     meshes: &mut Assets<Mesh>,
     materials: &mut Assets<TractMeshMaterial>,
     selection: Selection,
-    (mesh, preview): (Mesh, Option<Handle<Mesh>>),
+    (mesh, preview, lines_tolerance_mm): (Mesh, Option<Mesh>, Option<f64>),
     opacity: f32,
 ) {
+    if let Some(lines) = preview.as_ref().and_then(PreviewLines::of) {
+        e.insert(lines);
+    }
+    if let Some(tolerance) = lines_tolerance_mm {
+        e.insert(SelectedLines::new(tolerance));
+    }
+    let preview = preview.map(|p| meshes.add(p));
     let params = TractMeshUniform::whole(opacity);
     let material = materials.add(TractMeshMaterial { params, selected: selection.flags });
     let line_segments = line_segments(&mesh);
@@ -1401,16 +1404,9 @@ pub fn spawn_lines(
     tractogram: Arc<Tractogram>,
     opacity: f32,
 ) -> Entity {
-    let (mesh, preview) = (line_mesh(&tractogram), preview_mesh(&tractogram, None));
-    let lines = PreviewLines::of(&preview);
-    let preview = meshes.add(preview);
+    let lines = (line_mesh(&tractogram), Some(preview_mesh(&tractogram, None)), Some(LINE_TOLERANCE_MM));
     let target = tract_set(buffers, SetStreamlines::Owned(tractogram), LazyIndex::default(), 0);
-    let e = spawn_mesh_set(commands, meshes, materials, target, (mesh, Some(preview)), opacity);
-    commands.entity(e).insert(SelectedLines::new(LINE_TOLERANCE_MM));
-    if let Some(lines) = lines {
-        commands.entity(e).insert(lines);
-    }
-    e
+    spawn_mesh_set(commands, meshes, materials, target, lines, opacity)
 }
 
 /// Spawns a tractogram as polygon tubes (16 sides per ring, sections from the optional per-point world
@@ -1428,7 +1424,7 @@ pub fn spawn_polygon_tubes(
 ) -> Entity {
     let mesh = polygon_tube_mesh(&tractogram, tensors, scale, 16);
     let target = tract_set(buffers, SetStreamlines::Owned(tractogram), LazyIndex::default(), 0);
-    spawn_mesh_set(commands, meshes, materials, target, (mesh, None), opacity)
+    spawn_mesh_set(commands, meshes, materials, target, (mesh, None, None), opacity)
 }
 
 /// A colour for a point of a streamline: (the streamline's index in its set, the point's index in the streamline,

@@ -119,9 +119,8 @@ pub fn narrow_previews(
 }
 
 /// The share of a line set's streamlines selected below which its whole lines are made again of the selected
-/// ones ([`SelectedLines`]): an eighth. A mesh of the selection then costs at most an eighth of the whole
-/// mesh's memory more (about 0.4 GB for a 10M-streamline layer), and saves at least seven eighths of its
-/// vertex work.
+/// ones ([`SelectedLines`]): an eighth. A mesh of the selection then holds at most an eighth of the whole
+/// mesh's vertices, and saves at least seven eighths of its vertex work.
 pub const SELECTED_LINES_BELOW: f64 = 0.125;
 
 /// The selected points up to which a set's selected lines are made in the frame that needs them (a few
@@ -135,8 +134,9 @@ const IN_FRAME_POINTS: usize = 200_000;
 /// whole mesh. Made once the selection rests (no frame budget, or the view still: never at each step of an
 /// ROI drag, whose frames draw the previews), in the frame for a small selection, otherwise on rayon's pool
 /// (every core: no frame is drawn meanwhile); until it is drawn, the whole mesh with the selection's flags
-/// draws the same picture (and a viewer with [`crate::TractDetail`] on keeps the preview). The set then draws it where it drew the whole mesh, while
-/// the view is still; a new selection drops it at once (its GPU copy goes with it).
+/// draws the same picture (and a viewer with [`crate::TractDetail`] on keeps the preview). The set then draws
+/// it where it drew the whole mesh, while the view is still; a new selection drops it at once (its GPU copy
+/// goes with it). Not made for tractograms over [`crate::COARSE_DETAIL_POINTS`] ([`crate::LineDetail`]).
 #[derive(Component, Default)]
 pub struct SelectedLines {
     /// The compression tolerance of the set's whole lines, mm.
@@ -147,9 +147,9 @@ pub struct SelectedLines {
     /// Its mesh being made on rayon's pool, and the token that job holds weakly: dropped when the selection
     /// changes, so that a job not started yet does nothing.
     task: Option<(Mutex<Receiver<Mesh>>, Arc<()>)>,
-    /// Its mesh, the segments it draws, and whether it can be drawn: the render world has it from the frame
-    /// after it was added (its `Added` event is sent then).
-    made: Option<(Handle<Mesh>, usize, bool)>,
+    /// Its mesh, and whether it can be drawn: the render world has it from the frame after it was added (its
+    /// `Added` event is sent then).
+    made: Option<(Handle<Mesh>, bool)>,
 }
 
 impl SelectedLines {
@@ -158,9 +158,9 @@ impl SelectedLines {
         SelectedLines { tolerance_mm, ..default() }
     }
 
-    /// The mesh of the current selection's streamlines and the segments it draws, once the render world has it.
-    pub fn mesh(&self) -> Option<(&Handle<Mesh>, usize)> {
-        self.made.as_ref().filter(|m| m.2).map(|(h, n, _)| (h, *n))
+    /// The mesh of the current selection's streamlines, once the render world has it.
+    pub fn mesh(&self) -> Option<&Handle<Mesh>> {
+        self.made.as_ref().filter(|m| m.1).map(|(h, _)| h)
     }
 
     /// A mesh of the current selection may be wanted (or is not weighed yet) and cannot be drawn yet.
@@ -211,8 +211,8 @@ pub fn make_selected_lines(
         // Book-keeping only: what the set draws changes with its `Mesh3d` ([`crate::TractDetail`]'s system),
         // and a component changed every frame would keep the retained picture from being put back.
         let lines = lines.bypass_change_detection();
-        if let Some(made) = lines.made.as_mut().filter(|m| !m.2) {
-            made.2 = true;
+        if let Some(made) = lines.made.as_mut().filter(|m| !m.1) {
+            made.1 = true;
             landed = true;
         }
         let changed = selection.is_changed();
@@ -262,8 +262,7 @@ pub fn make_selected_lines(
             _ => {}
         }
         if let Some(mesh) = mesh {
-            let segments = crate::line_segments(&mesh);
-            lines.made = Some((meshes.add(mesh), segments, false));
+            lines.made = Some((meshes.add(mesh), false));
         }
         making |= lines.task.is_some() || lines.made.is_some();
     }
@@ -369,7 +368,7 @@ mod tests {
 
     fn selected_mesh(app: &App, e: Entity) -> Option<Mesh> {
         let lines = app.world().get::<SelectedLines>(e).expect("selected lines");
-        lines.mesh().map(|(h, _)| app.world().resource::<Assets<Mesh>>().get(h).expect("the mesh").clone())
+        lines.mesh().map(|h| app.world().resource::<Assets<Mesh>>().get(h).expect("the mesh").clone())
     }
 
     /// A selection of few streamlines gets lines of its own, drawable the frame after they are made: the whole
@@ -389,8 +388,7 @@ mod tests {
         let mesh = selected_mesh(&app, e).expect("made");
         let expected = whole_of_selected(&whole, &keep);
         assert_eq!(lines(&mesh), expected);
-        let n = app.world().get::<SelectedLines>(e).unwrap().mesh().unwrap().1;
-        assert_eq!(n, expected.1.len());
+        assert_eq!(crate::line_segments(&mesh), expected.1.len());
         // Frames after it change no component (they would keep a retained picture from being put back).
         let ticks = |app: &App| app.world().entity(e).get_change_ticks::<SelectedLines>().map(|t| t.changed);
         let before = ticks(&app);
@@ -439,7 +437,7 @@ mod tests {
         app.update();
         // Sent to rayon's pool (or, when this thread was descheduled meanwhile, already back from it).
         let lines_now = app.world().get::<SelectedLines>(e).unwrap();
-        assert!(lines_now.task.is_some() || lines_now.made.as_ref().is_some_and(|m| !m.2));
+        assert!(lines_now.task.is_some() || lines_now.made.as_ref().is_some_and(|m| !m.1));
         let start = std::time::Instant::now();
         while selected_mesh(&app, e).is_none() && start.elapsed() < std::time::Duration::from_secs(60) {
             std::thread::sleep(std::time::Duration::from_millis(5));

@@ -325,7 +325,7 @@ fn the_lines_of_a_small_selection_draw_what_the_whole_set_draws() {
         assert_eq!(app.world().resource::<RoiStats>().selected, 2);
         let mut q = app.world_mut().query::<(&MeshSet, &Mesh3d, Option<&SelectedLines>)>();
         let (set, mesh, lines) = q.single(app.world()).expect("one line set");
-        let drawn = lines.and_then(SelectedLines::mesh).map(|(h, _)| h.clone());
+        let drawn = lines.and_then(SelectedLines::mesh).cloned();
         assert_eq!(drawn.is_some(), own_lines, "the selection's own lines made");
         assert_eq!(mesh.0, drawn.unwrap_or(set.full.clone()), "the set draws them");
         Some(img)
