@@ -434,12 +434,13 @@ pub fn drag_mapped(file: &Path) -> Result<(), Error> {
     for bend in [None, Some(40.0)] {
         let mut drag = DragMargins::default();
         let (median, worst, kept) = drag_steps_along(bend, |rois| {
-            index.select_dragging(|s| t.streamline(s), rois, &mut drag).iter().filter(|k| **k).count()
+            // As the viewer selects a layer while dragging: the ids kept, no flag per streamline.
+            index.select_kept_dragging(|s| t.streamline(s), rois, &mut drag).count_in(0..t.n_streamlines())
         });
         let mib = drag.heap_bytes() as f64 / 1048576.0;
         let (mut drag, mut total) = (DragMargins::default(), 0);
         drag_steps_along(bend, |rois| {
-            let kept = index.select_dragging(counted, rois, &mut drag).iter().filter(|k| **k).count();
+            let kept = index.select_kept_dragging(counted, rois, &mut drag).count_in(0..t.n_streamlines());
             total += read.iter().filter(|r| r.swap(false, Ordering::Relaxed)).count();
             kept
         });

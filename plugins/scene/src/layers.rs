@@ -202,6 +202,16 @@ impl Plugin for ScenePlugin {
                 ),
             );
     }
+
+    // Lights are clustered on the CPU: no Fascicle layer is lit by Bevy's clustered lights (each material shades
+    // itself, the slices are unlit), and Bevy's GPU clustering runs its compute and raster passes every frame
+    // for each 3D camera, lights or none (on lavapipe 2-4 ms of a frame of the empty viewer). Set after Bevy's
+    // renderer chose it (`PbrPlugin::finish`, which runs first).
+    fn finish(&self, app: &mut App) {
+        if let Some(mut clusters) = app.world_mut().get_resource_mut::<bevy::light::cluster::GlobalClusterSettings>() {
+            clusters.gpu_clustering = None;
+        }
+    }
 }
 
 fn scene_or_retries_changed(scene: Option<Res<ActiveScene>>, retries: Res<RetryLayers>) -> bool {

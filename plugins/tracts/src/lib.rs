@@ -30,7 +30,7 @@ use fascicle_core::compress::{Compression, kept_points};
 use fascicle_core::io::mapped::MappedRun;
 use fascicle_core::io::{Streamlines, Tractogram};
 use fascicle_core::roi::{Criteria, MaskRegion, Region, Roi};
-use fascicle_core::roi_index::{DragMargins, StreamlineCells};
+use fascicle_core::roi_index::{DragMargins, Kept, StreamlineCells};
 pub use fascicle_core::tubelet::TubeMethod;
 use fascicle_core::tubelet::{TubeColour, Tubelet, polygon_rings, tubelets};
 
@@ -43,7 +43,10 @@ pub use fascicle_render::layer::LayerStatus;
 use fascicle_render::meshes::{slot_boxes, slot_boxes_of};
 pub use layer::{TractCounts, TractStyle, TractSystems, TractogramAsset, TractogramLoader, Tracts};
 pub use placed::{PlacedTractStyle, PlacedTracts};
-pub use selected::{PreviewLines, SELECTED_LINES_BELOW, SelectedLines, make_selected_lines, narrow_previews};
+pub use selected::{
+    FlagsBehind, PreviewLines, SELECTED_LINES_BELOW, SelectedLines, UNFLAGGED, make_selected_lines, narrow_previews,
+    upload_flags_behind,
+};
 
 /// Drawing options of hyperstreamlines.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -256,6 +259,17 @@ impl LazyIndex {
                 cells.select_dragging(|s| t.streamline(s), rois, &mut drag)
             }
             None => select_every(t, rois),
+        }
+    }
+
+    /// [`LazyIndex::select`] as the ids it names ([`Kept`]): through the index, no flag per streamline is made.
+    pub fn select_kept(&self, t: &SetStreamlines, rois: &[Roi]) -> Kept {
+        match self.ready_or_build(t) {
+            Some(cells) => {
+                let mut drag = self.0.drag.lock().unwrap_or_else(|e| e.into_inner());
+                cells.select_kept_dragging(|s| t.streamline(s), rois, &mut drag)
+            }
+            None => Kept::of_flags(&select_every(t, rois)),
         }
     }
 
@@ -865,6 +879,7 @@ impl Plugin for TractPlugin {
                     select_tube_boxes.in_set(TractSystems::Select).after(apply_rois),
                     narrow_previews.in_set(TractSystems::Select).after(apply_rois),
                     make_selected_lines.in_set(TractSystems::Select).after(apply_rois),
+                    upload_flags_behind.after(narrow_previews).after(make_selected_lines).after(tract_detail),
                     line_msaa,
                     // The preview switches (a `Mesh3d` change) come before Bevy computes the meshes' bounds:
                     // a bound changed a frame later would keep the retained picture from being put back, and a
@@ -1347,7 +1362,7 @@ fn insert_mesh_set(
     opacity: f32,
 ) {
     if let Some(lines) = preview.as_ref().and_then(PreviewLines::of) {
-        e.insert(lines);
+        e.insert((lines, FlagsBehind::default()));
     }
     if let Some(tolerance) = lines_tolerance_mm {
         e.insert(SelectedLines::new(tolerance));
@@ -1628,8 +1643,12 @@ pub fn polygon_tube_mesh(t: &Tractogram, tensors: Option<&[[f32; 6]]>, scale: f6
         .with_inserted_indices(Indices::U32(idx))
 }
 
+/// What [`apply_rois`] reads and writes of a tract set: its selection, its layer, whether its flags wait.
+type SelectedSet<'a> =
+    (Entity, Ref<'a, TractSet>, &'a mut TractSelection, Option<&'a ChildOf>, Option<&'a mut FlagsBehind>);
+
 /// Re-evaluates every tract set's selection when an ROI or a set changed (never otherwise), and rewrites
-/// the sets' flag buffers.
+/// the sets' flag buffers (a line set's with a preview when it draws a mesh that reads them: [`FlagsBehind`]).
 #[allow(clippy::type_complexity, clippy::too_many_arguments, reason = "a Bevy system's change filters")]
 pub fn apply_rois(
     changed_rois: Query<
@@ -1648,7 +1667,7 @@ pub fn apply_rois(
     rules: Query<&RoiRules>,
     deleted: Query<&DeletedStreamlines>,
     masks: Query<&TractMasks>,
-    mut sets: Query<(Entity, Ref<TractSet>, &mut TractSelection, Option<&ChildOf>)>,
+    mut sets: Query<SelectedSet>,
     mut buffers: ResMut<Assets<ShaderBuffer>>,
     mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
     mut stats: ResMut<RoiStats>,
@@ -1663,7 +1682,7 @@ pub fn apply_rois(
     let removed_any =
         removed_rois + removed_rules.read().count() + removed_deletions.read().count() + removed_masks.read().count()
             > 0;
-    let arrived = sets.iter().any(|(_, s, _, _)| s.is_added());
+    let arrived = sets.iter().any(|(_, s, _, _, _)| s.is_added());
     // The layers' runs change only when sets come or go, or ROIs do (or change layer); and in the frame after
     // sets arrived (a set is joined once no part of its layer arrives in the frame). A despawned layer's run and
     // index go at once.
@@ -1677,7 +1696,7 @@ pub fn apply_rois(
     let layer_rois = |l: Entity| -> Vec<Roi> {
         rois.iter().filter(|(_, p)| p.is_none_or(|p| p.parent() == l)).map(|(r, _)| r.0).collect()
     };
-    let mut news: HashMap<Entity, Vec<bool>> = HashMap::new();
+    let mut news: HashMap<Entity, Kept> = HashMap::new();
     for (l, run) in layer_runs.iter_mut().filter(|(_, run)| run.background.is_some()) {
         if let Some(sel) = run.poll(&layer_rois(*l), &background) {
             news.insert(*l, sel);
@@ -1693,8 +1712,8 @@ pub fn apply_rois(
     let mut selected = 0;
     // Per layer selected through its run: the whole layer's selection, made at its first set (`None`: made in
     // the background, the sets keep their flags meanwhile).
-    let mut layer_selections: HashMap<Entity, Option<Vec<bool>>> = HashMap::new();
-    for (entity, set, mut selection, layer) in &mut sets {
+    let mut layer_selections: HashMap<Entity, Option<Kept>> = HashMap::new();
+    for (entity, set, mut selection, layer, behind) in &mut sets {
         let news_for_layer = layer.is_some_and(|l| news.contains_key(&l.parent()));
         if !rois_changed && !set.is_added() && !news_for_layer {
             selected += selection.0.iter().filter(|s| **s).count();
@@ -1730,13 +1749,18 @@ pub fn apply_rois(
                 continue;
             };
             let from = set.first - run.first;
-            let part = &whole[from..from + t.n_streamlines()];
-            // A part the step left as it was is neither copied nor packed (most of a layer, away from the ROI).
-            if !set.is_changed() && masked.is_none() && deletions.is_none() && selection.0 == part {
-                selected += part.iter().filter(|s| **s).count();
+            let part = from..from + t.n_streamlines();
+            // A part the step left as it was is neither made again nor packed (most of a layer, away from the
+            // ROI).
+            if !set.is_changed()
+                && masked.is_none()
+                && deletions.is_none()
+                && whole.same_flags(part.clone(), &selection.0)
+            {
+                selected += whole.count_in(part);
                 continue;
             }
-            part.to_vec()
+            whole.flags(part)
         } else if let SetStreamlines::Mapped(_) = t {
             // A part read in place whose layer has no run yet (its parts still arriving): every streamline
             // tested, and no index of the part's own (the layer's is made once its parts are in).
@@ -1762,8 +1786,13 @@ pub fn apply_rois(
         if !set.is_changed() && selection.0 == sel {
             continue;
         }
-        let bytes = selection_words(&sel);
         selection.0 = sel;
+        // A line set with a preview takes its flags when it draws a mesh that reads them (upload_flags_behind).
+        if let Some(mut behind) = behind {
+            behind.bypass_change_detection().0 = true;
+            continue;
+        }
+        let bytes = selection_words(&selection.0);
         // Drawn in this frame: the selection runs after the asset events' flush.
         if !bytes.is_empty() {
             fascicle_render::modify_now(&mut buffers, &mut buffer_events, &set.selected, |b| b.data = Some(bytes));
@@ -1827,7 +1856,7 @@ pub struct LayerRun {
 /// A layer's selection on a thread of its own: the ROIs it selects for, and where it arrives.
 struct Background {
     rois: Vec<Roi>,
-    done: std::sync::mpsc::Receiver<Vec<bool>>,
+    done: std::sync::mpsc::Receiver<Kept>,
     /// Made through the built index (a drag's step, a second or two at 10M streamlines), not by testing every
     /// streamline (minutes, while a layer opens).
     indexed: bool,
@@ -1837,11 +1866,11 @@ impl LayerRun {
     /// The run's selection for `rois`, at once when [`RoiBackground::in_frame`] says so (through its index
     /// when built); otherwise `None`, and the selection is made in the background (started now unless one is
     /// under way; [`LayerRun::poll`] hands it over).
-    fn select(&mut self, rois: &[Roi], settings: &RoiBackground) -> Option<Vec<bool>> {
+    fn select(&mut self, rois: &[Roi], settings: &RoiBackground) -> Option<Kept> {
         let built = self.index.ready_or_build(&self.streamlines).is_some();
         if settings.in_frame(self.streamlines.n_streamlines(), built) {
             self.background = None;
-            return Some(self.index.select(&self.streamlines, rois));
+            return Some(self.index.select_kept(&self.streamlines, rois));
         }
         if self.background.is_none() { self.start(rois, built) } else { None }
     }
@@ -1849,11 +1878,11 @@ impl LayerRun {
     /// Starts the selection for `rois` on a thread of its own (`None`): through the index when built (keeping
     /// the drag's margins), else every streamline tested; without a thread, selects in the frame. `indexed`:
     /// whether the index is built (read by [`note_pending`]).
-    fn start(&mut self, rois: &[Roi], indexed: bool) -> Option<Vec<bool>> {
+    fn start(&mut self, rois: &[Roi], indexed: bool) -> Option<Kept> {
         let (send, done) = std::sync::mpsc::channel();
         let (t, list, index) = (self.streamlines.clone(), rois.to_vec(), self.index.clone());
         let spawned = std::thread::Builder::new().name("tract selection".into()).spawn(move || {
-            let select = || index.select(&t, &list);
+            let select = || index.select_kept(&t, &list);
             _ = send.send(match selection_pool() {
                 Some(pool) => pool.install(select),
                 None => select(),
@@ -1866,7 +1895,7 @@ impl LayerRun {
             }
             Err(e) => {
                 warn!("a tract layer is selected in the frame: no thread for it ({e})");
-                Some(self.index.select(&self.streamlines, rois))
+                Some(self.index.select_kept(&self.streamlines, rois))
             }
         }
     }
@@ -1874,12 +1903,12 @@ impl LayerRun {
     /// The selection made in the background, when it is done (a newer one is then started if the ROIs are no
     /// longer `rois`, the layer's now), or the index's for `rois` once the index is built and
     /// [`RoiBackground::in_frame`] lets it be made in the frame; `None` meanwhile.
-    fn poll(&mut self, rois: &[Roi], settings: &RoiBackground) -> Option<Vec<bool>> {
+    fn poll(&mut self, rois: &[Roi], settings: &RoiBackground) -> Option<Kept> {
         let background = self.background.as_ref()?;
         let built = self.index.ready_or_build(&self.streamlines).is_some();
         if built && settings.in_frame(self.streamlines.n_streamlines(), true) {
             self.background = None;
-            return Some(self.index.select(&self.streamlines, rois));
+            return Some(self.index.select_kept(&self.streamlines, rois));
         }
         match background.done.try_recv() {
             Ok(sel) => {
@@ -1894,7 +1923,7 @@ impl LayerRun {
             Err(std::sync::mpsc::TryRecvError::Empty) => None,
             Err(std::sync::mpsc::TryRecvError::Disconnected) => {
                 self.background = None;
-                Some(self.index.select(&self.streamlines, rois))
+                Some(self.index.select_kept(&self.streamlines, rois))
             }
         }
     }
@@ -1905,12 +1934,12 @@ impl LayerRun {
 /// frame, has its run; its index is asked for at once (the background builder).
 fn update_layer_runs(
     layer_runs: &mut HashMap<Entity, LayerRun>,
-    sets: &Query<(Entity, Ref<TractSet>, &mut TractSelection, Option<&ChildOf>)>,
+    sets: &Query<SelectedSet>,
     rois: &Query<(&TractRoi, Option<&ChildOf>)>,
 ) {
     let mut parts: HashMap<Entity, Vec<(Entity, usize, Arc<MappedRun>)>> = HashMap::new();
     let mut not_joined: Vec<Entity> = vec![];
-    for (e, set, _, layer) in sets {
+    for (e, set, _, layer, _) in sets {
         let Some(l) = layer.map(ChildOf::parent) else { continue };
         match &set.tractogram {
             SetStreamlines::Mapped(run) if !set.is_added() => {
@@ -2080,17 +2109,22 @@ mod tests {
         };
         let (wp, wids, wc, _) = attrs(&whole);
         let keep = [true, false, false, true, false];
-        let (p, ids, c, idx) = attrs(&lines.selected(&keep));
+        let (narrowed, unflagged) = lines.selected(&keep);
+        let (p, ids, c, idx) = attrs(&narrowed);
         let expect: Vec<usize> = (0..wids.len()).filter(|&v| keep[wids[v] as usize]).collect();
-        assert_eq!(ids, expect.iter().map(|&v| wids[v]).collect::<Vec<_>>());
+        // Drawn without the set's flags: every vertex shown.
+        assert!(unflagged && ids.iter().all(|&id| id == UNFLAGGED), "{ids:?}");
         assert_eq!(p, expect.iter().map(|&v| wp[v]).collect::<Vec<_>>());
         assert_eq!(c, expect.iter().map(|&v| wc[v]).collect::<Vec<_>>());
         // Streamlines 0 and 3 keep their 6 and 9 points: 5 + 8 segments, none between the two.
         assert_eq!((ids.len(), idx.len()), (15, 26));
-        assert!(idx.chunks(2).all(|s| s[1] == s[0] + 1 && ids[s[0] as usize] == ids[s[1] as usize]));
-        let (_, none, _, none_idx) = attrs(&lines.selected(&[false; 5]));
-        assert_eq!((none, none_idx.len()), (vec![0; 6], 10));
-        assert_eq!(attrs(&lines.selected(&[true; 5])).3, attrs(&whole).3);
+        let streamline = |v: u32| wids[expect[v as usize]];
+        assert!(idx.chunks(2).all(|s| s[1] == s[0] + 1 && streamline(s[0]) == streamline(s[1])));
+        // None kept: the first streamline with its index, hidden by the flags it then reads.
+        let (none, unflagged) = lines.selected(&[false; 5]);
+        let (_, none, _, none_idx) = attrs(&none);
+        assert_eq!((none, none_idx.len(), unflagged), (vec![0; 6], 10, false));
+        assert_eq!(attrs(&lines.selected(&[true; 5]).0).3, attrs(&whole).3);
     }
 
     /// A preview holds streamlines 0, 16, 32 of 40, each vertex one of that streamline's points, in fewer
@@ -2166,9 +2200,10 @@ mod tests {
         let sphere =
             |x: f32| [Roi { shape: RoiShape::Sphere { centre: [x, 5.0, 0.0], radius: 10.0 }, mode: RoiMode::Include }];
         let (a, b) = (sphere(100.0), sphere(1500.0));
-        let (want_a, want_b) = (select_every(&streamlines, &a), select_every(&streamlines, &b));
+        let want = |rois: &[Roi]| Kept::of_flags(&select_every(&streamlines, rois));
+        let (want_a, want_b) = (want(&a), want(&b));
         assert_ne!(want_a, want_b);
-        assert_eq!(want_a.iter().filter(|k| **k).count(), 21);
+        assert_eq!((want_a.count_in(0..2000), want_a.complement), (21, false));
         let mut run = LayerRun { parts: vec![], first: 0, streamlines, index: LazyIndex::default(), background: None };
         let settings = RoiBackground { above_streamlines: 1000, indexed_above_streamlines: 4000 };
         let poll_until = |run: &mut LayerRun, rois: &[Roi], settings: &RoiBackground| {

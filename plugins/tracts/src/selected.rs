@@ -8,13 +8,19 @@
 
 use bevy::mesh::{PrimitiveTopology, VertexAttributeValues};
 use bevy::prelude::*;
+use bevy::render::storage::ShaderBuffer;
 use std::sync::mpsc::{Receiver, TryRecvError};
 use std::sync::{Arc, Mutex};
 
 use crate::{
     ATTRIBUTE_RGBA8, ATTRIBUTE_STREAMLINE, MeshSet, SetStreamlines, TractSelection, TractSet, compact_line_list,
-    line_list,
+    line_list, selection_words,
 };
+
+/// The streamline index a narrowed preview's vertices carry ([`PreviewLines::selected`]): the tract shaders show
+/// such a vertex whatever the set's selection flags, so a preview made of the selected streamlines draws
+/// without them, and a drag step that such previews show uploads no flags ([`FlagsBehind`]).
+pub const UNFLAGGED: u32 = u32::MAX;
 
 /// A line set's whole preview kept on the CPU (at most about [`PREVIEW_SEGMENTS`](crate::PREVIEW_SEGMENTS)
 /// segments: some tens of MB), from which the preview mesh the set draws is made of its selected streamlines
@@ -31,6 +37,8 @@ pub struct PreviewLines {
     runs: Vec<(u32, u32, u32)>,
     /// The preview mesh holds fewer than all the preview's streamlines.
     narrowed: bool,
+    /// The preview mesh draws without the set's flags (made of the selected streamlines, [`UNFLAGGED`]).
+    unflagged: bool,
 }
 
 impl PreviewLines {
@@ -60,15 +68,17 @@ impl PreviewLines {
                 _ => runs.push((id, v as u32, 1)),
             }
         }
-        Some(Self { positions: positions.clone(), colours: colours.clone(), runs, narrowed: false })
+        Some(Self { positions: positions.clone(), colours: colours.clone(), runs, narrowed: false, unflagged: false })
     }
 
     /// The preview of the streamlines `selected` keeps (indexed by streamline in the set), in the format of
-    /// [`line_mesh_coloured`](crate::line_mesh_coloured). With none kept, the first streamline (hidden by the
-    /// set's flags), since a mesh is never empty.
-    pub fn selected(&self, selected: &[bool]) -> Mesh {
+    /// [`line_mesh_coloured`](crate::line_mesh_coloured) but each vertex's streamline [`UNFLAGGED`] (it draws
+    /// without the set's flags); and whether it is so. With none kept, the first streamline with its index
+    /// (hidden by the set's flags, which it then needs), since a mesh is never empty.
+    pub fn selected(&self, selected: &[bool]) -> (Mesh, bool) {
         let kept = |&&(id, _, _): &&(u32, u32, u32)| selected.get(id as usize).copied().unwrap_or(false);
         let mut runs: Vec<_> = self.runs.iter().filter(kept).collect();
+        let unflagged = !runs.is_empty();
         if runs.is_empty() {
             runs.extend(self.runs.first());
         }
@@ -80,10 +90,10 @@ impl PreviewLines {
             let range = first as usize..(first + count) as usize;
             pos.extend_from_slice(&self.positions[range.clone()]);
             col.extend_from_slice(&self.colours[range]);
-            ids.extend(std::iter::repeat_n(id, count as usize));
+            ids.extend(std::iter::repeat_n(if unflagged { UNFLAGGED } else { id }, count as usize));
             idx.extend((0..count.saturating_sub(1)).flat_map(|k| [base + k, base + k + 1]));
         }
-        compact_line_list(pos, ids, col, idx)
+        (compact_line_list(pos, ids, col, idx), unflagged)
     }
 }
 
@@ -112,8 +122,39 @@ pub fn narrow_previews(
         }
         lines.narrowed = !all;
         if let Some(preview) = &set.preview {
-            let narrowed = lines.selected(&selection.0);
+            let (narrowed, unflagged) = lines.selected(&selection.0);
+            lines.unflagged = unflagged;
             fascicle_render::modify_now(&mut meshes, &mut mesh_events, preview, |m| *m = narrowed);
+        }
+    }
+}
+
+/// Whether a line set's selection flags ([`TractSet::selected`]) are behind its [`TractSelection`]. A line set
+/// with a preview ([`PreviewLines`]) takes its flags only when it draws a mesh that reads them
+/// ([`upload_flags_behind`]): an ROI drag's steps, whose frames draw the narrowed previews ([`UNFLAGGED`]),
+/// upload none (at 10M streamlines, 255 buffers a step, each a new GPU buffer and bind group), and the frame
+/// that draws the whole sets again uploads each set's flags once.
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct FlagsBehind(pub bool);
+
+/// Uploads the flags of the line sets whose flags are behind ([`FlagsBehind`]) and which draw, in this frame, a
+/// mesh that reads them: their whole mesh, their selection's lines, or a preview not made of selected
+/// streamlines. Runs after the meshes are chosen ([`crate::TractDetail`]); drawn in this frame.
+pub fn upload_flags_behind(
+    mut sets: Query<(&TractSet, &TractSelection, &MeshSet, &Mesh3d, &PreviewLines, &mut FlagsBehind)>,
+    mut buffers: ResMut<Assets<ShaderBuffer>>,
+    mut buffer_events: MessageWriter<AssetEvent<ShaderBuffer>>,
+) {
+    for (set, selection, mesh_set, mesh, lines, mut behind) in &mut sets {
+        let unflagged = lines.unflagged && mesh_set.preview.as_ref() == Some(&mesh.0);
+        if !behind.0 || unflagged {
+            continue;
+        }
+        // Not a change the picture shows (the flags' asset is): a retained picture is not kept from coming back.
+        behind.bypass_change_detection().0 = false;
+        let bytes = selection_words(&selection.0);
+        if !bytes.is_empty() {
+            fascicle_render::modify_now(&mut buffers, &mut buffer_events, &set.selected, |b| b.data = Some(bytes));
         }
     }
 }

@@ -339,3 +339,52 @@ fn the_lines_of_a_small_selection_draw_what_the_whole_set_draws() {
     assert!(near(0.0) && near(1.0) && !near(-2.0) && !near(3.0) && !near(-8.0), "{cols:?}");
     assert!(own.rgba == whole.rgba, "the selection's lines drew another picture than the whole set with its flags");
 }
+
+/// While a line set draws its preview, each selection of a moved ROI shows in the narrowed preview at once and
+/// uploads no flags (a preview of selected streamlines draws without them); the frame that draws the whole set
+/// again (or the selection's own lines, which read them too) takes the flags of the selection then. The
+/// 17-line fan's preview holds the lines at x = -8 and 8; a sphere around the first, then around the second:
+/// with the first selection's flags the still picture would show the line at -8, or none.
+#[test]
+fn a_preview_shows_each_selection_without_flags_and_the_whole_set_takes_them_when_still() {
+    use bevy::time::TimeUpdateStrategy;
+    use fascicle_tracts::FlagsBehind;
+    let Some((mut app, target)) = headless::gpu_test_app(W, H) else { return };
+    app.add_plugins(TractPlugin);
+    // Time stands still, so the set's arrival stays recent: the preview is drawn.
+    fan_with_previews(&mut app, std::time::Duration::ZERO);
+    let sphere = |x: f32| {
+        TractRoi(Roi { shape: RoiShape::Sphere { centre: [x, 0.0, 0.0], radius: 0.5 }, mode: RoiMode::Include })
+    };
+    let roi = app.world_mut().spawn(sphere(-8.0)).id();
+    headless::spawn_test_camera(&mut app, target.clone(), Vec3::new(0.0, 0.0, EYE_Z), Vec3::ZERO);
+    // Within 4 columns: the line and the sphere's outline around it; the next line is 4.8 columns away.
+    let near = |x: f32, c: u32| (c as f32 - column(x)).abs() <= 4.0;
+    let behind = |app: &mut App| {
+        let mut q = app.world_mut().query::<&FlagsBehind>();
+        q.single(app.world()).expect("a line set with a preview").0
+    };
+    let first = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(preview_shown(&mut app), (false, true), "the preview is drawn");
+    let cols = lit_columns(&first);
+    assert!(!cols.is_empty() && cols.iter().all(|&c| near(-8.0, c)), "the line at -8 alone: {cols:?}");
+
+    // The sphere moves to the line at 8: the preview shows it, and the flags stay as they were.
+    app.world_mut().entity_mut(roi).insert(sphere(8.0));
+    let moved = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(preview_shown(&mut app), (false, true), "the preview is drawn");
+    let cols = lit_columns(&moved);
+    assert!(!cols.is_empty() && cols.iter().all(|&c| near(8.0, c)), "the line at 8 alone: {cols:?}");
+    assert!(behind(&mut app), "the flags are uploaded while the preview draws without them");
+
+    // Time passes with the view still: the whole set, with the flags of the sphere at 8.
+    app.insert_resource(TimeUpdateStrategy::ManualDuration(std::time::Duration::from_millis(400)));
+    app.update();
+    app.insert_resource(TimeUpdateStrategy::ManualDuration(std::time::Duration::ZERO));
+    let still = headless::capture(&mut app, target).unwrap_or_else(|e| panic!("{e}"));
+    // The whole set, or the selection's own lines (a mesh that reads the flags too).
+    assert!(!preview_shown(&mut app).1, "the preview is drawn though the view is still");
+    assert!(!behind(&mut app), "the set took the flags");
+    let cols = lit_columns(&still);
+    assert!(!cols.is_empty() && cols.iter().all(|&c| near(8.0, c)), "the line at 8 alone: {cols:?}");
+}

@@ -50,7 +50,8 @@ fn vertex(v: TractVertex) -> TractVertexOutput {
     var out: TractVertexOutput;
     let world_from_local = mesh_functions::get_world_from_local(v.instance_index);
     let w = mesh_functions::mesh_position_local_to_world(world_from_local, vec4<f32>(v.position, 1.0));
-    let hidden = ((selected[v.streamline >> 5u] >> (v.streamline & 31u)) & 1u) == 0u;
+    // A narrowed preview's vertices (`UNFLAGGED`) are shown whatever the flags: it holds selected streamlines only.
+    let hidden = v.streamline != 0xffffffffu && ((selected[v.streamline >> 5u] >> (v.streamline & 31u)) & 1u) == 0u;
     // Cropped to a slab: drawn on the slab's centre plane, 1 mm towards the eye, so that a 2D view looking along
     // the normal shows it where it is, over its images (within 1 mm of the plane) and under its crosshair. The
     // fragment stage crops by the true position. A select, not an `if` on a uniform alone (lavapipe, see
