@@ -325,13 +325,9 @@ impl StreamlineCells {
         for k in (0..rois.len()).filter(|&k| rois[k].mode == RoiMode::Exclude) {
             let candidates = self.candidates(&rois[k].shape);
             // The candidates still kept, tested; those it meets are left out.
-            let still = if kept.complement {
-                sorted_difference(&candidates, &kept.ids)
-            } else {
-                sorted_intersection(&candidates, &kept.ids)
-            };
+            let still = sorted_filter(&candidates, &kept.ids, !kept.complement);
             let out = meets(k, &still);
-            kept.ids = if kept.complement { merged(&kept.ids, &out) } else { sorted_difference(&kept.ids, &out) };
+            kept.ids = if kept.complement { merged(&kept.ids, &out) } else { sorted_filter(&kept.ids, &out, false) };
         }
         kept
     }
@@ -393,8 +389,8 @@ pub fn count_set(flags: &[bool]) -> usize {
     flags.iter().map(|&f| usize::from(f)).sum()
 }
 
-/// The ids of ascending `a` not in ascending `b`.
-fn sorted_difference(a: &[u32], b: &[u32]) -> Vec<u32> {
+/// The ids of ascending `a` that are in ascending `b` (`shared`), or that are not.
+fn sorted_filter(a: &[u32], b: &[u32], shared: bool) -> Vec<u32> {
     let mut j = 0;
     a.iter()
         .copied()
@@ -402,21 +398,7 @@ fn sorted_difference(a: &[u32], b: &[u32]) -> Vec<u32> {
             while j < b.len() && b[j] < s {
                 j += 1;
             }
-            j >= b.len() || b[j] != s
-        })
-        .collect()
-}
-
-/// The ids of ascending `a` also in ascending `b`.
-fn sorted_intersection(a: &[u32], b: &[u32]) -> Vec<u32> {
-    let mut j = 0;
-    a.iter()
-        .copied()
-        .filter(|&s| {
-            while j < b.len() && b[j] < s {
-                j += 1;
-            }
-            j < b.len() && b[j] == s
+            (j < b.len() && b[j] == s) == shared
         })
         .collect()
 }
