@@ -385,7 +385,7 @@ impl Kept {
 }
 
 /// How many of `flags` are set.
-pub fn count_set(flags: &[bool]) -> usize {
+fn count_set(flags: &[bool]) -> usize {
     flags.iter().map(|&f| usize::from(f)).sum()
 }
 

@@ -375,7 +375,7 @@ fn a_preview_shows_each_selection_without_flags_and_the_whole_set_takes_them_whe
     assert_eq!(preview_shown(&mut app), (false, true), "the preview is drawn");
     let cols = lit_columns(&moved);
     assert!(!cols.is_empty() && cols.iter().all(|&c| near(8.0, c)), "the line at 8 alone: {cols:?}");
-    assert!(behind(&mut app), "the flags are uploaded while the preview draws without them");
+    assert!(behind(&mut app), "the flags were uploaded though the preview draws without them");
 
     // Time passes with the view still: the whole set, with the flags of the sphere at 8.
     app.insert_resource(TimeUpdateStrategy::ManualDuration(std::time::Duration::from_millis(400)));
