@@ -737,7 +737,7 @@ pub fn run(files: Vec<PathBuf>, screenshot: Option<PathBuf>) -> AppExit {
             .add_systems(Update, auto_screenshot.run_if(resource_exists::<AutoScreenshot>));
     }
     app.add_plugins(
-        DefaultPlugins
+        fascicle_render::batching::default_plugins()
             .set(WindowPlugin { primary_window: Some(Window { title: "Fascicle".into(), ..default() }), ..default() })
             .set(RenderPlugin { render_creation: fascicle_render::wgpu_settings().into(), ..default() }),
     )

@@ -46,7 +46,7 @@ impl ExampleApp {
     pub fn windowed(title: &str, asset_root: &str) -> Self {
         let mut app = App::new();
         app.add_plugins(
-            DefaultPlugins
+            crate::batching::default_plugins()
                 .set(WindowPlugin { primary_window: Some(Window { title: title.into(), ..default() }), ..default() })
                 .set(AssetPlugin { file_path: asset_root.into(), ..default() }),
         );

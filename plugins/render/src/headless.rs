@@ -242,7 +242,7 @@ pub fn headless_app_with_assets(asset_root: Option<&str>) -> App {
     static LOGGER_SET: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
     let first = !LOGGER_SET.swap(true, std::sync::atomic::Ordering::SeqCst);
     let mut app = App::new();
-    let plugins = DefaultPlugins
+    let plugins = crate::batching::default_plugins()
         .set(WindowPlugin {
             primary_window: None,
             exit_condition: ExitCondition::DontExit,

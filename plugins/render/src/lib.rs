@@ -14,10 +14,12 @@
 //! - [`budget`]: a frame budget held by adaptive render scale while the view moves ([`budget::FrameBudgetPlugin`]).
 //! - [`retain`]: a retained 3D picture, put back while nothing it shows changes ([`retain::RetainedPicturePlugin`]).
 //! - [`software`]: how many threads Mesa's software rasterizer gets ([`software::oversubscribe_software_rasterizer`]).
+//! - [`batching`]: per-mesh instance data built on the CPU on a software adapter ([`batching::default_plugins`]).
 //! - [`AdapterKind`]: whether the renderer is a software rasteriser, for plugins that lower their cost there.
 
 #![warn(missing_docs)]
 
+pub mod batching;
 pub mod budget;
 pub mod example;
 pub mod headless;
