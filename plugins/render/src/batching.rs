@@ -45,9 +45,7 @@ impl Plugin for CpuBatchingOnSoftwarePlugin {
 
 /// Render world: no GPU preprocessing where the adapter is a software rasteriser.
 fn cpu_batching_on_software(world: &mut World) {
-    let Some(info) = world.get_resource::<RenderAdapterInfo>() else { return };
-    // wgpu's `DeviceType::Cpu` (Bevy does not re-export the type).
-    if format!("{:?}", info.device_type) == "Cpu" {
+    if world.get_resource::<RenderAdapterInfo>().is_some_and(|info| crate::is_software(info)) {
         world.insert_resource(GpuPreprocessingSupport { max_supported_mode: GpuPreprocessingMode::None });
     }
 }

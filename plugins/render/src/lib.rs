@@ -130,8 +130,12 @@ impl AdapterKind {
 }
 
 fn detect_adapter(adapter: Res<bevy::render::renderer::RenderAdapter>, kind: Res<AdapterKind>) {
-    // wgpu's `DeviceType::Cpu` (Bevy does not re-export the type).
-    kind.set_software(format!("{:?}", adapter.get_info().device_type) == "Cpu");
+    kind.set_software(is_software(&adapter.get_info()));
+}
+
+/// Whether an adapter is a software rasteriser: wgpu's device type `Cpu` (Bevy does not re-export the type).
+pub(crate) fn is_software(info: &bevy::render::render_resource::WgpuAdapterInfo) -> bool {
+    format!("{:?}", info.device_type) == "Cpu"
 }
 
 /// Whether the last frames put the stored picture back, newest in bit 0 (shared between the worlds): a frame
