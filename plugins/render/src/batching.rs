@@ -21,11 +21,21 @@ use bevy::render::{RenderApp, RenderPlugin, RenderStartup, init_gpu_resource};
 
 /// On a software adapter (wgpu's device type `Cpu`: lavapipe, llvmpipe, WARP), turns Bevy's GPU mesh
 /// preprocessing off, so instance data is built on the CPU and drawn directly (see the module docs); a hardware
-/// GPU keeps Bevy's default. Must be added after `RenderPlugin` and before `PbrPlugin`: [`default_plugins`] does.
+/// GPU keeps Bevy's default. Must be added after `RenderPlugin` and before `PbrPlugin` ([`default_plugins`] places it);
+/// added later it warns and does nothing.
 pub struct CpuBatchingOnSoftwarePlugin;
 
 impl Plugin for CpuBatchingOnSoftwarePlugin {
     fn build(&self, app: &mut App) {
+        // Added after `PbrPlugin`, its mesh plugins have chosen already: turning preprocessing off at the render
+        // world's start would leave them building instance data for a GPU pass that no longer runs.
+        if app.is_plugin_added::<bevy::pbr::PbrPlugin>() {
+            warn!(
+                "fascicle-render: CpuBatchingOnSoftwarePlugin added after PbrPlugin does nothing; use default_plugins()"
+            );
+            return;
+        }
+        app.init_resource::<CpuBatchingPlaced>();
         // Bevy makes the choice again at the render world's start (from the adapter's limits), after `finish`
         // made it for the mesh plugins: made there again, so every system reads the same one.
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
@@ -37,11 +47,18 @@ impl Plugin for CpuBatchingOnSoftwarePlugin {
     }
 
     fn finish(&self, app: &mut App) {
+        if !app.world().contains_resource::<CpuBatchingPlaced>() {
+            return;
+        }
         if let Some(render_app) = app.get_sub_app_mut(RenderApp) {
             cpu_batching_on_software(render_app.world_mut());
         }
     }
 }
+
+/// The plugin was added before `PbrPlugin`, so it acts.
+#[derive(Resource, Default)]
+struct CpuBatchingPlaced;
 
 /// Render world: no GPU preprocessing where the adapter is a software rasteriser.
 fn cpu_batching_on_software(world: &mut World) {
