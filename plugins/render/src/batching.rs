@@ -22,13 +22,17 @@ use bevy::render::{RenderApp, RenderPlugin, RenderStartup, init_gpu_resource};
 /// On a software adapter (wgpu's device type `Cpu`: lavapipe, llvmpipe, WARP), turns Bevy's GPU mesh
 /// preprocessing off, so instance data is built on the CPU and drawn directly (see the module docs); a hardware
 /// GPU keeps Bevy's default. Must be added after `RenderPlugin` and before `PbrPlugin` ([`default_plugins`] places it);
-/// added later it warns and does nothing.
+/// added later it warns and does nothing. [`KEEP_GPU_PREPROCESSING`] in the environment turns it off.
 pub struct CpuBatchingOnSoftwarePlugin;
 
 impl Plugin for CpuBatchingOnSoftwarePlugin {
     fn build(&self, app: &mut App) {
         // Added after `PbrPlugin`, its mesh plugins have chosen already: turning preprocessing off at the render
         // world's start would leave them building instance data for a GPU pass that no longer runs.
+        if std::env::var_os(KEEP_GPU_PREPROCESSING).is_some_and(|v| !v.is_empty() && v != "0") {
+            debug!("fascicle-render: {KEEP_GPU_PREPROCESSING} set: Bevy's GPU mesh preprocessing kept");
+            return;
+        }
         if app.is_plugin_added::<bevy::pbr::PbrPlugin>() {
             warn!(
                 "fascicle-render: CpuBatchingOnSoftwarePlugin added after PbrPlugin does nothing; use default_plugins()"
@@ -55,6 +59,11 @@ impl Plugin for CpuBatchingOnSoftwarePlugin {
         }
     }
 }
+
+/// An environment variable that, set (not to `0`), keeps Bevy's GPU mesh preprocessing on a software adapter
+/// too: the test suite runs the GPU tests of mesh-drawn layers once more with it, so the path a hardware GPU
+/// takes is tested on lavapipe as well.
+pub const KEEP_GPU_PREPROCESSING: &str = "FASCICLE_GPU_PREPROCESSING";
 
 /// The plugin was added before `PbrPlugin`, so it acts.
 #[derive(Resource, Default)]
