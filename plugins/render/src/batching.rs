@@ -27,12 +27,12 @@ pub struct CpuBatchingOnSoftwarePlugin;
 
 impl Plugin for CpuBatchingOnSoftwarePlugin {
     fn build(&self, app: &mut App) {
-        // Added after `PbrPlugin`, its mesh plugins have chosen already: turning preprocessing off at the render
-        // world's start would leave them building instance data for a GPU pass that no longer runs.
-        if std::env::var_os(KEEP_GPU_PREPROCESSING).is_some_and(|v| !v.is_empty() && v != "0") {
+        if gpu_preprocessing_kept() {
             debug!("fascicle-render: {KEEP_GPU_PREPROCESSING} set: Bevy's GPU mesh preprocessing kept");
             return;
         }
+        // Added after `PbrPlugin`, its mesh plugins have chosen already: turning preprocessing off at the render
+        // world's start would leave them building instance data for a GPU pass that no longer runs.
         if app.is_plugin_added::<bevy::pbr::PbrPlugin>() {
             warn!(
                 "fascicle-render: CpuBatchingOnSoftwarePlugin added after PbrPlugin does nothing; use default_plugins()"
@@ -64,6 +64,11 @@ impl Plugin for CpuBatchingOnSoftwarePlugin {
 /// too: the test suite runs the GPU tests of mesh-drawn layers once more with it, so the path a hardware GPU
 /// takes is tested on lavapipe as well.
 pub const KEEP_GPU_PREPROCESSING: &str = "FASCICLE_GPU_PREPROCESSING";
+
+/// Whether [`KEEP_GPU_PREPROCESSING`] is set (to anything but empty or `0`).
+pub fn gpu_preprocessing_kept() -> bool {
+    std::env::var_os(KEEP_GPU_PREPROCESSING).is_some_and(|v| !v.is_empty() && v != "0")
+}
 
 /// The plugin was added before `PbrPlugin`, so it acts.
 #[derive(Resource, Default)]

@@ -8,7 +8,6 @@ use bevy::camera::ScalingMode;
 use bevy::prelude::*;
 use bevy::render::RenderApp;
 use bevy::render::batching::gpu_preprocessing::{GpuPreprocessingMode, GpuPreprocessingSupport};
-use bevy::render::renderer::RenderAdapterInfo;
 use fascicle_render::headless::{self, Capture};
 
 /// Cells per side of the grid of squares; pixels per cell.
@@ -61,12 +60,10 @@ fn a_software_adapter_builds_instance_data_on_the_cpu_and_each_mesh_draws_as_its
     }));
     let drawn = headless::capture(&mut app, target.clone()).unwrap_or_else(|e| panic!("{e}"));
 
+    let software = app.world().resource::<fascicle_render::AdapterKind>().is_software();
     let render = app.sub_app(RenderApp).world();
-    let software = format!("{:?}", render.resource::<RenderAdapterInfo>().device_type) == "Cpu";
     let support = render.resource::<GpuPreprocessingSupport>();
-    let kept =
-        std::env::var_os(fascicle_render::batching::KEEP_GPU_PREPROCESSING).is_some_and(|v| !v.is_empty() && v != "0");
-    if software && !kept {
+    if software && !fascicle_render::batching::gpu_preprocessing_kept() {
         assert!(support.max_supported_mode == GpuPreprocessingMode::None, "GPU preprocessing on a software adapter");
         assert!(!render.contains_resource::<bevy::pbr::PreprocessPipelines>(), "the preprocessing passes are set up");
     } else {

@@ -1225,6 +1225,18 @@ pub fn selection_words(selected: &[bool]) -> Vec<u8> {
     bytes
 }
 
+/// Writes `selected` into a set's flag buffer ([`selection_words`]), drawn in the frame that writes it
+/// ([`fascicle_render::modify_now`]).
+pub(crate) fn write_flags(
+    buffers: &mut Assets<ShaderBuffer>,
+    events: &mut MessageWriter<AssetEvent<ShaderBuffer>>,
+    flags: &Handle<ShaderBuffer>,
+    selected: &[bool],
+) {
+    let bytes = selection_words(selected);
+    fascicle_render::modify_now(buffers, events, flags, |b| b.data = Some(bytes));
+}
+
 /// What a set's shaders read of its selection (the flag buffer) and, for a set that keeps its streamlines,
 /// the selection target ROIs act on.
 struct Selection {
@@ -1792,11 +1804,8 @@ pub fn apply_rois(
             behind.bypass_change_detection().0 = true;
             continue;
         }
-        let bytes = selection_words(&selection.0);
         // Drawn in this frame: the selection runs after the asset events' flush.
-        if !bytes.is_empty() {
-            fascicle_render::modify_now(&mut buffers, &mut buffer_events, &set.selected, |b| b.data = Some(bytes));
-        }
+        write_flags(&mut buffers, &mut buffer_events, &set.selected, &selection.0);
     }
     stats.evaluations += 1;
     stats.last_ms = t0.elapsed().as_secs_f64() * 1e3;

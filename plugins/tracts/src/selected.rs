@@ -14,7 +14,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::{
     ATTRIBUTE_RGBA8, ATTRIBUTE_STREAMLINE, MeshSet, SetStreamlines, TractSelection, TractSet, compact_line_list,
-    line_list, selection_words,
+    line_list, write_flags,
 };
 
 /// The streamline index a narrowed preview's vertices carry ([`PreviewLines::selected`]): the tract shaders show
@@ -152,10 +152,7 @@ pub fn upload_flags_behind(
         }
         // Not a change the picture shows (the flags' asset is): a retained picture is not kept from coming back.
         behind.bypass_change_detection().0 = false;
-        let bytes = selection_words(&selection.0);
-        if !bytes.is_empty() {
-            fascicle_render::modify_now(&mut buffers, &mut buffer_events, &set.selected, |b| b.data = Some(bytes));
-        }
+        write_flags(&mut buffers, &mut buffer_events, &set.selected, &selection.0);
     }
 }
 
